@@ -1,0 +1,87 @@
+#include "services/common/bus.h"
+
+#include <algorithm>
+#include <cctype>
+#include <random>
+
+namespace stitch::bus {
+
+void CheckAgentName(const std::string& agent) {
+  const bool valid = !agent.empty() && agent.size() <= 32 &&
+                     std::all_of(agent.begin(), agent.end(), [](char c) {
+                       return std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '-';
+                     });
+  if (!valid) {
+    throw Error("agent name '" + agent + "' must be 1-32 letters, digits, '_' or '-' (it prefixes channel names)");
+  }
+}
+
+std::string Channel(const std::string& agent, const char* suffix) {
+  CheckAgentName(agent);
+  return agent + "/" + suffix;
+}
+
+// A 2 MiB receive buffer holds several full frames; the kernel caps it at net.core.rmem_max.
+std::string DefaultLcmUrl() { return "udpm://239.255.76.67:7667?ttl=0&recv_buf_size=2097152"; }
+
+std::string LocalUdpUrl(int port) {
+  return "udpm://239.255.76.67:" + std::to_string(port) + "?ttl=0&recv_buf_size=2097152";
+}
+
+std::unique_ptr<lcm::LCM> OpenLcm(const std::string& url) {
+  auto lcm = std::make_unique<lcm::LCM>(url);
+  if (!lcm->good()) {
+    throw Error("cannot open LCM at '" + url +
+                "': for udpm:// the machine needs a multicast route (on a host without network: "
+                "`ip route add 224.0.0.0/4 dev lo` and `ip link set lo multicast on`), or use memq:// "
+                "for a single process");
+  }
+  return lcm;
+}
+
+Publisher::Publisher(lcm::LCM* lcm, std::string agent) : lcm_(lcm), agent_(std::move(agent)) {
+  CheckAgentName(agent_);
+  std::random_device device;
+  session_ = static_cast<int64_t>((static_cast<uint64_t>(device()) << 31) ^ device() ^ static_cast<uint64_t>(WallUtime())) &
+             0x7fffffffffffffffLL;
+}
+
+Subscriber::Subscriber(lcm::LCM* lcm) : lcm_(lcm) {}
+
+Subscriber::~Subscriber() {
+  for (auto* subscription : subscriptions_) lcm_->unsubscribe(subscription);
+}
+
+void Subscriber::Reject(const std::string& channel, const std::string& why) {
+  const int64_t count = ++rejected_;
+  // At most one line per second, so a flood of garbage cannot flood the log.
+  const int64_t now = WallUtime();
+  int64_t last = last_reject_log_us_.load();
+  if (now - last > 1'000'000 && last_reject_log_us_.compare_exchange_strong(last, now)) {
+    STITCH_LOG(WARNING) << "dropped a message on " << channel << ": it " << why << " (" << count
+                        << " dropped so far)";
+  }
+}
+
+Dispatcher::Dispatcher(lcm::LCM* lcm) : lcm_(lcm) {}
+
+Dispatcher::~Dispatcher() { Stop(); }
+
+void Dispatcher::Start() {
+  if (running_.exchange(true)) return;
+  thread_ = std::thread([this] {
+    while (running_.load()) {
+      if (lcm_->handleTimeout(50) < 0) {
+        STITCH_LOG(ERROR) << "LCM handle failed; the bus is down";
+        std::this_thread::sleep_for(std::chrono::milliseconds(200));
+      }
+    }
+  });
+}
+
+void Dispatcher::Stop() {
+  running_ = false;
+  if (thread_.joinable()) thread_.join();
+}
+
+}  // namespace stitch::bus

@@ -1,0 +1,156 @@
+#pragma once
+// The bus: LCM with stitch's conventions. Channels carry an agent prefix ("uav0/FRAME"); every
+// message starts with a header (agent, sender session, per-channel sequence number, utime).
+//
+// Threading: one Dispatcher thread per LCM instance runs LCM's handle loop and calls the
+// subscription handlers; handlers should only decode-and-enqueue. Publisher is thread-safe.
+// In tests, several services share one `memq://` instance and one Dispatcher.
+
+#include <atomic>
+#include <functional>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <lcm/lcm-cpp.hpp>
+
+#include "stitch/util/error.h"
+#include "stitch/util/log.h"
+#include "stitch/util/time.h"
+
+namespace stitch::bus {
+
+// Channel suffixes.
+inline constexpr char kFrame[] = "FRAME";
+inline constexpr char kFrameAck[] = "FRAME_ACK";
+inline constexpr char kSequence[] = "SEQUENCE";
+inline constexpr char kTrackingStatus[] = "TRACKING_STATUS";
+inline constexpr char kKeyframe[] = "KEYFRAME";
+inline constexpr char kLocalMap[] = "LOCAL_MAP";
+inline constexpr char kSubmap[] = "SUBMAP";
+inline constexpr char kGlobalMap[] = "GLOBAL_MAP";
+inline constexpr char kService[] = "SERVICE";
+
+// "uav0" + "FRAME" -> "uav0/FRAME". Throws stitch::Error for an agent name that is not
+// [A-Za-z0-9_-]{1,32} (channels are regular expressions to LCM).
+std::string Channel(const std::string& agent, const char* suffix);
+void CheckAgentName(const std::string& agent);
+
+// LCM's default multicast group with ttl=0: nothing leaves this machine.
+std::string DefaultLcmUrl();
+// udpm URL on the default group with a given port, ttl=0 (tests and `stitch run` use their own).
+std::string LocalUdpUrl(int port);
+
+// Opens LCM, throwing stitch::Error with what to check when it cannot (no multicast route...).
+std::unique_ptr<lcm::LCM> OpenLcm(const std::string& url);
+
+// Stamps the header of each message and publishes it. Thread-safe.
+class Publisher {
+ public:
+  Publisher(lcm::LCM* lcm, std::string agent);
+
+  template <class Message>
+  void Publish(const std::string& channel, Message* message) {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      message->header.agent = agent_;
+      message->header.sender_session = session_;
+      message->header.seq = next_seq_[channel]++;
+      message->header.utime = WallUtime();
+    }
+    if (lcm_->publish(channel, message) != 0) {
+      STITCH_LOG(WARNING) << "publish on " << channel << " failed (message of "
+                          << message->getEncodedSize() << " bytes)";
+    }
+  }
+  const std::string& agent() const { return agent_; }
+  int64_t session() const { return session_; }
+
+ private:
+  lcm::LCM* lcm_;
+  std::string agent_;
+  int64_t session_;
+  std::mutex mutex_;
+  std::map<std::string, int64_t> next_seq_;
+};
+
+// Owns subscriptions on one LCM instance and unsubscribes them when destroyed (destroy it before
+// the LCM instance, and only while no Dispatcher is running on it).
+//
+// Each message is decoded into a fresh object handed to the handler. A message that does not
+// decode (wrong type fingerprint, truncated, trailing bytes, absurd sizes) or whose header names
+// another agent than its channel is dropped, counted and logged; it never reaches the handler.
+class Subscriber {
+ public:
+  explicit Subscriber(lcm::LCM* lcm);
+  ~Subscriber();
+  Subscriber(const Subscriber&) = delete;
+  Subscriber& operator=(const Subscriber&) = delete;
+
+  template <class Message>
+  void Subscribe(const std::string& channel,
+                 std::function<void(std::unique_ptr<Message>, const std::string& channel)> handler) {
+    const std::string expected_agent = channel.substr(0, channel.find('/'));
+    auto raw = std::make_unique<RawHandler>([this, handler, expected_agent](const lcm::ReceiveBuffer* buffer,
+                                                                            const std::string& on) {
+      auto message = std::make_unique<Message>();
+      std::string why;
+      try {
+        const int used = message->decode(buffer->data, 0, static_cast<int>(buffer->data_size));
+        if (used < 0) {
+          why = "does not decode as " + std::string(Message::getTypeName()) + " (wrong type or truncated)";
+        } else if (static_cast<uint32_t>(used) != buffer->data_size) {
+          why = "has " + std::to_string(buffer->data_size - used) + " bytes after the message";
+        } else if (message->header.agent != expected_agent) {
+          why = "header names agent '" + message->header.agent + "'";
+        }
+      } catch (const std::exception& e) {
+        why = std::string("could not be decoded: ") + e.what();
+      }
+      if (!why.empty()) {
+        Reject(on, why);
+        return;
+      }
+      handler(std::move(message), on);
+    });
+    subscriptions_.push_back(lcm_->subscribe(channel, &RawHandler::OnMessage, raw.get()));
+    handlers_.push_back(std::move(raw));
+  }
+
+  // Messages dropped as malformed or foreign so far.
+  int64_t rejected() const { return rejected_.load(); }
+
+ private:
+  struct RawHandler {
+    explicit RawHandler(std::function<void(const lcm::ReceiveBuffer*, const std::string&)> f)
+        : function(std::move(f)) {}
+    void OnMessage(const lcm::ReceiveBuffer* buffer, const std::string& channel) { function(buffer, channel); }
+    std::function<void(const lcm::ReceiveBuffer*, const std::string&)> function;
+  };
+  void Reject(const std::string& channel, const std::string& why);
+
+  lcm::LCM* lcm_;
+  std::vector<lcm::Subscription*> subscriptions_;
+  std::vector<std::unique_ptr<RawHandler>> handlers_;
+  std::atomic<int64_t> rejected_{0};
+  std::atomic<int64_t> last_reject_log_us_{0};
+};
+
+// Runs LCM's handle loop in its own thread until stopped or destroyed.
+class Dispatcher {
+ public:
+  explicit Dispatcher(lcm::LCM* lcm);
+  ~Dispatcher();
+  void Start();
+  void Stop();
+
+ private:
+  lcm::LCM* lcm_;
+  std::atomic<bool> running_{false};
+  std::thread thread_;
+};
+
+}  // namespace stitch::bus

@@ -1,0 +1,121 @@
+// Publishing and subscribing through the bus helpers, in-process (memq) and over UDP multicast.
+
+#include "services/common/bus.h"
+
+#include <condition_variable>
+#include <unistd.h>
+
+#include <gtest/gtest.h>
+
+#include "stitch/frame_ack_t.hpp"
+#include "stitch/tracking_status_t.hpp"
+
+namespace stitch::bus {
+namespace {
+
+using namespace std::chrono_literals;
+
+// Collects received acks for the test to wait on.
+struct Inbox {
+  std::mutex mutex;
+  std::condition_variable changed;
+  std::vector<stitch::frame_ack_t> acks;
+
+  void Add(std::unique_ptr<stitch::frame_ack_t> ack) {
+    std::lock_guard<std::mutex> lock(mutex);
+    acks.push_back(*ack);
+    changed.notify_all();
+  }
+  bool WaitFor(size_t count, std::chrono::milliseconds timeout) {
+    std::unique_lock<std::mutex> lock(mutex);
+    return changed.wait_for(lock, timeout, [&] { return acks.size() >= count; });
+  }
+};
+
+void PublishAndReceive(const std::string& url) {
+  auto lcm = OpenLcm(url);
+  Inbox inbox;
+  Subscriber subscriber(lcm.get());
+  subscriber.Subscribe<stitch::frame_ack_t>(Channel("uav3", kFrameAck),
+                                            [&](std::unique_ptr<stitch::frame_ack_t> ack, const std::string&) {
+                                              inbox.Add(std::move(ack));
+                                            });
+  Dispatcher dispatcher(lcm.get());
+  dispatcher.Start();
+  Publisher publisher(lcm.get(), "uav3");
+  for (int i = 0; i < 3; ++i) {
+    stitch::frame_ack_t ack;
+    ack.frame_index = 10 + i;
+    publisher.Publish(Channel("uav3", kFrameAck), &ack);
+  }
+  ASSERT_TRUE(inbox.WaitFor(3, 2000ms)) << "received " << inbox.acks.size() << " of 3 on " << url;
+  dispatcher.Stop();
+  for (int i = 0; i < 3; ++i) {
+    EXPECT_EQ(inbox.acks[i].frame_index, 10 + i);
+    EXPECT_EQ(inbox.acks[i].header.seq, i);
+    EXPECT_EQ(inbox.acks[i].header.agent, "uav3");
+    EXPECT_EQ(inbox.acks[i].header.sender_session, publisher.session());
+    EXPECT_GT(inbox.acks[i].header.utime, 0);
+  }
+  EXPECT_EQ(subscriber.rejected(), 0);
+}
+
+TEST(Bus, PublishesAndReceivesInProcess) { PublishAndReceive("memq://"); }
+
+TEST(Bus, PublishesAndReceivesOverUdpMulticast) {
+  // A port of this test's own (ttl=0 keeps it on this machine).
+  PublishAndReceive(LocalUdpUrl(7800 + getpid() % 150));
+}
+
+TEST(Bus, MalformedAndForeignMessagesNeverReachTheHandler) {
+  auto lcm = OpenLcm("memq://");
+  Inbox inbox;
+  Subscriber subscriber(lcm.get());
+  const std::string channel = Channel("uav3", kFrameAck);
+  subscriber.Subscribe<stitch::frame_ack_t>(channel, [&](std::unique_ptr<stitch::frame_ack_t> ack, const std::string&) {
+    inbox.Add(std::move(ack));
+  });
+  Dispatcher dispatcher(lcm.get());
+  dispatcher.Start();
+
+  stitch::frame_ack_t ack;
+  ack.header.agent = "uav3";
+  ack.frame_index = 1;
+  std::vector<uint8_t> bytes(ack.getEncodedSize());
+  ack.encode(bytes.data(), 0, static_cast<int>(bytes.size()));
+  // Truncated.
+  lcm->publish(channel, bytes.data(), static_cast<unsigned>(bytes.size() - 3));
+  // Trailing garbage.
+  std::vector<uint8_t> longer = bytes;
+  longer.push_back(0);
+  lcm->publish(channel, longer.data(), static_cast<unsigned>(longer.size()));
+  // Another type on this channel.
+  stitch::tracking_status_t status;
+  status.header.agent = "uav3";
+  lcm->publish(channel, &status);
+  // Random bytes.
+  std::vector<uint8_t> noise(64, 0xAB);
+  lcm->publish(channel, noise.data(), static_cast<unsigned>(noise.size()));
+  // Another agent's message on our channel.
+  stitch::frame_ack_t foreign = ack;
+  foreign.header.agent = "intruder";
+  lcm->publish(channel, &foreign);
+  // Finally a good one, which must arrive.
+  lcm->publish(channel, &ack);
+
+  ASSERT_TRUE(inbox.WaitFor(1, 2000ms));
+  std::this_thread::sleep_for(100ms);
+  dispatcher.Stop();
+  EXPECT_EQ(inbox.acks.size(), 1u);
+  EXPECT_EQ(subscriber.rejected(), 5);
+}
+
+TEST(Bus, AgentNamesAreChecked) {
+  EXPECT_EQ(Channel("uav0", kFrame), "uav0/FRAME");
+  EXPECT_THROW(Channel("uav 0", kFrame), Error);
+  EXPECT_THROW(Channel("", kFrame), Error);
+  EXPECT_THROW(Channel("a.*", kFrame), Error);
+}
+
+}  // namespace
+}  // namespace stitch::bus

@@ -1,0 +1,130 @@
+#include "services/common/convert.h"
+
+#include <opencv2/imgcodecs.hpp>
+
+#include "stitch/util/error.h"
+
+namespace stitch {
+
+stitch::camera_t ToMessage(const Camera& camera) {
+  stitch::camera_t message;
+  message.model = camera.model() == CameraModel::kPinholeRadTan ? stitch::camera_t::MODEL_PINHOLE_RADTAN
+                                                                : stitch::camera_t::MODEL_FISHEYE;
+  message.width = camera.width();
+  message.height = camera.height();
+  message.params = camera.params();
+  message.num_params = static_cast<int8_t>(message.params.size());
+  return message;
+}
+
+Camera FromMessage(const stitch::camera_t& message) {
+  CameraModel model;
+  if (message.model == stitch::camera_t::MODEL_PINHOLE_RADTAN) {
+    model = CameraModel::kPinholeRadTan;
+  } else if (message.model == stitch::camera_t::MODEL_FISHEYE) {
+    model = CameraModel::kFisheye;
+  } else {
+    throw Error("camera message: unknown model " + std::to_string(message.model));
+  }
+  return Camera(model, message.width, message.height, message.params);
+}
+
+namespace {
+
+void QuaternionToWxyz(const Eigen::Quaterniond& q, double* wxyz) {
+  wxyz[0] = q.w();
+  wxyz[1] = q.x();
+  wxyz[2] = q.y();
+  wxyz[3] = q.z();
+}
+
+// Throws stitch::Error for a quaternion far from unit length (a corrupt message).
+Eigen::Quaterniond WxyzToQuaternion(const double* wxyz, const char* type) {
+  const Eigen::Quaterniond q(wxyz[0], wxyz[1], wxyz[2], wxyz[3]);
+  if (!(q.norm() > 0.5 && q.norm() < 1.5)) throw Error(std::string(type) + " message: rotation is not a unit quaternion");
+  return q.normalized();
+}
+
+}  // namespace
+
+stitch::rigid3_t ToMessage(const Rigid3d& transform) {
+  stitch::rigid3_t message;
+  QuaternionToWxyz(transform.rotation, message.rotation_wxyz);
+  for (int i = 0; i < 3; ++i) message.translation[i] = transform.translation[i];
+  return message;
+}
+
+Rigid3d FromMessage(const stitch::rigid3_t& message) {
+  return Rigid3d(WxyzToQuaternion(message.rotation_wxyz, "rigid3"), Eigen::Map<const Eigen::Vector3d>(message.translation));
+}
+
+stitch::sim3_t ToMessage(const Sim3d& transform) {
+  stitch::sim3_t message;
+  message.scale = transform.scale;
+  QuaternionToWxyz(transform.rotation, message.rotation_wxyz);
+  for (int i = 0; i < 3; ++i) message.translation[i] = transform.translation[i];
+  return message;
+}
+
+Sim3d FromMessage(const stitch::sim3_t& message) {
+  if (!(message.scale > 0 && std::isfinite(message.scale))) throw Error("sim3 message: scale is not positive");
+  return Sim3d(message.scale, WxyzToQuaternion(message.rotation_wxyz, "sim3"),
+               Eigen::Map<const Eigen::Vector3d>(message.translation));
+}
+
+ImageEncoding ParseImageEncoding(const std::string& name) {
+  if (name == "gray8") return ImageEncoding::kGray8;
+  if (name == "jpeg") return ImageEncoding::kJpeg;
+  throw Error("image encoding '" + name + "' is not one of gray8, jpeg");
+}
+
+void EncodeImage(const cv::Mat& gray, ImageEncoding encoding, int jpeg_quality, stitch::frame_t* frame) {
+  if (gray.type() != CV_8UC1) throw Error("EncodeImage: expected an 8-bit single-channel image");
+  frame->width = gray.cols;
+  frame->height = gray.rows;
+  if (encoding == ImageEncoding::kGray8) {
+    frame->encoding = stitch::frame_t::ENCODING_GRAY8;
+    const cv::Mat continuous = gray.isContinuous() ? gray : gray.clone();
+    frame->data.assign(continuous.data, continuous.data + continuous.total());
+  } else {
+    frame->encoding = stitch::frame_t::ENCODING_JPEG;
+    if (!cv::imencode(".jpg", gray, frame->data, {cv::IMWRITE_JPEG_QUALITY, jpeg_quality})) {
+      throw Error("EncodeImage: JPEG encoding failed");
+    }
+  }
+  frame->num_bytes = static_cast<int32_t>(frame->data.size());
+}
+
+cv::Mat DecodeImage(const stitch::frame_t& frame) {
+  if (frame.width <= 0 || frame.height <= 0 || frame.width > 16384 || frame.height > 16384) {
+    throw Error("frame " + std::to_string(frame.frame_index) + ": image size " + std::to_string(frame.width) + "x" +
+                std::to_string(frame.height) + " is not plausible");
+  }
+  if (frame.encoding == stitch::frame_t::ENCODING_GRAY8) {
+    const int64_t expected = static_cast<int64_t>(frame.width) * frame.height;
+    if (static_cast<int64_t>(frame.data.size()) != expected) {
+      throw Error("frame " + std::to_string(frame.frame_index) + ": " + std::to_string(frame.data.size()) +
+                  " bytes for a " + std::to_string(frame.width) + "x" + std::to_string(frame.height) +
+                  " gray8 image (expected " + std::to_string(expected) + ")");
+    }
+    return cv::Mat(frame.height, frame.width, CV_8UC1, const_cast<uint8_t*>(frame.data.data())).clone();
+  }
+  if (frame.encoding == stitch::frame_t::ENCODING_JPEG) {
+    cv::Mat image;
+    try {
+      image = cv::imdecode(frame.data, cv::IMREAD_GRAYSCALE);
+    } catch (const cv::Exception&) {
+      image.release();
+    }
+    if (image.empty()) throw Error("frame " + std::to_string(frame.frame_index) + ": JPEG data does not decode");
+    if (image.cols != frame.width || image.rows != frame.height) {
+      throw Error("frame " + std::to_string(frame.frame_index) + ": JPEG is " + std::to_string(image.cols) + "x" +
+                  std::to_string(image.rows) + " but the frame says " + std::to_string(frame.width) + "x" +
+                  std::to_string(frame.height));
+    }
+    return image;
+  }
+  throw Error("frame " + std::to_string(frame.frame_index) + ": unknown encoding " + std::to_string(frame.encoding));
+}
+
+}  // namespace stitch

@@ -1,0 +1,34 @@
+#pragma once
+// Translation between core types and LCM messages. The SLAM core never sees LCM types.
+
+#include <opencv2/core.hpp>
+
+#include "stitch/camera_t.hpp"
+#include "stitch/frame_t.hpp"
+#include "stitch/geometry/camera.h"
+#include "stitch/geometry/rigid3.h"
+#include "stitch/rigid3_t.hpp"
+#include "stitch/sim3_t.hpp"
+
+namespace stitch {
+
+stitch::camera_t ToMessage(const Camera& camera);
+// Throws stitch::Error when the message does not describe a usable camera.
+Camera FromMessage(const stitch::camera_t& message);
+
+stitch::rigid3_t ToMessage(const Rigid3d& transform);
+Rigid3d FromMessage(const stitch::rigid3_t& message);
+stitch::sim3_t ToMessage(const Sim3d& transform);
+Sim3d FromMessage(const stitch::sim3_t& message);
+
+enum class ImageEncoding { kGray8, kJpeg };
+// Parses "gray8" or "jpeg"; throws stitch::Error otherwise.
+ImageEncoding ParseImageEncoding(const std::string& name);
+
+// Fills encoding, width, height and data of `frame` from a CV_8UC1 image.
+void EncodeImage(const cv::Mat& gray, ImageEncoding encoding, int jpeg_quality, stitch::frame_t* frame);
+// The frame's image as CV_8UC1. Throws stitch::Error saying what is wrong with a frame whose
+// bytes do not make the image it claims (size mismatch, undecodable JPEG, unknown encoding).
+cv::Mat DecodeImage(const stitch::frame_t& frame);
+
+}  // namespace stitch

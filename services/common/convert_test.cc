@@ -1,0 +1,71 @@
+#include "services/common/convert.h"
+
+#include <gtest/gtest.h>
+#include <opencv2/imgproc.hpp>
+
+#include "stitch/util/error.h"
+
+namespace stitch {
+namespace {
+
+TEST(Convert, CameraRoundTrips) {
+  const Camera camera = Camera::Pinhole(752, 480, 458.654, 457.296, 367.215, 248.375, -0.28, 0.07, 0.0002, 1.7e-5);
+  const Camera back = FromMessage(ToMessage(camera));
+  EXPECT_EQ(back.params(), camera.params());
+  EXPECT_EQ(back.width(), 752);
+  stitch::camera_t broken = ToMessage(camera);
+  broken.params[0] = -1;
+  EXPECT_THROW(FromMessage(broken), Error);
+  broken = ToMessage(camera);
+  broken.model = 9;
+  EXPECT_THROW(FromMessage(broken), Error);
+}
+
+TEST(Convert, TransformsRoundTrip) {
+  const Rigid3d r(Eigen::Quaterniond(Eigen::AngleAxisd(0.5, Eigen::Vector3d(1, 1, 0).normalized())), Eigen::Vector3d(1, 2, 3));
+  const Rigid3d r_back = FromMessage(ToMessage(r));
+  EXPECT_NEAR(r_back.rotation.angularDistance(r.rotation), 0, 1e-12);
+  EXPECT_EQ(r_back.translation, r.translation);
+  const Sim3d s(3.0, r.rotation, r.translation);
+  EXPECT_DOUBLE_EQ(FromMessage(ToMessage(s)).scale, 3.0);
+  stitch::rigid3_t zero{};
+  EXPECT_THROW(FromMessage(zero), Error);
+}
+
+TEST(Convert, ImagesRoundTripInBothEncodings) {
+  cv::Mat image(48, 64, CV_8U);
+  cv::randu(image, 0, 255);
+  cv::GaussianBlur(image, image, cv::Size(5, 5), 1.5);
+  stitch::frame_t frame;
+  EncodeImage(image, ImageEncoding::kGray8, 90, &frame);
+  EXPECT_EQ(frame.num_bytes, 48 * 64);
+  EXPECT_EQ(cv::norm(DecodeImage(frame), image, cv::NORM_INF), 0);
+  EncodeImage(image, ImageEncoding::kJpeg, 95, &frame);
+  EXPECT_LT(frame.num_bytes, 48 * 64);
+  EXPECT_LT(cv::norm(DecodeImage(frame), image, cv::NORM_L1) / image.total(), 3.0);
+}
+
+TEST(Convert, MalformedFramesAreRejectedWithAReason) {
+  cv::Mat image(48, 64, CV_8U, cv::Scalar(7));
+  stitch::frame_t frame;
+  EncodeImage(image, ImageEncoding::kGray8, 90, &frame);
+  frame.data.pop_back();
+  frame.num_bytes--;
+  try {
+    DecodeImage(frame);
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("3071 bytes"), std::string::npos) << e.what();
+  }
+  EncodeImage(image, ImageEncoding::kJpeg, 90, &frame);
+  frame.data.resize(20);
+  frame.num_bytes = 20;
+  EXPECT_THROW(DecodeImage(frame), Error);
+  frame.encoding = 42;
+  EXPECT_THROW(DecodeImage(frame), Error);
+  frame.width = -3;
+  EXPECT_THROW(DecodeImage(frame), Error);
+}
+
+}  // namespace
+}  // namespace stitch

@@ -1,0 +1,34 @@
+#pragma once
+// The whole configuration of a stitch deployment, one section per module, loaded in one place.
+// A YAML file may set any subset; unknown keys are errors; the resolved configuration is written
+// to each run's folder (config.yaml). `stitch config` prints the defaults with their help.
+
+#include <string>
+
+#include "services/ingest/ingest_options.h"
+#include "services/tracker/tracker_options.h"
+#include "stitch/synthetic/synthetic_sequence.h"
+
+namespace stitch {
+
+struct StitchConfig {
+  SyntheticOptions synthetic;
+  IngestOptions ingest;
+  TrackerOptions tracker;
+
+  template <class Visitor>
+  void VisitFields(Visitor& v) {
+    v("synthetic", synthetic, "the embedded default flight");
+    v("ingest", ingest, "frame source service");
+    v("tracker", tracker, "tracking service");
+  }
+  bool Check(std::string* why) const {
+    return synthetic.Check(why) && ingest.Check(why) && tracker.Check(why);
+  }
+};
+
+// Defaults when `path` is empty. Throws stitch::Error naming the file and key on any problem.
+StitchConfig LoadStitchConfig(const std::string& path);
+void SaveStitchConfig(const StitchConfig& config, const std::string& path);
+
+}  // namespace stitch

@@ -1,0 +1,61 @@
+#include "services/config/stitch_config.h"
+
+#include <fstream>
+#include <sstream>
+
+#include <gtest/gtest.h>
+
+#include "stitch/testing/temp_dir.h"
+#include "stitch/util/options.h"
+
+namespace stitch {
+namespace {
+
+TEST(StitchConfig, PartialFileOverridesDefaults) {
+  testing::TempDir dir;
+  std::ofstream(dir / "run.yaml") << "ingest:\n  pacing: realtime\nsynthetic:\n  flight:\n    num_frames: 200\n";
+  const StitchConfig config = LoadStitchConfig(dir / "run.yaml");
+  EXPECT_EQ(config.ingest.pacing, "realtime");
+  EXPECT_EQ(config.synthetic.flight.num_frames, 200);
+  EXPECT_EQ(config.tracker.on_loss, "submap");
+}
+
+TEST(StitchConfig, TyposAndBadValuesAreErrors) {
+  testing::TempDir dir;
+  std::ofstream(dir / "typo.yaml") << "ingest:\n  pacnig: realtime\n";
+  EXPECT_THROW(LoadStitchConfig(dir / "typo.yaml"), Error);
+  std::ofstream(dir / "bad.yaml") << "tracker:\n  on_loss: panic\n";
+  try {
+    LoadStitchConfig(dir / "bad.yaml");
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("on_loss"), std::string::npos) << e.what();
+  }
+  std::ofstream(dir / "section.yaml") << "mystery:\n  a: 1\n";
+  EXPECT_THROW(LoadStitchConfig(dir / "section.yaml"), Error);
+}
+
+TEST(StitchConfig, SavedConfigLoadsBackIdentically) {
+  testing::TempDir dir;
+  StitchConfig config;
+  config.synthetic.seed = 9;
+  config.ingest.encoding = "jpeg";
+  SaveStitchConfig(config, dir / "saved.yaml");
+  const StitchConfig back = LoadStitchConfig(dir / "saved.yaml");
+  EXPECT_EQ(back.synthetic.seed, 9);
+  EXPECT_EQ(back.ingest.encoding, "jpeg");
+  EXPECT_EQ(DumpOptions(back), DumpOptions(config));
+}
+
+TEST(StitchConfig, CommittedDefaultFileMatchesTheCode) {
+  // config/default.yaml documents every setting; it must not drift from the code.
+  std::ifstream in(std::string(STITCH_SOURCE_DIR) + "/config/default.yaml");
+  ASSERT_TRUE(in) << "config/default.yaml is missing (regenerate: build/bin/stitch config > config/default.yaml)";
+  std::stringstream text;
+  text << in.rdbuf();
+  EXPECT_NE(text.str().find(DumpOptions(StitchConfig())), std::string::npos)
+      << "config/default.yaml is out of date: regenerate it with build/bin/stitch config > config/default.yaml";
+}
+
+}  // namespace
+}  // namespace stitch

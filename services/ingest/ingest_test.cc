@@ -1,0 +1,284 @@
+// The ingest service against a real tracker service and plain subscribers, in-process over
+// memq:// and over UDP multicast.
+
+#include "services/ingest/ingest.h"
+
+#include <fstream>
+#include <unistd.h>
+
+#include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
+
+#include "services/common/convert.h"
+#include "services/tracker/tracker_service.h"
+#include "stitch/source/source.h"
+#include "stitch/testing/temp_dir.h"
+#include "stitch/frame_ack_t.hpp"
+#include "stitch/tracking_status_t.hpp"
+
+namespace stitch {
+namespace {
+
+using namespace std::chrono_literals;
+
+SourceSpec ShortFlight(int frames) {
+  SourceSpec spec;
+  spec.synthetic.width = 320;
+  spec.synthetic.height = 240;
+  spec.synthetic.focal_px = 225;
+  spec.synthetic.flight.num_frames = frames;
+  spec.synthetic.flight.num_strips = 1;
+  spec.synthetic.flight.strip_length_m = 40;
+  spec.synthetic.world.num_buildings = 5;
+  spec.failures = "none";
+  return spec;
+}
+
+// Receives frames (decoded) and tracking statuses.
+struct Recorder {
+  std::mutex mutex;
+  std::map<int, cv::Mat> frames;
+  std::vector<stitch::tracking_status_t> statuses;
+  int frame_messages = 0;
+
+  void Subscribe(bus::Subscriber* subscriber, const std::string& agent) {
+    subscriber->Subscribe<stitch::frame_t>(bus::Channel(agent, bus::kFrame),
+                                           [this](std::unique_ptr<stitch::frame_t> f, const std::string&) {
+                                             std::lock_guard<std::mutex> lock(mutex);
+                                             ++frame_messages;
+                                             if (f->num_bytes > 0) frames[f->frame_index] = DecodeImage(*f);
+                                           });
+    subscriber->Subscribe<stitch::tracking_status_t>(
+        bus::Channel(agent, bus::kTrackingStatus), [this](std::unique_ptr<stitch::tracking_status_t> s, const std::string&) {
+          std::lock_guard<std::mutex> lock(mutex);
+          statuses.push_back(*s);
+        });
+  }
+};
+
+IngestOptions Lockstep() {
+  IngestOptions options;
+  options.pacing = "lockstep";
+  options.wait_for_tracker_s = 5;
+  return options;
+}
+
+// Ingest, a real tracker service and a recorder on one memq:// bus, as in a single process.
+struct InProcessRun {
+  explicit InProcessRun(const IngestOptions& options, const std::string& record_path = "")
+      : lcm(bus::OpenLcm("memq://")),
+        publisher(lcm.get(), "uav0"),
+        ingest(lcm.get(), "memq://", &publisher, options),
+        tracker(lcm.get(), &publisher, TrackerOptions(), record_path),
+        subscriber(lcm.get()),
+        dispatcher(lcm.get()) {
+    recorder.Subscribe(&subscriber, "uav0");
+  }
+
+  IngestSummary Play(const SourceSpec& spec) {
+    dispatcher.Start();
+    tracker.Start();
+    FailureSchedule spoil;
+    auto sequence = OpenSource(spec, &spoil);
+    std::atomic<bool> stop{false};
+    const IngestSummary summary = ingest.Play(*sequence, spoil, stop);
+    tracker.Stop();
+    dispatcher.Stop();
+    return summary;
+  }
+
+  std::unique_ptr<lcm::LCM> lcm;
+  bus::Publisher publisher;
+  IngestService ingest;
+  TrackerService tracker;
+  Recorder recorder;
+  bus::Subscriber subscriber;
+  bus::Dispatcher dispatcher;
+};
+
+// An image folder of `count` frames (160x120) with a calibration, for dataset tests.
+std::string ImageFolder(const testing::TempDir& dir, int count, bool random_texture) {
+  std::filesystem::create_directories(dir.path() / "images");
+  for (int i = 0; i < count; ++i) {
+    cv::Mat image(120, 160, CV_8U, cv::Scalar(50 * i));
+    if (random_texture) cv::randu(image, 0, 255);
+    cv::imwrite(dir / ("images/" + std::to_string(i) + ".png"), image);
+  }
+  std::ofstream(dir / "images/camera.yaml") << "Camera.fx: 150\nCamera.fy: 150\nCamera.cx: 79.5\nCamera.cy: 59.5\n";
+  return dir / "images";
+}
+
+TEST(Ingest, LockstepWithTheTrackerDeliversEveryFrameOnceInProcess) {
+  testing::TempDir dir;
+  InProcessRun run(Lockstep(), dir / "frames.tsv");
+  const IngestSummary summary = run.Play(ShortFlight(15));
+  Recorder& recorder = run.recorder;
+  TrackerService& tracker = run.tracker;
+
+  EXPECT_EQ(summary.frames_published, 15);
+  EXPECT_EQ(summary.frames_unacked, 0);
+  EXPECT_EQ(tracker.frames_tracked(), 15);
+  ASSERT_EQ(recorder.statuses.size(), 15u);
+  for (int i = 0; i < 15; ++i) {
+    EXPECT_EQ(recorder.statuses[i].frame_index, i);
+    EXPECT_EQ(recorder.statuses[i].reason, stitch::tracking_status_t::REASON_NO_TRACKER);
+  }
+  // Every frame arrived as rendered.
+  FailureSchedule spoil;
+  auto again = OpenSource(ShortFlight(15), &spoil);
+  SequenceFrame frame;
+  while (again->Next(&frame)) {
+    ASSERT_TRUE(recorder.frames.count(frame.index));
+    EXPECT_EQ(cv::norm(recorder.frames[frame.index], frame.image, cv::NORM_INF), 0) << frame.index;
+  }
+  // The tracker's record has a line per frame.
+  std::ifstream record(dir / "frames.tsv");
+  std::string line;
+  int lines = 0;
+  while (std::getline(record, line)) lines += line[0] != '#';
+  EXPECT_EQ(lines, 15);
+}
+
+TEST(Ingest, RealtimeOverUdpMulticastPublishesAtTheCameraRate) {
+  const std::string url = bus::LocalUdpUrl(7950 + getpid() % 40);
+  auto lcm = bus::OpenLcm(url);
+  bus::Publisher publisher(lcm.get(), "uav1");
+  IngestOptions options;
+  options.pacing = "realtime";
+  options.speed = 4.0;  // 20 Hz flight played at 80 Hz
+  options.encoding = "jpeg";
+  IngestService ingest(lcm.get(), url, &publisher, options);
+  Recorder recorder;
+  bus::Subscriber subscriber(lcm.get());
+  recorder.Subscribe(&subscriber, "uav1");
+  bus::Dispatcher dispatcher(lcm.get());
+  dispatcher.Start();
+  FailureSchedule spoil;
+  auto sequence = OpenSource(ShortFlight(20), &spoil);
+  std::atomic<bool> stop{false};
+  const IngestSummary summary = ingest.Play(*sequence, spoil, stop);
+  std::this_thread::sleep_for(200ms);
+  dispatcher.Stop();
+  EXPECT_EQ(summary.frames_published, 20);
+  // 19 frame intervals of 50 ms at 4x speed: about 0.24 s, never less.
+  EXPECT_GE(summary.seconds, 0.23);
+  EXPECT_LT(summary.seconds, 2.0);
+  EXPECT_GE(recorder.frames.size(), 18u) << "frames lost on loopback multicast";
+}
+
+TEST(Ingest, FailureScheduleSpoilsExactlyTheScheduledDatasetFrames) {
+  testing::TempDir dir;
+  SourceSpec spec;
+  spec.dataset_path = ImageFolder(dir, 6, true);
+  spec.failures = "2:2";
+  IngestOptions options = Lockstep();
+  options.failure_style = "black";
+  InProcessRun run(options);
+  const IngestSummary summary = run.Play(spec);
+  Recorder& recorder = run.recorder;
+  EXPECT_EQ(summary.frames_replaced, 2);
+  ASSERT_EQ(recorder.frames.size(), 6u);
+  for (int i = 0; i < 6; ++i) {
+    const bool black = cv::countNonZero(recorder.frames[i]) == 0;
+    EXPECT_EQ(black, i == 2 || i == 3) << "frame " << i;
+  }
+}
+
+TEST(Ingest, UnreadableFramesAreSentEmptyAndReportedByTheTracker) {
+  testing::TempDir dir;
+  SourceSpec spec;
+  spec.dataset_path = ImageFolder(dir, 3, false);
+  std::ofstream(dir / "images/1.png") << "garbage";
+  InProcessRun run(Lockstep());
+  const IngestSummary summary = run.Play(spec);
+  Recorder& recorder = run.recorder;
+  EXPECT_EQ(summary.frames_unreadable, 1);
+  ASSERT_EQ(recorder.statuses.size(), 3u);
+  EXPECT_EQ(recorder.statuses[1].reason, stitch::tracking_status_t::REASON_UNDECODABLE_FRAME);
+  EXPECT_EQ(recorder.statuses[1].state, stitch::tracking_status_t::STATE_SKIPPED);
+}
+
+TEST(Ingest, LockstepWithoutATrackerFailsWithAClearError) {
+  auto lcm = bus::OpenLcm("memq://");
+  bus::Publisher publisher(lcm.get(), "uav0");
+  IngestOptions options = Lockstep();
+  options.wait_for_tracker_s = 0.2;
+  IngestService ingest(lcm.get(), "memq://", &publisher, options);
+  bus::Dispatcher dispatcher(lcm.get());
+  dispatcher.Start();
+  FailureSchedule spoil;
+  auto sequence = OpenSource(ShortFlight(3), &spoil);
+  std::atomic<bool> stop{false};
+  try {
+    ingest.Play(*sequence, spoil, stop);
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("no tracker"), std::string::npos) << e.what();
+  }
+}
+
+TEST(Ingest, LostAcksAreRecoveredByResending) {
+  // A tracker stand-in that ignores the first copy of every frame, as if its ack had been lost.
+  auto lcm = bus::OpenLcm("memq://");
+  bus::Publisher publisher(lcm.get(), "uav0");
+  IngestOptions options = Lockstep();
+  options.ack_timeout_s = 0.05;
+  IngestService ingest(lcm.get(), "memq://", &publisher, options);
+  std::map<int, int> copies;
+  bus::Subscriber subscriber(lcm.get());
+  subscriber.Subscribe<stitch::frame_t>(bus::Channel("uav0", bus::kFrame),
+                                        [&](std::unique_ptr<stitch::frame_t> f, const std::string&) {
+                                          if (++copies[f->frame_index] < 2) return;
+                                          stitch::frame_ack_t ack;
+                                          ack.frame_index = f->frame_index;
+                                          publisher.Publish(bus::Channel("uav0", bus::kFrameAck), &ack);
+                                        });
+  Heartbeat heartbeat(&publisher, "tracker", [] { return Heartbeat::Counts{}; });
+  bus::Dispatcher dispatcher(lcm.get());
+  dispatcher.Start();
+  heartbeat.Start();
+  heartbeat.SetState(stitch::service_status_t::STATE_RUNNING);
+  FailureSchedule spoil;
+  auto sequence = OpenSource(ShortFlight(4), &spoil);
+  std::atomic<bool> stop{false};
+  const IngestSummary summary = ingest.Play(*sequence, spoil, stop);
+  heartbeat.Stop();
+  dispatcher.Stop();
+  EXPECT_EQ(summary.frames_published, 4);
+  EXPECT_EQ(summary.resends, 4);
+  EXPECT_EQ(summary.frames_unacked, 0);
+}
+
+TEST(Tracker, DuplicateFramesAreAckedAgainButTrackedOnce) {
+  auto lcm = bus::OpenLcm("memq://");
+  bus::Publisher publisher(lcm.get(), "uav0");
+  TrackerService tracker(lcm.get(), &publisher, TrackerOptions(), "");
+  int acks = 0;
+  std::mutex mutex;
+  bus::Subscriber subscriber(lcm.get());
+  subscriber.Subscribe<stitch::frame_ack_t>(bus::Channel("uav0", bus::kFrameAck),
+                                            [&](std::unique_ptr<stitch::frame_ack_t>, const std::string&) {
+                                              std::lock_guard<std::mutex> lock(mutex);
+                                              ++acks;
+                                            });
+  bus::Dispatcher dispatcher(lcm.get());
+  dispatcher.Start();
+  tracker.Start();
+  stitch::frame_t frame;
+  frame.camera = ToMessage(Camera::Pinhole(64, 48, 50, 50, 31.5, 23.5));
+  EncodeImage(cv::Mat(48, 64, CV_8U, cv::Scalar(9)), ImageEncoding::kGray8, 90, &frame);
+  for (int index : {0, 1, 1, 2, 1}) {  // a re-send of 1, then a late copy of 1
+    frame.frame_index = index;
+    publisher.Publish(bus::Channel("uav0", bus::kFrame), &frame);
+    std::this_thread::sleep_for(30ms);
+  }
+  std::this_thread::sleep_for(100ms);
+  tracker.Stop();
+  dispatcher.Stop();
+  EXPECT_EQ(tracker.frames_tracked(), 3);
+  std::lock_guard<std::mutex> lock(mutex);
+  EXPECT_EQ(acks, 5);
+}
+
+}  // namespace
+}  // namespace stitch

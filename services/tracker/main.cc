@@ -1,0 +1,43 @@
+// stitch-tracker: tracks each frame from <agent>/FRAME and publishes poses and keyframes.
+
+#include <cstdio>
+#include <thread>
+
+#include "services/common/bus.h"
+#include "services/common/service.h"
+#include "services/config/stitch_config.h"
+#include "services/tracker/tracker_service.h"
+
+int main(int argc, char** argv) {
+  using namespace stitch;
+  ServiceCommandLine common;
+  std::string record_path, on_loss;
+  ArgParser args("stitch-tracker",
+                 "Tracks the camera in every frame on <agent>/FRAME; publishes <agent>/TRACKING_STATUS per frame "
+                 "and acknowledges frames on <agent>/FRAME_ACK. Runs until SIGINT or SIGTERM.");
+  common.Register(&args);
+  args.AddOption("--record", &record_path, "FILE", "also write one line per frame to FILE (frames.tsv)");
+  args.AddOption("--on-loss", &on_loss, "MODE", "submap or relocalize (overrides the config)");
+  if (!args.Parse(argc, argv)) return args.exit_code();
+  try {
+    common.Apply("tracker");
+    StitchConfig config = LoadStitchConfig(common.config_path);
+    if (!on_loss.empty()) config.tracker.on_loss = on_loss;
+    const auto& stop = InstallStopSignals();
+    auto lcm = bus::OpenLcm(common.lcm_url);
+    bus::Publisher publisher(lcm.get(), common.agent);
+    TrackerService tracker(lcm.get(), &publisher, config.tracker, record_path);
+    bus::Dispatcher dispatcher(lcm.get());
+    dispatcher.Start();
+    tracker.Start();
+    STITCH_LOG(INFO) << "listening on " << common.lcm_url;
+    while (!stop.load()) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    dispatcher.Stop();
+    tracker.Stop();
+    STITCH_LOG(INFO) << "stopped after " << tracker.frames_tracked() << " frames";
+    return 0;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "stitch-tracker: %s\n", e.what());
+    return 1;
+  }
+}

@@ -1,0 +1,289 @@
+#include "stitch/eval/evaluation.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <map>
+#include <set>
+#include <sstream>
+
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "stitch/geometry/similarity.h"
+#include "stitch/util/error.h"
+#include "stitch/util/text_file.h"
+
+namespace stitch {
+namespace {
+
+double Percentile(std::vector<double> values, double p) {
+  std::sort(values.begin(), values.end());
+  const double rank = p * (values.size() - 1);
+  const size_t lo = static_cast<size_t>(std::floor(rank));
+  const size_t hi = std::min(lo + 1, values.size() - 1);
+  return values[lo] + (rank - lo) * (values[hi] - values[lo]);
+}
+
+double Rms(const std::vector<double>& values) {
+  double sum = 0;
+  for (double v : values) sum += v * v;
+  return values.empty() ? 0 : std::sqrt(sum / values.size());
+}
+
+std::vector<StampedPose> ToStamped(const std::vector<PoseRecord>& poses) {
+  std::vector<StampedPose> stamped;
+  for (const auto& p : poses) stamped.push_back({p.t_ns, p.world_from_cam});
+  return stamped;
+}
+
+}  // namespace
+
+std::vector<PoseRecord> ReadPoseRecords(const std::string& path) {
+  std::vector<PoseRecord> poses;
+  ForEachDataLine(path, [&](const std::string& line, int line_number) {
+    std::istringstream fields(line);
+    PoseRecord p;
+    int keyframe = 0;
+    fields >> p.frame_index >> p.t_ns >> p.submap_id >> p.component >> keyframe;
+    if (!fields || !ReadTumPose(fields, &p.world_from_cam)) {
+      throw Error(Str() << path << ":" << line_number << ": malformed pose record");
+    }
+    p.is_keyframe = keyframe != 0;
+    poses.push_back(p);
+  });
+  return poses;
+}
+
+void WritePoseRecords(const std::string& path, const std::vector<PoseRecord>& poses) {
+  std::ofstream out(path);
+  if (!out) throw Error(path + ": cannot write");
+  out << "# frame_index t_ns submap_id component keyframe tx ty tz qx qy qz qw (world_from_cam)\n";
+  for (const auto& p : poses) {
+    out << p.frame_index << " " << p.t_ns << " " << p.submap_id << " " << p.component << " " << (p.is_keyframe ? 1 : 0)
+        << " " << FormatTumPose(p.world_from_cam) << "\n";
+  }
+  if (!out) throw Error(path + ": write failed");
+}
+
+std::optional<TrajectoryErrors> CompareTrajectories(const std::vector<StampedPose>& estimated,
+                                                    const Trajectory& ground_truth,
+                                                    int64_t max_association_gap_ns) {
+  std::vector<Eigen::Vector3d> estimate_positions, truth_positions;
+  std::vector<Rigid3d> estimate_poses, truth_poses;
+  for (const auto& pose : estimated) {
+    const auto truth = ground_truth.PoseAt(pose.t_ns, max_association_gap_ns);
+    if (!truth) continue;
+    estimate_positions.push_back(pose.world_from_cam.translation);
+    truth_positions.push_back(truth->translation);
+    estimate_poses.push_back(pose.world_from_cam);
+    truth_poses.push_back(*truth);
+  }
+  if (estimate_positions.size() < 3) return std::nullopt;
+  TrajectoryErrors errors;
+  try {
+    errors.ground_truth_from_estimate = AlignPoints(estimate_positions, truth_positions, true);
+  } catch (const Error&) {
+    return std::nullopt;  // collinear or coincident positions: no unique alignment
+  }
+  errors.pairs = static_cast<int>(estimate_positions.size());
+  const Sim3d& align = errors.ground_truth_from_estimate;
+  std::vector<double> ate;
+  for (size_t i = 0; i < estimate_positions.size(); ++i) {
+    ate.push_back((align * estimate_positions[i] - truth_positions[i]).norm());
+  }
+  errors.ate_rmse_m = Rms(ate);
+  errors.ate_median_m = Percentile(ate, 0.5);
+  errors.ate_max_m = *std::max_element(ate.begin(), ate.end());
+  // RPE between consecutive posed frames, the estimate brought to ground-truth scale.
+  std::vector<double> rpe_t, rpe_r;
+  for (size_t i = 0; i + 1 < estimate_poses.size(); ++i) {
+    const Rigid3d est_rel = estimate_poses[i].Inverse() * estimate_poses[i + 1];
+    const Rigid3d gt_rel = truth_poses[i].Inverse() * truth_poses[i + 1];
+    const Rigid3d est_scaled(est_rel.rotation, est_rel.translation * align.scale);
+    const Rigid3d error = gt_rel.Inverse() * est_scaled;
+    rpe_t.push_back(error.translation.norm());
+    rpe_r.push_back(RotationAngle(error.rotation) * 180.0 / M_PI);
+  }
+  errors.rpe_translation_rmse_m = Rms(rpe_t);
+  errors.rpe_rotation_rmse_deg = Rms(rpe_r);
+  return errors;
+}
+
+Evaluation Evaluate(const EvaluationInput& input) {
+  Evaluation e;
+  e.frames_total = input.frames_total;
+  e.frames_unusable = input.frames_unusable;
+  e.keyframes = input.keyframes;
+  e.submaps = input.submaps;
+  e.has_ground_truth = !input.ground_truth.empty();
+
+  // The largest merged map: the component holding the most posed frames.
+  std::map<int, int> frames_per_component;
+  std::map<int, std::set<int64_t>> submaps_per_component;
+  for (const auto& p : input.poses) {
+    ++frames_per_component[p.component];
+    submaps_per_component[p.component].insert(p.submap_id);
+  }
+  for (const auto& [component, count] : frames_per_component) {
+    if (count > e.frames_localized) {
+      e.frames_localized = count;
+      e.largest_component = component;
+    }
+  }
+  e.submaps_merged = e.largest_component >= 0 ? static_cast<int>(submaps_per_component[e.largest_component].size()) : 0;
+  e.completeness = e.frames_total > 0 ? static_cast<double>(e.frames_localized) / e.frames_total : 0.0;
+
+  if (e.has_ground_truth && e.largest_component >= 0) {
+    std::vector<PoseRecord> largest;
+    for (const auto& p : input.poses) {
+      if (p.component == e.largest_component) largest.push_back(p);
+    }
+    e.errors = CompareTrajectories(ToStamped(largest), input.ground_truth, input.max_association_gap_ns);
+  }
+  std::map<int64_t, std::vector<PoseRecord>> by_submap;
+  for (const auto& p : input.poses) by_submap[p.submap_id].push_back(p);
+  for (const auto& [submap, poses] : by_submap) {
+    SubmapEvaluation s;
+    s.submap_id = submap;
+    s.component = poses.front().component;
+    s.frames = static_cast<int>(poses.size());
+    for (const auto& p : poses) {
+      if (input.ground_truth.PoseAt(p.t_ns, input.max_association_gap_ns)) ++s.frames_with_ground_truth;
+    }
+    if (e.has_ground_truth) {
+      if (const auto errors = CompareTrajectories(ToStamped(poses), input.ground_truth, input.max_association_gap_ns)) {
+        s.ate_rmse_m = errors->ate_rmse_m;
+      }
+    }
+    e.per_submap.push_back(s);
+  }
+  if (!input.tracking_ms.empty()) {
+    e.tracking_ms_median = Percentile(input.tracking_ms, 0.5);
+    e.tracking_ms_p95 = Percentile(input.tracking_ms, 0.95);
+  }
+  return e;
+}
+
+nlohmann::json ToJson(const Evaluation& e) {
+  using nlohmann::json;
+  const auto optional = [](const std::optional<double>& v) { return v ? json(*v) : json(nullptr); };
+  json j;
+  j["frames_total"] = e.frames_total;
+  j["frames_unusable"] = e.frames_unusable;
+  j["frames_localized"] = e.frames_localized;
+  j["completeness"] = e.completeness;
+  j["keyframes"] = e.keyframes;
+  j["submaps"] = e.submaps;
+  j["submaps_merged"] = e.submaps_merged;
+  j["has_ground_truth"] = e.has_ground_truth;
+  j["ate_rmse_m"] = e.errors ? json(e.errors->ate_rmse_m) : json(nullptr);
+  j["ate_median_m"] = e.errors ? json(e.errors->ate_median_m) : json(nullptr);
+  j["ate_max_m"] = e.errors ? json(e.errors->ate_max_m) : json(nullptr);
+  j["rpe_translation_rmse_m"] = e.errors ? json(e.errors->rpe_translation_rmse_m) : json(nullptr);
+  j["rpe_rotation_rmse_deg"] = e.errors ? json(e.errors->rpe_rotation_rmse_deg) : json(nullptr);
+  j["frames_with_ground_truth"] = e.errors ? e.errors->pairs : 0;
+  if (e.errors) j["alignment_scale"] = e.errors->ground_truth_from_estimate.scale;
+  j["tracking_ms_median"] = optional(e.tracking_ms_median);
+  j["tracking_ms_p95"] = optional(e.tracking_ms_p95);
+  json submaps = json::array();
+  for (const auto& s : e.per_submap) {
+    submaps.push_back({{"submap_id", s.submap_id}, {"component", s.component}, {"frames", s.frames},
+                       {"frames_with_ground_truth", s.frames_with_ground_truth}, {"ate_rmse_m", optional(s.ate_rmse_m)}});
+  }
+  j["per_submap"] = submaps;
+  return j;
+}
+
+std::string Summarize(const Evaluation& e) {
+  char line[256];
+  std::string text;
+  std::snprintf(line, sizeof(line), "  frames localized  %d of %d (%.1f%%)%s\n", e.frames_localized, e.frames_total,
+                100.0 * e.completeness,
+                e.frames_unusable > 0 ? (" - " + std::to_string(e.frames_unusable) + " frames were made unusable").c_str() : "");
+  text += line;
+  std::snprintf(line, sizeof(line), "  keyframes         %d\n  submaps           %d (%d in the largest map)\n",
+                e.keyframes, e.submaps, e.submaps_merged);
+  text += line;
+  if (e.errors) {
+    std::snprintf(line, sizeof(line), "  ATE RMSE          %.4f m over %d frames (Sim3-aligned; median %.4f, max %.4f)\n",
+                  e.errors->ate_rmse_m, e.errors->pairs, e.errors->ate_median_m, e.errors->ate_max_m);
+  } else if (e.has_ground_truth) {
+    std::snprintf(line, sizeof(line), "  ATE RMSE          n/a (fewer than 3 posed frames with ground truth)\n");
+  } else {
+    std::snprintf(line, sizeof(line), "  ATE RMSE          n/a (no ground truth)\n");
+  }
+  text += line;
+  if (e.tracking_ms_median) {
+    std::snprintf(line, sizeof(line), "  tracking time     %.1f ms median, %.1f ms p95\n", *e.tracking_ms_median, *e.tracking_ms_p95);
+    text += line;
+  }
+  return text;
+}
+
+void WriteTrajectoryPlot(const std::string& path, const EvaluationInput& input, const Evaluation& evaluation,
+                         const std::string& title) {
+  constexpr int kWidth = 1000, kHeight = 800, kMargin = 60;
+  cv::Mat canvas(kHeight, kWidth, CV_8UC3, cv::Scalar(255, 255, 255));
+  // Estimated positions in the ground-truth frame when aligned, else in their own.
+  const Sim3d align = evaluation.errors ? evaluation.errors->ground_truth_from_estimate : Sim3d();
+  std::vector<std::pair<Eigen::Vector3d, const PoseRecord*>> estimate;
+  for (const auto& p : input.poses) {
+    if (evaluation.errors && p.component != evaluation.largest_component) continue;
+    estimate.push_back({align * p.world_from_cam.translation, &p});
+  }
+  std::vector<Eigen::Vector3d> truth;
+  for (const auto& p : input.ground_truth.poses()) truth.push_back(p.world_from_cam.translation);
+  Eigen::Vector2d lo = Eigen::Vector2d::Constant(1e18), hi = Eigen::Vector2d::Constant(-1e18);
+  for (const auto& t : truth) { lo = lo.cwiseMin(t.head<2>()); hi = hi.cwiseMax(t.head<2>()); }
+  for (const auto& [e, p] : estimate) { lo = lo.cwiseMin(e.head<2>()); hi = hi.cwiseMax(e.head<2>()); }
+  if (!(hi.x() >= lo.x())) { lo = Eigen::Vector2d(-1, -1); hi = Eigen::Vector2d(1, 1); }
+  const double span = std::max({hi.x() - lo.x(), hi.y() - lo.y(), 1e-6});
+  const double scale = std::min((kWidth - 2.0 * kMargin) / std::max(hi.x() - lo.x(), span * 0.05),
+                                (kHeight - 2.0 * kMargin) / std::max(hi.y() - lo.y(), span * 0.05));
+  const auto to_px = [&](const Eigen::Vector3d& p) {
+    return cv::Point(static_cast<int>(kMargin + (p.x() - lo.x()) * scale),
+                     static_cast<int>(kHeight - kMargin - (p.y() - lo.y()) * scale));  // y up
+  };
+  for (size_t i = 1; i < truth.size(); ++i) {
+    cv::line(canvas, to_px(truth[i - 1]), to_px(truth[i]), cv::Scalar(170, 170, 170), 3, cv::LINE_AA);
+  }
+  static const cv::Scalar kPalette[] = {{200, 90, 30}, {40, 40, 220}, {40, 160, 40}, {180, 40, 180}, {20, 150, 220},
+                                        {140, 140, 0}, {90, 60, 160}, {0, 110, 200}, {100, 100, 100}, {60, 180, 180}};
+  std::map<int64_t, int> colour_of;
+  for (const auto& [e, p] : estimate) {
+    if (!colour_of.count(p->submap_id)) {
+      const int index = static_cast<int>(colour_of.size());
+      colour_of[p->submap_id] = index;
+    }
+  }
+  for (size_t i = 0; i < estimate.size(); ++i) {
+    const auto& [e, p] = estimate[i];
+    const cv::Scalar colour = kPalette[colour_of[p->submap_id] % 10];
+    const bool continues = i > 0 && estimate[i - 1].second->submap_id == p->submap_id &&
+                           p->frame_index - estimate[i - 1].second->frame_index <= 3;
+    if (continues) cv::line(canvas, to_px(estimate[i - 1].first), to_px(e), colour, 2, cv::LINE_AA);
+    else cv::circle(canvas, to_px(e), 2, colour, cv::FILLED, cv::LINE_AA);
+  }
+  cv::putText(canvas, title, cv::Point(kMargin, 30), cv::FONT_HERSHEY_SIMPLEX, 0.6, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+  std::string legend = truth.empty() ? "estimate (own frame, no ground truth)" : "grey: ground truth; colours: submaps, Sim3-aligned";
+  if (evaluation.errors) {
+    char ate[64];
+    std::snprintf(ate, sizeof(ate), "; ATE %.3f m", evaluation.errors->ate_rmse_m);
+    legend += ate;
+  }
+  cv::putText(canvas, legend, cv::Point(kMargin, 52), cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(60, 60, 60), 1, cv::LINE_AA);
+  // Scale bar: a round length near a fifth of the width.
+  const double target = (kWidth - 2.0 * kMargin) / scale / 5;
+  const double magnitude = std::pow(10.0, std::floor(std::log10(target)));
+  const double bar = target >= 5 * magnitude ? 5 * magnitude : target >= 2 * magnitude ? 2 * magnitude : magnitude;
+  const int bar_px = static_cast<int>(bar * scale);
+  cv::line(canvas, cv::Point(kMargin, kHeight - 25), cv::Point(kMargin + bar_px, kHeight - 25), cv::Scalar(0, 0, 0), 2);
+  char bar_text[32];
+  std::snprintf(bar_text, sizeof(bar_text), "%g %s", bar, truth.empty() ? "units" : "m");
+  cv::putText(canvas, bar_text, cv::Point(kMargin + bar_px + 8, kHeight - 20), cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+  if (!cv::imwrite(path, canvas)) throw Error(path + ": cannot write the plot");
+}
+
+}  // namespace stitch

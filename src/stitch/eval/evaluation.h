@@ -1,0 +1,92 @@
+#pragma once
+// Evaluation of a run against ground truth (DESIGN.md, "Evaluation protocol"):
+//  - completeness: frames with a pose in the largest merged map / frames in the sequence;
+//  - ATE RMSE after Sim3 (Umeyama) alignment over the frames that have a pose, globally and per
+//    submap; RPE between consecutive posed frames after the same alignment;
+//  - keyframes and submaps retained, tracking time.
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "stitch/geometry/rigid3.h"
+#include "stitch/io/trajectory.h"
+
+namespace stitch {
+
+// One frame's final pose: where the run placed it, in which submap and merged map.
+struct PoseRecord {
+  int frame_index = -1;
+  int64_t t_ns = 0;
+  int64_t submap_id = -1;
+  int component = -1;   // merged map; equal values share one frame
+  bool is_keyframe = false;
+  Rigid3d world_from_cam;  // in the component's frame (its scale is arbitrary)
+};
+
+// Reads / writes poses.tsv: "frame_index t_ns submap_id component keyframe tx ty tz qx qy qz qw".
+std::vector<PoseRecord> ReadPoseRecords(const std::string& path);
+void WritePoseRecords(const std::string& path, const std::vector<PoseRecord>& poses);
+
+struct EvaluationInput {
+  int frames_total = 0;               // frames in the sequence
+  int frames_unusable = 0;            // of those, replaced by the failure schedule
+  std::vector<PoseRecord> poses;      // the run's final poses
+  Trajectory ground_truth;            // may be empty
+  std::vector<double> tracking_ms;    // per processed frame
+  int keyframes = 0;
+  int submaps = 0;
+  int64_t max_association_gap_ns = 50'000'000;  // ground-truth interpolation window
+};
+
+struct SubmapEvaluation {
+  int64_t submap_id = -1;
+  int component = -1;
+  int frames = 0;
+  int frames_with_ground_truth = 0;
+  std::optional<double> ate_rmse_m;  // this submap aligned on its own (needs 3 poses)
+};
+
+struct TrajectoryErrors {
+  int pairs = 0;
+  Sim3d ground_truth_from_estimate;
+  double ate_rmse_m = 0, ate_median_m = 0, ate_max_m = 0;
+  double rpe_translation_rmse_m = 0;  // between consecutive posed frames
+  double rpe_rotation_rmse_deg = 0;
+};
+
+struct Evaluation {
+  int frames_total = 0;
+  int frames_unusable = 0;
+  int frames_localized = 0;  // with a pose in the largest merged map
+  double completeness = 0;   // frames_localized / frames_total
+  int keyframes = 0;
+  int submaps = 0;
+  int submaps_merged = 0;    // submaps in the largest merged map
+  int largest_component = -1;
+  std::optional<TrajectoryErrors> errors;  // largest map vs ground truth
+  std::vector<SubmapEvaluation> per_submap;
+  std::optional<double> tracking_ms_median, tracking_ms_p95;
+  bool has_ground_truth = false;
+};
+
+// Aligns `estimated` to `ground_truth` with a Sim3 (Umeyama) and measures the errors. Empty
+// when fewer than 3 poses have ground truth or they are degenerate (collinear).
+std::optional<TrajectoryErrors> CompareTrajectories(const std::vector<StampedPose>& estimated,
+                                                    const Trajectory& ground_truth,
+                                                    int64_t max_association_gap_ns = 50'000'000);
+
+Evaluation Evaluate(const EvaluationInput& input);
+nlohmann::json ToJson(const Evaluation& evaluation);
+// A few lines for the terminal.
+std::string Summarize(const Evaluation& evaluation);
+
+// Top view (x, y) of the ground truth (grey) and the estimate aligned to it, one colour per
+// submap. Without ground truth, the estimate alone in its own frame.
+void WriteTrajectoryPlot(const std::string& path, const EvaluationInput& input,
+                         const Evaluation& evaluation, const std::string& title);
+
+}  // namespace stitch

@@ -1,0 +1,123 @@
+#include "stitch/eval/evaluation.h"
+
+#include <gtest/gtest.h>
+
+#include "stitch/testing/temp_dir.h"
+#include "stitch/util/rng.h"
+
+namespace stitch {
+namespace {
+
+// A winding ground-truth path with turning cameras, 10 Hz.
+Trajectory GroundTruth(int n) {
+  std::vector<StampedPose> poses;
+  for (int i = 0; i < n; ++i) {
+    const double s = 0.1 * i;
+    poses.push_back({static_cast<int64_t>(i) * 100'000'000,
+                     Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.3 * s, Eigen::Vector3d::UnitZ())),
+                             Eigen::Vector3d(5 * std::cos(s), 3 * std::sin(s), 0.5 * s))});
+  }
+  return Trajectory(poses);
+}
+
+// The ground truth seen through est_from_gt (a Sim3), with optional position noise.
+std::vector<PoseRecord> Estimate(const Trajectory& gt, const Sim3d& est_from_gt, double noise, int component = 0) {
+  Rng rng(4);
+  std::vector<PoseRecord> poses;
+  int index = 0;
+  for (const auto& p : gt.poses()) {
+    PoseRecord r;
+    r.frame_index = index++;
+    r.t_ns = p.t_ns;
+    r.submap_id = r.frame_index < 30 ? 1 : 2;
+    r.component = component;
+    const Eigen::Vector3d centre = est_from_gt * p.world_from_cam.translation +
+                                   noise * Eigen::Vector3d(rng.Normal(), rng.Normal(), rng.Normal());
+    r.world_from_cam = Rigid3d(est_from_gt.rotation * p.world_from_cam.rotation, centre);
+    poses.push_back(r);
+  }
+  return poses;
+}
+
+const Sim3d kEstFromGt(0.37, Eigen::Quaterniond(Eigen::AngleAxisd(1.2, Eigen::Vector3d(0.2, 1, -0.3).normalized())),
+                       Eigen::Vector3d(4, -2, 7));
+
+TEST(Evaluation, Sim3AlignmentRecoversAKnownTransform) {
+  const Trajectory gt = GroundTruth(60);
+  std::vector<StampedPose> estimated;
+  for (const auto& r : Estimate(gt, kEstFromGt, 0.0)) estimated.push_back({r.t_ns, r.world_from_cam});
+  const auto errors = CompareTrajectories(estimated, gt);
+  ASSERT_TRUE(errors);
+  EXPECT_EQ(errors->pairs, 60);
+  EXPECT_NEAR(errors->ground_truth_from_estimate.scale, 1 / 0.37, 1e-9);
+  EXPECT_NEAR(errors->ground_truth_from_estimate.rotation.angularDistance(kEstFromGt.rotation.conjugate()), 0, 1e-9);
+  EXPECT_LT(errors->ate_rmse_m, 1e-9);
+  EXPECT_LT(errors->rpe_translation_rmse_m, 1e-9);
+  EXPECT_LT(errors->rpe_rotation_rmse_deg, 1e-6);
+}
+
+TEST(Evaluation, AteMeasuresNoiseInGroundTruthUnits) {
+  const Trajectory gt = GroundTruth(400);
+  const double noise_in_gt_m = 0.05;
+  std::vector<StampedPose> estimated;
+  for (const auto& r : Estimate(gt, kEstFromGt, noise_in_gt_m * kEstFromGt.scale)) estimated.push_back({r.t_ns, r.world_from_cam});
+  const auto errors = CompareTrajectories(estimated, gt);
+  ASSERT_TRUE(errors);
+  // 3D isotropic noise of sigma per axis has RMS norm sigma * sqrt(3).
+  EXPECT_NEAR(errors->ate_rmse_m, noise_in_gt_m * std::sqrt(3.0), 0.01);
+}
+
+TEST(Evaluation, CompletenessCountsTheLargestMergedMapOnly) {
+  const Trajectory gt = GroundTruth(100);
+  std::vector<PoseRecord> poses = Estimate(gt, kEstFromGt, 0.0, 0);
+  poses.resize(70);                          // frames 0..69 in map 0
+  for (int i = 60; i < 70; ++i) poses[i].component = 1;  // a smaller, unmerged map
+  EvaluationInput input;
+  input.frames_total = 100;
+  input.poses = poses;
+  input.ground_truth = gt;
+  input.keyframes = 12;
+  input.submaps = 2;
+  input.tracking_ms = {1, 2, 3, 4, 100};
+  const Evaluation e = Evaluate(input);
+  EXPECT_EQ(e.frames_localized, 60);
+  EXPECT_DOUBLE_EQ(e.completeness, 0.6);
+  EXPECT_EQ(e.largest_component, 0);
+  EXPECT_EQ(e.submaps_merged, 2);
+  ASSERT_TRUE(e.errors);
+  EXPECT_EQ(e.errors->pairs, 60);
+  EXPECT_DOUBLE_EQ(*e.tracking_ms_median, 3.0);
+  ASSERT_EQ(e.per_submap.size(), 2u);
+  ASSERT_TRUE(e.per_submap[0].ate_rmse_m);
+  const nlohmann::json j = ToJson(e);
+  for (const char* key : {"frames_total", "frames_localized", "completeness", "keyframes", "submaps",
+                          "submaps_merged", "ate_rmse_m", "tracking_ms_median"}) {
+    EXPECT_TRUE(j.contains(key)) << key;
+  }
+}
+
+TEST(Evaluation, NoGroundTruthGivesNullAte) {
+  EvaluationInput input;
+  input.frames_total = 10;
+  input.poses = Estimate(GroundTruth(10), kEstFromGt, 0.0);
+  const Evaluation e = Evaluate(input);
+  EXPECT_FALSE(e.errors);
+  EXPECT_TRUE(ToJson(e)["ate_rmse_m"].is_null());
+  testing::TempDir dir;
+  WriteTrajectoryPlot(dir / "plot.png", input, e, "no ground truth");
+  EXPECT_TRUE(std::filesystem::exists(dir / "plot.png"));
+}
+
+TEST(Evaluation, PoseRecordsRoundTrip) {
+  testing::TempDir dir;
+  const auto poses = Estimate(GroundTruth(5), kEstFromGt, 0.0);
+  WritePoseRecords(dir / "poses.tsv", poses);
+  const auto back = ReadPoseRecords(dir / "poses.tsv");
+  ASSERT_EQ(back.size(), poses.size());
+  EXPECT_EQ(back[3].t_ns, poses[3].t_ns);
+  EXPECT_EQ(back[3].submap_id, poses[3].submap_id);
+  EXPECT_NEAR((back[3].world_from_cam.translation - poses[3].world_from_cam.translation).norm(), 0, 1e-6);
+}
+
+}  // namespace
+}  // namespace stitch

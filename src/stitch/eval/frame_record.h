@@ -1,0 +1,31 @@
+#pragma once
+// frames.tsv: the tracker's line per frame (state, why, submap, pose, counts, time). Written by
+// the tracker service as it goes, read by `stitch run` / `stitch eval` to build the outputs.
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "stitch/geometry/rigid3.h"
+
+namespace stitch {
+
+struct FrameRecord {
+  int frame_index = -1;
+  int64_t t_ns = 0;
+  std::string state;        // INITIALIZING, OK, LOST, SKIPPED, NOT_TRACKED
+  int reason = 0;           // tracking_status_t REASON_* value
+  int64_t submap_id = -1;
+  Rigid3d world_from_cam;   // in the submap's frame; meaningful when state == "OK"
+  int num_features = 0;
+  int tracked_points = 0;
+  bool is_keyframe = false;
+  double tracking_ms = 0;
+};
+
+std::string FrameRecordHeader();  // "# ..." line, with newline
+std::string FormatFrameRecord(const FrameRecord& record);  // one line, with newline
+// Throws stitch::Error naming the line for a malformed record.
+std::vector<FrameRecord> ReadFrameRecords(const std::string& path);
+
+}  // namespace stitch

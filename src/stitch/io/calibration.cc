@@ -1,0 +1,203 @@
+#include "stitch/io/calibration.h"
+
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include <yaml-cpp/yaml.h>
+
+#include "stitch/util/error.h"
+#include "stitch/util/options.h"
+
+namespace stitch {
+namespace {
+
+double RequireNumber(const YAML::Node& root, const std::string& key, const std::string& path) {
+  const YAML::Node node = root[key];
+  if (!node) throw Error(path + ": missing " + key);
+  try {
+    return node.as<double>();
+  } catch (const YAML::Exception&) {
+    throw Error(path + ": " + key + " is not a number");
+  }
+}
+
+double OptionalNumber(const YAML::Node& root, const std::string& key, const std::string& path) {
+  return root[key] ? RequireNumber(root, key, path) : 0.0;
+}
+
+std::vector<double> NumberList(const YAML::Node& node, const std::string& what,
+                               const std::string& path) {
+  try {
+    return node.as<std::vector<double>>();
+  } catch (const YAML::Exception&) {
+    throw Error(path + ": " + what + " is not a list of numbers");
+  }
+}
+
+Camera FinishCamera(CameraModel model, int file_width, int file_height,
+                    const std::vector<double>& params, int image_width, int image_height,
+                    const std::string& path) {
+  int width = file_width;
+  int height = file_height;
+  if (width > 0 && height > 0) {
+    if (image_width > 0 && image_height > 0 && (width != image_width || height != image_height)) {
+      throw Error(Str() << path << ": calibration is for " << width << "x" << height
+                        << " images but the images are " << image_width << "x" << image_height
+                        << "; use the calibration of this camera and resolution");
+    }
+  } else if (image_width > 0 && image_height > 0) {
+    width = image_width;
+    height = image_height;
+  } else {
+    throw Error(path + ": the file does not state the image size (Camera.width, Camera.height)");
+  }
+  try {
+    return Camera(model, width, height, params);
+  } catch (const Error& e) {
+    throw Error(path + ": " + e.what());
+  }
+}
+
+// ORB-SLAM2 (Camera.) or ORB-SLAM3 (Camera1.) settings.
+Camera ReadOrbSlamSettings(const YAML::Node& root, const std::string& prefix,
+                           int image_width, int image_height, const std::string& path) {
+  std::string type = "PinHole";
+  if (root["Camera.type"]) type = root["Camera.type"].as<std::string>();
+  const auto get = [&](const std::string& name) {
+    return RequireNumber(root, prefix + name, path);
+  };
+  const auto opt = [&](const std::string& name) {
+    return OptionalNumber(root, prefix + name, path);
+  };
+  const int width = static_cast<int>(
+      root["Camera.width"] ? RequireNumber(root, "Camera.width", path) : opt("width"));
+  const int height = static_cast<int>(
+      root["Camera.height"] ? RequireNumber(root, "Camera.height", path) : opt("height"));
+  if (type == "PinHole" || type == "Pinhole" || type == "pinhole") {
+    return FinishCamera(CameraModel::kPinholeRadTan, width, height,
+                        {get("fx"), get("fy"), get("cx"), get("cy"), opt("k1"), opt("k2"),
+                         opt("p1"), opt("p2"), opt("k3")},
+                        image_width, image_height, path);
+  }
+  if (type == "KannalaBrandt8" || type == "Fisheye" || type == "fisheye") {
+    return FinishCamera(CameraModel::kFisheye, width, height,
+                        {get("fx"), get("fy"), get("cx"), get("cy"), opt("k1"), opt("k2"),
+                         opt("k3"), opt("k4")},
+                        image_width, image_height, path);
+  }
+  throw Error(path + ": Camera.type '" + type +
+              "' is not supported (use PinHole or KannalaBrandt8)");
+}
+
+// EuRoC / Kalibr sensor.yaml.
+Camera ReadSensorYaml(const YAML::Node& root, int image_width, int image_height,
+                      const std::string& path) {
+  const std::vector<double> k = NumberList(root["intrinsics"], "intrinsics", path);
+  if (k.size() != 4) throw Error(path + ": intrinsics must be [fu, fv, cu, cv]");
+  std::vector<double> d;
+  if (root["distortion_coefficients"]) {
+    d = NumberList(root["distortion_coefficients"], "distortion_coefficients", path);
+  }
+  int width = 0, height = 0;
+  if (root["resolution"]) {
+    const auto r = NumberList(root["resolution"], "resolution", path);
+    if (r.size() != 2) throw Error(path + ": resolution must be [width, height]");
+    width = static_cast<int>(r[0]);
+    height = static_cast<int>(r[1]);
+  }
+  const std::string model =
+      root["distortion_model"] ? root["distortion_model"].as<std::string>() : "radial-tangential";
+  if (root["camera_model"] && root["camera_model"].as<std::string>() != "pinhole") {
+    throw Error(path + ": camera_model '" + root["camera_model"].as<std::string>() +
+                "' is not supported (pinhole only)");
+  }
+  if (model == "radial-tangential" || model == "radtan" || model == "plumb_bob") {
+    if (d.size() < 4 || d.size() > 5) {
+      throw Error(path + ": radial-tangential needs 4 or 5 distortion_coefficients (k1 k2 p1 p2 [k3])");
+    }
+    return FinishCamera(CameraModel::kPinholeRadTan, width, height,
+                        {k[0], k[1], k[2], k[3], d[0], d[1], d[2], d[3], d.size() == 5 ? d[4] : 0.0},
+                        image_width, image_height, path);
+  }
+  if (model == "equidistant") {
+    if (d.size() != 4) throw Error(path + ": equidistant needs 4 distortion_coefficients");
+    return FinishCamera(CameraModel::kFisheye, width, height,
+                        {k[0], k[1], k[2], k[3], d[0], d[1], d[2], d[3]}, image_width,
+                        image_height, path);
+  }
+  throw Error(path + ": distortion_model '" + model +
+              "' is not supported (radial-tangential or equidistant)");
+}
+
+// KITTI odometry calib.txt: "P0: fx 0 cx 0 0 fy cy 0 0 0 1 0".
+Camera ReadKittiCalib(const std::string& path, int image_width, int image_height) {
+  std::ifstream in(path);
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.rfind("P0:", 0) != 0) continue;
+    std::istringstream values(line.substr(3));
+    double p[12];
+    for (double& v : p) values >> v;
+    if (!values) throw Error(path + ": P0 needs 12 numbers");
+    return FinishCamera(CameraModel::kPinholeRadTan, 0, 0,
+                        {p[0], p[5], p[2], p[6], 0, 0, 0, 0, 0}, image_width, image_height, path);
+  }
+  throw Error(path + ": no 'P0:' line (KITTI calib.txt)");
+}
+
+}  // namespace
+
+Camera LoadCalibration(const std::string& path, int image_width, int image_height) {
+  if (!std::filesystem::exists(path)) throw Error(path + ": calibration file not found");
+  if (std::filesystem::path(path).extension() == ".txt") {
+    return ReadKittiCalib(path, image_width, image_height);
+  }
+  const YAML::Node root = LoadYamlFile(path);
+  if (!root.IsMap()) throw Error(path + ": expected a YAML map of calibration keys");
+  if (root["Camera.fx"]) {
+    return ReadOrbSlamSettings(root, "Camera.", image_width, image_height, path);
+  }
+  if (root["Camera1.fx"]) {
+    return ReadOrbSlamSettings(root, "Camera1.", image_width, image_height, path);
+  }
+  if (root["intrinsics"]) return ReadSensorYaml(root, image_width, image_height, path);
+  throw Error(path +
+              ": not a calibration file stitch knows (expected ORB-SLAM settings with Camera.fx, "
+              "or a EuRoC/Kalibr sensor.yaml with intrinsics)");
+}
+
+void SaveCalibration(const Camera& camera, const std::string& path) {
+  std::ofstream out(path);
+  if (!out) throw Error(path + ": cannot write calibration");
+  out.precision(12);
+  const auto p = camera.params();
+  out << "%YAML:1.0\n# Written by stitch. ORB-SLAM-style settings.\n";
+  if (camera.model() == CameraModel::kPinholeRadTan) {
+    out << "Camera.type: \"PinHole\"\n";
+  } else {
+    out << "Camera.type: \"KannalaBrandt8\"\n";
+  }
+  out << "Camera.fx: " << p[0] << "\nCamera.fy: " << p[1] << "\nCamera.cx: " << p[2]
+      << "\nCamera.cy: " << p[3] << "\n";
+  if (camera.model() == CameraModel::kPinholeRadTan) {
+    out << "Camera.k1: " << p[4] << "\nCamera.k2: " << p[5] << "\nCamera.p1: " << p[6]
+        << "\nCamera.p2: " << p[7] << "\nCamera.k3: " << p[8] << "\n";
+  } else {
+    out << "Camera.k1: " << p[4] << "\nCamera.k2: " << p[5] << "\nCamera.k3: " << p[6]
+        << "\nCamera.k4: " << p[7] << "\n";
+  }
+  out << "Camera.width: " << camera.width() << "\nCamera.height: " << camera.height() << "\n";
+  if (!out) throw Error(path + ": write failed");
+}
+
+void CheckCalibrationMatchesImage(const Camera& camera, int image_width, int image_height,
+                                  const std::string& source) {
+  if (camera.width() != image_width || camera.height() != image_height) {
+    throw Error(Str() << source << ": calibration is for " << camera.width() << "x"
+                      << camera.height() << " images but the images are " << image_width << "x"
+                      << image_height);
+  }
+}
+
+}  // namespace stitch

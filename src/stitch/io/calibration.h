@@ -1,0 +1,26 @@
+#pragma once
+// Calibration files. Reads, detecting the layout:
+//  - ORB-SLAM2 / ORB-SLAM3 settings (Camera.fx ... or Camera1.fx ..., Camera.type), which many
+//    users already have; this is also the layout stitch writes;
+//  - EuRoC / Kalibr-style sensor.yaml (intrinsics, distortion_coefficients, resolution);
+//  - KITTI odometry calib.txt (P0: 3x4 projection matrix; rectified, no distortion).
+
+#include <string>
+
+#include "stitch/geometry/camera.h"
+
+namespace stitch {
+
+// Loads a camera. The image size comes from the file when it states one; otherwise from
+// `image_width` x `image_height` (pass 0 to require the file to state it). When both are known
+// and differ, throws stitch::Error saying so.
+Camera LoadCalibration(const std::string& path, int image_width = 0, int image_height = 0);
+
+// Writes the camera as an ORB-SLAM-style settings file.
+void SaveCalibration(const Camera& camera, const std::string& path);
+
+// Throws stitch::Error ("<source>: calibration is 640x480 but images are 752x480") on mismatch.
+void CheckCalibrationMatchesImage(const Camera& camera, int image_width, int image_height,
+                                  const std::string& source);
+
+}  // namespace stitch

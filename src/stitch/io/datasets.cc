@@ -1,0 +1,498 @@
+// Readers for TUM RGB-D, EuRoC MAV, KITTI odometry, image folders and video files.
+
+#include <algorithm>
+#include <cctype>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+#include <opencv2/videoio.hpp>
+
+#include "stitch/io/calibration.h"
+#include "stitch/io/image_sequence.h"
+#include "stitch/util/error.h"
+#include "stitch/util/options.h"
+#include "stitch/util/text_file.h"
+#include "stitch/util/time.h"
+
+namespace fs = std::filesystem;
+
+namespace stitch {
+namespace {
+
+struct ImageEntry {
+  int64_t t_ns;
+  std::string path;
+};
+
+bool IsImageFile(const fs::path& path) {
+  std::string ext = path.extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+  return ext == ".png" || ext == ".jpg" || ext == ".jpeg" || ext == ".pgm" || ext == ".bmp" ||
+         ext == ".tif" || ext == ".tiff" || ext == ".ppm";
+}
+
+bool IsVideoFile(const fs::path& path) {
+  std::string ext = path.extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+  return ext == ".mp4" || ext == ".avi" || ext == ".mkv" || ext == ".mov" || ext == ".webm" ||
+         ext == ".m4v" || ext == ".mpg" || ext == ".mpeg";
+}
+
+cv::Mat ReadGray(const std::string& path, std::string* error) {
+  cv::Mat image;
+  try {
+    image = cv::imread(path, cv::IMREAD_GRAYSCALE);
+  } catch (const cv::Exception& e) {
+    image.release();
+  }
+  if (image.empty()) {
+    *error = fs::exists(path) ? path + ": not a readable image" : path + ": file not found";
+    return {};
+  }
+  if (image.depth() != CV_8U) image.convertTo(image, CV_8U);
+  return image;
+}
+
+std::string FirstExisting(const std::vector<fs::path>& candidates) {
+  for (const auto& c : candidates) {
+    if (fs::exists(c)) return c.string();
+  }
+  return "";
+}
+
+// Reads the first image to learn the size, then loads and checks the calibration.
+Camera CameraForImages(const std::vector<ImageEntry>& images, const std::string& calibration_path,
+                       const std::string& source) {
+  if (images.empty()) throw Error(source + ": no images");
+  std::string error;
+  const cv::Mat first = ReadGray(images.front().path, &error);
+  if (first.empty()) throw Error(source + ": cannot read the first image: " + error);
+  return LoadCalibration(calibration_path, first.cols, first.rows);
+}
+
+// Frames listed up front (TUM, EuRoC, KITTI, image folders).
+class ImageListSequence : public ImageSequence {
+ public:
+  ImageListSequence(std::string description, std::vector<ImageEntry> images, Camera camera,
+                    Trajectory ground_truth, double fps)
+      : description_(std::move(description)),
+        images_(std::move(images)),
+        camera_(std::move(camera)),
+        ground_truth_(std::move(ground_truth)),
+        fps_(fps) {}
+
+  std::string description() const override {
+    return description_ + " (" + std::to_string(images_.size()) + " frames)";
+  }
+  int size() const override { return static_cast<int>(images_.size()); }
+  const Camera& camera() const override { return camera_; }
+  double nominal_fps() const override { return fps_; }
+  const Trajectory& ground_truth() const override { return ground_truth_; }
+
+  bool Next(SequenceFrame* frame) override {
+    if (next_ >= images_.size()) return false;
+    const ImageEntry& entry = images_[next_];
+    frame->index = static_cast<int>(next_);
+    frame->t_ns = entry.t_ns;
+    frame->error.clear();
+    frame->image = ReadGray(entry.path, &frame->error);
+    if (!frame->image.empty() &&
+        (frame->image.cols != camera_.width() || frame->image.rows != camera_.height())) {
+      frame->error = Str() << entry.path << ": image is " << frame->image.cols << "x"
+                           << frame->image.rows << " but the sequence is " << camera_.width()
+                           << "x" << camera_.height();
+      frame->image.release();
+    }
+    ++next_;
+    return true;
+  }
+
+ private:
+  std::string description_;
+  std::vector<ImageEntry> images_;
+  Camera camera_;
+  Trajectory ground_truth_;
+  double fps_;
+  size_t next_ = 0;
+};
+
+double FpsFromTimestamps(const std::vector<ImageEntry>& images, double fallback) {
+  if (images.size() < 2) return fallback;
+  const double span_s = (images.back().t_ns - images.front().t_ns) * 1e-9;
+  return span_s > 0 ? (images.size() - 1) / span_s : fallback;
+}
+
+std::vector<ImageEntry> Slice(std::vector<ImageEntry> images, const SequenceOptions& options) {
+  const size_t start = std::min<size_t>(std::max(options.start_frame, 0), images.size());
+  images.erase(images.begin(), images.begin() + start);
+  if (options.max_frames >= 0 && static_cast<size_t>(options.max_frames) < images.size()) {
+    images.resize(options.max_frames);
+  }
+  return images;
+}
+
+// --- TUM RGB-D -----------------------------------------------------------------------------
+
+// Published calibrations of the TUM RGB-D cameras (vision.in.tum.de/data/datasets/rgbd-dataset),
+// used when the sequence folder brings none.
+std::optional<Camera> TumDefaultCamera(const std::string& folder_name, int width, int height) {
+  if (folder_name.find("freiburg1") != std::string::npos) {
+    return Camera::Pinhole(width, height, 517.306408, 516.469215, 318.643040, 255.313989,
+                           0.262383, -0.953104, -0.005358, 0.002628, 1.163314);
+  }
+  if (folder_name.find("freiburg2") != std::string::npos) {
+    return Camera::Pinhole(width, height, 520.908620, 521.007327, 325.141442, 249.701764,
+                           0.231222, -0.784899, -0.003257, -0.000105, 0.917205);
+  }
+  if (folder_name.find("freiburg3") != std::string::npos) {
+    return Camera::Pinhole(width, height, 535.4, 539.2, 320.1, 247.6);
+  }
+  return std::nullopt;
+}
+
+std::unique_ptr<ImageSequence> OpenTum(const fs::path& root, const SequenceOptions& options) {
+  const fs::path list = root / "rgb.txt";
+  std::vector<ImageEntry> images;
+  ForEachDataLine(list.string(), [&](const std::string& line, int line_number) {
+    std::istringstream fields(line);
+    std::string stamp, file;
+    fields >> stamp >> file;
+    if (file.empty()) throw Error(Str() << list.string() << ":" << line_number << ": expected 'timestamp filename'");
+    try {
+      images.push_back({ParseSecondsToNs(stamp), (root / file).string()});
+    } catch (const Error& e) {
+      throw Error(Str() << list.string() << ":" << line_number << ": " << e.what());
+    }
+  }, " (TUM RGB-D sequences have rgb.txt)");
+  images = Slice(std::move(images), options);
+  const std::string folder_name = root.filename().empty() ? root.parent_path().filename().string()
+                                                          : root.filename().string();
+  std::string calibration = options.calibration_path;
+  if (calibration.empty()) calibration = FirstExisting({root / "camera.yaml", root / "calibration.yaml"});
+  Camera camera;
+  if (!calibration.empty()) {
+    camera = CameraForImages(images, calibration, root.string());
+  } else {
+    std::string error;
+    if (images.empty()) throw Error(root.string() + ": rgb.txt lists no images");
+    const cv::Mat first = ReadGray(images.front().path, &error);
+    if (first.empty()) throw Error(root.string() + ": cannot read the first image: " + error);
+    auto known = TumDefaultCamera(folder_name, first.cols, first.rows);
+    if (!known) {
+      throw Error(root.string() +
+                  ": no camera.yaml and the folder name does not say freiburg1/2/3; pass --calib");
+    }
+    camera = *known;
+  }
+  Trajectory ground_truth;
+  if (fs::exists(root / "groundtruth.txt")) {
+    ground_truth = Trajectory::ReadTum((root / "groundtruth.txt").string());
+  }
+  const double fps = FpsFromTimestamps(images, 30.0);
+  return std::make_unique<ImageListSequence>("TUM RGB-D " + root.string(), std::move(images),
+                                             camera, std::move(ground_truth), fps);
+}
+
+// --- EuRoC MAV -----------------------------------------------------------------------------
+
+Eigen::Matrix4d ReadTBS(const std::string& sensor_yaml) {
+  const YAML::Node root = LoadYamlFile(sensor_yaml);
+  Eigen::Matrix4d body_from_cam = Eigen::Matrix4d::Identity();
+  if (root["T_BS"] && root["T_BS"]["data"]) {
+    const auto data = root["T_BS"]["data"].as<std::vector<double>>();
+    if (data.size() != 16) throw Error(sensor_yaml + ": T_BS.data must hold 16 numbers");
+    for (int i = 0; i < 16; ++i) body_from_cam(i / 4, i % 4) = data[i];
+  }
+  return body_from_cam;
+}
+
+// state_groundtruth_estimate0/data.csv holds world_from_body; the camera is body_from_cam (T_BS).
+Trajectory ReadEurocStateGroundTruth(const std::string& path, const Eigen::Matrix4d& body_from_cam) {
+  std::vector<StampedPose> poses;
+  const Eigen::Matrix3d r_bc = body_from_cam.topLeftCorner<3, 3>();
+  const Rigid3d body_from_cam_rigid(Eigen::Quaterniond(r_bc).normalized(), body_from_cam.topRightCorner<3, 1>());
+  ForEachDataLine(path, [&](std::string line, int line_number) {
+    std::replace(line.begin(), line.end(), ',', ' ');
+    std::istringstream fields(line);
+    long long t;
+    double p[3], q[4];
+    fields >> t >> p[0] >> p[1] >> p[2] >> q[0] >> q[1] >> q[2] >> q[3];
+    if (!fields) throw Error(Str() << path << ":" << line_number << ": malformed ground-truth line");
+    const Rigid3d world_from_body(Eigen::Quaterniond(q[0], q[1], q[2], q[3]).normalized(),
+                                  Eigen::Vector3d(p[0], p[1], p[2]));
+    poses.push_back({t, world_from_body * body_from_cam_rigid});
+  });
+  return Trajectory(std::move(poses));
+}
+
+std::unique_ptr<ImageSequence> OpenEuroc(const fs::path& given, const SequenceOptions& options) {
+  const fs::path mav = fs::exists(given / "mav0") ? given / "mav0" : given;
+  const fs::path root = mav.parent_path();
+  const fs::path cam = mav / "cam0";
+  const fs::path list = cam / "data.csv";
+  std::vector<ImageEntry> images;
+  ForEachDataLine(list.string(), [&](const std::string& line, int line_number) {
+    const auto comma = line.find(',');
+    if (comma == std::string::npos) {
+      throw Error(Str() << list.string() << ":" << line_number << ": expected 'timestamp,filename'");
+    }
+    std::string file = line.substr(comma + 1);
+    while (!file.empty() && std::isspace(static_cast<unsigned char>(file.back()))) file.pop_back();
+    try {
+      images.push_back({std::stoll(line.substr(0, comma)), (cam / "data" / file).string()});
+    } catch (const std::exception&) {
+      throw Error(Str() << list.string() << ":" << line_number << ": bad timestamp");
+    }
+  }, " (EuRoC sequences have mav0/cam0/data.csv)");
+  images = Slice(std::move(images), options);
+  const std::string sensor = (cam / "sensor.yaml").string();
+  const std::string calibration = options.calibration_path.empty() ? sensor : options.calibration_path;
+  const Camera camera = CameraForImages(images, calibration, mav.string());
+  Trajectory ground_truth;
+  if (fs::exists(root / "groundtruth_cam0.txt")) {
+    ground_truth = Trajectory::ReadTum((root / "groundtruth_cam0.txt").string());
+  } else if (fs::exists(mav / "state_groundtruth_estimate0" / "data.csv")) {
+    ground_truth = ReadEurocStateGroundTruth(
+        (mav / "state_groundtruth_estimate0" / "data.csv").string(),
+        fs::exists(sensor) ? ReadTBS(sensor) : Eigen::Matrix4d::Identity());
+  }
+  const double fps = FpsFromTimestamps(images, 20.0);
+  return std::make_unique<ImageListSequence>("EuRoC " + root.string(), std::move(images), camera,
+                                             std::move(ground_truth), fps);
+}
+
+// --- KITTI odometry ------------------------------------------------------------------------
+
+std::unique_ptr<ImageSequence> OpenKitti(const fs::path& root, const SequenceOptions& options) {
+  const fs::path times = root / "times.txt";
+  std::ifstream in(times);
+  if (!in) throw Error(times.string() + ": cannot open (KITTI odometry sequences have times.txt)");
+  std::vector<ImageEntry> images;
+  std::string stamp;
+  char name[32];
+  while (in >> stamp) {
+    // times.txt is in seconds, often in exponent form ("1.036e-01"), which ParseSecondsToNs
+    // rejects on purpose; KITTI's resolution is far coarser than a double's.
+    const double seconds = std::stod(stamp);
+    std::snprintf(name, sizeof(name), "%06zu.png", images.size());
+    images.push_back({static_cast<int64_t>(std::llround(seconds * 1e9)),
+                      (root / "image_0" / name).string()});
+  }
+  images = Slice(std::move(images), options);
+  const std::string calibration =
+      options.calibration_path.empty() ? (root / "calib.txt").string() : options.calibration_path;
+  const Camera camera = CameraForImages(images, calibration, root.string());
+  Trajectory ground_truth;
+  const fs::path sequence_dir = fs::absolute(root).lexically_normal();
+  const std::string sequence_name = sequence_dir.filename().empty()
+                                        ? sequence_dir.parent_path().filename().string()
+                                        : sequence_dir.filename().string();
+  const fs::path poses = sequence_dir.parent_path().parent_path() / "poses" / (sequence_name + ".txt");
+  if (fs::exists(poses)) {
+    std::ifstream pin(poses);
+    std::vector<StampedPose> gt;
+    double m[12];
+    while (pin >> m[0]) {
+      for (int k = 1; k < 12; ++k) pin >> m[k];
+      if (!pin) throw Error(poses.string() + ": each line needs 12 numbers");
+      Eigen::Matrix3d r;
+      r << m[0], m[1], m[2], m[4], m[5], m[6], m[8], m[9], m[10];
+      gt.push_back({0, Rigid3d(Eigen::Quaterniond(r).normalized(), Eigen::Vector3d(m[3], m[7], m[11]))});
+    }
+    // Poses are one per frame of the full sequence; keep those of the frames we play.
+    std::vector<StampedPose> kept;
+    for (size_t k = 0; k < images.size(); ++k) {
+      const size_t full_index = k + std::max(options.start_frame, 0);
+      if (full_index < gt.size()) kept.push_back({images[k].t_ns, gt[full_index].world_from_cam});
+    }
+    ground_truth = Trajectory(std::move(kept));
+  }
+  const double fps = FpsFromTimestamps(images, 10.0);
+  return std::make_unique<ImageListSequence>("KITTI " + root.string(), std::move(images), camera,
+                                             std::move(ground_truth), fps);
+}
+
+// --- Image folder --------------------------------------------------------------------------
+
+// Timestamps from file names when every name is a number: integers of 16+ digits are
+// nanoseconds (EuRoC style), names with a '.' are seconds. Otherwise frames are 1/fps apart.
+std::vector<ImageEntry> TimestampFolder(const std::vector<fs::path>& files, double fps) {
+  bool all_ns = true, all_seconds = true;
+  for (const auto& f : files) {
+    const std::string stem = f.stem().string();
+    const bool digits = !stem.empty() && std::all_of(stem.begin(), stem.end(), [](char c) {
+      return std::isdigit(static_cast<unsigned char>(c));
+    });
+    all_ns = all_ns && digits && stem.size() >= 16;
+    bool seconds = stem.find('.') != std::string::npos;
+    if (seconds) {
+      try {
+        ParseSecondsToNs(stem);
+      } catch (const Error&) {
+        seconds = false;
+      }
+    }
+    all_seconds = all_seconds && seconds;
+  }
+  std::vector<ImageEntry> images;
+  for (size_t i = 0; i < files.size(); ++i) {
+    const std::string stem = files[i].stem().string();
+    int64_t t_ns;
+    if (all_ns) {
+      t_ns = std::stoll(stem);
+    } else if (all_seconds) {
+      t_ns = ParseSecondsToNs(stem);
+    } else {
+      t_ns = static_cast<int64_t>(std::llround(i * 1e9 / fps));
+    }
+    images.push_back({t_ns, files[i].string()});
+  }
+  std::stable_sort(images.begin(), images.end(),
+                   [](const ImageEntry& a, const ImageEntry& b) { return a.t_ns < b.t_ns; });
+  return images;
+}
+
+std::unique_ptr<ImageSequence> OpenImageFolder(const fs::path& root, const SequenceOptions& options) {
+  std::vector<fs::path> files;
+  for (const auto& entry : fs::directory_iterator(root)) {
+    if (entry.is_regular_file() && IsImageFile(entry.path())) files.push_back(entry.path());
+  }
+  if (files.empty()) throw Error(root.string() + ": no images (.png, .jpg, .pgm, ...) in this folder");
+  std::sort(files.begin(), files.end());
+  const double fps = options.fps > 0 ? options.fps : 30.0;
+  std::vector<ImageEntry> images = Slice(TimestampFolder(files, fps), options);
+  std::string calibration = options.calibration_path;
+  if (calibration.empty()) {
+    calibration = FirstExisting({root / "camera.yaml", root / "calibration.yaml",
+                                 root.parent_path() / "camera.yaml"});
+  }
+  if (calibration.empty()) {
+    throw Error(root.string() + ": no calibration; put camera.yaml beside the images or pass --calib FILE");
+  }
+  const Camera camera = CameraForImages(images, calibration, root.string());
+  Trajectory ground_truth;
+  const std::string gt = FirstExisting({root / "groundtruth.txt", root.parent_path() / "groundtruth.txt"});
+  if (!gt.empty()) ground_truth = Trajectory::ReadTum(gt);
+  const double sequence_fps = FpsFromTimestamps(images, fps);
+  return std::make_unique<ImageListSequence>("image folder " + root.string(), std::move(images),
+                                             camera, std::move(ground_truth), sequence_fps);
+}
+
+// --- Video file ----------------------------------------------------------------------------
+
+class VideoSequence : public ImageSequence {
+ public:
+  VideoSequence(const fs::path& path, const SequenceOptions& options) : path_(path.string()) {
+    if (!capture_.open(path_)) throw Error(path_ + ": cannot open video (unsupported codec or not a video)");
+    fps_ = options.fps > 0 ? options.fps : capture_.get(cv::CAP_PROP_FPS);
+    if (!(fps_ > 0 && fps_ < 1000)) fps_ = 30.0;
+    const double count = capture_.get(cv::CAP_PROP_FRAME_COUNT);
+    total_ = count > 0 ? static_cast<int>(count) : -1;
+    for (int i = 0; i < options.start_frame; ++i) {
+      if (!capture_.grab()) break;
+      ++source_index_;
+    }
+    if (total_ >= 0) total_ = std::max(0, total_ - options.start_frame);
+    if (options.max_frames >= 0 && (total_ < 0 || options.max_frames < total_)) total_ = options.max_frames;
+    max_frames_ = options.max_frames;
+    // Read one frame now to learn the size and check the calibration.
+    if (!ReadFrame(&pending_)) throw Error(path_ + ": the video has no readable frame");
+    has_pending_ = true;
+    std::string calibration = options.calibration_path;
+    if (calibration.empty()) {
+      calibration = FirstExisting({fs::path(path_).replace_extension(".yaml"),
+                                   path.parent_path() / "camera.yaml"});
+    }
+    if (calibration.empty()) {
+      throw Error(path_ + ": no calibration; pass --calib FILE or put " +
+                  fs::path(path_).replace_extension(".yaml").filename().string() + " beside it");
+    }
+    camera_ = LoadCalibration(calibration, pending_.image.cols, pending_.image.rows);
+  }
+
+  std::string description() const override {
+    return "video " + path_ + (total_ >= 0 ? " (" + std::to_string(total_) + " frames)" : "");
+  }
+  int size() const override { return total_; }
+  const Camera& camera() const override { return camera_; }
+  double nominal_fps() const override { return fps_; }
+  const Trajectory& ground_truth() const override { return ground_truth_; }
+
+  bool Next(SequenceFrame* frame) override {
+    if (max_frames_ >= 0 && emitted_ >= max_frames_) return false;
+    if (has_pending_) {
+      *frame = pending_;
+      has_pending_ = false;
+    } else if (!ReadFrame(frame)) {
+      return false;
+    }
+    frame->index = emitted_++;
+    return true;
+  }
+
+ private:
+  bool ReadFrame(SequenceFrame* frame) {
+    cv::Mat bgr;
+    if (!capture_.read(bgr) || bgr.empty()) return false;
+    frame->error.clear();
+    if (bgr.channels() == 3) {
+      cv::cvtColor(bgr, frame->image, cv::COLOR_BGR2GRAY);
+    } else if (bgr.channels() == 4) {
+      cv::cvtColor(bgr, frame->image, cv::COLOR_BGRA2GRAY);
+    } else {
+      frame->image = bgr.clone();
+    }
+    // Position timestamps are unreliable across containers; frames are 1/fps apart.
+    frame->t_ns = static_cast<int64_t>(std::llround(source_index_ * 1e9 / fps_));
+    ++source_index_;
+    return true;
+  }
+
+  std::string path_;
+  cv::VideoCapture capture_;
+  Camera camera_;
+  Trajectory ground_truth_;
+  double fps_ = 30.0;
+  int total_ = -1;
+  int max_frames_ = -1;
+  int source_index_ = 0;
+  int emitted_ = 0;
+  SequenceFrame pending_;
+  bool has_pending_ = false;
+};
+
+}  // namespace
+
+std::string DetectDatasetKind(const std::string& path_text) {
+  const fs::path path(path_text);
+  if (!fs::exists(path)) throw Error(path_text + ": no such file or folder");
+  if (fs::is_regular_file(path)) {
+    if (IsVideoFile(path)) return "video";
+    throw Error(path_text + ": a file, but not a video stitch knows (.mp4, .avi, .mkv, .mov, ...)");
+  }
+  if (fs::exists(path / "rgb.txt")) return "tum";
+  if (fs::exists(path / "mav0" / "cam0" / "data.csv") || fs::exists(path / "cam0" / "data.csv")) return "euroc";
+  if (fs::exists(path / "times.txt") && fs::exists(path / "image_0")) return "kitti";
+  for (const auto& entry : fs::directory_iterator(path)) {
+    if (entry.is_regular_file() && IsImageFile(entry.path())) return "folder";
+  }
+  throw Error(path_text +
+              ": not a dataset stitch knows: expected a TUM RGB-D folder (rgb.txt), EuRoC "
+              "(mav0/cam0/data.csv), KITTI odometry (times.txt, image_0/), a folder of images or "
+              "a video file");
+}
+
+std::unique_ptr<ImageSequence> OpenDataset(const std::string& path, const SequenceOptions& options) {
+  const std::string kind = DetectDatasetKind(path);
+  const fs::path root(path);
+  if (kind == "tum") return OpenTum(root, options);
+  if (kind == "euroc") return OpenEuroc(root, options);
+  if (kind == "kitti") return OpenKitti(root, options);
+  if (kind == "folder") return OpenImageFolder(root, options);
+  return std::make_unique<VideoSequence>(root, options);
+}
+
+}  // namespace stitch

@@ -1,0 +1,234 @@
+// Each reader on a small fixture written here (no real data in the repository).
+
+#include <filesystem>
+#include <fstream>
+
+#include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+#include <opencv2/videoio.hpp>
+
+#include "stitch/io/calibration.h"
+#include "stitch/io/image_sequence.h"
+#include "stitch/testing/temp_dir.h"
+#include "stitch/util/error.h"
+
+namespace fs = std::filesystem;
+
+namespace stitch {
+namespace {
+
+constexpr int kWidth = 640, kHeight = 480;
+
+cv::Mat TestImage(int index, int channels = 1) {
+  cv::Mat image(kHeight, kWidth, channels == 1 ? CV_8U : CV_8UC3, cv::Scalar::all(40));
+  cv::putText(image, std::to_string(index), cv::Point(40, 300), cv::FONT_HERSHEY_SIMPLEX, 6.0, cv::Scalar::all(220), 8);
+  return image;
+}
+
+void WriteText(const fs::path& path, const std::string& text) {
+  fs::create_directories(path.parent_path());
+  std::ofstream(path) << text;
+}
+
+std::string PinholeYaml(int width = kWidth, int height = kHeight) {
+  return "%YAML:1.0\nCamera.type: \"PinHole\"\nCamera.fx: 500\nCamera.fy: 500\nCamera.cx: 319.5\nCamera.cy: 239.5\n"
+         "Camera.width: " + std::to_string(width) + "\nCamera.height: " + std::to_string(height) + "\n";
+}
+
+std::vector<SequenceFrame> ReadAll(ImageSequence& sequence) {
+  std::vector<SequenceFrame> frames;
+  SequenceFrame frame;
+  while (sequence.Next(&frame)) frames.push_back(frame);
+  return frames;
+}
+
+// Frame i shows the number i; compare pixels of what was read with what was written.
+void ExpectShowsFrame(const SequenceFrame& frame, int index, double tolerance = 0.0) {
+  ASSERT_FALSE(frame.image.empty()) << frame.error;
+  ASSERT_EQ(frame.image.type(), CV_8UC1);
+  EXPECT_LE(cv::norm(frame.image, TestImage(index), cv::NORM_L1) / frame.image.total(), tolerance);
+}
+
+TEST(Datasets, TumReadsListCalibrationAndGroundTruth) {
+  testing::TempDir dir;
+  const fs::path root = dir.path() / "rgbd_dataset_freiburg1_test";
+  std::string list = "# color images\n# timestamp filename\n";
+  std::string gt = "# ground truth\n";
+  for (int i = 0; i < 3; ++i) {
+    const std::string stamp = "1305031229." + std::to_string(100000 + i * 33333);
+    fs::create_directories(root / "rgb");
+    cv::imwrite((root / "rgb" / (stamp + ".png")).string(), TestImage(i, 3));  // colour, as TUM ships
+    list += stamp + " rgb/" + stamp + ".png\n";
+  }
+  gt += "1305031229.0900 1 2 3 0 0 0 1\n1305031229.2000 2 2 3 0 0 0 1\n";
+  WriteText(root / "rgb.txt", list);
+  WriteText(root / "groundtruth.txt", gt);
+  EXPECT_EQ(DetectDatasetKind(root.string()), "tum");
+  // No camera.yaml: the folder name gives the published freiburg1 calibration.
+  auto sequence = OpenDataset(root.string());
+  EXPECT_NEAR(sequence->camera().fx(), 517.306408, 1e-9);
+  EXPECT_EQ(sequence->size(), 3);
+  const auto frames = ReadAll(*sequence);
+  ASSERT_EQ(frames.size(), 3u);
+  EXPECT_EQ(frames[1].t_ns, 1305031229133333000LL);
+  ExpectShowsFrame(frames[2], 2, 1.0);
+  EXPECT_EQ(sequence->ground_truth().size(), 2u);
+  EXPECT_NEAR(sequence->nominal_fps(), 30.0, 0.01);
+  // With camera.yaml, it wins.
+  WriteText(root / "camera.yaml", PinholeYaml());
+  EXPECT_DOUBLE_EQ(OpenDataset(root.string())->camera().fx(), 500);
+}
+
+TEST(Datasets, EurocReadsCsvSensorAndStateGroundTruth) {
+  testing::TempDir dir;
+  const fs::path root = dir.path() / "MH_test";
+  const fs::path cam = root / "mav0" / "cam0";
+  std::string csv = "#timestamp [ns],filename\n";
+  for (int i = 0; i < 4; ++i) {
+    const std::string stamp = std::to_string(1403636579763555584LL + i * 50000000LL);
+    fs::create_directories(cam / "data");
+    cv::imwrite((cam / "data" / (stamp + ".png")).string(), TestImage(i));
+    csv += stamp + "," + stamp + ".png\r\n";  // EuRoC's csv files end lines with CRLF
+  }
+  WriteText(cam / "data.csv", csv);
+  WriteText(cam / "sensor.yaml",
+            "%YAML:1.0\nT_BS:\n  cols: 4\n  rows: 4\n  data: [0, -1, 0, 0.5, 1, 0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]\n"
+            "resolution: [640, 480]\ncamera_model: pinhole\nintrinsics: [500, 500, 319.5, 239.5]\n"
+            "distortion_model: radial-tangential\ndistortion_coefficients: [-0.01, 0.001, 0.0, 0.0]\n");
+  WriteText(root / "mav0" / "state_groundtruth_estimate0" / "data.csv",
+            "#timestamp, p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [], q_RS_x [], q_RS_y [], q_RS_z []\n"
+            "1403636579763555584,1.0,2.0,3.0,1,0,0,0,0,0,0,0,0,0,0,0,0\n"
+            "1403636579913555584,1.0,2.0,3.0,1,0,0,0,0,0,0,0,0,0,0,0,0\n");
+  EXPECT_EQ(DetectDatasetKind(root.string()), "euroc");
+  auto sequence = OpenDataset(root.string());
+  EXPECT_TRUE(sequence->camera().HasDistortion());
+  const auto frames = ReadAll(*sequence);
+  ASSERT_EQ(frames.size(), 4u);
+  ExpectShowsFrame(frames[3], 3);
+  EXPECT_EQ(frames[3].t_ns, 1403636579913555584LL);
+  EXPECT_NEAR(sequence->nominal_fps(), 20.0, 1e-6);
+  // Ground truth is the camera: body pose times T_BS (camera 0.5 m along body x).
+  const auto pose = sequence->ground_truth().PoseAt(1403636579763555584LL);
+  ASSERT_TRUE(pose);
+  EXPECT_NEAR((pose->translation - Eigen::Vector3d(1.5, 2, 3)).norm(), 0, 1e-9);
+  // Also opening mav0 directly, and start/max frames.
+  SequenceOptions options;
+  options.start_frame = 1;
+  options.max_frames = 2;
+  auto part = OpenDataset((root / "mav0").string(), options);
+  const auto some = ReadAll(*part);
+  ASSERT_EQ(some.size(), 2u);
+  ExpectShowsFrame(some[0], 1);
+}
+
+TEST(Datasets, KittiReadsTimesCalibAndPoses) {
+  testing::TempDir dir;
+  const fs::path seq = dir.path() / "sequences" / "05";
+  for (int i = 0; i < 3; ++i) {
+    char name[16];
+    std::snprintf(name, sizeof(name), "%06d.png", i);
+    fs::create_directories(seq / "image_0");
+    cv::imwrite((seq / "image_0" / name).string(), TestImage(i));
+  }
+  WriteText(seq / "times.txt", "0.000000e+00\n1.036000e-01\n2.072000e-01\n");
+  WriteText(seq / "calib.txt", "P0: 80 0 47.5 0 0 80 31.5 0 0 0 1 0\n");
+  WriteText(dir.path() / "poses" / "05.txt",
+            "1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 0 0 1 0 0 0 0 1 1.5\n1 0 0 0 0 1 0 0 0 0 1 3\n");
+  EXPECT_EQ(DetectDatasetKind(seq.string()), "kitti");
+  auto sequence = OpenDataset(seq.string());
+  const auto frames = ReadAll(*sequence);
+  ASSERT_EQ(frames.size(), 3u);
+  EXPECT_EQ(frames[1].t_ns, 103600000);
+  ExpectShowsFrame(frames[2], 2);
+  ASSERT_EQ(sequence->ground_truth().size(), 3u);
+  EXPECT_NEAR(sequence->ground_truth().poses()[2].world_from_cam.translation.z(), 3.0, 1e-12);
+}
+
+TEST(Datasets, ImageFolderNeedsCalibrationAndSortsByName) {
+  testing::TempDir dir;
+  const fs::path folder = dir.path() / "images";
+  fs::create_directories(folder);
+  for (int i = 0; i < 3; ++i) cv::imwrite((folder / ("frame_" + std::to_string(i) + ".png")).string(), TestImage(i));
+  EXPECT_EQ(DetectDatasetKind(folder.string()), "folder");
+  try {
+    OpenDataset(folder.string());
+    FAIL() << "a folder without calibration must be refused";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("--calib"), std::string::npos) << e.what();
+  }
+  WriteText(folder / "camera.yaml", PinholeYaml());
+  SequenceOptions options;
+  options.fps = 10;
+  auto sequence = OpenDataset(folder.string(), options);
+  const auto frames = ReadAll(*sequence);
+  ASSERT_EQ(frames.size(), 3u);
+  ExpectShowsFrame(frames[1], 1);
+  EXPECT_EQ(frames[2].t_ns, 200000000);
+}
+
+TEST(Datasets, UnreadableImageIsReportedNotFatal) {
+  testing::TempDir dir;
+  const fs::path folder = dir.path() / "images";
+  fs::create_directories(folder);
+  for (int i = 0; i < 3; ++i) cv::imwrite((folder / (std::to_string(i) + ".png")).string(), TestImage(i));
+  WriteText(folder / "1.png", "this is not a png");
+  WriteText(folder / "camera.yaml", PinholeYaml());
+  auto sequence = OpenDataset(folder.string());
+  const auto frames = ReadAll(*sequence);
+  ASSERT_EQ(frames.size(), 3u);
+  EXPECT_TRUE(frames[1].image.empty());
+  EXPECT_NE(frames[1].error.find("not a readable image"), std::string::npos) << frames[1].error;
+  ExpectShowsFrame(frames[2], 2);
+}
+
+TEST(Datasets, CalibrationOfAnotherSizeIsRefused) {
+  testing::TempDir dir;
+  const fs::path folder = dir.path() / "images";
+  fs::create_directories(folder);
+  cv::imwrite((folder / "0.png").string(), TestImage(0));
+  WriteText(folder / "camera.yaml", PinholeYaml(752, 480));
+  try {
+    OpenDataset(folder.string());
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("752x480"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("640x480"), std::string::npos) << e.what();
+  }
+}
+
+TEST(Datasets, VideoFileIsReadFrameByFrame) {
+  testing::TempDir dir;
+  const std::string video = dir / "flight.avi";
+  {
+    cv::VideoWriter writer(video, cv::VideoWriter::fourcc('M', 'J', 'P', 'G'), 25.0, cv::Size(kWidth, kHeight), true);
+    ASSERT_TRUE(writer.isOpened());
+    for (int i = 0; i < 5; ++i) writer.write(TestImage(i, 3));
+  }
+  EXPECT_EQ(DetectDatasetKind(video), "video");
+  EXPECT_THROW(OpenDataset(video), Error);  // no calibration yet
+  WriteText(dir / "flight.yaml", PinholeYaml());
+  auto sequence = OpenDataset(video);
+  EXPECT_NEAR(sequence->nominal_fps(), 25.0, 1e-6);
+  const auto frames = ReadAll(*sequence);
+  ASSERT_EQ(frames.size(), 5u);
+  ExpectShowsFrame(frames[4], 4, 6.0);  // JPEG-compressed
+  EXPECT_EQ(frames[4].t_ns, 160000000);
+}
+
+TEST(Datasets, MissingOrUnknownPathsAreClearErrors) {
+  testing::TempDir dir;
+  EXPECT_THROW(DetectDatasetKind(dir / "nope"), Error);
+  fs::create_directories(dir.path() / "empty");
+  try {
+    DetectDatasetKind(dir / "empty");
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("not a dataset stitch knows"), std::string::npos);
+  }
+  WriteText(dir.path() / "notes.txt", "hello");
+  EXPECT_THROW(DetectDatasetKind(dir / "notes.txt"), Error);
+}
+
+}  // namespace
+}  // namespace stitch

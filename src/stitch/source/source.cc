@@ -1,0 +1,105 @@
+#include "stitch/source/source.h"
+
+#include "stitch/util/error.h"
+#include "stitch/util/options.h"
+
+namespace stitch {
+namespace {
+
+// Plays only [start, start + max) of another sequence.
+class ClippedSequence : public ImageSequence {
+ public:
+  ClippedSequence(std::unique_ptr<ImageSequence> inner, int start, int max_frames)
+      : inner_(std::move(inner)), start_(start), max_frames_(max_frames) {
+    const int total = inner_->size();
+    size_ = total < 0 ? -1 : std::max(0, total - start_);
+    if (max_frames_ >= 0 && (size_ < 0 || max_frames_ < size_)) size_ = max_frames_;
+  }
+  std::string description() const override { return inner_->description(); }
+  int size() const override { return size_; }
+  const Camera& camera() const override { return inner_->camera(); }
+  double nominal_fps() const override { return inner_->nominal_fps(); }
+  const Trajectory& ground_truth() const override { return inner_->ground_truth(); }
+  bool Next(SequenceFrame* frame) override {
+    while (skipped_ < start_) {
+      if (!inner_->Next(frame)) return false;
+      ++skipped_;
+    }
+    if (max_frames_ >= 0 && emitted_ >= max_frames_) return false;
+    if (!inner_->Next(frame)) return false;
+    frame->index = emitted_++;
+    return true;
+  }
+
+ private:
+  std::unique_ptr<ImageSequence> inner_;
+  int start_, max_frames_, size_;
+  int skipped_ = 0, emitted_ = 0;
+};
+
+}  // namespace
+
+FailureSchedule ResolveFailures(const SourceSpec& spec, int num_frames) {
+  if (spec.failures == "default") {
+    return spec.synthetic_source() ? FailureSchedule::DefaultGusts(num_frames) : FailureSchedule();
+  }
+  return FailureSchedule::Parse(spec.failures);
+}
+
+std::unique_ptr<ImageSequence> OpenSource(const SourceSpec& spec, FailureSchedule* spoil) {
+  if (spec.synthetic_source()) {
+    const SyntheticOptions& options = spec.synthetic;
+    const int played = spec.max_frames > 0 ? std::min(spec.max_frames, options.flight.num_frames) : options.flight.num_frames;
+    // Gusts are scheduled in frames of the played part.
+    FailureSchedule gusts = ResolveFailures(spec, played);
+    std::vector<FailureWindow> shifted;
+    for (const auto& w : gusts.windows()) shifted.push_back({w.start + spec.start_frame, w.length});
+    *spoil = FailureSchedule();
+    auto sequence = std::make_unique<SyntheticSequence>(options, FailureSchedule(shifted));
+    if (spec.start_frame == 0 && spec.max_frames < 0) return sequence;
+    return std::make_unique<ClippedSequence>(std::move(sequence), spec.start_frame, spec.max_frames);
+  }
+  SequenceOptions options;
+  options.calibration_path = spec.calibration_path;
+  options.start_frame = spec.start_frame;
+  options.max_frames = spec.max_frames;
+  auto sequence = OpenDataset(spec.dataset_path, options);
+  *spoil = ResolveFailures(spec, sequence->size());
+  return sequence;
+}
+
+SourceSummary SummarizeSource(const SourceSpec& spec) {
+  SourceSummary summary;
+  if (spec.synthetic_source()) {
+    const SyntheticOptions& options = spec.synthetic;
+    CheckOptions(options, "synthetic");
+    const int total = options.flight.num_frames;
+    const int start = std::min(std::max(spec.start_frame, 0), total);
+    const int played = spec.max_frames >= 0 ? std::min(spec.max_frames, total - start) : total - start;
+    summary.failures = ResolveFailures(spec, played);
+    std::vector<FailureWindow> shifted;
+    for (const auto& w : summary.failures.windows()) shifted.push_back({w.start + start, w.length});
+    summary.camera = options.MakeCamera();
+    const FlightPlan plan(options.flight, options.gust, summary.camera, FailureSchedule(shifted),
+                          static_cast<uint64_t>(options.seed));
+    std::vector<StampedPose> poses;
+    for (int i = start; i < start + played; ++i) poses.push_back({plan.TimestampNs(i), plan.WorldFromCam(i)});
+    summary.ground_truth = Trajectory(std::move(poses));
+    summary.num_frames = played;
+    summary.fps = options.flight.fps;
+    summary.description = Str() << "synthetic UAV survey (seed " << options.seed << ", " << played << " frames, gusts "
+                                << summary.failures.ToString() << ")";
+    return summary;
+  }
+  FailureSchedule spoil;
+  auto sequence = OpenSource(spec, &spoil);
+  summary.description = sequence->description();
+  summary.num_frames = sequence->size();
+  summary.fps = sequence->nominal_fps();
+  summary.camera = sequence->camera();
+  summary.ground_truth = sequence->ground_truth();
+  summary.failures = spoil;
+  return summary;
+}
+
+}  // namespace stitch

@@ -1,0 +1,43 @@
+#pragma once
+// Opens what a run plays: a dataset on disk (detected kind) or the synthetic flight.
+
+#include <memory>
+#include <string>
+
+#include "stitch/io/failure_schedule.h"
+#include "stitch/io/image_sequence.h"
+#include "stitch/synthetic/synthetic_sequence.h"
+
+namespace stitch {
+
+struct SourceSpec {
+  std::string dataset_path;     // empty: the synthetic flight
+  std::string calibration_path; // overrides the dataset's calibration
+  std::string failures = "default";  // "default" (synthetic: 3 gusts; datasets: none), "none", or FRAME:LENGTH,...
+  int max_frames = -1;          // -1: all
+  int start_frame = 0;
+  SyntheticOptions synthetic;   // used when dataset_path is empty
+
+  bool synthetic_source() const { return dataset_path.empty(); }
+};
+
+// The failure schedule the spec means for a sequence of `num_frames` frames.
+FailureSchedule ResolveFailures(const SourceSpec& spec, int num_frames);
+
+// Opens the source. For the synthetic flight the failure schedule becomes gusts (rendered into the
+// sequence); for datasets it is returned in `spoil` for ingest to apply. Throws stitch::Error.
+std::unique_ptr<ImageSequence> OpenSource(const SourceSpec& spec, FailureSchedule* spoil);
+
+// Ground truth and length without rendering or reading images where avoidable (the launcher
+// needs them; ingest does the playing).
+struct SourceSummary {
+  std::string description;
+  int num_frames = -1;
+  double fps = 0;
+  Camera camera;
+  Trajectory ground_truth;
+  FailureSchedule failures;
+};
+SourceSummary SummarizeSource(const SourceSpec& spec);
+
+}  // namespace stitch

@@ -1,0 +1,97 @@
+#pragma once
+// The survey flight of the synthetic default: a UAV with a downward-looking camera flies an
+// S-shaped lawnmower path (parallel strips with side overlap, joined by half-turns), with a little
+// wind jitter, and gusts at scheduled frames that knock it off course (yaw, altitude, sideways)
+// for a while. Ground truth is exact: the renderer draws exactly these poses.
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "stitch/geometry/camera.h"
+#include "stitch/geometry/rigid3.h"
+#include "stitch/io/failure_schedule.h"
+
+namespace stitch {
+
+struct FlightOptions {
+  int num_frames = 1000;
+  double fps = 20.0;
+  double altitude_m = 70.0;           // above the terrain's mean height
+  int num_strips = 4;
+  double strip_length_m = 240.0;
+  double side_overlap = 0.6;          // fraction of the footprint shared by neighbouring strips
+  double attitude_jitter_deg = 1.0;   // wind: slow roll / pitch wobble
+  double altitude_jitter_m = 1.0;
+
+  template <class Visitor>
+  void VisitFields(Visitor& v) {
+    v("num_frames", num_frames, "frames in the flight");
+    v("fps", fps, "camera frame rate, Hz");
+    v("altitude_m", altitude_m, "flight height above the mean terrain, metres");
+    v("num_strips", num_strips, "parallel survey strips");
+    v("strip_length_m", strip_length_m, "length of each strip, metres");
+    v("side_overlap", side_overlap, "fraction of the footprint shared by neighbouring strips");
+    v("attitude_jitter_deg", attitude_jitter_deg, "slow roll/pitch wobble amplitude, degrees");
+    v("altitude_jitter_m", altitude_jitter_m, "slow altitude wobble amplitude, metres");
+  }
+  bool Check(std::string* why) const;
+};
+
+struct GustOptions {
+  double yaw_deg = 60.0;          // heading change a gust causes
+  double altitude_change = 0.25;  // fraction of the altitude gained or lost
+  double lateral_m = 25.0;        // sideways push
+  double shake_deg = 12.0;        // roll / pitch shaking during the gust
+  double blur_px = 45.0;          // motion blur length during the gust, pixels
+  int recovery_frames = 90;       // frames to return to the planned path afterwards
+
+  template <class Visitor>
+  void VisitFields(Visitor& v) {
+    v("yaw_deg", yaw_deg, "heading change a gust causes, degrees");
+    v("altitude_change", altitude_change, "fraction of the altitude gained or lost in a gust");
+    v("lateral_m", lateral_m, "sideways push of a gust, metres");
+    v("shake_deg", shake_deg, "roll/pitch shaking during a gust, degrees");
+    v("blur_px", blur_px, "motion blur length during a gust, pixels");
+    v("recovery_frames", recovery_frames, "frames to return to the planned path after a gust");
+  }
+  bool Check(std::string* why) const;
+};
+
+class FlightPlan {
+ public:
+  // `camera` sets the footprint (and so the strip spacing). Throws stitch::Error on bad options.
+  FlightPlan(const FlightOptions& flight, const GustOptions& gust, const Camera& camera,
+             const FailureSchedule& gusts, uint64_t seed);
+
+  int num_frames() const { return flight_.num_frames; }
+  int64_t TimestampNs(int frame) const;
+  Rigid3d WorldFromCam(int frame) const { return poses_.at(frame); }
+  const std::vector<Rigid3d>& world_from_cam() const { return poses_; }
+  bool InGust(int frame) const { return gusts_.Contains(frame); }
+  const FailureSchedule& gusts() const { return gusts_; }
+  // Motion blur of a gust frame: length (px) and direction (rad); length 0 outside gusts.
+  std::pair<double, double> GustBlur(int frame) const;
+  double strip_spacing_m() const { return strip_spacing_; }
+  double path_length_m() const { return path_length_; }
+  // Bounds of the ground the camera can see over the whole flight, with a margin.
+  Eigen::Vector2d min_ground_xy() const { return min_xy_; }
+  Eigen::Vector2d max_ground_xy() const { return max_xy_; }
+
+ private:
+  // Planned position and heading at arc length s along the S-path.
+  void PathAt(double s, Eigen::Vector2d* position, double* heading) const;
+
+  FlightOptions flight_;
+  GustOptions gust_;
+  FailureSchedule gusts_;
+  uint64_t seed_;
+  double strip_spacing_ = 0;
+  double path_length_ = 0;
+  std::vector<Rigid3d> poses_;
+  Eigen::Vector2d min_xy_, max_xy_;
+};
+
+}  // namespace stitch

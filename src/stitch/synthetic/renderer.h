@@ -1,0 +1,32 @@
+#pragma once
+// Renders a SyntheticWorld through a pinhole camera: a z-buffer rasterizer with perspective-
+// correct, trilinearly mip-mapped texturing, so views are correct in perspective and occlusion
+// and do not alias as the UAV climbs. Distortion, when the camera has some, is applied after.
+// A Renderer holds per-call buffers only; Render() is const and may run in several threads.
+
+#include <opencv2/core.hpp>
+
+#include "stitch/geometry/camera.h"
+#include "stitch/geometry/rigid3.h"
+#include "stitch/synthetic/world.h"
+
+namespace stitch {
+
+class Renderer {
+ public:
+  // Keeps references: `world` must outlive the renderer.
+  Renderer(const SyntheticWorld& world, const Camera& camera);
+
+  // A CV_8UC1 image of the world seen from `cam_from_world`. When `depth` is given it receives
+  // CV_32F z in camera coordinates per pixel (0 where nothing was drawn; pinhole image only).
+  cv::Mat Render(const Rigid3d& cam_from_world, cv::Mat* depth = nullptr) const;
+
+ private:
+  cv::Mat RenderPinhole(const Rigid3d& cam_from_world, cv::Mat* depth) const;
+
+  const SyntheticWorld& world_;
+  Camera camera_;
+  cv::Mat distort_map_x_, distort_map_y_;  // pinhole -> distorted image, when needed
+};
+
+}  // namespace stitch

@@ -1,0 +1,68 @@
+#pragma once
+// The embedded default sequence: the survey flight over the synthetic world, rendered on demand,
+// with scheduled gusts (heavy motion blur while the UAV is knocked off course).
+
+#include <memory>
+#include <string>
+
+#include "stitch/io/image_sequence.h"
+#include "stitch/synthetic/flight.h"
+#include "stitch/synthetic/renderer.h"
+#include "stitch/synthetic/world.h"
+
+namespace stitch {
+
+struct SyntheticOptions {
+  int seed = 1;
+  int width = 640;
+  int height = 480;
+  double focal_px = 450.0;
+  double noise_sigma = 2.0;  // sensor noise, grey levels
+  FlightOptions flight;
+  GustOptions gust;
+  WorldOptions world;
+
+  template <class Visitor>
+  void VisitFields(Visitor& v) {
+    v("seed", seed, "scene, flight and noise are deterministic from this");
+    v("width", width, "image width, pixels");
+    v("height", height, "image height, pixels");
+    v("focal_px", focal_px, "focal length, pixels (pinhole, no distortion)");
+    v("noise_sigma", noise_sigma, "sensor noise, grey levels");
+    v("flight", flight, "the survey path");
+    v("gust", gust, "what a scheduled gust does");
+    v("world", world, "the terrain, textures and buildings");
+  }
+  bool Check(std::string* why) const;
+  Camera MakeCamera() const;
+};
+
+class SyntheticSequence : public ImageSequence {
+ public:
+  // Builds the world (about a second) and the flight. Throws stitch::Error on invalid options.
+  SyntheticSequence(const SyntheticOptions& options, const FailureSchedule& gusts);
+
+  std::string description() const override;
+  int size() const override { return flight_.num_frames(); }
+  const Camera& camera() const override { return camera_; }
+  double nominal_fps() const override { return options_.flight.fps; }
+  const Trajectory& ground_truth() const override { return ground_truth_; }
+  bool Next(SequenceFrame* frame) override;
+
+  // Random access, for tests and tools.
+  cv::Mat RenderFrame(int index, cv::Mat* depth = nullptr) const;
+  const FlightPlan& flight() const { return flight_; }
+  const SyntheticWorld& world() const { return *world_; }
+  SyntheticWorld& mutable_world() { return *world_; }
+
+ private:
+  SyntheticOptions options_;
+  Camera camera_;
+  FlightPlan flight_;
+  std::unique_ptr<SyntheticWorld> world_;
+  std::unique_ptr<Renderer> renderer_;
+  Trajectory ground_truth_;
+  int next_ = 0;
+};
+
+}  // namespace stitch

@@ -1,0 +1,15 @@
+#pragma once
+// Line-oriented text files (trajectories, dataset lists, records).
+
+#include <functional>
+#include <string>
+
+namespace stitch {
+
+// Calls `on_line(line, line_number)` for every line that is neither blank nor a '#' comment,
+// with a trailing '\r' (CRLF files) removed. Throws stitch::Error "<path>: cannot open<hint>"
+// when the file cannot be read.
+void ForEachDataLine(const std::string& path, const std::function<void(const std::string&, int)>& on_line,
+                     const std::string& open_hint = "");
+
+}  // namespace stitch

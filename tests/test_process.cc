@@ -1,0 +1,68 @@
+#include "tests/test_process.h"
+
+#include <chrono>
+#include <cstdlib>
+#include <fcntl.h>
+#include <poll.h>
+#include <sys/wait.h>
+#include <thread>
+#include <unistd.h>
+
+namespace stitch::testing {
+
+CommandResult RunProgram(const std::vector<std::string>& args, double timeout_s, int signal_after_s, int signal) {
+  int pipe_fds[2];
+  if (pipe(pipe_fds) != 0) return {};
+  std::vector<std::string> storage = args;
+  std::vector<char*> argv;
+  for (auto& a : storage) argv.push_back(a.data());
+  argv.push_back(nullptr);
+  const pid_t pid = fork();
+  if (pid == 0) {
+    dup2(pipe_fds[1], STDOUT_FILENO);
+    dup2(pipe_fds[1], STDERR_FILENO);
+    close(pipe_fds[0]);
+    close(pipe_fds[1]);
+    execv(argv[0], argv.data());
+    _exit(127);
+  }
+  close(pipe_fds[1]);
+  fcntl(pipe_fds[0], F_SETFL, O_NONBLOCK);
+  CommandResult result;
+  const auto start = std::chrono::steady_clock::now();
+  bool signalled = false;
+  int status = 0;
+  while (true) {
+    char buffer[4096];
+    pollfd fd{pipe_fds[0], POLLIN, 0};
+    poll(&fd, 1, 50);
+    ssize_t n;
+    while ((n = read(pipe_fds[0], buffer, sizeof(buffer))) > 0) result.output.append(buffer, n);
+    const double elapsed = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    if (signal_after_s >= 0 && !signalled && elapsed >= signal_after_s) {
+      kill(pid, signal);
+      signalled = true;
+    }
+    if (waitpid(pid, &status, WNOHANG) == pid) break;
+    if (elapsed > timeout_s) {
+      kill(pid, SIGKILL);
+      waitpid(pid, &status, 0);
+      result.output += "\n[killed after " + std::to_string(timeout_s) + " s]\n";
+      break;
+    }
+  }
+  char buffer[4096];
+  ssize_t n;
+  while ((n = read(pipe_fds[0], buffer, sizeof(buffer))) > 0) result.output.append(buffer, n);
+  close(pipe_fds[0]);
+  result.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+  return result;
+}
+
+std::string Bin(const std::string& name) { return std::string(STITCH_BIN_DIR) + "/" + name; }
+
+bool OnPath(const std::string& program) {
+  return std::system(("command -v " + program + " > /dev/null 2>&1").c_str()) == 0;
+}
+
+}  // namespace stitch::testing

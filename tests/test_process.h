@@ -1,0 +1,25 @@
+#pragma once
+// Running the project's programs from tests: exit status and combined output.
+
+#include <csignal>
+#include <string>
+#include <vector>
+
+namespace stitch::testing {
+
+struct CommandResult {
+  int exit_code = -1;   // or 128 + signal
+  std::string output;   // stdout and stderr
+};
+
+// Runs `args[0]` with the rest as arguments, waits at most `timeout_s`, then kills it.
+CommandResult RunProgram(const std::vector<std::string>& args, double timeout_s = 120,
+                         int signal_after_s = -1, int signal = SIGINT);
+
+// Path of a built program: STITCH_BIN_DIR/name.
+std::string Bin(const std::string& name);
+
+// Whether a program is on the PATH.
+bool OnPath(const std::string& program);
+
+}  // namespace stitch::testing

@@ -1,0 +1,13 @@
+#!/bin/sh
+# Installs what stitch needs to build, test and run, from Debian 12 packages only.
+# Run as root, or as a user with sudo.
+set -eu
+if [ "$(id -u)" -eq 0 ]; then SUDO=""; else SUDO="sudo"; fi
+$SUDO apt-get update
+$SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends \
+  build-essential cmake pkg-config \
+  liblcm-dev liblcm-bin libglib2.0-dev \
+  libopencv-dev libeigen3-dev libceres-dev \
+  libyaml-cpp-dev nlohmann-json3-dev \
+  libgtest-dev libgmock-dev libbenchmark-dev \
+  iproute2 procps

@@ -1,0 +1,11 @@
+#pragma once
+// Subcommands of the `stitch` launcher. Each returns the process exit code.
+
+namespace stitch {
+
+int RunCommand(int argc, char** argv);     // stitch run
+int EvalCommand(int argc, char** argv);    // stitch eval
+int RenderCommand(int argc, char** argv);  // stitch render
+int ConfigCommand(int argc, char** argv);  // stitch config
+
+}  // namespace stitch

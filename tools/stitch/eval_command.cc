@@ -1,0 +1,71 @@
+// stitch eval: evaluates a run folder, or any TUM trajectory, against ground truth.
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+
+#include "stitch/eval/evaluation.h"
+#include "stitch/util/args.h"
+#include "stitch/util/error.h"
+#include "tools/stitch/commands.h"
+#include "tools/stitch/run_outputs.h"
+
+namespace fs = std::filesystem;
+
+namespace stitch {
+
+int EvalCommand(int argc, char** argv) {
+  std::vector<std::string> run_dirs;
+  std::string estimate_path, truth_path, out_dir;
+  int frames_total = 0;
+  ArgParser args("stitch eval",
+                 "Evaluates a run: ATE RMSE after Sim3 (Umeyama) alignment, RPE, completeness, keyframes, submaps. "
+                 "Give a run folder to rebuild its report.json and trajectory.png, or --est (and --gt) to evaluate any "
+                 "TUM-format trajectory, e.g. one from another SLAM system.");
+  args.AddPositional(&run_dirs, "RUN_DIR", "a folder written by `stitch run`");
+  args.AddOption("--est", &estimate_path, "FILE", "estimated trajectory, TUM format");
+  args.AddOption("--gt", &truth_path, "FILE", "ground truth, TUM format");
+  args.AddOption("--frames-total", &frames_total, "N", "frames in the sequence, for completeness (default: poses in --est)");
+  args.AddOption("--out", &out_dir, "DIR", "with --est: write report.json and trajectory.png here");
+  if (!args.Parse(argc, argv)) return args.exit_code();
+  try {
+    if (!run_dirs.empty()) {
+      if (!estimate_path.empty()) throw Error("give either a run folder or --est, not both");
+      RunInfo info = LoadRunInfo(run_dirs[0]);
+      info.notes.clear();
+      const Evaluation evaluation = FinishRunOutputs(run_dirs[0], &info);
+      std::printf("%s\n%s", info.source.c_str(), Summarize(evaluation).c_str());
+      for (const auto& note : info.notes) std::printf("note: %s\n", note.c_str());
+      return 0;
+    }
+    if (estimate_path.empty()) throw Error("nothing to evaluate: give a run folder or --est FILE (see --help)");
+    EvaluationInput input;
+    const Trajectory estimate = Trajectory::ReadTum(estimate_path);
+    for (size_t i = 0; i < estimate.size(); ++i) {
+      PoseRecord p;
+      p.frame_index = static_cast<int>(i);
+      p.t_ns = estimate.poses()[i].t_ns;
+      p.submap_id = 0;
+      p.component = 0;
+      p.world_from_cam = estimate.poses()[i].world_from_cam;
+      input.poses.push_back(p);
+    }
+    input.frames_total = frames_total > 0 ? frames_total : static_cast<int>(estimate.size());
+    input.submaps = estimate.empty() ? 0 : 1;
+    if (!truth_path.empty()) input.ground_truth = Trajectory::ReadTum(truth_path);
+    const Evaluation evaluation = Evaluate(input);
+    std::printf("%s", Summarize(evaluation).c_str());
+    if (!out_dir.empty()) {
+      fs::create_directories(out_dir);
+      std::ofstream(fs::path(out_dir) / "report.json") << ToJson(evaluation).dump(2) << "\n";
+      WriteTrajectoryPlot((fs::path(out_dir) / "trajectory.png").string(), input, evaluation, estimate_path);
+      std::printf("wrote %s/report.json and trajectory.png\n", out_dir.c_str());
+    }
+    return 0;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "stitch eval: %s\n", e.what());
+    return 1;
+  }
+}
+
+}  // namespace stitch

@@ -1,0 +1,57 @@
+// stitch: the launcher. `stitch run` runs the whole system; other commands evaluate, render,
+// and start single services.
+
+#include <cstdio>
+#include <cstring>
+#include <string>
+#include <unistd.h>
+
+#include "tools/stitch/commands.h"
+#include "tools/stitch/process.h"
+
+namespace {
+
+constexpr char kUsage[] =
+    "usage: stitch COMMAND [options]   (stitch COMMAND --help for each)\n"
+    "\n"
+    "stitch is monocular visual SLAM for UAV and handheld video that keeps mapping when tracking\n"
+    "fails and stitches the pieces back into one map.\n"
+    "\n"
+    "commands:\n"
+    "  run       run the system on a sequence (default: the synthetic UAV flight with 3 gusts)\n"
+    "  eval      evaluate a run folder or a TUM trajectory against ground truth\n"
+    "  render    write the synthetic flight as an image folder with ground truth\n"
+    "  config    print every setting with its default and meaning\n"
+    "  ingest    run the ingest service alone (same as stitch-ingest)\n"
+    "  tracker   run the tracker service alone (same as stitch-tracker)\n"
+    "  version   print the version\n";
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc < 2 || !std::strcmp(argv[1], "--help") || !std::strcmp(argv[1], "-h") || !std::strcmp(argv[1], "help")) {
+    std::fputs(kUsage, argc < 2 ? stderr : stdout);
+    return argc < 2 ? 2 : 0;
+  }
+  const std::string command = argv[1];
+  // Subcommands see their own name as argv[0].
+  std::string program = "stitch " + command;
+  argv[1] = program.data();
+  if (command == "run") return stitch::RunCommand(argc - 1, argv + 1);
+  if (command == "eval") return stitch::EvalCommand(argc - 1, argv + 1);
+  if (command == "render") return stitch::RenderCommand(argc - 1, argv + 1);
+  if (command == "config") return stitch::ConfigCommand(argc - 1, argv + 1);
+  if (command == "version" || command == "--version") {
+    std::printf("stitch %s\n", STITCH_VERSION);
+    return 0;
+  }
+  if (command == "ingest" || command == "tracker") {
+    const std::string service = stitch::ExecutableDir() + "/stitch-" + command;
+    argv[1] = const_cast<char*>(service.c_str());
+    execv(service.c_str(), argv + 1);
+    std::fprintf(stderr, "stitch: cannot start %s: %s\n", service.c_str(), std::strerror(errno));
+    return 127;
+  }
+  std::fprintf(stderr, "stitch: unknown command '%s'\n\n%s", command.c_str(), kUsage);
+  return 2;
+}

@@ -1,0 +1,96 @@
+#include "tools/stitch/process.h"
+
+#include <csignal>
+#include <cstring>
+#include <fcntl.h>
+#include <fstream>
+#include <sys/wait.h>
+#include <thread>
+#include <unistd.h>
+#include <deque>
+#include <filesystem>
+
+#include "stitch/util/error.h"
+
+namespace stitch {
+
+ChildProcess::ChildProcess(std::string name, const std::string& program, const std::vector<std::string>& args,
+                           const std::string& log_path)
+    : name_(std::move(name)), log_path_(log_path) {
+  if (access(program.c_str(), X_OK) != 0) throw Error(program + ": not found or not executable (is the build complete?)");
+  const int log_fd = open(log_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (log_fd < 0) throw Error(log_path + ": cannot create log file: " + std::strerror(errno));
+  std::vector<std::string> argv_storage{program};
+  argv_storage.insert(argv_storage.end(), args.begin(), args.end());
+  std::vector<char*> argv;
+  for (auto& a : argv_storage) argv.push_back(a.data());
+  argv.push_back(nullptr);
+  pid_ = fork();
+  if (pid_ < 0) {
+    close(log_fd);
+    throw Error("cannot start " + program + ": " + std::strerror(errno));
+  }
+  if (pid_ == 0) {
+    // Child: output to the log, default signal dispositions, then the program.
+    dup2(log_fd, STDOUT_FILENO);
+    dup2(log_fd, STDERR_FILENO);
+    signal(SIGINT, SIG_DFL);
+    signal(SIGTERM, SIG_DFL);
+    execv(program.c_str(), argv.data());
+    const std::string message = "exec " + program + " failed: " + std::strerror(errno) + "\n";
+    (void)!write(STDERR_FILENO, message.data(), message.size());
+    _exit(127);
+  }
+  close(log_fd);
+}
+
+ChildProcess::~ChildProcess() {
+  if (!status_ && pid_ > 0) Terminate(std::chrono::milliseconds(2000));
+}
+
+std::optional<int> ChildProcess::Poll() {
+  if (status_ || pid_ <= 0) return status_;
+  int raw = 0;
+  const pid_t done = waitpid(pid_, &raw, WNOHANG);
+  if (done == pid_) {
+    status_ = WIFEXITED(raw) ? WEXITSTATUS(raw) : 128 + WTERMSIG(raw);
+  }
+  return status_;
+}
+
+int ChildProcess::Terminate(std::chrono::milliseconds grace) {
+  if (Poll()) return *status_;
+  kill(pid_, SIGTERM);
+  const auto deadline = std::chrono::steady_clock::now() + grace;
+  while (std::chrono::steady_clock::now() < deadline) {
+    if (Poll()) return *status_;
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  kill(pid_, SIGKILL);
+  int raw = 0;
+  waitpid(pid_, &raw, 0);
+  status_ = WIFEXITED(raw) ? WEXITSTATUS(raw) : 128 + WTERMSIG(raw);
+  return *status_;
+}
+
+std::string ChildProcess::LogTail(int lines) const {
+  std::ifstream in(log_path_);
+  std::deque<std::string> tail;
+  std::string line;
+  while (std::getline(in, line)) {
+    tail.push_back(line);
+    if (static_cast<int>(tail.size()) > lines) tail.pop_front();
+  }
+  std::string text;
+  for (const auto& l : tail) text += "    " + l + "\n";
+  return text;
+}
+
+std::string ExecutableDir() {
+  std::error_code error;
+  const auto self = std::filesystem::read_symlink("/proc/self/exe", error);
+  if (error) return ".";
+  return self.parent_path().string();
+}
+
+}  // namespace stitch

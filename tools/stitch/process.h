@@ -1,0 +1,42 @@
+#pragma once
+// Child processes of the launcher: one per service, output to a log file.
+
+#include <chrono>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <sys/types.h>
+
+namespace stitch {
+
+class ChildProcess {
+ public:
+  // Starts `program` with `args` (not including argv[0]); stdout and stderr go to `log_path`.
+  // Throws stitch::Error if it cannot be started.
+  ChildProcess(std::string name, const std::string& program, const std::vector<std::string>& args,
+               const std::string& log_path);
+  ~ChildProcess();  // kills the process if it still runs
+  ChildProcess(const ChildProcess&) = delete;
+  ChildProcess& operator=(const ChildProcess&) = delete;
+
+  const std::string& name() const { return name_; }
+  const std::string& log_path() const { return log_path_; }
+  // The exit status once the process has ended: its exit code, or 128 + signal number.
+  std::optional<int> Poll();
+  // SIGTERM, then SIGKILL if it has not ended after `grace`. Returns the exit status.
+  int Terminate(std::chrono::milliseconds grace);
+  // The last `lines` lines of its log (for error messages).
+  std::string LogTail(int lines) const;
+
+ private:
+  std::string name_;
+  std::string log_path_;
+  pid_t pid_ = -1;
+  std::optional<int> status_;
+};
+
+// Folder of the running executable (to find the service programs beside `stitch`).
+std::string ExecutableDir();
+
+}  // namespace stitch

@@ -1,0 +1,303 @@
+// stitch run: starts the services as separate processes on a bus of their own, plays a
+// sequence through them, shows progress, shuts them down, and writes the run's outputs.
+
+#include <unistd.h>
+
+#include <csignal>
+#include <cstdio>
+#include <ctime>
+#include <filesystem>
+#include <mutex>
+#include <random>
+#include <thread>
+
+#include "services/common/bus.h"
+#include "services/common/service.h"
+#include "services/config/stitch_config.h"
+#include "stitch/sequence_info_t.hpp"
+#include "stitch/source/source.h"
+#include "stitch/tracking_status_t.hpp"
+#include "stitch/util/options.h"
+#include "tools/stitch/commands.h"
+#include "tools/stitch/process.h"
+#include "tools/stitch/run_outputs.h"
+
+namespace fs = std::filesystem;
+
+namespace stitch {
+namespace {
+
+struct RunArgs {
+  std::string dataset;
+  std::string out;
+  std::string failures = "default";
+  std::string on_loss;
+  std::string config_path;
+  std::string calibration;
+  std::string lcm_url;
+  std::string pacing;
+  std::string agent = "uav0";
+  std::string log_level = "info";
+  int max_frames = -1;
+  bool quiet = false;
+};
+
+// What the launcher hears on the bus, for progress and for knowing when the tracker is done.
+class RunMonitor {
+ public:
+  RunMonitor(lcm::LCM* lcm, const std::string& agent) : subscriber_(lcm) {
+    subscriber_.Subscribe<stitch::tracking_status_t>(
+        bus::Channel(agent, bus::kTrackingStatus), [this](std::unique_ptr<stitch::tracking_status_t> s, const std::string&) {
+          std::lock_guard<std::mutex> lock(mutex_);
+          if (s->frame_index > highest_frame_) {
+            highest_frame_ = s->frame_index;
+            latest_ = *s;
+          }
+          ++statuses_;
+          last_change_ = MonotonicSeconds();
+        });
+    subscriber_.Subscribe<stitch::service_status_t>(
+        bus::Channel(agent, bus::kService), [this](std::unique_ptr<stitch::service_status_t> s, const std::string&) {
+          std::lock_guard<std::mutex> lock(mutex_);
+          services_[s->service] = *s;
+        });
+  }
+
+  struct Snapshot {
+    int highest_frame = -1;
+    int64_t statuses = 0;
+    stitch::tracking_status_t latest;
+    double last_change = 0;
+    std::map<std::string, stitch::service_status_t> services;
+  };
+  Snapshot Get() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return {highest_frame_, statuses_, latest_, last_change_, services_};
+  }
+
+ private:
+  bus::Subscriber subscriber_;
+  mutable std::mutex mutex_;
+  int highest_frame_ = -1;
+  int64_t statuses_ = 0;
+  stitch::tracking_status_t latest_;
+  double last_change_ = MonotonicSeconds();
+  std::map<std::string, stitch::service_status_t> services_;
+};
+
+const char* StateName(int8_t state) {
+  switch (state) {
+    case stitch::tracking_status_t::STATE_INITIALIZING: return "INITIALIZING";
+    case stitch::tracking_status_t::STATE_OK: return "OK";
+    case stitch::tracking_status_t::STATE_LOST: return "LOST";
+    case stitch::tracking_status_t::STATE_SKIPPED: return "SKIPPED";
+    default: return "NOT_TRACKED";
+  }
+}
+
+std::string Timestamp(const char* format) {
+  const std::time_t now = std::time(nullptr);
+  std::tm local{};
+  localtime_r(&now, &local);
+  char text[64];
+  std::strftime(text, sizeof(text), format, &local);
+  return text;
+}
+
+std::string NewRunFolder() {
+  const std::string base = "runs/" + Timestamp("%Y%m%d-%H%M%S");
+  std::string path = base;
+  for (int n = 2; fs::exists(path); ++n) path = base + "-" + std::to_string(n);
+  return path;
+}
+
+int RandomPort() {
+  std::random_device device;
+  return 20000 + static_cast<int>(device() % 20000);
+}
+
+}  // namespace
+
+int RunCommand(int argc, char** argv) {
+  RunArgs a;
+  ArgParser args("stitch run",
+                 "Runs stitch on a sequence: ingest and tracker (and, as they are built, mapper and merger) as "
+                 "separate processes over LCM, then evaluates the result. Without --dataset it flies the embedded "
+                 "synthetic UAV survey with 3 scheduled gusts.");
+  args.AddOption("--dataset", &a.dataset, "PATH", "TUM RGB-D / EuRoC / KITTI folder, image folder or video (detected)");
+  args.AddOption("--out", &a.out, "DIR", "output folder (default: a new folder under runs/)");
+  args.AddOption("--failures", &a.failures, "SPEC",
+                 "induced failures: none, FRAME:LENGTH,... or default (synthetic: 3 gusts; datasets: none)");
+  args.AddOption("--on-loss", &a.on_loss, "MODE", "submap (stitch, default) or relocalize (ORB-SLAM2-like baseline)");
+  args.AddOption("--config", &a.config_path, "FILE", "YAML settings (print the defaults with `stitch config`)");
+  args.AddOption("--calib", &a.calibration, "FILE", "calibration overriding the dataset's own");
+  args.AddOption("--max-frames", &a.max_frames, "N", "play at most N frames");
+  args.AddOption("--pacing", &a.pacing, "MODE", "lockstep (reproducible, default) or realtime");
+  args.AddOption("--lcm-url", &a.lcm_url, "URL", "bus for the services (default: a random local port, ttl=0)");
+  args.AddOption("--agent", &a.agent, "NAME", "agent name prefixing the channels");
+  args.AddOption("--log-level", &a.log_level, "LEVEL", "services' log level: debug, info, warning, error");
+  args.AddFlag("--quiet", &a.quiet, "no progress line");
+  args.AddEpilog("Outputs: trajectory.tum, map.ply, report.json, trajectory.png, frames.tsv, poses.tsv,\n"
+                 "groundtruth.tum (when known), config.yaml (resolved settings), logs/ (one per service).");
+  if (!args.Parse(argc, argv)) return args.exit_code();
+
+  RunInfo info;
+  StitchConfig config;
+  SourceSummary source;
+  SourceSpec spec;
+  try {
+    bus::CheckAgentName(a.agent);
+    config = LoadStitchConfig(a.config_path);
+    if (!a.pacing.empty()) config.ingest.pacing = a.pacing;
+    if (!a.on_loss.empty()) config.tracker.on_loss = a.on_loss;
+    CheckOptions(config, "settings");
+    spec.dataset_path = a.dataset;
+    spec.calibration_path = a.calibration;
+    spec.failures = a.failures;
+    spec.max_frames = a.max_frames;
+    spec.synthetic = config.synthetic;
+    source = SummarizeSource(spec);
+    if (source.num_frames == 0) throw Error("the sequence has no frames");
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "stitch run: %s\n", e.what());
+    return 2;
+  }
+
+  const std::string out = a.out.empty() ? NewRunFolder() : a.out;
+  const std::string url = a.lcm_url.empty() ? bus::LocalUdpUrl(RandomPort()) : a.lcm_url;
+  info.source = source.description;
+  info.dataset = a.dataset;
+  info.frames_total = source.num_frames;
+  info.frames_unusable = source.failures.CountWithin(source.num_frames);
+  info.failures = source.failures.ToString();
+  info.on_loss = config.tracker.on_loss;
+  info.pacing = config.ingest.pacing;
+  info.lcm_url = url;
+  info.agent = a.agent;
+  info.started_at = Timestamp("%Y-%m-%dT%H:%M:%S%z");
+
+  std::unique_ptr<lcm::LCM> lcm;
+  try {
+    fs::create_directories(fs::path(out) / "logs");
+    SaveStitchConfig(config, (fs::path(out) / "config.yaml").string());
+    if (!source.ground_truth.empty()) source.ground_truth.WriteTum((fs::path(out) / "groundtruth.tum").string());
+    SaveRunInfo(info, out);
+    lcm = bus::OpenLcm(url);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "stitch run: %s\n", e.what());
+    return 2;
+  }
+
+  std::printf("stitch run: %s\n  on-loss %s, %s pacing, bus %s\n  output %s/\n", source.description.c_str(),
+              info.on_loss.c_str(), info.pacing.c_str(), url.c_str(), out.c_str());
+  std::fflush(stdout);
+
+  const auto& stop = InstallStopSignals();
+  RunMonitor monitor(lcm.get(), a.agent);
+  bus::Dispatcher dispatcher(lcm.get());
+  dispatcher.Start();
+
+  const std::string bin = ExecutableDir();
+  const std::string config_file = (fs::path(out) / "config.yaml").string();
+  const std::vector<std::string> common = {"--lcm-url", url, "--agent", a.agent, "--config", config_file,
+                                           "--log-level", a.log_level};
+  const Stopwatch clock;
+  int exit_code = 0;
+  std::string failure;
+  std::vector<std::unique_ptr<ChildProcess>> children;
+  try {
+    std::vector<std::string> tracker_args = common;
+    tracker_args.insert(tracker_args.end(), {"--record", (fs::path(out) / "frames.tsv").string()});
+    children.push_back(std::make_unique<ChildProcess>("tracker", bin + "/stitch-tracker", tracker_args,
+                                                      (fs::path(out) / "logs" / "tracker.log").string()));
+    std::vector<std::string> ingest_args = common;
+    ingest_args.insert(ingest_args.end(), {"--failures", a.failures, "--max-frames", std::to_string(a.max_frames)});
+    if (!a.dataset.empty()) ingest_args.insert(ingest_args.end(), {"--dataset", a.dataset});
+    if (!a.calibration.empty()) ingest_args.insert(ingest_args.end(), {"--calib", a.calibration});
+    children.push_back(std::make_unique<ChildProcess>("ingest", bin + "/stitch-ingest", ingest_args,
+                                                      (fs::path(out) / "logs" / "ingest.log").string()));
+  } catch (const std::exception& e) {
+    failure = e.what();
+  }
+  ChildProcess* tracker = children.size() > 0 ? children[0].get() : nullptr;
+  ChildProcess* ingest = children.size() > 1 ? children[1].get() : nullptr;
+
+  // Progress until ingest has played everything and the tracker has caught up.
+  const bool tty = isatty(STDOUT_FILENO) && !a.quiet;
+  int last_decile = 0;
+  double ingest_done_at = -1;
+  const int last_frame = source.num_frames - 1;
+  while (failure.empty()) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+    const auto snapshot = monitor.Get();
+    const int done = snapshot.highest_frame + 1;
+    const double seconds = clock.ElapsedSeconds();
+    const double fps = seconds > 0 ? done / seconds : 0;
+    if (tty) {
+      std::printf("\r  frame %5d/%d  %5.1f fps  tracker %-12s submap %lld  keyframes %d   ", done, source.num_frames, fps,
+                  snapshot.statuses ? StateName(snapshot.latest.state) : "starting",
+                  static_cast<long long>(snapshot.latest.submap_id), snapshot.latest.submap_keyframes);
+      std::fflush(stdout);
+    } else if (!a.quiet && source.num_frames > 0 && done * 10 / source.num_frames > last_decile) {
+      last_decile = done * 10 / source.num_frames;
+      std::printf("  frame %d/%d, %.1f fps\n", done, source.num_frames, fps);
+      std::fflush(stdout);
+    }
+    if (stop.load()) {
+      info.interrupted = true;
+      break;
+    }
+    if (tracker && tracker->Poll()) {
+      failure = "the tracker exited unexpectedly (status " + std::to_string(*tracker->Poll()) + "); end of " +
+                tracker->log_path() + ":\n" + tracker->LogTail(8);
+      break;
+    }
+    if (ingest && ingest->Poll() && ingest_done_at < 0) {
+      if (*ingest->Poll() != 0) {
+        failure = "ingest failed (status " + std::to_string(*ingest->Poll()) + "); end of " + ingest->log_path() + ":\n" +
+                  ingest->LogTail(8);
+        break;
+      }
+      ingest_done_at = seconds;
+    }
+    if (ingest_done_at >= 0) {
+      // Ingest has finished; the tracker is done once it has reported the last frame, or has been
+      // quiet for a while (frames lost on the way never come).
+      const bool caught_up = snapshot.highest_frame >= last_frame;
+      const bool quiet = MonotonicSeconds() - snapshot.last_change > 3.0 && seconds - ingest_done_at > 3.0;
+      if (caught_up || quiet) break;
+    }
+  }
+  if (tty) std::printf("\n");
+
+  // Shut the services down: each drains and writes its files on SIGTERM.
+  for (auto it = children.rbegin(); it != children.rend(); ++it) {
+    const int status = (*it)->Terminate(std::chrono::milliseconds(10000));
+    if (status != 0 && status != 128 + SIGTERM && status != 130 && !info.interrupted && failure.empty()) {
+      failure = (*it)->name() + " ended with status " + std::to_string(status) + "; see " + (*it)->log_path();
+    }
+  }
+  dispatcher.Stop();
+  info.wall_seconds = clock.ElapsedSeconds();
+
+  if (!failure.empty()) {
+    std::fprintf(stderr, "stitch run: %s\n", failure.c_str());
+    info.notes.push_back("the run failed: " + failure);
+    exit_code = 1;
+  }
+  try {
+    const Evaluation evaluation = FinishRunOutputs(out, &info);
+    SaveRunInfo(info, out);
+    std::printf("%s in %.1f s\n%s", info.interrupted ? "interrupted" : (exit_code ? "failed" : "done"), info.wall_seconds,
+                Summarize(evaluation).c_str());
+    for (const auto& note : info.notes) std::printf("note: %s\n", note.c_str());
+    std::printf("outputs: %s/{trajectory.tum, map.ply, report.json, trajectory.png, logs/}\n", out.c_str());
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "stitch run: writing the outputs failed: %s\n", e.what());
+    return 1;
+  }
+  if (info.interrupted) return 130;
+  return exit_code;
+}
+
+}  // namespace stitch

@@ -1,0 +1,140 @@
+#include "tools/stitch/run_outputs.h"
+
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <set>
+
+#include "stitch/eval/frame_record.h"
+#include "stitch/io/ply.h"
+#include "stitch/io/trajectory.h"
+#include "stitch/util/error.h"
+
+namespace fs = std::filesystem;
+
+namespace stitch {
+
+nlohmann::json RunInfo::ToJson() const {
+  return {{"source", source},           {"dataset", dataset},           {"frames_total", frames_total},
+          {"frames_unusable", frames_unusable}, {"failures", failures}, {"on_loss", on_loss},
+          {"pacing", pacing},           {"lcm_url", lcm_url},           {"agent", agent},
+          {"started_at", started_at},   {"wall_seconds", wall_seconds}, {"interrupted", interrupted},
+          {"notes", notes}};
+}
+
+RunInfo RunInfo::FromJson(const nlohmann::json& j) {
+  try {
+    RunInfo info;
+    info.source = j.at("source");
+    info.dataset = j.at("dataset");
+    info.frames_total = j.at("frames_total");
+    info.frames_unusable = j.at("frames_unusable");
+    info.failures = j.at("failures");
+    info.on_loss = j.at("on_loss");
+    info.pacing = j.at("pacing");
+    info.lcm_url = j.value("lcm_url", "");
+    info.agent = j.value("agent", "");
+    info.started_at = j.value("started_at", "");
+    info.wall_seconds = j.value("wall_seconds", 0.0);
+    info.interrupted = j.value("interrupted", false);
+    info.notes = j.value("notes", std::vector<std::string>{});
+    return info;
+  } catch (const nlohmann::json::exception& e) {
+    throw Error(std::string("run.json: ") + e.what());
+  }
+}
+
+void SaveRunInfo(const RunInfo& info, const std::string& run_dir) {
+  std::ofstream out(fs::path(run_dir) / "run.json");
+  if (!out) throw Error(run_dir + "/run.json: cannot write");
+  out << info.ToJson().dump(2) << "\n";
+}
+
+RunInfo LoadRunInfo(const std::string& run_dir) {
+  const fs::path path = fs::path(run_dir) / "run.json";
+  std::ifstream in(path);
+  if (!in) throw Error(path.string() + ": not found (is " + run_dir + " a stitch run folder?)");
+  try {
+    return RunInfo::FromJson(nlohmann::json::parse(in));
+  } catch (const nlohmann::json::parse_error& e) {
+    throw Error(path.string() + ": not valid JSON (" + e.what() + ")");
+  }
+}
+
+Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
+  const fs::path dir(run_dir);
+  EvaluationInput input;
+  input.frames_total = info->frames_total;
+  input.frames_unusable = info->frames_unusable;
+
+  std::vector<FrameRecord> records;
+  if (fs::exists(dir / "frames.tsv")) records = ReadFrameRecords((dir / "frames.tsv").string());
+  std::set<int64_t> submaps;
+  int no_core = 0;
+  constexpr int kReasonNoTracker = 7;  // tracking_status_t::REASON_NO_TRACKER
+  for (const auto& r : records) {
+    if (r.tracking_ms > 0) input.tracking_ms.push_back(r.tracking_ms);
+    if (r.is_keyframe) ++input.keyframes;
+    if (r.state == "OK") submaps.insert(r.submap_id);
+    if (r.reason == kReasonNoTracker) ++no_core;
+  }
+  input.submaps = static_cast<int>(submaps.size());
+
+  // The final poses: the merger's when it wrote them; otherwise the tracker's, each submap a map
+  // of its own (nothing merged them).
+  if (fs::exists(dir / "poses.tsv")) {
+    input.poses = ReadPoseRecords((dir / "poses.tsv").string());
+  } else {
+    std::map<int64_t, int> component_of;
+    for (const auto& r : records) {
+      if (r.state != "OK") continue;
+      if (!component_of.count(r.submap_id)) {
+        const int next = static_cast<int>(component_of.size());
+        component_of[r.submap_id] = next;
+      }
+      PoseRecord p;
+      p.frame_index = r.frame_index;
+      p.t_ns = r.t_ns;
+      p.submap_id = r.submap_id;
+      p.component = component_of[r.submap_id];
+      p.is_keyframe = r.is_keyframe;
+      p.world_from_cam = r.world_from_cam;
+      input.poses.push_back(p);
+    }
+    WritePoseRecords((dir / "poses.tsv").string(), input.poses);
+  }
+  if (fs::exists(dir / "groundtruth.tum")) input.ground_truth = Trajectory::ReadTum((dir / "groundtruth.tum").string());
+
+  const Evaluation evaluation = Evaluate(input);
+
+  // trajectory.tum: the largest merged map, in its own frame.
+  Trajectory trajectory;
+  for (const auto& p : input.poses) {
+    if (p.component == evaluation.largest_component) trajectory.Add({p.t_ns, p.world_from_cam});
+  }
+  trajectory.WriteTum((dir / "trajectory.tum").string());
+  if (!fs::exists(dir / "map.ply")) {
+    WritePly((dir / "map.ply").string(), {});
+    info->notes.push_back("map.ply is empty: no mapper produced map points in this run");
+  }
+  if (!records.empty() && no_core == static_cast<int>(records.size())) {
+    info->notes.push_back("the tracker has no SLAM core yet (issue #3): all " + std::to_string(records.size()) +
+                          " frames were received, decoded and reported NOT_TRACKED; no poses were estimated");
+  } else if (records.empty()) {
+    info->notes.push_back("the tracker reported no frame (see logs/tracker.log)");
+  }
+  if (static_cast<int>(records.size()) < info->frames_total && !info->interrupted) {
+    info->notes.push_back(std::to_string(info->frames_total - static_cast<int>(records.size())) +
+                          " frames never reached the tracker");
+  }
+
+  nlohmann::json report = ToJson(evaluation);
+  report["run"] = info->ToJson();
+  std::ofstream out(dir / "report.json");
+  if (!out) throw Error(run_dir + "/report.json: cannot write");
+  out << report.dump(2) << "\n";
+  WriteTrajectoryPlot((dir / "trajectory.png").string(), input, evaluation, info->source);
+  return evaluation;
+}
+
+}  // namespace stitch
