@@ -7,5 +7,6 @@ int RunCommand(int argc, char** argv);     // stitch run
 int EvalCommand(int argc, char** argv);    // stitch eval
 int RenderCommand(int argc, char** argv);  // stitch render
 int ConfigCommand(int argc, char** argv);  // stitch config
+int VocabCommand(int argc, char** argv);   // stitch vocab train|info
 
 }  // namespace stitch

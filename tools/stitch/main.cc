@@ -22,6 +22,7 @@ constexpr char kUsage[] =
     "  eval      evaluate a run folder or a TUM trajectory against ground truth\n"
     "  render    write the synthetic flight as an image folder with ground truth\n"
     "  config    print every setting with its default and meaning\n"
+    "  vocab     train a bag-of-words vocabulary, or describe one\n"
     "  ingest    run the ingest service alone (same as stitch-ingest)\n"
     "  tracker   run the tracker service alone (same as stitch-tracker)\n"
     "  version   print the version\n";
@@ -41,6 +42,7 @@ int main(int argc, char** argv) {
   if (command == "eval") return stitch::EvalCommand(argc - 1, argv + 1);
   if (command == "render") return stitch::RenderCommand(argc - 1, argv + 1);
   if (command == "config") return stitch::ConfigCommand(argc - 1, argv + 1);
+  if (command == "vocab") return stitch::VocabCommand(argc - 1, argv + 1);
   if (command == "version" || command == "--version") {
     std::printf("stitch %s\n", STITCH_VERSION);
     return 0;

@@ -1,0 +1,109 @@
+// Speed of feature extraction and bag-of-words operations (one core).
+//   build/bin/features_benchmark [--benchmark_filter=...]
+// Vocabulary benchmarks use vocabulary/default.stitchvoc when it exists.
+
+#include <filesystem>
+
+#include <benchmark/benchmark.h>
+#include <opencv2/features2d.hpp>
+
+#include "stitch/features/keyframe_database.h"
+#include "stitch/features/orb_extractor.h"
+#include "stitch/features/vocabulary.h"
+#include "stitch/source/source.h"
+#include "stitch/util/rng.h"
+
+namespace stitch {
+namespace {
+
+// A 640x480 frame of the synthetic flight, or a 752x480 EuRoC frame when the data is present.
+cv::Mat Frame(bool euroc) {
+  if (euroc) {
+    const std::string path = std::string(STITCH_DATASETS_DIR) + "/euroc/V1_01_easy_micro";
+    if (!std::filesystem::exists(path)) return {};
+    auto sequence = OpenDataset(path);
+    SequenceFrame frame;
+    for (int i = 0; i < 40; ++i) sequence->Next(&frame);
+    return frame.image;
+  }
+  SyntheticOptions options;
+  options.flight.num_frames = 100;
+  SyntheticSequence sequence(options, FailureSchedule());
+  return sequence.RenderFrame(40);
+}
+
+void BM_StitchOrb(benchmark::State& state) {
+  const cv::Mat image = Frame(state.range(0) == 1);
+  if (image.empty()) return state.SkipWithError("EuRoC data absent");
+  OrbExtractor extractor{OrbOptions{}};
+  std::vector<cv::KeyPoint> keypoints;
+  cv::Mat descriptors;
+  for (auto _ : state) extractor.Extract(image, &keypoints, &descriptors);
+  state.counters["features"] = static_cast<double>(keypoints.size());
+}
+BENCHMARK(BM_StitchOrb)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
+
+void BM_OpenCvOrb(benchmark::State& state) {
+  const cv::Mat image = Frame(state.range(0) == 1);
+  if (image.empty()) return state.SkipWithError("EuRoC data absent");
+  auto orb = cv::ORB::create(1000, 1.2f, 8, 19, 0, 2, cv::ORB::HARRIS_SCORE, 31, 20);
+  std::vector<cv::KeyPoint> keypoints;
+  cv::Mat descriptors;
+  for (auto _ : state) orb->detectAndCompute(image, cv::noArray(), keypoints, descriptors);
+  state.counters["features"] = static_cast<double>(keypoints.size());
+}
+BENCHMARK(BM_OpenCvOrb)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
+
+const Vocabulary* DefaultVocabulary() {
+  static const Vocabulary* vocabulary = [] {
+    const std::string path = std::string(STITCH_SOURCE_DIR) + "/vocabulary/default.stitchvoc";
+    return std::filesystem::exists(path) ? new Vocabulary(Vocabulary::Load(path)) : nullptr;
+  }();
+  return vocabulary;
+}
+
+void BM_VocabularyLoad(benchmark::State& state) {
+  const std::string path = std::string(STITCH_SOURCE_DIR) + "/vocabulary/default.stitchvoc";
+  if (!std::filesystem::exists(path)) return state.SkipWithError("no vocabulary/default.stitchvoc");
+  for (auto _ : state) benchmark::DoNotOptimize(Vocabulary::Load(path));
+}
+BENCHMARK(BM_VocabularyLoad)->Unit(benchmark::kMillisecond);
+
+void BM_TransformKeyframe(benchmark::State& state) {
+  const Vocabulary* vocabulary = DefaultVocabulary();
+  if (!vocabulary) return state.SkipWithError("no vocabulary/default.stitchvoc");
+  OrbExtractor extractor{OrbOptions{}};
+  std::vector<cv::KeyPoint> keypoints;
+  cv::Mat descriptors;
+  extractor.Extract(Frame(false), &keypoints, &descriptors);
+  FeatureVector features;
+  for (auto _ : state) benchmark::DoNotOptimize(vocabulary->Transform(descriptors, &features));
+  state.counters["features"] = descriptors.rows;
+}
+BENCHMARK(BM_TransformKeyframe)->Unit(benchmark::kMicrosecond);
+
+void BM_DatabaseQuery(benchmark::State& state) {
+  const Vocabulary* vocabulary = DefaultVocabulary();
+  if (!vocabulary) return state.SkipWithError("no vocabulary/default.stitchvoc");
+  // Keyframes with 1000 random descriptors each: a worst case for the inverted index, since
+  // random descriptors spread over all words.
+  Rng rng(5);
+  KeyframeDatabase database;
+  cv::Mat descriptors(1000, 32, CV_8U);
+  BowVector query;
+  for (int k = 0; k < state.range(0); ++k) {
+    for (int i = 0; i < descriptors.rows; ++i) {
+      for (int b = 0; b < 32; ++b) descriptors.at<uint8_t>(i, b) = static_cast<uint8_t>(rng.NextU64());
+    }
+    const BowVector bow = vocabulary->Transform(descriptors);
+    database.Add(k, k % 10, bow);
+    if (k == 0) query = bow;
+  }
+  for (auto _ : state) benchmark::DoNotOptimize(database.Query(query, [](int64_t submap) { return submap != 3; }));
+}
+BENCHMARK(BM_DatabaseQuery)->Arg(1000)->Arg(10000)->Unit(benchmark::kMillisecond);
+
+}  // namespace
+}  // namespace stitch
+
+BENCHMARK_MAIN();
