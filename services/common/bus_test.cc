@@ -44,7 +44,7 @@ void PublishAndReceive(const std::string& url) {
   dispatcher.Start();
   Publisher publisher(lcm.get(), "uav3");
   for (int i = 0; i < 3; ++i) {
-    stitch::frame_ack_t ack;
+    stitch::frame_ack_t ack{};
     ack.frame_index = 10 + i;
     publisher.Publish(Channel("uav3", kFrameAck), &ack);
   }
@@ -78,7 +78,7 @@ TEST(Bus, MalformedAndForeignMessagesNeverReachTheHandler) {
   Dispatcher dispatcher(lcm.get());
   dispatcher.Start();
 
-  stitch::frame_ack_t ack;
+  stitch::frame_ack_t ack{};
   ack.header.agent = "uav3";
   ack.frame_index = 1;
   std::vector<uint8_t> bytes(ack.getEncodedSize());
@@ -90,7 +90,7 @@ TEST(Bus, MalformedAndForeignMessagesNeverReachTheHandler) {
   longer.push_back(0);
   lcm->publish(channel, longer.data(), static_cast<unsigned>(longer.size()));
   // Another type on this channel.
-  stitch::tracking_status_t status;
+  stitch::tracking_status_t status{};
   status.header.agent = "uav3";
   lcm->publish(channel, &status);
   // Random bytes.

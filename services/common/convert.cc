@@ -7,7 +7,7 @@
 namespace stitch {
 
 stitch::camera_t ToMessage(const Camera& camera) {
-  stitch::camera_t message;
+  stitch::camera_t message{};
   message.model = camera.model() == CameraModel::kPinholeRadTan ? stitch::camera_t::MODEL_PINHOLE_RADTAN
                                                                 : stitch::camera_t::MODEL_FISHEYE;
   message.width = camera.width();

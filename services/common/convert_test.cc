@@ -36,7 +36,7 @@ TEST(Convert, ImagesRoundTripInBothEncodings) {
   cv::Mat image(48, 64, CV_8U);
   cv::randu(image, 0, 255);
   cv::GaussianBlur(image, image, cv::Size(5, 5), 1.5);
-  stitch::frame_t frame;
+  stitch::frame_t frame{};
   EncodeImage(image, ImageEncoding::kGray8, 90, &frame);
   EXPECT_EQ(frame.num_bytes, 48 * 64);
   EXPECT_EQ(cv::norm(DecodeImage(frame), image, cv::NORM_INF), 0);
@@ -47,7 +47,7 @@ TEST(Convert, ImagesRoundTripInBothEncodings) {
 
 TEST(Convert, MalformedFramesAreRejectedWithAReason) {
   cv::Mat image(48, 64, CV_8U, cv::Scalar(7));
-  stitch::frame_t frame;
+  stitch::frame_t frame{};
   EncodeImage(image, ImageEncoding::kGray8, 90, &frame);
   frame.data.pop_back();
   frame.num_bytes--;

@@ -48,7 +48,7 @@ void Heartbeat::SetState(int8_t state, const std::string& detail) {
 }
 
 void Heartbeat::PublishNow() {
-  stitch::service_status_t status;
+  stitch::service_status_t status{};
   {
     std::lock_guard<std::mutex> lock(mutex_);
     status.state = state_;

@@ -15,6 +15,12 @@ StitchConfig LoadStitchConfig(const std::string& path) {
   return ReadOptions<StitchConfig>(LoadYamlFile(path), path);
 }
 
+std::string DefaultVocabularyPath() { return STITCH_DEFAULT_VOCABULARY; }
+
+Vocabulary LoadVocabulary(const StitchConfig& config) {
+  return Vocabulary::Load(config.vocabulary.empty() ? DefaultVocabularyPath() : config.vocabulary);
+}
+
 void SaveStitchConfig(const StitchConfig& config, const std::string& path) {
   std::ofstream out(path);
   if (!out) throw Error(path + ": cannot write");

@@ -6,26 +6,35 @@
 #include <string>
 
 #include "services/ingest/ingest_options.h"
+#include "services/mapper/mapper_options.h"
 #include "services/tracker/tracker_options.h"
 #include "stitch/synthetic/synthetic_sequence.h"
 
 namespace stitch {
 
 struct StitchConfig {
+  std::string vocabulary;  // empty: the vocabulary shipped with stitch
   SyntheticOptions synthetic;
   IngestOptions ingest;
   TrackerOptions tracker;
+  MapperOptions mapper;
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
+    v("vocabulary", vocabulary, "bag-of-words vocabulary file (empty: the one shipped with stitch)");
     v("synthetic", synthetic, "the embedded default flight");
     v("ingest", ingest, "frame source service");
     v("tracker", tracker, "tracking service");
+    v("mapper", mapper, "local mapping service");
   }
   bool Check(std::string* why) const {
-    return synthetic.Check(why) && ingest.Check(why) && tracker.Check(why);
+    return synthetic.Check(why) && ingest.Check(why) && tracker.Check(why) && mapper.Check(why);
   }
 };
+
+// The vocabulary the configuration names (or the shipped default); throws stitch::Error.
+Vocabulary LoadVocabulary(const StitchConfig& config);
+std::string DefaultVocabularyPath();
 
 // Defaults when `path` is empty. Throws stitch::Error naming the file and key on any problem.
 StitchConfig LoadStitchConfig(const std::string& path);

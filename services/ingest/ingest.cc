@@ -63,7 +63,7 @@ bool IngestService::WaitForAck(int frame_index, const std::atomic<bool>& stop) {
 }
 
 void IngestService::PublishSequenceInfo(const ImageSequence& sequence, const IngestSummary& summary, bool finished) {
-  stitch::sequence_info_t info;
+  stitch::sequence_info_t info{};
   info.source = sequence.description();
   info.frames_total = sequence.size();
   info.frames_published = summary.frames_published;
@@ -97,7 +97,7 @@ IngestSummary IngestService::Play(ImageSequence& sequence, const FailureSchedule
   int64_t first_t_ns = 0;
   bool first = true;
   SequenceFrame frame;
-  stitch::frame_t message;
+  stitch::frame_t message{};
   message.camera = ToMessage(sequence.camera());
   message.camera_id = 0;
   while (!stop.load() && sequence.Next(&frame)) {

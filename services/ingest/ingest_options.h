@@ -11,7 +11,7 @@ struct IngestOptions {
   std::string encoding = "auto";      // gray8 (raw), jpeg, or auto (see ChooseFrameEncoding)
   int jpeg_quality = 92;
   double ack_timeout_s = 0.25;        // lockstep: re-send a frame not acknowledged within this
-  int max_resends = 10;               // lockstep: then give up on that frame and go on
+  int max_resends = 40;               // lockstep: then give up on that frame and go on (10 s by default)
   double wait_for_tracker_s = 30.0;   // lockstep: how long to wait for a tracker at start
   std::string failure_style = "blur"; // datasets: black, or blur (heavy blur and a jump)
   int failure_seed = 1;

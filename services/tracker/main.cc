@@ -7,6 +7,7 @@
 #include "services/common/service.h"
 #include "services/config/stitch_config.h"
 #include "services/tracker/tracker_service.h"
+#include "stitch/util/options.h"
 
 int main(int argc, char** argv) {
   using namespace stitch;
@@ -23,10 +24,12 @@ int main(int argc, char** argv) {
     common.Apply("tracker");
     StitchConfig config = LoadStitchConfig(common.config_path);
     if (!on_loss.empty()) config.tracker.on_loss = on_loss;
+    CheckOptions(config.tracker, "tracker");
+    const Vocabulary vocabulary = LoadVocabulary(config);
     const auto& stop = InstallStopSignals();
     auto lcm = bus::OpenLcm(common.lcm_url);
     bus::Publisher publisher(lcm.get(), common.agent);
-    TrackerService tracker(lcm.get(), &publisher, config.tracker, record_path);
+    TrackerService tracker(lcm.get(), &publisher, config.tracker, &vocabulary, record_path);
     bus::Dispatcher dispatcher(lcm.get());
     dispatcher.Start();
     tracker.Start();

@@ -3,28 +3,32 @@
 
 #include <string>
 
+#include "services/tracker/tracking.h"
+
 namespace stitch {
 
 struct TrackerOptions {
   int max_queued_frames = 2;       // realtime: frames waiting beyond this are dropped, oldest first
   std::string on_loss = "submap";  // submap: close the map and start a new one; relocalize: ORB-SLAM2-like
+  bool wait_for_mapper = true;     // after a keyframe, wait for the mapper's update before the next frame
+  double mapper_timeout_s = 5.0;   // ...for at most this long; then track on without it and say so
+  TrackingOptions tracking;
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
     v("max_queued_frames", max_queued_frames, "frames that may wait for the tracker; older ones are dropped");
     v("on_loss", on_loss, "after tracking loss: submap (stitch) or relocalize (ORB-SLAM2-like baseline)");
+    v("wait_for_mapper", wait_for_mapper, "after a keyframe, wait for the mapper before the next frame (reproducible runs)");
+    v("mapper_timeout_s", mapper_timeout_s, "longest wait for the mapper, seconds; then track on without it");
+    v("tracking", tracking, "the tracking algorithm");
   }
 
   bool Check(std::string* why) const {
-    if (max_queued_frames < 1 || max_queued_frames > 1000) {
-      if (why) *why = "tracker.max_queued_frames must be in [1, 1000]";
-      return false;
-    }
-    if (on_loss != "submap" && on_loss != "relocalize") {
-      if (why) *why = "tracker.on_loss must be submap or relocalize";
-      return false;
-    }
-    return true;
+    auto fail = [&](const std::string& m) { if (why) *why = m; return false; };
+    if (max_queued_frames < 1 || max_queued_frames > 1000) return fail("tracker.max_queued_frames must be in [1, 1000]");
+    if (on_loss != "submap" && on_loss != "relocalize") return fail("tracker.on_loss must be submap or relocalize");
+    if (!(mapper_timeout_s > 0)) return fail("tracker.mapper_timeout_s must be > 0");
+    return tracking.Check(why);
   }
 };
 

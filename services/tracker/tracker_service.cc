@@ -1,6 +1,7 @@
 #include "services/tracker/tracker_service.h"
 
 #include "services/common/convert.h"
+#include "services/common/map_convert.h"
 #include "stitch/eval/frame_record.h"
 #include "stitch/frame_ack_t.hpp"
 #include "stitch/tracking_status_t.hpp"
@@ -22,22 +23,28 @@ int8_t ToMessageState(TrackingState state) {
   return stitch::tracking_status_t::STATE_NOT_TRACKED;
 }
 
-int8_t ToMessageReason(TrackingReason reason) { return static_cast<int8_t>(reason); }
-
 }  // namespace
 
 TrackerService::TrackerService(lcm::LCM* lcm, bus::Publisher* publisher, TrackerOptions options,
-                               std::string record_path)
+                               const Vocabulary* vocabulary, std::string record_path)
     : publisher_(publisher),
       options_(std::move(options)),
+      vocabulary_(vocabulary),
       record_path_(std::move(record_path)),
       subscriber_(lcm),
-      queue_(static_cast<size_t>(std::max(1, options_.max_queued_frames)),
-             BoundedQueue<std::unique_ptr<stitch::frame_t>>::WhenFull::kDropOldest) {
+      frames_(static_cast<size_t>(std::max(1, options_.max_queued_frames)),
+              BoundedQueue<std::unique_ptr<stitch::frame_t>>::WhenFull::kDropOldest),
+      updates_(512, BoundedQueue<std::unique_ptr<stitch::local_map_update_t>>::WhenFull::kDropOldest) {
   CheckOptions(options_, "tracker");
-  subscriber_.Subscribe<stitch::frame_t>(
-      bus::Channel(publisher_->agent(), bus::kFrame),
-      [this](std::unique_ptr<stitch::frame_t> frame, const std::string&) { OnFrame(std::move(frame)); });
+  if (!vocabulary_ || vocabulary_->empty()) throw Error("the tracker needs a vocabulary");
+  const std::string agent = publisher_->agent();
+  subscriber_.Subscribe<stitch::frame_t>(bus::Channel(agent, bus::kFrame),
+                                         [this](std::unique_ptr<stitch::frame_t> frame, const std::string&) {
+                                           OnFrame(std::move(frame));
+                                         });
+  subscriber_.Subscribe<stitch::local_map_update_t>(
+      bus::Channel(agent, bus::kLocalMap),
+      [this](std::unique_ptr<stitch::local_map_update_t> update, const std::string&) { updates_.Push(std::move(update)); });
   heartbeat_ = std::make_unique<Heartbeat>(publisher_, "tracker", [this] {
     return Heartbeat::Counts{received_.load(), tracked_.load(), subscriber_.rejected() + dropped_.load()};
   });
@@ -59,8 +66,9 @@ void TrackerService::Start() {
 
 void TrackerService::Stop() {
   if (!running_.exchange(false)) return;
-  queue_.Close();
+  frames_.Close();
   if (worker_.joinable()) worker_.join();
+  updates_.Close();
   heartbeat_->SetState(stitch::service_status_t::STATE_FINISHED);
   heartbeat_->Stop();
   std::lock_guard<std::mutex> lock(record_mutex_);
@@ -75,7 +83,6 @@ void TrackerService::OnFrame(std::unique_ptr<stitch::frame_t> frame) {
   }
   if (frame->frame_index <= highest_received_.load()) {
     if (frame->frame_index < highest_received_.load()) {
-      // Older than one already queued: tracking it now would run time backwards.
       TrackResult late;
       late.state = TrackingState::kSkipped;
       late.reason = TrackingReason::kDropped;
@@ -87,7 +94,7 @@ void TrackerService::OnFrame(std::unique_ptr<stitch::frame_t> frame) {
   }
   highest_received_ = frame->frame_index;
   ++received_;
-  if (auto dropped = queue_.Push(std::move(frame))) {
+  if (auto dropped = frames_.Push(std::move(frame))) {
     ++dropped_;
     TrackResult result;
     result.state = TrackingState::kSkipped;
@@ -98,11 +105,51 @@ void TrackerService::OnFrame(std::unique_ptr<stitch::frame_t> frame) {
   }
 }
 
+void TrackerService::ApplyUpdates(std::chrono::milliseconds wait) {
+  auto update = updates_.Pop(wait);
+  while (update) {
+    if (tracking_) {
+      try {
+        LocalMapUpdate core = FromMessage(**update);
+        // Only the last part of an update says the keyframe is done.
+        if ((*update)->part != (*update)->num_parts - 1) core.last_keyframe = KeyframeId();
+        tracking_->ApplyUpdate(core);
+      } catch (const Error& e) {
+        STITCH_LOG(WARNING) << "ignored a local map update: " << e.what();
+      }
+    }
+    update = updates_.Pop(std::chrono::milliseconds(0));
+  }
+}
+
+void TrackerService::WaitForMapper() {
+  if (!tracking_ || !options_.wait_for_mapper || tracking_->MapperCaughtUp() || !tracking_->mapper_connected()) return;
+  // Lockstep with the mapper: the next frame sees the map the mapper made from the last keyframe.
+  for (int attempt = 0; attempt < 2 && !tracking_->MapperCaughtUp(); ++attempt) {
+    const double deadline = MonotonicSeconds() + options_.mapper_timeout_s / 2;
+    while (!tracking_->MapperCaughtUp() && MonotonicSeconds() < deadline && running_.load()) {
+      ApplyUpdates(std::chrono::milliseconds(20));
+    }
+    if (!tracking_->MapperCaughtUp() && attempt == 0) {
+      // The keyframe (or the mapper's answer) may have been lost: send it again, once.
+      for (auto& keyframe : unacknowledged_keyframes_) publisher_->Publish(bus::Channel(publisher_->agent(), bus::kKeyframe), &keyframe);
+    }
+  }
+  if (!tracking_->MapperCaughtUp()) {
+    STITCH_LOG(WARNING) << "no answer from the mapper for keyframe " << tracking_->last_keyframe_sent()
+                        << " within " << options_.mapper_timeout_s << " s; tracking on without it";
+    tracking_->SetMapperConnected(false);
+  }
+}
+
 void TrackerService::Work() {
   while (true) {
-    auto frame = queue_.Pop(std::chrono::milliseconds(100));
+    ApplyUpdates(std::chrono::milliseconds(0));
+    WaitForMapper();
+    if (tracking_ && tracking_->MapperCaughtUp()) unacknowledged_keyframes_.clear();
+    auto frame = frames_.Pop(std::chrono::milliseconds(20));
     if (!frame) {
-      if (queue_.closed()) return;
+      if (frames_.closed()) return;
       continue;
     }
     Process(**frame);
@@ -111,40 +158,51 @@ void TrackerService::Work() {
 
 void TrackerService::Process(const stitch::frame_t& frame) {
   const Stopwatch watch;
-  TrackResult result;
+  Tracking::Output output;
   try {
     const cv::Mat image = DecodeImage(frame);
-    if (!tracker_) {
-      tracker_ = std::make_unique<FrameTracker>(FromMessage(frame.camera));
-      STITCH_LOG(INFO) << "camera " << tracker_->camera().Describe();
+    if (!tracking_) {
+      const Camera camera = FromMessage(frame.camera);
+      const double fps = 0;  // the tracker does not know the source's rate: one second of frames = 30
+      tracking_ = std::make_unique<Tracking>(options_.tracking, camera, vocabulary_, fps);
+      STITCH_LOG(INFO) << "camera " << camera.Describe();
     }
-    result = tracker_->Track(image, frame.t_ns, frame.frame_index);
+    output = tracking_->Track(image, frame.frame_index, frame.t_ns);
   } catch (const Error& e) {
-    result.state = TrackingState::kSkipped;
-    result.reason = TrackingReason::kUndecodableFrame;
-    result.detail = e.what();
+    output.result.state = TrackingState::kSkipped;
+    output.result.reason = TrackingReason::kUndecodableFrame;
+    output.result.detail = e.what();
     STITCH_LOG(WARNING) << "frame " << frame.frame_index << " skipped: " << e.what();
   }
   const float ms = static_cast<float>(watch.ElapsedMs());
+  for (size_t k = 0; k < output.new_keyframes.size(); ++k) {
+    stitch::keyframe_t message = ToMessage(output.new_keyframes[k], tracking_->camera(),
+                                           k == 0 ? output.new_points : std::vector<MapPoint>());
+    publisher_->Publish(bus::Channel(publisher_->agent(), bus::kKeyframe), &message);
+    unacknowledged_keyframes_.push_back(std::move(message));
+    ++keyframes_;
+  }
   highest_processed_ = frame.frame_index;
   ++tracked_;
-  Report(frame, result, ms);
+  Report(frame, output.result, ms);
   Ack(frame);
 }
 
 void TrackerService::Report(const stitch::frame_t& frame, const TrackResult& result, float tracking_ms) {
-  stitch::tracking_status_t status;
+  stitch::tracking_status_t status{};
   status.frame_index = frame.frame_index;
   status.t_ns = frame.t_ns;
   status.state = ToMessageState(result.state);
-  status.reason = ToMessageReason(result.reason);
+  status.reason = static_cast<int8_t>(result.reason);
   status.detail = result.detail;
-  status.submap_id = result.submap_id;
+  status.submap_id = result.submap.value;
   status.cam_from_submap = ToMessage(result.cam_from_submap.value_or(Rigid3d()));
   status.num_features = result.num_features;
   status.num_tracked_points = result.num_tracked_points;
+  status.submap_keyframes = result.submap_keyframes;
   status.tracking_ms = tracking_ms;
-  status.mapper_connected = false;
+  status.mapper_connected = tracking_ && tracking_->mapper_connected();
+  status.submaps_closed = tracking_ ? tracking_->submaps_closed() : 0;
   publisher_->Publish(bus::Channel(publisher_->agent(), bus::kTrackingStatus), &status);
   if (record_.is_open()) {
     FrameRecord record;
@@ -152,19 +210,23 @@ void TrackerService::Report(const stitch::frame_t& frame, const TrackResult& res
     record.t_ns = frame.t_ns;
     record.state = TrackingStateName(result.state);
     record.reason = static_cast<int>(result.reason);
-    record.submap_id = result.submap_id;
+    record.submap_id = result.submap.value;
     if (result.cam_from_submap) record.world_from_cam = result.cam_from_submap->Inverse();
     record.num_features = result.num_features;
     record.tracked_points = result.num_tracked_points;
     record.is_keyframe = result.is_keyframe;
     record.tracking_ms = tracking_ms;
+    if (result.reference_keyframe.valid() && result.cam_from_reference) {
+      record.reference_keyframe = result.reference_keyframe.value;
+      record.cam_from_reference = *result.cam_from_reference;
+    }
     std::lock_guard<std::mutex> lock(record_mutex_);
     record_ << FormatFrameRecord(record);
   }
 }
 
 void TrackerService::Ack(const stitch::frame_t& frame) {
-  stitch::frame_ack_t ack;
+  stitch::frame_ack_t ack{};
   ack.frame_index = frame.frame_index;
   ack.t_ns = frame.t_ns;
   publisher_->Publish(bus::Channel(publisher_->agent(), bus::kFrameAck), &ack);

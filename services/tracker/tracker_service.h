@@ -1,9 +1,10 @@
 #pragma once
-// The tracker service: receives frames on <agent>/FRAME, tracks each with FrameTracker in its
-// own worker thread, and publishes a tracking_status_t per frame and a frame_ack_t (lockstep
-// pacing). Frames that arrive twice are acknowledged again but tracked once; frames that arrive
-// after a newer one, or that wait while the queue is full (real-time), are reported as dropped.
-// Writes one line per frame to `record_path` (frames.tsv) when given.
+// The tracker service: receives frames on <agent>/FRAME and the mapper's updates on
+// <agent>/LOCAL_MAP; tracks each frame with Tracking in its own worker thread; publishes a
+// tracking_status_t per frame, a frame_ack_t (lockstep pacing) and new keyframes on
+// <agent>/KEYFRAME. Frames that arrive twice are acknowledged again but tracked once; frames
+// that arrive after a newer one, or that wait while the queue is full (real-time), are reported
+// as dropped. Writes one line per frame to `record_path` (frames.tsv) when given.
 
 #include <atomic>
 #include <fstream>
@@ -15,17 +16,20 @@
 
 #include "services/common/bus.h"
 #include "services/common/service.h"
-#include "services/tracker/frame_tracker.h"
 #include "services/tracker/tracker_options.h"
+#include "services/tracker/tracking.h"
 #include "stitch/frame_t.hpp"
+#include "stitch/keyframe_t.hpp"
+#include "stitch/local_map_update_t.hpp"
 #include "stitch/util/bounded_queue.h"
 
 namespace stitch {
 
 class TrackerService {
  public:
-  // Subscribes at once: construct before the Dispatcher starts.
-  TrackerService(lcm::LCM* lcm, bus::Publisher* publisher, TrackerOptions options, std::string record_path);
+  // Subscribes at once: construct before the Dispatcher starts. `vocabulary` must outlive it.
+  TrackerService(lcm::LCM* lcm, bus::Publisher* publisher, TrackerOptions options, const Vocabulary* vocabulary,
+                 std::string record_path);
   ~TrackerService();
 
   void Start();
@@ -34,27 +38,32 @@ class TrackerService {
 
   int64_t frames_received() const { return received_.load(); }
   int64_t frames_tracked() const { return tracked_.load(); }
-  int highest_processed() const { return highest_processed_.load(); }
+  int64_t keyframes_published() const { return keyframes_.load(); }
 
  private:
   void OnFrame(std::unique_ptr<stitch::frame_t> frame);
   void Work();
+  void ApplyUpdates(std::chrono::milliseconds wait);
+  void WaitForMapper();
   void Process(const stitch::frame_t& frame);
   void Report(const stitch::frame_t& frame, const TrackResult& result, float tracking_ms);
   void Ack(const stitch::frame_t& frame);
 
   bus::Publisher* publisher_;
   TrackerOptions options_;
+  const Vocabulary* vocabulary_;
   std::string record_path_;
   bus::Subscriber subscriber_;
-  BoundedQueue<std::unique_ptr<stitch::frame_t>> queue_;
+  BoundedQueue<std::unique_ptr<stitch::frame_t>> frames_;
+  BoundedQueue<std::unique_ptr<stitch::local_map_update_t>> updates_;
   std::unique_ptr<Heartbeat> heartbeat_;
-  std::unique_ptr<FrameTracker> tracker_;  // created from the first frame's camera
+  std::unique_ptr<Tracking> tracking_;  // created from the first frame's camera
+  std::vector<stitch::keyframe_t> unacknowledged_keyframes_;  // sent, not yet covered by an update
   std::mutex record_mutex_;  // Report() runs in the worker and the dispatcher thread
   std::ofstream record_;
   std::thread worker_;
   std::atomic<bool> running_{false};
-  std::atomic<int64_t> received_{0}, tracked_{0}, dropped_{0};
+  std::atomic<int64_t> received_{0}, tracked_{0}, dropped_{0}, keyframes_{0};
   std::atomic<int> highest_received_{-1}, highest_processed_{-1};
 };
 

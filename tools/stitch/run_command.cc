@@ -66,7 +66,7 @@ class RunMonitor {
   struct Snapshot {
     int highest_frame = -1;
     int64_t statuses = 0;
-    stitch::tracking_status_t latest;
+    stitch::tracking_status_t latest{};
     double last_change = 0;
     std::map<std::string, stitch::service_status_t> services;
   };
@@ -80,7 +80,7 @@ class RunMonitor {
   mutable std::mutex mutex_;
   int highest_frame_ = -1;
   int64_t statuses_ = 0;
-  stitch::tracking_status_t latest_;
+  stitch::tracking_status_t latest_{};
   double last_change_ = MonotonicSeconds();
   std::map<std::string, stitch::service_status_t> services_;
 };
@@ -121,8 +121,8 @@ int RandomPort() {
 int RunCommand(int argc, char** argv) {
   RunArgs a;
   ArgParser args("stitch run",
-                 "Runs stitch on a sequence: ingest and tracker (and, as they are built, mapper and merger) as "
-                 "separate processes over LCM, then evaluates the result. Without --dataset it flies the embedded "
+                 "Runs stitch on a sequence: ingest, tracker and mapper as separate processes over LCM, then "
+                 "evaluates the result. Without --dataset it flies the embedded "
                  "synthetic UAV survey with 3 scheduled gusts.");
   args.AddOption("--dataset", &a.dataset, "PATH", "TUM RGB-D / EuRoC / KITTI folder, image folder or video (detected)");
   args.AddOption("--out", &a.out, "DIR", "output folder (default: a new folder under runs/)");
@@ -206,6 +206,10 @@ int RunCommand(int argc, char** argv) {
   std::string failure;
   std::vector<std::unique_ptr<ChildProcess>> children;
   try {
+    std::vector<std::string> mapper_args = common;
+    mapper_args.insert(mapper_args.end(), {"--record", out});
+    children.push_back(std::make_unique<ChildProcess>("mapper", bin + "/stitch-mapper", mapper_args,
+                                                      (fs::path(out) / "logs" / "mapper.log").string()));
     std::vector<std::string> tracker_args = common;
     tracker_args.insert(tracker_args.end(), {"--record", (fs::path(out) / "frames.tsv").string()});
     children.push_back(std::make_unique<ChildProcess>("tracker", bin + "/stitch-tracker", tracker_args,
@@ -219,8 +223,9 @@ int RunCommand(int argc, char** argv) {
   } catch (const std::exception& e) {
     failure = e.what();
   }
-  ChildProcess* tracker = children.size() > 0 ? children[0].get() : nullptr;
-  ChildProcess* ingest = children.size() > 1 ? children[1].get() : nullptr;
+  ChildProcess* mapper = children.size() > 0 ? children[0].get() : nullptr;
+  ChildProcess* tracker = children.size() > 1 ? children[1].get() : nullptr;
+  ChildProcess* ingest = children.size() > 2 ? children[2].get() : nullptr;
 
   // Progress until ingest has played everything and the tracker has caught up.
   const bool tty = isatty(STDOUT_FILENO) && !a.quiet;
@@ -247,11 +252,13 @@ int RunCommand(int argc, char** argv) {
       info.interrupted = true;
       break;
     }
-    if (tracker && tracker->Poll()) {
-      failure = "the tracker exited unexpectedly (status " + std::to_string(*tracker->Poll()) + "); end of " +
-                tracker->log_path() + ":\n" + tracker->LogTail(8);
-      break;
+    for (ChildProcess* service : {mapper, tracker}) {
+      if (service && service->Poll()) {
+        failure = "the " + service->name() + " exited unexpectedly (status " + std::to_string(*service->Poll()) +
+                  "); end of " + service->log_path() + ":\n" + service->LogTail(8);
+      }
     }
+    if (!failure.empty()) break;
     if (ingest && ingest->Poll() && ingest_done_at < 0) {
       if (*ingest->Poll() != 0) {
         failure = "ingest failed (status " + std::to_string(*ingest->Poll()) + "); end of " + ingest->log_path() + ":\n" +
@@ -270,9 +277,10 @@ int RunCommand(int argc, char** argv) {
   }
   if (tty) std::printf("\n");
 
-  // Shut the services down: each drains and writes its files on SIGTERM.
+  // Shut the services down, upstream first: each drains its queue and writes its files on SIGTERM
+  // (the mapper may still have keyframes to map).
   for (auto it = children.rbegin(); it != children.rend(); ++it) {
-    const int status = (*it)->Terminate(std::chrono::milliseconds(10000));
+    const int status = (*it)->Terminate(std::chrono::milliseconds((*it)->name() == "mapper" ? 120000 : 15000));
     if (status != 0 && status != 128 + SIGTERM && status != 130 && !info.interrupted && failure.empty()) {
       failure = (*it)->name() + " ended with status " + std::to_string(status) + "; see " + (*it)->log_path();
     }

@@ -4,11 +4,13 @@
 #include <fstream>
 #include <map>
 #include <set>
+#include <sstream>
 
 #include "stitch/eval/frame_record.h"
 #include "stitch/io/ply.h"
 #include "stitch/io/trajectory.h"
 #include "stitch/util/error.h"
+#include "stitch/util/text_file.h"
 
 namespace fs = std::filesystem;
 
@@ -69,21 +71,40 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
 
   std::vector<FrameRecord> records;
   if (fs::exists(dir / "frames.tsv")) records = ReadFrameRecords((dir / "frames.tsv").string());
+  // Final keyframe poses from the mapper (culled keyframes placed through their parents).
+  std::map<int64_t, Rigid3d> keyframe_cam_from_world;
+  int keyframes_retained = 0;
+  if (fs::exists(dir / "keyframes.tsv")) {
+    ForEachDataLine((dir / "keyframes.tsv").string(), [&](const std::string& line, int line_number) {
+      std::istringstream fields(line);
+      int64_t id, submap, t_ns;
+      int frame_index, culled;
+      Rigid3d world_from_cam;
+      fields >> id >> submap >> frame_index >> t_ns >> culled;
+      if (!fields || !ReadTumPose(fields, &world_from_cam)) {
+        throw Error(Str() << run_dir << "/keyframes.tsv:" << line_number << ": malformed keyframe");
+      }
+      keyframe_cam_from_world[id] = world_from_cam.Inverse();
+      keyframes_retained += culled == 0;
+    });
+  }
   std::set<int64_t> submaps;
-  int no_core = 0;
+  int no_core = 0, keyframes_made = 0;
   constexpr int kReasonNoTracker = 7;  // tracking_status_t::REASON_NO_TRACKER
   for (const auto& r : records) {
     if (r.tracking_ms > 0) input.tracking_ms.push_back(r.tracking_ms);
-    if (r.is_keyframe) ++input.keyframes;
+    if (r.is_keyframe) ++keyframes_made;
     if (r.state == "OK") submaps.insert(r.submap_id);
     if (r.reason == kReasonNoTracker) ++no_core;
   }
+  input.keyframes = fs::exists(dir / "keyframes.tsv") ? keyframes_retained : keyframes_made;
   input.submaps = static_cast<int>(submaps.size());
 
-  // The final poses: the merger's when it wrote them; otherwise the tracker's, each submap a map
-  // of its own (nothing merged them).
-  if (fs::exists(dir / "poses.tsv")) {
-    input.poses = ReadPoseRecords((dir / "poses.tsv").string());
+  // The final poses: the merger's when it wrote them; otherwise the tracker's, each re-composed
+  // with the mapper's final pose of the keyframe it was tracked against, each submap a map of
+  // its own (nothing merged them).
+  if (fs::exists(dir / "merged_poses.tsv")) {
+    input.poses = ReadPoseRecords((dir / "merged_poses.tsv").string());
   } else {
     std::map<int64_t, int> component_of;
     for (const auto& r : records) {
@@ -99,10 +120,14 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
       p.component = component_of[r.submap_id];
       p.is_keyframe = r.is_keyframe;
       p.world_from_cam = r.world_from_cam;
+      const auto reference = keyframe_cam_from_world.find(r.reference_keyframe);
+      if (reference != keyframe_cam_from_world.end()) {
+        p.world_from_cam = (r.cam_from_reference * reference->second).Inverse();
+      }
       input.poses.push_back(p);
     }
-    WritePoseRecords((dir / "poses.tsv").string(), input.poses);
   }
+  WritePoseRecords((dir / "poses.tsv").string(), input.poses);
   if (fs::exists(dir / "groundtruth.tum")) input.ground_truth = Trajectory::ReadTum((dir / "groundtruth.tum").string());
 
   const Evaluation evaluation = Evaluate(input);

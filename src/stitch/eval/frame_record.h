@@ -17,6 +17,8 @@ struct FrameRecord {
   int reason = 0;           // tracking_status_t REASON_* value
   int64_t submap_id = -1;
   Rigid3d world_from_cam;   // in the submap's frame; meaningful when state == "OK"
+  int64_t reference_keyframe = -1;  // keyframe the pose was tracked against (-1: none)
+  Rigid3d cam_from_reference;       // the pose relative to that keyframe
   int num_features = 0;
   int tracked_points = 0;
   bool is_keyframe = false;

@@ -11,6 +11,23 @@
 
 namespace stitch {
 
+// The ideal pinhole camera (no distortion): what undistorted keypoints live in.
+struct PinholeIntrinsics {
+  double fx = 1, fy = 1, cx = 0, cy = 0;
+  Eigen::Vector2d Project(const Eigen::Vector3d& point_in_cam) const {
+    return {fx * point_in_cam.x() / point_in_cam.z() + cx, fy * point_in_cam.y() / point_in_cam.z() + cy};
+  }
+  // Normalized image coordinates (x/z, y/z) of a pixel.
+  Eigen::Vector2d Normalize(const Eigen::Vector2d& pixel) const {
+    return {(pixel.x() - cx) / fx, (pixel.y() - cy) / fy};
+  }
+  Eigen::Matrix3d K() const {
+    Eigen::Matrix3d k;
+    k << fx, 0, cx, 0, fy, cy, 0, 0, 1;
+    return k;
+  }
+};
+
 enum class CameraModel {
   // fx fy cx cy k1 k2 p1 p2 k3: OpenCV's radial-tangential (plumb bob) model.
   kPinholeRadTan = 0,
@@ -37,6 +54,7 @@ class Camera {
   double fy() const { return params_[1]; }
   double cx() const { return params_[2]; }
   double cy() const { return params_[3]; }
+  PinholeIntrinsics Intrinsics() const { return {fx(), fy(), cx(), cy()}; }
   // All parameters in the model's order (size NumParams(model)).
   std::vector<double> params() const;
   static int NumParams(CameraModel model);

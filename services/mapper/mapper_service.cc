@@ -1,0 +1,134 @@
+#include "services/mapper/mapper_service.h"
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+
+#include "services/common/map_convert.h"
+#include "stitch/io/ply.h"
+#include "stitch/io/trajectory.h"
+#include "stitch/util/log.h"
+#include "stitch/util/options.h"
+
+namespace stitch {
+
+MapperService::MapperService(lcm::LCM* lcm, bus::Publisher* publisher, MapperOptions options, const OrbOptions& orb,
+                             const Vocabulary* vocabulary, std::string record_dir)
+    : publisher_(publisher),
+      options_(std::move(options)),
+      orb_(orb),
+      pyramid_(ScalePyramid::From(orb)),
+      vocabulary_(vocabulary),
+      record_dir_(std::move(record_dir)),
+      subscriber_(lcm),
+      queue_(static_cast<size_t>(options_.max_queued_keyframes),
+             BoundedQueue<std::unique_ptr<stitch::keyframe_t>>::WhenFull::kDropOldest) {
+  CheckOptions(options_, "mapper");
+  if (!vocabulary_ || vocabulary_->empty()) throw Error("the mapper needs a vocabulary");
+  subscriber_.Subscribe<stitch::keyframe_t>(bus::Channel(publisher_->agent(), bus::kKeyframe),
+                                            [this](std::unique_ptr<stitch::keyframe_t> keyframe, const std::string&) {
+                                              ++received_;
+                                              if (auto dropped = queue_.Push(std::move(keyframe))) {
+                                                ++rejected_;
+                                                STITCH_LOG(WARNING) << "mapper queue full: dropped keyframe " << (*dropped)->keyframe_id;
+                                              }
+                                            });
+  heartbeat_ = std::make_unique<Heartbeat>(publisher_, "mapper", [this] {
+    return Heartbeat::Counts{received_.load(), mapped_.load(), subscriber_.rejected() + rejected_.load()};
+  });
+}
+
+MapperService::~MapperService() { Stop(); }
+
+void MapperService::Start() {
+  if (running_.exchange(true)) return;
+  worker_ = std::thread([this] { Work(); });
+  heartbeat_->Start();
+  heartbeat_->SetState(stitch::service_status_t::STATE_RUNNING);
+}
+
+void MapperService::Stop() {
+  if (!running_.exchange(false)) return;
+  queue_.Close();
+  if (worker_.joinable()) worker_.join();
+  if (!record_dir_.empty()) {
+    try {
+      WriteRecords();
+    } catch (const Error& e) {
+      STITCH_LOG(ERROR) << "writing the map failed: " << e.what();
+    }
+  }
+  heartbeat_->SetState(stitch::service_status_t::STATE_FINISHED);
+  heartbeat_->Stop();
+}
+
+void MapperService::Work() {
+  while (true) {
+    auto keyframe = queue_.Pop(std::chrono::milliseconds(100));
+    if (!keyframe) {
+      if (queue_.closed()) return;
+      continue;
+    }
+    Process(**keyframe);
+  }
+}
+
+void MapperService::Process(const stitch::keyframe_t& message) {
+  ReceivedKeyframe received;
+  try {
+    received = FromMessage(message, pyramid_);
+  } catch (const Error& e) {
+    ++rejected_;
+    STITCH_LOG(WARNING) << "rejected a keyframe: " << e.what();
+    return;
+  }
+  if (!mapping_) {
+    mapping_ = std::make_unique<LocalMapping>(options_.mapping, received.camera, orb_, vocabulary_);
+    STITCH_LOG(INFO) << "camera " << received.camera.Describe();
+  }
+  const KeyframeId id = received.keyframe.id;
+  const MappingReport report = mapping_->ProcessKeyframe(std::move(received.keyframe), received.new_points);
+  ++mapped_;
+  const LocalMapUpdate update = mapping_->MakeUpdate(id, static_cast<int>(queue_.size()));
+  for (auto& part : ToMessages(update)) publisher_->Publish(bus::Channel(publisher_->agent(), bus::kLocalMap), &part);
+  STITCH_LOG(DEBUG) << "keyframe " << id << ": " << report.new_points << " new points, " << report.fused << " fused, "
+                    << report.culled_points << " points and " << report.culled_keyframes.size()
+                    << " keyframes culled, BA " << report.bundle_adjustment.initial_rms_px << " -> "
+                    << report.bundle_adjustment.final_rms_px << " px, " << report.milliseconds << " ms";
+}
+
+void MapperService::WriteRecords() const {
+  std::filesystem::create_directories(record_dir_);
+  std::vector<const Map*> maps;
+  if (mapping_) {
+    for (const auto& closed : mapping_->closed_maps()) maps.push_back(closed.get());
+    if (mapping_->map()) maps.push_back(mapping_->map());
+  }
+  static const uint8_t kPalette[][3] = {{30, 90, 200}, {220, 40, 40}, {40, 160, 40}, {180, 40, 180}, {220, 150, 20},
+                                        {0, 140, 140}, {160, 60, 90}, {200, 110, 0}, {100, 100, 100}, {180, 180, 60}};
+  std::vector<ColouredPoint> cloud;
+  std::ofstream keyframes(std::filesystem::path(record_dir_) / "keyframes.tsv");
+  keyframes << "# keyframe_id submap_id frame_index t_ns culled tx ty tz qx qy qz qw (world_from_cam in the submap's frame)\n";
+  for (size_t m = 0; m < maps.size(); ++m) {
+    for (const auto& [id, point] : maps[m]->points()) {
+      ColouredPoint p;
+      p.position = point.position.cast<float>();
+      p.red = kPalette[m % 10][0];
+      p.green = kPalette[m % 10][1];
+      p.blue = kPalette[m % 10][2];
+      cloud.push_back(p);
+    }
+    for (const auto& [id, keyframe] : maps[m]->keyframes()) {
+      keyframes << id.value << " " << maps[m]->id().value << " " << keyframe.frame_index << " " << keyframe.t_ns << " 0 "
+                << FormatTumPose(keyframe.cam_from_world.Inverse()) << "\n";
+    }
+  }
+  for (const auto& culled : mapping_ ? mapping_->CulledKeyframePoses() : std::vector<CulledKeyframe>()) {
+    keyframes << culled.id.value << " " << SubmapOf(culled.id).value << " " << culled.frame_index << " " << culled.t_ns
+              << " 1 " << FormatTumPose(culled.cam_from_world.Inverse()) << "\n";
+  }
+  WritePly((std::filesystem::path(record_dir_) / "map.ply").string(), cloud);
+  STITCH_LOG(INFO) << "wrote " << cloud.size() << " map points of " << maps.size() << " submaps to " << record_dir_;
+}
+
+}  // namespace stitch

@@ -1,0 +1,54 @@
+#pragma once
+// The mapper service: receives keyframes on <agent>/KEYFRAME, maps each with LocalMapping in its
+// own worker thread, and publishes what changed on <agent>/LOCAL_MAP (in parts of about 60 kB).
+// When given a record folder it writes, at the end, map.ply (every submap's points, one colour
+// per submap) and keyframes.tsv (final keyframe poses, culled keyframes included).
+
+#include <atomic>
+#include <memory>
+#include <string>
+#include <thread>
+
+#include "services/common/bus.h"
+#include "services/common/service.h"
+#include "services/mapper/mapper_options.h"
+#include "stitch/keyframe_t.hpp"
+#include "stitch/util/bounded_queue.h"
+
+namespace stitch {
+
+class MapperService {
+ public:
+  // Subscribes at once: construct before the Dispatcher starts. `vocabulary` must outlive it.
+  MapperService(lcm::LCM* lcm, bus::Publisher* publisher, MapperOptions options, const OrbOptions& orb,
+                const Vocabulary* vocabulary, std::string record_dir);
+  ~MapperService();
+
+  void Start();
+  // Maps what is queued, writes the records, stops the worker.
+  void Stop();
+
+  int64_t keyframes_received() const { return received_.load(); }
+  int64_t keyframes_mapped() const { return mapped_.load(); }
+
+ private:
+  void Work();
+  void Process(const stitch::keyframe_t& message);
+  void WriteRecords() const;
+
+  bus::Publisher* publisher_;
+  MapperOptions options_;
+  OrbOptions orb_;
+  ScalePyramid pyramid_;
+  const Vocabulary* vocabulary_;
+  std::string record_dir_;
+  bus::Subscriber subscriber_;
+  BoundedQueue<std::unique_ptr<stitch::keyframe_t>> queue_;
+  std::unique_ptr<Heartbeat> heartbeat_;
+  std::unique_ptr<LocalMapping> mapping_;  // created from the first keyframe's camera
+  std::thread worker_;
+  std::atomic<bool> running_{false};
+  std::atomic<int64_t> received_{0}, mapped_{0}, rejected_{0};
+};
+
+}  // namespace stitch

@@ -1,0 +1,464 @@
+#include "services/tracker/tracking.h"
+
+#include <algorithm>
+#include <cmath>
+#include <map>
+#include <set>
+
+#include "stitch/estimators/pose_optimizer.h"
+#include "stitch/map/matcher.h"
+#include "stitch/util/error.h"
+#include "stitch/util/log.h"
+#include "stitch/util/options.h"
+
+namespace stitch {
+namespace {
+
+constexpr int kMaxLocalKeyframes = 80;
+constexpr int kDirectIndexLevel = 2;
+
+}  // namespace
+
+bool TrackingOptions::Check(std::string* why) const {
+  auto fail = [&](const std::string& m) { if (why) *why = m; return false; };
+  if (!orb.Check(why) || !initialization.Check(why)) return false;
+  if (init_min_features < 8 || init_min_matches < 8) return fail("tracker: init_min_features and init_min_matches must be >= 8");
+  if (init_window_px < 5) return fail("tracker.init_window_px must be >= 5");
+  if (min_inliers < 6) return fail("tracker.min_inliers must be >= 6");
+  if (lost_after_frames < 1) return fail("tracker.lost_after_frames must be >= 1");
+  if (!(keyframe_ratio > 0 && keyframe_ratio < 1)) return fail("tracker.keyframe_ratio must be in (0, 1)");
+  if (max_keyframe_gap < 0) return fail("tracker.max_keyframe_gap must be >= 0");
+  if (agent_number < 0 || agent_number > 32767) return fail("tracker.agent_number must be in [0, 32767]");
+  if (first_submap_number < 1 || first_submap_number > 65535) return fail("tracker.first_submap_number must be in [1, 65535]");
+  return true;
+}
+
+const char* TrackingStateName(TrackingState state) {
+  switch (state) {
+    case TrackingState::kInitializing: return "INITIALIZING";
+    case TrackingState::kOk: return "OK";
+    case TrackingState::kLost: return "LOST";
+    case TrackingState::kSkipped: return "SKIPPED";
+    case TrackingState::kNotTracked: return "NOT_TRACKED";
+  }
+  return "?";
+}
+
+const char* TrackingReasonName(TrackingReason reason) {
+  switch (reason) {
+    case TrackingReason::kNone: return "none";
+    case TrackingReason::kTooFewFeatures: return "too few features";
+    case TrackingReason::kTooFewMatches: return "too few matches";
+    case TrackingReason::kInitFailed: return "initialization failed";
+    case TrackingReason::kPoseDiverged: return "pose optimization diverged";
+    case TrackingReason::kUndecodableFrame: return "undecodable frame";
+    case TrackingReason::kDropped: return "dropped";
+    case TrackingReason::kNoTracker: return "no tracker";
+  }
+  return "?";
+}
+
+Tracking::Tracking(const TrackingOptions& options, const Camera& camera, const Vocabulary* vocabulary, double fps)
+    : options_(options),
+      camera_(camera),
+      intrinsics_(camera.Intrinsics()),
+      vocabulary_(vocabulary),
+      fps_(fps > 0 ? fps : 30.0),
+      pyramid_(ScalePyramid::From(options.orb)),
+      undistorter_(camera),
+      extractor_(options.orb),
+      init_extractor_([&] {
+        OrbOptions more = options.orb;
+        more.num_features *= 2;
+        return more;
+      }()),
+      next_submap_number_(options.first_submap_number) {
+  CheckOptions(options_, "tracker");
+  if (!vocabulary_ || vocabulary_->empty()) throw Error("Tracking needs a vocabulary");
+}
+
+void Tracking::ComputeBow(Frame* frame) const {
+  if (frame->bow.empty()) frame->bow = vocabulary_->Transform(frame->descriptors, &frame->bow_features, kDirectIndexLevel);
+}
+
+void Tracking::ResetInitialization() {
+  init_reference_.reset();
+  init_previous_.clear();
+}
+
+std::optional<SubmapId> Tracking::CloseSubmap() {
+  if (!map_) return std::nullopt;
+  const SubmapId id = map_->id();
+  closed_maps_.push_back(std::move(map_));
+  ++submaps_closed_;
+  last_frame_.reset();
+  velocity_.reset();
+  reference_keyframe_ = KeyframeId();
+  local_keyframes_.clear();
+  consecutive_failures_ = 0;
+  ResetInitialization();
+  return id;
+}
+
+Tracking::Output Tracking::Track(const cv::Mat& image, int frame_index, int64_t t_ns) {
+  if (!map_) return Initialize(MakeFrame(image, frame_index, t_ns, &init_extractor_, undistorter_));
+  Frame frame = MakeFrame(image, frame_index, t_ns, &extractor_, undistorter_);
+
+  Output output;
+  TrackResult& result = output.result;
+  result.submap = map_->id();
+  result.num_features = static_cast<int>(frame.size());
+  bool ok = false;
+  std::string why;
+  if (frame.size() < 20) {
+    why = std::to_string(frame.size()) + " features";
+    result.reason = TrackingReason::kTooFewFeatures;
+  } else {
+    const int gap = last_frame_ ? frame_index - last_frame_->frame_index : 0;
+    if (velocity_ && last_frame_ && gap >= 1) {
+      Rigid3d predicted = *last_frame_->cam_from_world;
+      for (int i = 0; i < gap; ++i) predicted = *velocity_ * predicted;
+      ok = TrackWithMotionModel(&frame, predicted);
+    }
+    if (!ok) ok = TrackReferenceKeyframe(&frame);
+    if (!ok) {
+      result.reason = TrackingReason::kTooFewMatches;
+      why = "too few matches with the last frame and the reference keyframe";
+    } else if (!TrackLocalMap(&frame)) {
+      ok = false;
+      result.reason = TrackingReason::kTooFewMatches;
+      why = std::to_string(frame.CountTracked()) + " local map points tracked, need " + std::to_string(options_.min_inliers);
+    }
+  }
+  if (ok) {
+    consecutive_failures_ = 0;
+    const int gap = last_frame_ ? frame_index - last_frame_->frame_index : 0;
+    if (last_frame_ && gap == 1) {
+      velocity_ = *frame.cam_from_world * last_frame_->cam_from_world->Inverse();
+    } else {
+      velocity_.reset();  // after a skipped frame the motion model is not trusted
+    }
+    const int inliers = frame.CountTracked();
+    if (NeedKeyframe(frame, inliers)) {
+      output.new_keyframes.push_back(CreateKeyframe(frame));
+      result.is_keyframe = true;
+    }
+    for (size_t i = 0; i < frame.size(); ++i) {
+      if (frame.outlier[i]) frame.points[i] = MapPointId();
+    }
+    result.state = TrackingState::kOk;
+    result.reason = TrackingReason::kNone;
+    result.cam_from_submap = frame.cam_from_world;
+    result.num_tracked_points = inliers;
+    result.reference_keyframe = reference_keyframe_;
+    if (const Keyframe* reference = map_->FindKeyframe(reference_keyframe_)) {
+      result.cam_from_reference = *frame.cam_from_world * reference->cam_from_world.Inverse();
+    }
+    last_frame_ = std::move(frame);
+  } else {
+    ++consecutive_failures_;
+    result.detail = why;
+    if (consecutive_failures_ >= options_.lost_after_frames) {
+      result.state = TrackingState::kLost;
+      result.detail = "lost after " + std::to_string(consecutive_failures_) + " untracked frames (" + why + ")";
+      STITCH_LOG(INFO) << "frame " << frame_index << ": tracking lost in submap " << map_->id() << ": " << why
+                       << "; closing the submap and initializing a new one";
+      output.closed_submap = CloseSubmap();
+    } else {
+      result.state = TrackingState::kSkipped;
+    }
+  }
+  result.submap_keyframes = map_ ? static_cast<int>(map_->num_keyframes()) : 0;
+  return output;
+}
+
+Tracking::Output Tracking::Initialize(Frame frame) {
+  Output output;
+  TrackResult& result = output.result;
+  result.state = TrackingState::kInitializing;
+  result.reason = TrackingReason::kInitFailed;
+  result.num_features = static_cast<int>(frame.size());
+  if (static_cast<int>(frame.size()) <= options_.init_min_features) {
+    ResetInitialization();
+    result.reason = TrackingReason::kTooFewFeatures;
+    result.detail = std::to_string(frame.size()) + " features, initialization needs " + std::to_string(options_.init_min_features);
+    return output;
+  }
+  if (!init_reference_) {
+    init_previous_ = frame.undistorted;
+    init_reference_ = std::move(frame);
+    result.detail = "reference frame set, waiting for parallax";
+    return output;
+  }
+  std::vector<int> matches;
+  const int count = SearchForInitialization(*init_reference_, frame, &init_previous_, &matches, options_.init_window_px);
+  if (count < options_.init_min_matches) {
+    result.reason = TrackingReason::kTooFewMatches;
+    result.detail = std::to_string(count) + " matches with the reference frame; it is replaced by this frame";
+    init_previous_ = frame.undistorted;
+    init_reference_ = std::move(frame);
+    return output;
+  }
+  std::vector<Eigen::Vector2d> p1, p2;
+  std::vector<int> index_of;
+  for (size_t i = 0; i < matches.size(); ++i) {
+    if (matches[i] < 0) continue;
+    p1.push_back(init_reference_->undistorted[i]);
+    p2.push_back(frame.undistorted[matches[i]]);
+    index_of.push_back(static_cast<int>(i));
+  }
+  std::string why;
+  const auto two_view = InitializeTwoView(p1, p2, intrinsics_, options_.initialization, &why);
+  if (!two_view) {
+    result.detail = why;
+    return output;
+  }
+  // Expand the per-match result back to reference feature indices.
+  TwoViewResult expanded = *two_view;
+  expanded.points_in_cam1.assign(init_reference_->size(), Eigen::Vector3d::Zero());
+  expanded.triangulated.assign(init_reference_->size(), 0);
+  for (size_t m = 0; m < index_of.size(); ++m) {
+    expanded.points_in_cam1[index_of[m]] = two_view->points_in_cam1[m];
+    expanded.triangulated[index_of[m]] = two_view->triangulated[m];
+  }
+  if (!CreateInitialMap(&frame, matches, expanded, &output, &why)) {
+    result.detail = why;
+    ResetInitialization();
+    return output;
+  }
+  result.state = TrackingState::kOk;
+  result.reason = TrackingReason::kNone;
+  result.submap = map_->id();
+  result.cam_from_submap = frame.cam_from_world;
+  result.num_tracked_points = frame.CountTracked();
+  result.is_keyframe = true;
+  result.reference_keyframe = reference_keyframe_;
+  result.cam_from_reference = Rigid3d();
+  result.submap_keyframes = static_cast<int>(map_->num_keyframes());
+  result.detail = std::string("initialized from ") + (two_view->used_homography ? "a homography" : "an essential matrix") +
+                  " with " + std::to_string(two_view->num_triangulated) + " points";
+  STITCH_LOG(INFO) << "frame " << frame.frame_index << ": new submap " << map_->id() << " " << result.detail;
+  last_frame_ = std::move(frame);
+  return output;
+}
+
+bool Tracking::CreateInitialMap(Frame* frame, const std::vector<int>& matches, const TwoViewResult& two_view, Output* output,
+                                std::string* why) {
+  const SubmapId submap = MakeSubmapId(options_.agent_number, next_submap_number_);
+  auto map = std::make_unique<Map>(submap, pyramid_, 0);
+  Frame& reference = *init_reference_;
+  ComputeBow(&reference);
+  ComputeBow(frame);
+  reference.cam_from_world = Rigid3d();
+  frame->cam_from_world = two_view.cam2_from_cam1;
+  reference.points.assign(reference.size(), MapPointId());
+  frame->points.assign(frame->size(), MapPointId());
+  for (size_t i = 0; i < matches.size(); ++i) {
+    if (matches[i] < 0 || !two_view.triangulated[i]) continue;
+    MapPoint point;
+    point.id = map->NewPointId();
+    point.position = two_view.points_in_cam1[i];
+    reference.points[i] = point.id;
+    frame->points[matches[i]] = point.id;
+    map->AddPoint(point);
+  }
+  const KeyframeId id0 = MakeKeyframeId(submap, 0), id1 = MakeKeyframeId(submap, 1);
+  map->AddKeyframe(KeyframeFromFrame(reference, id0));
+  map->AddKeyframe(KeyframeFromFrame(*frame, id1));
+  for (const auto& [id, point] : map->points()) {
+    map->UpdatePointAppearance(id);
+    map->UpdatePointGeometry(id);
+  }
+  map->UpdateConnections(id0);
+  map->UpdateConnections(id1);
+  BundleAdjustmentOptions ba;
+  ba.iterations = 20;
+  ba.refine_iterations = 0;
+  BundleAdjust(map.get(), {id1}, {id0}, intrinsics_, ba);
+  const double median_depth = map->MedianDepth(id0);
+  const int tracked = map->FindKeyframe(id1)->CountPoints();
+  if (median_depth <= 0 || tracked < options_.init_min_matches) {
+    *why = "initial map rejected: median depth " + std::to_string(median_depth) + ", " + std::to_string(tracked) + " points";
+    return false;
+  }
+  // Unit median depth: the submap's scale (monocular scale is arbitrary).
+  const double scale = 1.0 / median_depth;
+  Keyframe* kf1 = map->FindKeyframe(id1);
+  kf1->cam_from_world.translation *= scale;
+  std::vector<MapPointId> ids;
+  for (const auto& [id, point] : map->points()) ids.push_back(id);
+  for (MapPointId id : ids) {
+    map->FindPoint(id)->position *= scale;
+    map->UpdatePointGeometry(id);
+  }
+  map_ = std::move(map);
+  ++next_submap_number_;
+  next_keyframe_index_ = 2;
+  frame->cam_from_world = kf1->cam_from_world;
+  frame->points = kf1->points;
+  frame->outlier.assign(frame->size(), 0);
+  reference_keyframe_ = id1;
+  last_keyframe_frame_index_ = frame->frame_index;
+  velocity_.reset();
+  consecutive_failures_ = 0;
+  output->new_keyframes = {*map_->FindKeyframe(id0), *kf1};
+  for (const auto& [id, point] : map_->points()) {
+    MapPoint copy = point;
+    copy.observations.clear();
+    output->new_points.push_back(copy);
+  }
+  last_keyframe_sent_ = id1;
+  ResetInitialization();
+  return true;
+}
+
+int Tracking::OptimizeFramePose(Frame* frame, bool discard_outliers) {
+  std::vector<PoseObservation> observations;
+  std::vector<int> features;
+  for (size_t i = 0; i < frame->size(); ++i) {
+    if (!frame->points[i].valid()) continue;
+    const MapPoint* point = map_->FindPoint(frame->points[i]);
+    if (!point) {
+      frame->points[i] = MapPointId();
+      continue;
+    }
+    observations.push_back({frame->undistorted[i], point->position, pyramid_.inverse_sigma2[frame->keypoints[i].octave]});
+    features.push_back(static_cast<int>(i));
+  }
+  if (observations.size() < 3) return 0;
+  const PoseOptimizerResult optimized = OptimizePose(observations, *frame->cam_from_world, intrinsics_);
+  if (!optimized.converged) return 0;
+  frame->cam_from_world = optimized.cam_from_world;
+  int inliers = 0;
+  for (size_t o = 0; o < features.size(); ++o) {
+    const int i = features[o];
+    frame->outlier[i] = !optimized.inlier[o];
+    if (frame->outlier[i] && discard_outliers) {
+      frame->points[i] = MapPointId();
+      frame->outlier[i] = 0;
+    }
+    inliers += optimized.inlier[o];
+  }
+  return inliers;
+}
+
+bool Tracking::TrackWithMotionModel(Frame* frame, const Rigid3d& predicted) {
+  frame->cam_from_world = predicted;
+  std::fill(frame->points.begin(), frame->points.end(), MapPointId());
+  int matches = SearchByProjection(frame, *last_frame_, *map_, intrinsics_, 15.0);
+  if (matches < 20) {
+    std::fill(frame->points.begin(), frame->points.end(), MapPointId());
+    matches = SearchByProjection(frame, *last_frame_, *map_, intrinsics_, 30.0);
+  }
+  if (matches < 20) return false;
+  return OptimizeFramePose(frame, true) >= 10;
+}
+
+bool Tracking::TrackReferenceKeyframe(Frame* frame) {
+  const Keyframe* reference = map_->FindKeyframe(reference_keyframe_);
+  if (!reference) {
+    // The reference was culled: the newest keyframe serves.
+    KeyframeId newest;
+    for (const auto& [id, kf] : map_->keyframes()) newest = std::max(newest, id);
+    reference_keyframe_ = newest;
+    reference = map_->FindKeyframe(newest);
+    if (!reference) return false;
+  }
+  ComputeBow(frame);
+  std::fill(frame->points.begin(), frame->points.end(), MapPointId());
+  const int matches = SearchByBow(*reference, frame, *map_);
+  if (matches < 15) return false;
+  frame->cam_from_world = last_frame_ ? *last_frame_->cam_from_world : reference->cam_from_world;
+  return OptimizeFramePose(frame, true) >= 10;
+}
+
+bool Tracking::TrackLocalMap(Frame* frame) {
+  // Local keyframes: those observing the frame's points, their best neighbours, children, parent.
+  std::map<KeyframeId, int> counts;
+  for (size_t i = 0; i < frame->size(); ++i) {
+    if (!frame->points[i].valid() || frame->outlier[i]) continue;
+    if (const MapPoint* point = map_->FindPoint(frame->points[i])) {
+      for (const auto& [kf, feature] : point->observations) ++counts[kf];
+    }
+  }
+  std::vector<std::pair<int, KeyframeId>> ranked;
+  for (const auto& [kf, count] : counts) ranked.push_back({count, kf});
+  std::sort(ranked.begin(), ranked.end(), [](const auto& a, const auto& b) { return a.first > b.first || (a.first == b.first && a.second < b.second); });
+  std::set<KeyframeId> local;
+  local_keyframes_.clear();
+  const auto add = [&](KeyframeId id) {
+    if (id.valid() && map_->FindKeyframe(id) && local.insert(id).second) local_keyframes_.push_back(id);
+  };
+  for (const auto& [count, kf] : ranked) {
+    if (static_cast<int>(local_keyframes_.size()) >= kMaxLocalKeyframes) break;
+    add(kf);
+  }
+  const size_t direct = local_keyframes_.size();
+  for (size_t i = 0; i < direct && static_cast<int>(local_keyframes_.size()) < kMaxLocalKeyframes; ++i) {
+    const Keyframe* kf = map_->FindKeyframe(local_keyframes_[i]);
+    for (KeyframeId neighbour : map_->BestCovisible(kf->id, 10)) add(neighbour);
+    for (KeyframeId child : kf->children) add(child);
+    add(kf->parent);
+  }
+  if (!ranked.empty()) reference_keyframe_ = ranked.front().second;
+
+  // Local points not yet matched, predicted in view, searched by projection.
+  std::set<MapPointId> matched;
+  for (size_t i = 0; i < frame->size(); ++i) {
+    if (frame->points[i].valid()) matched.insert(frame->points[i]);
+  }
+  std::set<MapPointId> candidates;
+  for (KeyframeId id : local_keyframes_) {
+    for (MapPointId p : map_->FindKeyframe(id)->points) {
+      if (p.valid() && !matched.count(p)) candidates.insert(p);
+    }
+  }
+  std::vector<PointInView> in_view;
+  for (MapPointId p : candidates) {
+    const MapPoint* point = map_->FindPoint(p);
+    PointInView view;
+    if (point && PredictInView(*point, *frame->cam_from_world, intrinsics_, undistorter_.min_x(), undistorter_.min_y(),
+                               undistorter_.max_x(), undistorter_.max_y(), pyramid_, &view)) {
+      in_view.push_back(view);
+    }
+  }
+  SearchByProjection(frame, in_view, *map_, 1.0);
+  return OptimizeFramePose(frame, false) >= options_.min_inliers;
+}
+
+bool Tracking::NeedKeyframe(const Frame& frame, int inliers) const {
+  const Keyframe* reference = map_->FindKeyframe(reference_keyframe_);
+  if (!reference) return true;
+  const int min_observations = map_->num_keyframes() <= 2 ? 2 : 3;
+  int reference_points = 0;
+  for (MapPointId p : reference->points) {
+    const MapPoint* point = p.valid() ? map_->FindPoint(p) : nullptr;
+    if (point && static_cast<int>(point->observations.size()) >= min_observations) ++reference_points;
+  }
+  const int max_gap = options_.max_keyframe_gap > 0 ? options_.max_keyframe_gap : static_cast<int>(std::lround(fps_));
+  const bool mapper_ready = MapperCaughtUp() || !mapper_connected_;
+  const bool long_gap = frame.frame_index >= last_keyframe_frame_index_ + max_gap;
+  const bool few_tracked = inliers < options_.keyframe_ratio * reference_points && inliers > 15;
+  return (long_gap || mapper_ready) && few_tracked && mapper_ready;
+}
+
+Keyframe Tracking::CreateKeyframe(const Frame& frame) {
+  Frame copy = frame;
+  ComputeBow(&copy);
+  const KeyframeId id = MakeKeyframeId(map_->id(), next_keyframe_index_++);
+  Keyframe& keyframe = map_->AddKeyframe(KeyframeFromFrame(copy, id));
+  map_->UpdateConnections(id);
+  reference_keyframe_ = id;
+  last_keyframe_frame_index_ = frame.frame_index;
+  last_keyframe_sent_ = id;
+  return keyframe;
+}
+
+void Tracking::ApplyUpdate(const LocalMapUpdate& update) {
+  if (!map_ || update.submap != map_->id()) return;
+  ApplyLocalMapUpdate(update, map_.get());
+  if (update.last_keyframe.value > mapper_processed_.value) mapper_processed_ = update.last_keyframe;
+  mapper_connected_ = true;
+}
+
+}  // namespace stitch

@@ -1,0 +1,156 @@
+#pragma once
+// The tracker's per-frame algorithm (no LCM here; TrackerService carries it over the bus).
+// Monocular keyframe tracking as in ORB-SLAM2: two-view initialization, tracking with a
+// constant-velocity model (falling back to the reference keyframe via bag of words), then
+// against the local map, and keyframe decisions. It keeps its own copy of the current submap,
+// which the mapper's updates refine. One owner thread; not thread-safe.
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "stitch/estimators/bundle_adjustment.h"
+#include "stitch/estimators/two_view.h"
+#include "stitch/features/orb_extractor.h"
+#include "stitch/features/vocabulary.h"
+#include "stitch/map/local_map_update.h"
+#include "stitch/map/map.h"
+
+namespace stitch {
+
+struct TrackingOptions {
+  OrbOptions orb;
+  TwoViewOptions initialization;
+  int init_min_features = 100;     // a frame needs this many features to take part in initialization
+  int init_min_matches = 50;       // matches with the reference frame to keep it and attempt initialization
+  int init_window_px = 100;        // search window around each feature's last match
+  int min_inliers = 30;            // tracked points for a frame to count as tracked
+  int lost_after_frames = 3;       // consecutive untracked frames that make tracking lost
+  double keyframe_ratio = 0.9;     // new keyframe when the frame tracks fewer than this x reference's points
+  int max_keyframe_gap = 0;        // frames between keyframes at most (0: one second of frames)
+  int agent_number = 0;            // high bits of every id this tracker makes
+  int first_submap_number = 1;
+
+  template <class Visitor>
+  void VisitFields(Visitor& v) {
+    v("orb", orb, "feature extraction");
+    v("initialization", initialization, "two-view map initialization");
+    v("init_min_features", init_min_features, "features a frame needs to take part in initialization");
+    v("init_min_matches", init_min_matches, "matches with the reference frame needed to attempt initialization");
+    v("init_window_px", init_window_px, "initialization search window, pixels");
+    v("min_inliers", min_inliers, "tracked points for a frame to count as tracked");
+    v("lost_after_frames", lost_after_frames, "consecutive untracked frames that make tracking lost (one bad frame is skipped)");
+    v("keyframe_ratio", keyframe_ratio, "new keyframe when tracking fewer than this fraction of the reference keyframe's points");
+    v("max_keyframe_gap", max_keyframe_gap, "frames between keyframes at most (0: one second)");
+    v("agent_number", agent_number, "number of this aircraft in every id (0-32767)");
+    v("first_submap_number", first_submap_number, "number of the first submap (1-65535)");
+  }
+  bool Check(std::string* why) const;
+};
+
+enum class TrackingState { kInitializing, kOk, kLost, kSkipped, kNotTracked };
+enum class TrackingReason {
+  kNone,
+  kTooFewFeatures,
+  kTooFewMatches,
+  kInitFailed,
+  kPoseDiverged,
+  kUndecodableFrame,
+  kDropped,
+  kNoTracker,
+};
+
+const char* TrackingStateName(TrackingState state);
+const char* TrackingReasonName(TrackingReason reason);
+
+struct TrackResult {
+  TrackingState state = TrackingState::kNotTracked;
+  TrackingReason reason = TrackingReason::kNone;
+  std::string detail;
+  SubmapId submap;
+  std::optional<Rigid3d> cam_from_submap;
+  KeyframeId reference_keyframe;             // for re-composing the pose with refined keyframes
+  std::optional<Rigid3d> cam_from_reference;
+  int num_features = 0;
+  int num_tracked_points = 0;
+  bool is_keyframe = false;
+  int submap_keyframes = 0;
+};
+
+class Tracking {
+ public:
+  struct Output {
+    TrackResult result;
+    std::vector<Keyframe> new_keyframes;  // to send to the mapper, in order
+    std::vector<MapPoint> new_points;     // created with new_keyframes.front() (the initial map)
+    std::optional<SubmapId> closed_submap;
+  };
+
+  // `vocabulary` must outlive the tracker.
+  Tracking(const TrackingOptions& options, const Camera& camera, const Vocabulary* vocabulary, double fps);
+
+  Output Track(const cv::Mat& image, int frame_index, int64_t t_ns);
+  // Applies the mapper's changes to the tracker's copy of the submap.
+  void ApplyUpdate(const LocalMapUpdate& update);
+  // Ends the current submap now (e.g. at shutdown); returns its id if there was one.
+  std::optional<SubmapId> CloseSubmap();
+
+  // The mapper has processed every keyframe sent so far.
+  bool MapperCaughtUp() const { return !last_keyframe_sent_.valid() || mapper_processed_.value >= last_keyframe_sent_.value; }
+  KeyframeId last_keyframe_sent() const { return last_keyframe_sent_; }
+  void SetMapperConnected(bool connected) { mapper_connected_ = connected; }
+  bool mapper_connected() const { return mapper_connected_; }
+  int submaps_closed() const { return submaps_closed_; }
+  const Map* map() const { return map_.get(); }
+  const Camera& camera() const { return camera_; }
+
+ private:
+  Output Initialize(Frame frame);
+  bool CreateInitialMap(Frame* frame, const std::vector<int>& matches, const TwoViewResult& two_view,
+                        Output* output, std::string* why);
+  bool TrackWithMotionModel(Frame* frame, const Rigid3d& predicted);
+  bool TrackReferenceKeyframe(Frame* frame);
+  bool TrackLocalMap(Frame* frame);
+  int OptimizeFramePose(Frame* frame, bool discard_outliers);
+  bool NeedKeyframe(const Frame& frame, int inliers) const;
+  Keyframe CreateKeyframe(const Frame& frame);
+  void ComputeBow(Frame* frame) const;
+  void ResetInitialization();
+  void StartNewSubmap();
+
+  TrackingOptions options_;
+  Camera camera_;
+  PinholeIntrinsics intrinsics_;
+  const Vocabulary* vocabulary_;
+  double fps_;
+  ScalePyramid pyramid_;
+  Undistorter undistorter_;
+  OrbExtractor extractor_;
+  OrbExtractor init_extractor_;  // twice the features, for initialization (as ORB-SLAM)
+
+  std::unique_ptr<Map> map_;  // the current submap; empty until initialized
+  std::vector<std::unique_ptr<Map>> closed_maps_;
+  int next_submap_number_;
+  uint32_t next_keyframe_index_ = 0;
+  int submaps_closed_ = 0;
+
+  std::optional<Frame> init_reference_;
+  std::vector<Eigen::Vector2d> init_previous_;
+
+  std::optional<Frame> last_frame_;          // last tracked frame
+  std::optional<Rigid3d> velocity_;          // cam_from_world(k) * world_from_cam(k - 1)
+  KeyframeId reference_keyframe_;
+  int last_keyframe_frame_index_ = -1;
+  int consecutive_failures_ = 0;
+  std::vector<KeyframeId> local_keyframes_;
+
+  KeyframeId last_keyframe_sent_;
+  KeyframeId mapper_processed_;
+  bool mapper_connected_ = true;
+};
+
+}  // namespace stitch

@@ -1,0 +1,194 @@
+#include "stitch/estimators/bundle_adjustment.h"
+
+#include <cmath>
+#include <set>
+#include <unordered_map>
+
+#include <ceres/ceres.h>
+
+#include "stitch/estimators/reprojection_error.h"
+
+namespace stitch {
+namespace {
+
+struct PoseBlock {
+  double rotation[4];  // x, y, z, w (Eigen's memory order), cam_from_world
+  double translation[3];
+};
+
+struct ObservationRecord {
+  KeyframeId keyframe;
+  MapPointId point;
+  int feature;
+  ceres::ResidualBlockId residual;
+};
+
+// Squared reprojection error in pixels, and its normalized (chi-square) form; infinite behind
+// the camera.
+std::pair<double, double> Errors(const Keyframe& keyframe, int feature, const Eigen::Vector3d& point,
+                                 const PinholeIntrinsics& k, const ScalePyramid& pyramid) {
+  const Eigen::Vector3d p = keyframe.cam_from_world * point;
+  if (p.z() <= 0) return {1e18, 1e18};
+  const double e2 = (keyframe.undistorted[feature] - k.Project(p)).squaredNorm();
+  return {e2, e2 * pyramid.inverse_sigma2[keyframe.keypoints[feature].octave]};
+}
+
+ceres::Solver::Summary Solve(ceres::Problem* problem, int iterations) {
+  ceres::Solver::Options options;
+  options.linear_solver_type = ceres::DENSE_SCHUR;
+  options.max_num_iterations = iterations;
+  options.num_threads = 1;
+  options.minimizer_progress_to_stdout = false;
+  options.logging_type = ceres::SILENT;
+  ceres::Solver::Summary summary;
+  ceres::Solve(options, problem, &summary);
+  return summary;
+}
+
+}  // namespace
+
+bool BundleAdjustmentOptions::Check(std::string* why) const {
+  if (iterations < 1 || refine_iterations < 0 || !(chi2_threshold > 0)) {
+    if (why) *why = "bundle_adjustment: iterations >= 1, refine_iterations >= 0, chi2_threshold > 0";
+    return false;
+  }
+  return true;
+}
+
+BundleAdjustmentReport BundleAdjust(Map* map, const std::vector<KeyframeId>& free_keyframes,
+                                    const std::vector<KeyframeId>& fixed_keyframes, const PinholeIntrinsics& k,
+                                    const BundleAdjustmentOptions& options) {
+  BundleAdjustmentReport report;
+  const ScalePyramid& pyramid = map->pyramid();
+  std::set<KeyframeId> free, fixed;
+  for (KeyframeId id : free_keyframes) {
+    if (map->FindKeyframe(id)) free.insert(id);
+  }
+  for (KeyframeId id : fixed_keyframes) {
+    if (!free.count(id) && map->FindKeyframe(id)) fixed.insert(id);
+  }
+  // Points: all that the free keyframes observe. Keyframes: the free ones, and every other one
+  // observing those points, fixed.
+  std::set<MapPointId> point_ids;
+  for (KeyframeId id : free) {
+    for (MapPointId p : map->FindKeyframe(id)->points) {
+      if (p.valid() && map->FindPoint(p)) point_ids.insert(p);
+    }
+  }
+  for (MapPointId p : point_ids) {
+    for (const auto& [kf, feature] : map->FindPoint(p)->observations) {
+      if (!free.count(kf) && map->FindKeyframe(kf)) fixed.insert(kf);
+    }
+  }
+  // Nothing fixed: hold the oldest free keyframe to remove the gauge freedom.
+  if (fixed.empty() && !free.empty()) {
+    fixed.insert(*free.begin());
+    free.erase(free.begin());
+  }
+  report.keyframes_free = static_cast<int>(free.size());
+  report.keyframes_fixed = static_cast<int>(fixed.size());
+  report.points = static_cast<int>(point_ids.size());
+  if (free.empty() || point_ids.empty()) return report;
+
+  std::unordered_map<KeyframeId, PoseBlock> poses;
+  for (const std::set<KeyframeId>* group : {&free, &fixed}) {
+    for (KeyframeId id : *group) {
+      const Rigid3d& pose = map->FindKeyframe(id)->cam_from_world;
+      PoseBlock& block = poses[id];
+      block.rotation[0] = pose.rotation.x();
+      block.rotation[1] = pose.rotation.y();
+      block.rotation[2] = pose.rotation.z();
+      block.rotation[3] = pose.rotation.w();
+      for (int i = 0; i < 3; ++i) block.translation[i] = pose.translation[i];
+    }
+  }
+  std::unordered_map<MapPointId, Eigen::Vector3d> positions;
+  for (MapPointId p : point_ids) positions[p] = map->FindPoint(p)->position;
+
+  ceres::Problem problem;
+  ceres::Manifold* quaternion_manifold = new ceres::EigenQuaternionManifold;
+  ceres::LossFunction* huber = new ceres::HuberLoss(std::sqrt(options.chi2_threshold));
+  std::vector<ObservationRecord> records;
+  double initial_sq = 0;
+  for (MapPointId p : point_ids) {
+    for (const auto& [kf, feature] : map->FindPoint(p)->observations) {
+      const auto pose = poses.find(kf);
+      if (pose == poses.end()) continue;
+      const Keyframe* keyframe = map->FindKeyframe(kf);
+      const double sqrt_information = std::sqrt(pyramid.inverse_sigma2[keyframe->keypoints[feature].octave]);
+      ceres::CostFunction* cost =
+          ReprojectionError::Create(keyframe->undistorted[feature], sqrt_information, k.fx, k.fy, k.cx, k.cy);
+      const ceres::ResidualBlockId residual =
+          problem.AddResidualBlock(cost, huber, pose->second.rotation, pose->second.translation, positions[p].data());
+      records.push_back({kf, p, feature, residual});
+      initial_sq += std::min(1e6, Errors(*keyframe, feature, positions[p], k, pyramid).first);
+    }
+  }
+  report.observations = static_cast<int>(records.size());
+  report.initial_rms_px = std::sqrt(initial_sq / std::max<size_t>(1, records.size()));
+  for (auto& [id, block] : poses) {
+    problem.SetManifold(block.rotation, quaternion_manifold);
+    if (fixed.count(id)) {
+      problem.SetParameterBlockConstant(block.rotation);
+      problem.SetParameterBlockConstant(block.translation);
+    }
+  }
+
+  ceres::Solver::Summary summary = Solve(&problem, options.iterations);
+  // Second pass without the observations that are outliers at the first pass's solution.
+  const auto pose_of = [&](KeyframeId id) {
+    const PoseBlock& b = poses.at(id);
+    return Rigid3d(Eigen::Quaterniond(b.rotation[3], b.rotation[0], b.rotation[1], b.rotation[2]).normalized(),
+                   Eigen::Vector3d(b.translation[0], b.translation[1], b.translation[2]));
+  };
+  const auto chi2_now = [&](const ObservationRecord& r) {
+    const Keyframe* keyframe = map->FindKeyframe(r.keyframe);
+    const Eigen::Vector3d p = pose_of(r.keyframe) * positions[r.point];
+    if (p.z() <= 0) return 1e18;
+    return (keyframe->undistorted[r.feature] - k.Project(p)).squaredNorm() *
+           pyramid.inverse_sigma2[keyframe->keypoints[r.feature].octave];
+  };
+  if (options.refine_iterations > 0) {
+    for (const auto& r : records) {
+      if (chi2_now(r) > options.chi2_threshold) problem.RemoveResidualBlock(r.residual);
+    }
+    summary = Solve(&problem, options.refine_iterations);
+  }
+  report.converged = summary.IsSolutionUsable();
+  if (!report.converged) return report;
+
+  // Write back, then drop the observations that are still outliers.
+  for (KeyframeId id : free) map->FindKeyframe(id)->cam_from_world = pose_of(id);
+  for (MapPointId p : point_ids) {
+    if (MapPoint* point = map->FindPoint(p)) point->position = positions[p];
+  }
+  double final_sq = 0;
+  int counted = 0;
+  for (const auto& r : records) {
+    const Keyframe* keyframe = map->FindKeyframe(r.keyframe);
+    const MapPoint* point = map->FindPoint(r.point);
+    if (!keyframe || !point || keyframe->points[r.feature] != r.point) continue;
+    const auto [e2, chi2] = Errors(*keyframe, r.feature, point->position, k, pyramid);
+    if (options.remove_outliers && chi2 > options.chi2_threshold) {
+      map->EraseObservation(r.keyframe, r.point);
+      ++report.outliers_removed;
+      continue;
+    }
+    final_sq += e2;
+    ++counted;
+  }
+  report.final_rms_px = std::sqrt(final_sq / std::max(1, counted));
+  for (MapPointId p : point_ids) map->UpdatePointGeometry(p);
+  return report;
+}
+
+BundleAdjustmentReport LocalBundleAdjustment(Map* map, KeyframeId keyframe, const PinholeIntrinsics& k,
+                                             const BundleAdjustmentOptions& options) {
+  std::vector<KeyframeId> window{keyframe};
+  if (const Keyframe* kf = map->FindKeyframe(keyframe)) {
+    for (const auto& [weight, other] : kf->ordered) window.push_back(other);
+  }
+  return BundleAdjust(map, window, {}, k, options);
+}
+
+}  // namespace stitch

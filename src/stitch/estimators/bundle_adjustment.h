@@ -1,0 +1,46 @@
+#pragma once
+// Bundle adjustment with Ceres: keyframe poses and map point positions that minimize the
+// reprojection error of every observation (Huber cost, each residual weighted by its pyramid
+// level), with chosen keyframes held fixed. Used for the local window (mapper) and for the whole
+// initial map.
+
+#include <vector>
+
+#include "stitch/map/map.h"
+
+namespace stitch {
+
+struct BundleAdjustmentOptions {
+  int iterations = 5;             // first pass, with the Huber cost
+  int refine_iterations = 10;     // second pass, after removing outliers
+  double chi2_threshold = 5.991;  // observations above this (normalized, 2 DoF) are outliers
+  bool remove_outliers = true;    // erase outlier observations from the map after the passes
+
+  template <class Visitor>
+  void VisitFields(Visitor& v) {
+    v("iterations", iterations, "iterations of the first (robust) pass");
+    v("refine_iterations", refine_iterations, "iterations after setting outliers aside");
+    v("chi2_threshold", chi2_threshold, "normalized squared reprojection error that makes an outlier");
+  }
+  bool Check(std::string* why) const;
+};
+
+struct BundleAdjustmentReport {
+  int keyframes_free = 0, keyframes_fixed = 0, points = 0, observations = 0;
+  double initial_rms_px = 0, final_rms_px = 0;  // over all observations, before / after
+  int outliers_removed = 0;
+  bool converged = false;
+};
+
+// Optimizes the poses of `free_keyframes` and every point they observe; other keyframes that
+// observe those points, and any in `fixed_keyframes`, constrain the solution without moving.
+BundleAdjustmentReport BundleAdjust(Map* map, const std::vector<KeyframeId>& free_keyframes,
+                                    const std::vector<KeyframeId>& fixed_keyframes, const PinholeIntrinsics& intrinsics,
+                                    const BundleAdjustmentOptions& options);
+
+// The window ORB-SLAM's local mapping optimizes: `keyframe` and its covisible keyframes are free;
+// keyframes seeing their points but outside the window are fixed.
+BundleAdjustmentReport LocalBundleAdjustment(Map* map, KeyframeId keyframe, const PinholeIntrinsics& intrinsics,
+                                             const BundleAdjustmentOptions& options);
+
+}  // namespace stitch

@@ -1,0 +1,116 @@
+#include "stitch/estimators/bundle_adjustment.h"
+
+#include <ceres/gradient_checker.h>
+#include <gtest/gtest.h>
+
+#include "stitch/estimators/reprojection_error.h"
+#include "stitch/util/rng.h"
+
+namespace stitch {
+namespace {
+
+const PinholeIntrinsics kCamera{450, 450, 319.5, 239.5};
+
+// Five keyframes along a line looking at 300 points; observations with 0.5 px noise.
+struct Scene {
+  Map map{MakeSubmapId(0, 1), ScalePyramid::From(OrbOptions())};
+  std::vector<Rigid3d> true_poses;
+  std::vector<Eigen::Vector3d> true_points;
+};
+
+Scene MakeScene() {
+  Scene scene;
+  Rng rng(7);
+  for (int i = 0; i < 300; ++i) scene.true_points.emplace_back(rng.Uniform(-4, 4), rng.Uniform(-3, 3), rng.Uniform(6, 10));
+  for (int k = 0; k < 5; ++k) {
+    const Rigid3d world_from_cam(Eigen::Quaterniond(Eigen::AngleAxisd(0.02 * k, Eigen::Vector3d::UnitY())),
+                                 Eigen::Vector3d(0.4 * k, 0.05 * k, 0));
+    scene.true_poses.push_back(world_from_cam.Inverse());
+  }
+  for (size_t p = 0; p < scene.true_points.size(); ++p) {
+    MapPoint point;
+    point.id = MakeMapPointId(scene.map.id(), static_cast<uint32_t>(p));
+    point.position = scene.true_points[p];
+    scene.map.AddPoint(point);
+  }
+  for (int k = 0; k < 5; ++k) {
+    Keyframe keyframe;
+    keyframe.id = MakeKeyframeId(scene.map.id(), k);
+    keyframe.cam_from_world = scene.true_poses[k];
+    for (size_t p = 0; p < scene.true_points.size(); ++p) {
+      const Eigen::Vector2d pixel = kCamera.Project(scene.true_poses[k] * scene.true_points[p]);
+      cv::KeyPoint kp(static_cast<float>(pixel.x()), static_cast<float>(pixel.y()), 31);
+      kp.octave = 0;
+      keyframe.keypoints.push_back(kp);
+      keyframe.undistorted.push_back(pixel + 0.5 * Eigen::Vector2d(rng.Normal(), rng.Normal()));
+      keyframe.points.push_back(MakeMapPointId(scene.map.id(), static_cast<uint32_t>(p)));
+    }
+    keyframe.descriptors = cv::Mat::zeros(static_cast<int>(keyframe.keypoints.size()), 32, CV_8U);
+    scene.map.AddKeyframe(keyframe);
+  }
+  for (size_t p = 0; p < scene.true_points.size(); ++p) scene.map.UpdatePointGeometry(MakeMapPointId(scene.map.id(), static_cast<uint32_t>(p)));
+  return scene;
+}
+
+TEST(BundleAdjustment, ReducesReprojectionErrorAndKeepsFixedKeyframesFixed) {
+  Scene scene = MakeScene();
+  Rng rng(9);
+  // Perturb the free keyframes (2, 3, 4) and every point.
+  for (int k = 2; k < 5; ++k) {
+    Keyframe* kf = scene.map.FindKeyframe(MakeKeyframeId(scene.map.id(), k));
+    kf->cam_from_world = Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.02, Eigen::Vector3d(rng.Normal(), rng.Normal(), rng.Normal()).normalized())),
+                                 Eigen::Vector3d(0.05 * rng.Normal(), 0.05 * rng.Normal(), 0.05 * rng.Normal())) * kf->cam_from_world;
+  }
+  for (auto& [id, point] : scene.map.points()) {
+    scene.map.FindPoint(id)->position += 0.05 * Eigen::Vector3d(rng.Normal(), rng.Normal(), rng.Normal());
+  }
+  const Rigid3d fixed0 = scene.map.FindKeyframe(MakeKeyframeId(scene.map.id(), 0))->cam_from_world;
+  const Rigid3d fixed1 = scene.map.FindKeyframe(MakeKeyframeId(scene.map.id(), 1))->cam_from_world;
+  std::vector<KeyframeId> free{MakeKeyframeId(scene.map.id(), 2), MakeKeyframeId(scene.map.id(), 3), MakeKeyframeId(scene.map.id(), 4)};
+  std::vector<KeyframeId> fixed{MakeKeyframeId(scene.map.id(), 0), MakeKeyframeId(scene.map.id(), 1)};
+  BundleAdjustmentOptions options;
+  options.iterations = 10;
+  const BundleAdjustmentReport report = BundleAdjust(&scene.map, free, fixed, kCamera, options);
+  ASSERT_TRUE(report.converged);
+  EXPECT_EQ(report.keyframes_free, 3);
+  EXPECT_EQ(report.keyframes_fixed, 2);
+  EXPECT_GT(report.initial_rms_px, 3.0);
+  EXPECT_LT(report.final_rms_px, 0.8);  // the noise level
+  // Fixed keyframes did not move at all; free ones came back to the truth.
+  EXPECT_EQ(scene.map.FindKeyframe(fixed[0])->cam_from_world.translation, fixed0.translation);
+  EXPECT_EQ(scene.map.FindKeyframe(fixed[1])->cam_from_world.rotation.coeffs(), fixed1.rotation.coeffs());
+  for (int k = 2; k < 5; ++k) {
+    const Rigid3d& estimate = scene.map.FindKeyframe(MakeKeyframeId(scene.map.id(), k))->cam_from_world;
+    EXPECT_LT((estimate.CentreInWorld() - scene.true_poses[k].CentreInWorld()).norm(), 0.01);
+  }
+}
+
+TEST(BundleAdjustment, RemovesOutlierObservations) {
+  Scene scene = MakeScene();
+  // Ten observations of keyframe 3 moved 30 px off.
+  Keyframe* kf = scene.map.FindKeyframe(MakeKeyframeId(scene.map.id(), 3));
+  for (int i = 0; i < 10; ++i) kf->undistorted[i * 7] += Eigen::Vector2d(30, -20);
+  const BundleAdjustmentReport report =
+      BundleAdjust(&scene.map, {MakeKeyframeId(scene.map.id(), 2), MakeKeyframeId(scene.map.id(), 3)},
+                   {MakeKeyframeId(scene.map.id(), 0)}, kCamera, BundleAdjustmentOptions());
+  EXPECT_EQ(report.outliers_removed, 10);
+  for (int i = 0; i < 10; ++i) EXPECT_FALSE(kf->points[i * 7].valid());
+}
+
+TEST(BundleAdjustment, ReprojectionJacobiansMatchNumericDifferentiation) {
+  std::unique_ptr<ceres::CostFunction> cost(ReprojectionError::Create({300.5, 200.25}, 0.8, 450, 440, 319.5, 239.5));
+  ceres::EigenQuaternionManifold quaternion;
+  std::vector<const ceres::Manifold*> manifolds{&quaternion, nullptr, nullptr};
+  ceres::NumericDiffOptions numeric;
+  ceres::GradientChecker checker(cost.get(), &manifolds, numeric);
+  const Eigen::Quaterniond q(Eigen::AngleAxisd(0.3, Eigen::Vector3d(1, 2, -1).normalized()));
+  double rotation[4] = {q.x(), q.y(), q.z(), q.w()};
+  double translation[3] = {0.2, -0.4, 1.5};
+  double point[3] = {1.0, 0.5, 6.0};
+  const double* parameters[3] = {rotation, translation, point};
+  ceres::GradientChecker::ProbeResults results;
+  EXPECT_TRUE(checker.Probe(parameters, 1e-7, &results)) << results.error_log;
+}
+
+}  // namespace
+}  // namespace stitch

@@ -1,0 +1,105 @@
+#include "stitch/estimators/two_view.h"
+
+#include <gtest/gtest.h>
+
+#include "stitch/util/rng.h"
+
+namespace stitch {
+namespace {
+
+const PinholeIntrinsics kCamera{450, 450, 319.5, 239.5};
+
+struct TwoViewCase {
+  std::vector<Eigen::Vector2d> p1, p2;
+  std::vector<Eigen::Vector3d> points;  // in camera 1
+  Rigid3d cam2_from_cam1;
+};
+
+// Points seen by camera 1 (identity) and camera 2, with pixel noise and a share of outliers.
+TwoViewCase MakeCase(const std::vector<Eigen::Vector3d>& points, const Rigid3d& cam2_from_cam1, double noise_px,
+                     double outlier_fraction, uint64_t seed) {
+  Rng rng(seed);
+  TwoViewCase c;
+  c.cam2_from_cam1 = cam2_from_cam1;
+  for (const auto& x : points) {
+    const Eigen::Vector3d x2 = cam2_from_cam1 * x;
+    if (x.z() <= 0 || x2.z() <= 0) continue;
+    Eigen::Vector2d u1 = kCamera.Project(x) + noise_px * Eigen::Vector2d(rng.Normal(), rng.Normal());
+    Eigen::Vector2d u2 = kCamera.Project(x2) + noise_px * Eigen::Vector2d(rng.Normal(), rng.Normal());
+    if (u1.x() < 0 || u1.y() < 0 || u1.x() > 639 || u1.y() > 479 || u2.x() < 0 || u2.y() < 0 || u2.x() > 639 || u2.y() > 479) continue;
+    if (rng.Uniform() < outlier_fraction) u2 = Eigen::Vector2d(rng.Uniform(0, 639), rng.Uniform(0, 479));
+    c.p1.push_back(u1);
+    c.p2.push_back(u2);
+    c.points.push_back(x);
+  }
+  return c;
+}
+
+double AngleDeg(const Eigen::Quaterniond& a, const Eigen::Quaterniond& b) { return a.angularDistance(b) * 180 / M_PI; }
+double DirectionErrorDeg(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
+  return std::acos(std::clamp(a.normalized().dot(b.normalized()), -1.0, 1.0)) * 180 / M_PI;
+}
+
+TEST(TwoView, RecoversAGeneralMotionFromTheEssentialMatrix) {
+  Rng rng(1);
+  std::vector<Eigen::Vector3d> points;
+  for (int i = 0; i < 400; ++i) points.emplace_back(rng.Uniform(-3, 3), rng.Uniform(-2, 2), rng.Uniform(4, 9));
+  const Rigid3d motion(Eigen::Quaterniond(Eigen::AngleAxisd(0.08, Eigen::Vector3d(0.2, 1, 0.1).normalized())),
+                       Eigen::Vector3d(-0.5, 0.05, 0.1));
+  const TwoViewCase c = MakeCase(points, motion, 0.5, 0.1, 2);
+  std::string why;
+  const auto result = InitializeTwoView(c.p1, c.p2, kCamera, TwoViewOptions(), &why);
+  ASSERT_TRUE(result) << why;
+  EXPECT_FALSE(result->used_homography);
+  EXPECT_LT(AngleDeg(result->cam2_from_cam1.rotation, motion.rotation), 0.2);
+  EXPECT_LT(DirectionErrorDeg(result->cam2_from_cam1.translation, motion.translation), 2.0);
+  EXPECT_NEAR(result->cam2_from_cam1.translation.norm(), 1.0, 1e-9);
+  // Triangulated points match the truth up to the unknown scale |t|.
+  // Triangulated points match the truth up to the unknown scale |t|. An outlier that happens to
+  // lie on its epipolar line triangulates somewhere wrong and cannot be told apart: a few may.
+  const double scale = motion.translation.norm();
+  int checked = 0, close = 0;
+  for (size_t i = 0; i < c.points.size(); ++i) {
+    if (!result->triangulated[i]) continue;
+    close += (result->points_in_cam1[i] * scale - c.points[i]).norm() / c.points[i].norm() < 0.1;
+    ++checked;
+  }
+  EXPECT_GT(checked, 250);
+  EXPECT_GT(close, 0.97 * checked);
+}
+
+TEST(TwoView, RecoversAUavMotionOverNearlyFlatGroundFromTheHomography) {
+  // Camera 70 m above rolling ground (relief of 1 m), flying 3 m forward: parallax about 2.5 deg.
+  Rng rng(3);
+  std::vector<Eigen::Vector3d> points;
+  for (int i = 0; i < 500; ++i) {
+    const double x = rng.Uniform(-50, 50), y = rng.Uniform(-38, 38);
+    points.emplace_back(x, y, 70.0 + 0.5 * std::sin(x / 9) + 0.5 * std::cos(y / 7));
+  }
+  const Rigid3d motion(Eigen::Quaterniond(Eigen::AngleAxisd(0.01, Eigen::Vector3d::UnitZ())), Eigen::Vector3d(0, 3.0, 0));
+  const TwoViewCase c = MakeCase(points, motion, 0.5, 0.05, 4);
+  std::string why;
+  const auto result = InitializeTwoView(c.p1, c.p2, kCamera, TwoViewOptions(), &why);
+  ASSERT_TRUE(result) << why;
+  EXPECT_TRUE(result->used_homography);
+  EXPECT_LT(AngleDeg(result->cam2_from_cam1.rotation, motion.rotation), 0.3);
+  EXPECT_LT(DirectionErrorDeg(result->cam2_from_cam1.translation, motion.translation), 3.0);
+  EXPECT_GT(result->num_triangulated, 300);
+}
+
+TEST(TwoView, RefusesTooLittleParallax) {
+  Rng rng(5);
+  std::vector<Eigen::Vector3d> points;
+  for (int i = 0; i < 300; ++i) points.emplace_back(rng.Uniform(-3, 3), rng.Uniform(-2, 2), rng.Uniform(4, 9));
+  // A pure rotation: no baseline, nothing can be triangulated (the camera of the EuRoC piece on the ground).
+  const Rigid3d rotation_only(Eigen::Quaterniond(Eigen::AngleAxisd(0.05, Eigen::Vector3d::UnitY())), Eigen::Vector3d::Zero());
+  const TwoViewCase c = MakeCase(points, rotation_only, 0.5, 0.0, 6);
+  std::string why;
+  EXPECT_FALSE(InitializeTwoView(c.p1, c.p2, kCamera, TwoViewOptions(), &why));
+  EXPECT_FALSE(why.empty());
+  // Too few matches.
+  EXPECT_FALSE(InitializeTwoView({c.p1.begin(), c.p1.begin() + 20}, {c.p2.begin(), c.p2.begin() + 20}, kCamera, TwoViewOptions(), &why));
+}
+
+}  // namespace
+}  // namespace stitch

@@ -1,0 +1,139 @@
+#include "stitch/map/frame.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace stitch {
+
+ScalePyramid ScalePyramid::From(const OrbOptions& options) {
+  ScalePyramid p;
+  p.num_levels = options.num_levels;
+  p.scale_factor = options.scale_factor;
+  p.log_scale_factor = std::log(options.scale_factor);
+  for (int i = 0; i < options.num_levels; ++i) {
+    const float s = static_cast<float>(std::pow(options.scale_factor, i));
+    p.scale.push_back(s);
+    p.sigma2.push_back(s * s);
+    p.inverse_sigma2.push_back(1.0f / (s * s));
+  }
+  return p;
+}
+
+int ScalePyramid::PredictLevel(double distance, double max_distance) const {
+  const double ratio = max_distance / distance;
+  const int level = static_cast<int>(std::ceil(std::log(ratio) / log_scale_factor));
+  return std::clamp(level, 0, num_levels - 1);
+}
+
+Undistorter::Undistorter(const Camera& camera) : camera_(camera) {
+  map_x_.create(camera.height(), camera.width(), CV_32F);
+  map_y_.create(camera.height(), camera.width(), CV_32F);
+  min_x_ = min_y_ = 1e18;
+  max_x_ = max_y_ = -1e18;
+  for (int y = 0; y < camera.height(); ++y) {
+    float* mx = map_x_.ptr<float>(y);
+    float* my = map_y_.ptr<float>(y);
+    for (int x = 0; x < camera.width(); ++x) {
+      const Eigen::Vector2d u = camera.HasDistortion() ? camera.UndistortPixel(Eigen::Vector2d(x, y)) : Eigen::Vector2d(x, y);
+      mx[x] = static_cast<float>(u.x());
+      my[x] = static_cast<float>(u.y());
+      if (x == 0 || y == 0 || x == camera.width() - 1 || y == camera.height() - 1) {
+        min_x_ = std::min(min_x_, u.x());
+        min_y_ = std::min(min_y_, u.y());
+        max_x_ = std::max(max_x_, u.x());
+        max_y_ = std::max(max_y_, u.y());
+      }
+    }
+  }
+}
+
+Eigen::Vector2d Undistorter::Undistort(double x, double y) const {
+  // Bilinear interpolation of the table (the mapping is smooth at pixel scale).
+  const double cx = std::clamp(x, 0.0, camera_.width() - 1.001);
+  const double cy = std::clamp(y, 0.0, camera_.height() - 1.001);
+  const int x0 = static_cast<int>(cx), y0 = static_cast<int>(cy);
+  const double fx = cx - x0, fy = cy - y0;
+  const auto sample = [&](const cv::Mat& m) {
+    const float* r0 = m.ptr<float>(y0);
+    const float* r1 = m.ptr<float>(y0 + 1);
+    return (r0[x0] * (1 - fx) + r0[x0 + 1] * fx) * (1 - fy) + (r1[x0] * (1 - fx) + r1[x0 + 1] * fx) * fy;
+  };
+  // Outside the table (never for keypoints) fall back to the exact inverse.
+  if (cx != x || cy != y) return camera_.UndistortPixel(Eigen::Vector2d(x, y));
+  return {sample(map_x_), sample(map_y_)};
+}
+
+FeatureGrid::FeatureGrid(const std::vector<Eigen::Vector2d>& points, const Undistorter& bounds)
+    : cells_(kCols * kRows),
+      min_x_(bounds.min_x()),
+      min_y_(bounds.min_y()),
+      inv_cell_w_(kCols / std::max(1e-9, bounds.max_x() - bounds.min_x())),
+      inv_cell_h_(kRows / std::max(1e-9, bounds.max_y() - bounds.min_y())) {
+  for (size_t i = 0; i < points.size(); ++i) {
+    const int cx = static_cast<int>(std::floor((points[i].x() - min_x_) * inv_cell_w_));
+    const int cy = static_cast<int>(std::floor((points[i].y() - min_y_) * inv_cell_h_));
+    if (cx < 0 || cy < 0 || cx >= kCols || cy >= kRows) continue;
+    cells_[cy * kCols + cx].push_back(static_cast<int>(i));
+  }
+}
+
+std::vector<int> FeatureGrid::InArea(double x, double y, double radius, const std::vector<cv::KeyPoint>& keypoints,
+                                     const std::vector<Eigen::Vector2d>& points, int min_level, int max_level) const {
+  std::vector<int> found;
+  if (cells_.empty()) return found;
+  const int c0 = std::max(0, static_cast<int>(std::floor((x - radius - min_x_) * inv_cell_w_)));
+  const int c1 = std::min(kCols - 1, static_cast<int>(std::floor((x + radius - min_x_) * inv_cell_w_)));
+  const int r0 = std::max(0, static_cast<int>(std::floor((y - radius - min_y_) * inv_cell_h_)));
+  const int r1 = std::min(kRows - 1, static_cast<int>(std::floor((y + radius - min_y_) * inv_cell_h_)));
+  if (c0 > c1 || r0 > r1) return found;
+  const bool check_levels = min_level > 0 || max_level >= 0;
+  const double r2 = radius * radius;
+  for (int r = r0; r <= r1; ++r) {
+    for (int c = c0; c <= c1; ++c) {
+      for (int i : cells_[r * kCols + c]) {
+        if (check_levels) {
+          const int level = keypoints[i].octave;
+          if (level < min_level) continue;
+          if (max_level >= 0 && level > max_level) continue;
+        }
+        const double dx = points[i].x() - x, dy = points[i].y() - y;
+        if (dx * dx + dy * dy <= r2) found.push_back(i);
+      }
+    }
+  }
+  return found;
+}
+
+float QuantizeAngle(float degrees) {
+  const int steps = static_cast<int>(std::lround(degrees * 256.0f / 360.0f)) & 255;
+  return steps * 360.0f / 256.0f;
+}
+
+int Frame::CountTracked() const {
+  int count = 0;
+  for (size_t i = 0; i < points.size(); ++i) count += points[i].valid() && !outlier[i];
+  return count;
+}
+
+Frame MakeFrame(const cv::Mat& image, int frame_index, int64_t t_ns, OrbExtractor* extractor,
+                const Undistorter& undistorter) {
+  Frame frame;
+  frame.frame_index = frame_index;
+  frame.t_ns = t_ns;
+  extractor->Extract(image, &frame.keypoints, &frame.descriptors);
+  // Positions in 1/8 pixel and orientations in 1/256 turn: what keyframe_t carries, so a keyframe
+  // is the same in the tracker that made it and in every process that receives it.
+  for (auto& k : frame.keypoints) {
+    k.pt.x = std::round(k.pt.x * 8.0f) / 8.0f;
+    k.pt.y = std::round(k.pt.y * 8.0f) / 8.0f;
+    k.angle = QuantizeAngle(k.angle);
+  }
+  frame.undistorted.reserve(frame.keypoints.size());
+  for (const auto& k : frame.keypoints) frame.undistorted.push_back(undistorter.Undistort(k.pt.x, k.pt.y));
+  frame.grid = FeatureGrid(frame.undistorted, undistorter);
+  frame.points.assign(frame.keypoints.size(), MapPointId());
+  frame.outlier.assign(frame.keypoints.size(), 0);
+  return frame;
+}
+
+}  // namespace stitch

@@ -1,0 +1,121 @@
+#include "stitch/map/map.h"
+
+#include <gtest/gtest.h>
+
+namespace stitch {
+namespace {
+
+// A keyframe with `n` features (no image), observing the given points through features 0...
+Keyframe MakeKeyframe(const Map& map, uint32_t index, const std::vector<MapPointId>& observed, int n = 50) {
+  Keyframe keyframe;
+  keyframe.id = MakeKeyframeId(map.id(), index);
+  keyframe.cam_from_world = Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(-0.1 * index, 0, 0));
+  for (int i = 0; i < n; ++i) {
+    cv::KeyPoint kp(10.0f + i, 20.0f, 31);
+    kp.octave = i % 3;
+    keyframe.keypoints.push_back(kp);
+    keyframe.undistorted.emplace_back(10.0 + i, 20.0);
+  }
+  keyframe.descriptors = cv::Mat::zeros(n, 32, CV_8U);
+  for (int i = 0; i < n; ++i) keyframe.descriptors.at<uint8_t>(i, 0) = static_cast<uint8_t>(i);
+  keyframe.points.assign(n, MapPointId());
+  for (size_t i = 0; i < observed.size(); ++i) keyframe.points[i] = observed[i];
+  return keyframe;
+}
+
+struct Fixture {
+  Map map{MakeSubmapId(2, 3), ScalePyramid::From(OrbOptions())};
+  std::vector<MapPointId> points;
+  Fixture() {
+    for (int i = 0; i < 40; ++i) {
+      MapPoint p;
+      p.id = map.NewPointId();
+      p.position = Eigen::Vector3d(0.1 * i, 0, 5);
+      points.push_back(p.id);
+      map.AddPoint(p);
+    }
+  }
+};
+
+TEST(Ids, PackAgentSubmapAndIndex) {
+  const SubmapId submap = MakeSubmapId(5, 17);
+  const KeyframeId kf = MakeKeyframeId(submap, 123456);
+  EXPECT_EQ(AgentNumber(SubmapOf(kf)), 5);
+  EXPECT_EQ(SubmapNumber(SubmapOf(kf)), 17);
+  EXPECT_EQ(IndexOf(kf), 123456u);
+  EXPECT_FALSE(KeyframeId().valid());
+  EXPECT_NE(MakeKeyframeId(MakeSubmapId(5, 18), 1), MakeKeyframeId(MakeSubmapId(6, 17), 1));
+}
+
+TEST(Map, ObservationsAndCovisibilityFollowSharedPoints) {
+  Fixture f;
+  // Keyframe 0 sees points 0-29, keyframe 1 points 10-39 (20 shared), keyframe 2 points 25-34 (5 with kf0, 10 with kf1).
+  // Inserted one after the other, as a mapper does.
+  f.map.AddKeyframe(MakeKeyframe(f.map, 0, {f.points.begin(), f.points.begin() + 30}));
+  f.map.UpdateConnections(MakeKeyframeId(f.map.id(), 0));
+  f.map.AddKeyframe(MakeKeyframe(f.map, 1, {f.points.begin() + 10, f.points.begin() + 40}));
+  f.map.UpdateConnections(MakeKeyframeId(f.map.id(), 1));
+  f.map.AddKeyframe(MakeKeyframe(f.map, 2, {f.points.begin() + 25, f.points.begin() + 35}));
+  f.map.UpdateConnections(MakeKeyframeId(f.map.id(), 2));
+  const KeyframeId k0 = MakeKeyframeId(f.map.id(), 0), k1 = MakeKeyframeId(f.map.id(), 1), k2 = MakeKeyframeId(f.map.id(), 2);
+  EXPECT_EQ(f.map.FindPoint(f.points[12])->observations.size(), 2u);
+  EXPECT_EQ(f.map.FindKeyframe(k0)->covisibility.at(k1), 20);
+  EXPECT_EQ(f.map.FindKeyframe(k1)->covisibility.at(k2), 10);
+  EXPECT_EQ(f.map.FindKeyframe(k0)->covisibility.at(k2), 5);
+  // Ordered neighbours keep weights >= 15 (or the single best).
+  EXPECT_EQ(f.map.BestCovisible(k0, 5), std::vector<KeyframeId>{k1});
+  EXPECT_EQ(f.map.BestCovisible(k2, 5), std::vector<KeyframeId>{k1});
+  EXPECT_EQ(f.map.FindKeyframe(k1)->parent, k0);
+}
+
+TEST(Map, ErasingObservationsRemovesUnderObservedPoints) {
+  Fixture f;
+  f.map.AddKeyframe(MakeKeyframe(f.map, 0, {f.points[0], f.points[1]}));
+  f.map.AddKeyframe(MakeKeyframe(f.map, 1, {f.points[0], f.points[1]}));
+  const KeyframeId k0 = MakeKeyframeId(f.map.id(), 0);
+  f.map.EraseObservation(k0, f.points[0]);
+  EXPECT_EQ(f.map.FindPoint(f.points[0]), nullptr);  // one observation left: removed
+  EXPECT_FALSE(f.map.FindKeyframe(MakeKeyframeId(f.map.id(), 1))->points[0].valid());
+  EXPECT_NE(f.map.FindPoint(f.points[1]), nullptr);
+}
+
+TEST(Map, ReplacingAPointMovesItsObservations) {
+  Fixture f;
+  f.map.AddKeyframe(MakeKeyframe(f.map, 0, {f.points[0]}));
+  f.map.AddKeyframe(MakeKeyframe(f.map, 1, {f.points[1]}));
+  f.map.AddKeyframe(MakeKeyframe(f.map, 2, {f.points[1]}));
+  f.map.ReplacePoint(f.points[0], f.points[1]);
+  EXPECT_EQ(f.map.FindPoint(f.points[0]), nullptr);
+  EXPECT_EQ(f.map.FindPoint(f.points[1])->observations.size(), 3u);
+  EXPECT_EQ(f.map.FindKeyframe(MakeKeyframeId(f.map.id(), 0))->points[0], f.points[1]);
+}
+
+TEST(Map, RemovingAKeyframeReconnectsTheSpanningTree) {
+  Fixture f;
+  std::vector<MapPointId> all(f.points.begin(), f.points.begin() + 30);
+  for (uint32_t k = 0; k < 3; ++k) {
+    f.map.AddKeyframe(MakeKeyframe(f.map, k, all));
+    f.map.UpdateConnections(MakeKeyframeId(f.map.id(), k));
+  }
+  const KeyframeId k0 = MakeKeyframeId(f.map.id(), 0), k1 = MakeKeyframeId(f.map.id(), 1), k2 = MakeKeyframeId(f.map.id(), 2);
+  ASSERT_EQ(f.map.FindKeyframe(k2)->parent, k0);
+  f.map.RemoveKeyframe(k1);
+  EXPECT_EQ(f.map.FindKeyframe(k1), nullptr);
+  EXPECT_FALSE(f.map.FindKeyframe(k0)->covisibility.count(k1));
+  EXPECT_EQ(f.map.FindPoint(f.points[3])->observations.size(), 2u);
+}
+
+TEST(Map, PointGeometryGivesDirectionAndScaleRange) {
+  Fixture f;
+  f.map.AddKeyframe(MakeKeyframe(f.map, 0, {f.points[0]}));
+  f.map.AddKeyframe(MakeKeyframe(f.map, 1, {f.points[0]}));
+  f.map.UpdatePointGeometry(f.points[0]);
+  const MapPoint* p = f.map.FindPoint(f.points[0]);
+  EXPECT_NEAR(p->normal.norm(), 1.0, 1e-12);
+  EXPECT_GT(p->normal.z(), 0.99);  // the cameras look at it along +z
+  EXPECT_GT(p->max_distance, 4.9f);
+  EXPECT_NEAR(p->max_distance / p->min_distance, std::pow(1.2, 7), 1e-3);
+}
+
+}  // namespace
+}  // namespace stitch
