@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <map>
 #include <set>
 
@@ -10,6 +11,7 @@
 #include "stitch/util/error.h"
 #include "stitch/util/log.h"
 #include "stitch/util/options.h"
+#include "stitch/util/time.h"
 
 namespace stitch {
 namespace {
@@ -24,10 +26,13 @@ bool TrackingOptions::Check(std::string* why) const {
   if (!orb.Check(why) || !initialization.Check(why)) return false;
   if (init_min_features < 8 || init_min_matches < 8) return fail("tracker: init_min_features and init_min_matches must be >= 8");
   if (init_window_px < 5) return fail("tracker.init_window_px must be >= 5");
-  if (min_inliers < 6) return fail("tracker.min_inliers must be >= 6");
+  if (min_inliers < 6 || min_inliers_after_failure < min_inliers) {
+    return fail("tracker: need 6 <= min_inliers <= min_inliers_after_failure");
+  }
   if (lost_after_frames < 1) return fail("tracker.lost_after_frames must be >= 1");
   if (!(keyframe_ratio > 0 && keyframe_ratio < 1)) return fail("tracker.keyframe_ratio must be in (0, 1)");
   if (max_keyframe_gap < 0) return fail("tracker.max_keyframe_gap must be >= 0");
+  if (!(min_relative_sharpness >= 0 && min_relative_sharpness < 1)) return fail("tracker.min_relative_sharpness must be in [0, 1)");
   if (agent_number < 0 || agent_number > 32767) return fail("tracker.agent_number must be in [0, 32767]");
   if (first_submap_number < 1 || first_submap_number > 65535) return fail("tracker.first_submap_number must be in [1, 65535]");
   return true;
@@ -54,6 +59,7 @@ const char* TrackingReasonName(TrackingReason reason) {
     case TrackingReason::kUndecodableFrame: return "undecodable frame";
     case TrackingReason::kDropped: return "dropped";
     case TrackingReason::kNoTracker: return "no tracker";
+    case TrackingReason::kMotionBlur: return "motion blur";
   }
   return "?";
 }
@@ -96,23 +102,37 @@ std::optional<SubmapId> Tracking::CloseSubmap() {
   reference_keyframe_ = KeyframeId();
   local_keyframes_.clear();
   consecutive_failures_ = 0;
+  typical_sharpness_ = 0;
   ResetInitialization();
   return id;
 }
 
 Tracking::Output Tracking::Track(const cv::Mat& image, int frame_index, int64_t t_ns) {
-  if (!map_) return Initialize(MakeFrame(image, frame_index, t_ns, &init_extractor_, undistorter_));
+  const Stopwatch total;
+  if (!map_) {
+    Output output = Initialize(MakeFrame(image, frame_index, t_ns, &init_extractor_, undistorter_));
+    output.result.timings.total = total.ElapsedMs();
+    return output;
+  }
+  Stopwatch step;
   Frame frame = MakeFrame(image, frame_index, t_ns, &extractor_, undistorter_);
-
   Output output;
   TrackResult& result = output.result;
+  result.timings.extraction = step.ElapsedMs();
   result.submap = map_->id();
   result.num_features = static_cast<int>(frame.size());
   bool ok = false;
   std::string why;
+  const bool blurred = typical_sharpness_ > 0 && frame.sharpness < options_.min_relative_sharpness * typical_sharpness_;
   if (frame.size() < 20) {
     why = std::to_string(frame.size()) + " features";
     result.reason = TrackingReason::kTooFewFeatures;
+  } else if (blurred) {
+    // A gust smears the image: matches on a blurred frame give wrong poses that look right.
+    char text[96];
+    std::snprintf(text, sizeof(text), "motion blur (sharpness %.1f, recent frames %.1f)", frame.sharpness, typical_sharpness_);
+    why = text;
+    result.reason = TrackingReason::kMotionBlur;
   } else {
     const int gap = last_frame_ ? frame_index - last_frame_->frame_index : 0;
     if (velocity_ && last_frame_ && gap >= 1) {
@@ -121,6 +141,8 @@ Tracking::Output Tracking::Track(const cv::Mat& image, int frame_index, int64_t 
       ok = TrackWithMotionModel(&frame, predicted);
     }
     if (!ok) ok = TrackReferenceKeyframe(&frame);
+    result.timings.frame_to_frame = step.ElapsedMs() - result.timings.extraction;
+    const double before_local_map = step.ElapsedMs();
     if (!ok) {
       result.reason = TrackingReason::kTooFewMatches;
       why = "too few matches with the last frame and the reference keyframe";
@@ -129,9 +151,10 @@ Tracking::Output Tracking::Track(const cv::Mat& image, int frame_index, int64_t 
       result.reason = TrackingReason::kTooFewMatches;
       why = std::to_string(frame.CountTracked()) + " local map points tracked, need " + std::to_string(options_.min_inliers);
     }
+    result.timings.local_map = step.ElapsedMs() - before_local_map;
   }
+  const double before_keyframe = step.ElapsedMs();
   if (ok) {
-    consecutive_failures_ = 0;
     const int gap = last_frame_ ? frame_index - last_frame_->frame_index : 0;
     if (last_frame_ && gap == 1) {
       velocity_ = *frame.cam_from_world * last_frame_->cam_from_world->Inverse();
@@ -139,7 +162,11 @@ Tracking::Output Tracking::Track(const cv::Mat& image, int frame_index, int64_t 
       velocity_.reset();  // after a skipped frame the motion model is not trusted
     }
     const int inliers = frame.CountTracked();
-    if (NeedKeyframe(frame, inliers)) {
+    typical_sharpness_ = typical_sharpness_ > 0 ? 0.9 * typical_sharpness_ + 0.1 * frame.sharpness : frame.sharpness;
+    // A frame right after untracked ones does not become a keyframe: its pose is the least sure.
+    const bool after_failure = consecutive_failures_ > 0;
+    consecutive_failures_ = 0;
+    if (!after_failure && NeedKeyframe(frame, inliers)) {
       output.new_keyframes.push_back(CreateKeyframe(frame));
       result.is_keyframe = true;
     }
@@ -169,6 +196,8 @@ Tracking::Output Tracking::Track(const cv::Mat& image, int frame_index, int64_t 
     }
   }
   result.submap_keyframes = map_ ? static_cast<int>(map_->num_keyframes()) : 0;
+  result.timings.keyframe = step.ElapsedMs() - before_keyframe;
+  result.timings.total = total.ElapsedMs();
   return output;
 }
 
@@ -232,6 +261,7 @@ Tracking::Output Tracking::Initialize(Frame frame) {
   result.cam_from_submap = frame.cam_from_world;
   result.num_tracked_points = frame.CountTracked();
   result.is_keyframe = true;
+  typical_sharpness_ = frame.sharpness;
   result.reference_keyframe = reference_keyframe_;
   result.cam_from_reference = Rigid3d();
   result.submap_keyframes = static_cast<int>(map_->num_keyframes());
@@ -423,7 +453,9 @@ bool Tracking::TrackLocalMap(Frame* frame) {
     }
   }
   SearchByProjection(frame, in_view, *map_, 1.0);
-  return OptimizeFramePose(frame, false) >= options_.min_inliers;
+  // Right after untracked frames the pose comes from a weaker prediction: demand more support.
+  const int needed = consecutive_failures_ > 0 ? options_.min_inliers_after_failure : options_.min_inliers;
+  return OptimizeFramePose(frame, false) >= needed;
 }
 
 bool Tracking::NeedKeyframe(const Frame& frame, int inliers) const {

@@ -29,9 +29,11 @@ struct TrackingOptions {
   int init_min_matches = 50;       // matches with the reference frame to keep it and attempt initialization
   int init_window_px = 100;        // search window around each feature's last match
   int min_inliers = 30;            // tracked points for a frame to count as tracked
+  int min_inliers_after_failure = 30;  // ...right after an untracked frame (as ORB-SLAM after relocalization)
   int lost_after_frames = 3;       // consecutive untracked frames that make tracking lost
   double keyframe_ratio = 0.9;     // new keyframe when the frame tracks fewer than this x reference's points
   int max_keyframe_gap = 0;        // frames between keyframes at most (0: one second of frames)
+  double min_relative_sharpness = 0.45;  // frames sharper than this x the recent tracked frames are tracked; others are blurred
   int agent_number = 0;            // high bits of every id this tracker makes
   int first_submap_number = 1;
 
@@ -43,9 +45,11 @@ struct TrackingOptions {
     v("init_min_matches", init_min_matches, "matches with the reference frame needed to attempt initialization");
     v("init_window_px", init_window_px, "initialization search window, pixels");
     v("min_inliers", min_inliers, "tracked points for a frame to count as tracked");
+    v("min_inliers_after_failure", min_inliers_after_failure, "tracked points needed right after an untracked frame");
     v("lost_after_frames", lost_after_frames, "consecutive untracked frames that make tracking lost (one bad frame is skipped)");
     v("keyframe_ratio", keyframe_ratio, "new keyframe when tracking fewer than this fraction of the reference keyframe's points");
     v("max_keyframe_gap", max_keyframe_gap, "frames between keyframes at most (0: one second)");
+    v("min_relative_sharpness", min_relative_sharpness, "a frame less sharp than this fraction of recent tracked frames is skipped as motion-blurred (0: off)");
     v("agent_number", agent_number, "number of this aircraft in every id (0-32767)");
     v("first_submap_number", first_submap_number, "number of the first submap (1-65535)");
   }
@@ -62,10 +66,20 @@ enum class TrackingReason {
   kUndecodableFrame,
   kDropped,
   kNoTracker,
+  kMotionBlur,
 };
 
 const char* TrackingStateName(TrackingState state);
 const char* TrackingReasonName(TrackingReason reason);
+
+// Where a frame's time went, milliseconds.
+struct TrackTimings {
+  double extraction = 0;   // ORB features and their undistortion
+  double frame_to_frame = 0;  // motion model or reference keyframe: matching and pose
+  double local_map = 0;    // local map: selection, projection search, pose
+  double keyframe = 0;     // keyframe decision and creation
+  double total = 0;
+};
 
 struct TrackResult {
   TrackingState state = TrackingState::kNotTracked;
@@ -79,6 +93,7 @@ struct TrackResult {
   int num_tracked_points = 0;
   bool is_keyframe = false;
   int submap_keyframes = 0;
+  TrackTimings timings;
 };
 
 class Tracking {
@@ -146,6 +161,7 @@ class Tracking {
   KeyframeId reference_keyframe_;
   int last_keyframe_frame_index_ = -1;
   int consecutive_failures_ = 0;
+  double typical_sharpness_ = 0;  // running average over tracked frames
   std::vector<KeyframeId> local_keyframes_;
 
   KeyframeId last_keyframe_sent_;

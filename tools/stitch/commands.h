@@ -8,5 +8,6 @@ int EvalCommand(int argc, char** argv);    // stitch eval
 int RenderCommand(int argc, char** argv);  // stitch render
 int ConfigCommand(int argc, char** argv);  // stitch config
 int VocabCommand(int argc, char** argv);   // stitch vocab train|info
+int BenchCommand(int argc, char** argv);   // stitch bench
 
 }  // namespace stitch

@@ -23,8 +23,10 @@ constexpr char kUsage[] =
     "  render    write the synthetic flight as an image folder with ground truth\n"
     "  config    print every setting with its default and meaning\n"
     "  vocab     train a bag-of-words vocabulary, or describe one\n"
+    "  bench     time tracking and mapping on a sequence (no bus)\n"
     "  ingest    run the ingest service alone (same as stitch-ingest)\n"
     "  tracker   run the tracker service alone (same as stitch-tracker)\n"
+    "  mapper    run the mapper service alone (same as stitch-mapper)\n"
     "  version   print the version\n";
 
 }  // namespace
@@ -43,11 +45,12 @@ int main(int argc, char** argv) {
   if (command == "render") return stitch::RenderCommand(argc - 1, argv + 1);
   if (command == "config") return stitch::ConfigCommand(argc - 1, argv + 1);
   if (command == "vocab") return stitch::VocabCommand(argc - 1, argv + 1);
+  if (command == "bench") return stitch::BenchCommand(argc - 1, argv + 1);
   if (command == "version" || command == "--version") {
     std::printf("stitch %s\n", STITCH_VERSION);
     return 0;
   }
-  if (command == "ingest" || command == "tracker") {
+  if (command == "ingest" || command == "tracker" || command == "mapper") {
     const std::string service = stitch::ExecutableDir() + "/stitch-" + command;
     argv[1] = const_cast<char*>(service.c_str());
     execv(service.c_str(), argv + 1);

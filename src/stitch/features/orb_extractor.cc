@@ -48,6 +48,7 @@ bool OrbOptions::Check(std::string* why) const {
     return fail("orb: need 1 <= min_fast_threshold <= fast_threshold <= 200");
   }
   if (cell_size < 10 || cell_size > 500) return fail("orb.cell_size must be in [10, 500]");
+  if (detector != "stitch" && detector != "opencv") return fail("orb.detector must be stitch or opencv");
   return true;
 }
 
@@ -204,6 +205,10 @@ float OrbExtractor::Orientation(const cv::Mat& image, const cv::Point2f& point) 
 
 void OrbExtractor::Extract(const cv::Mat& image, std::vector<cv::KeyPoint>* keypoints, cv::Mat* descriptors) {
   if (image.empty() || image.type() != CV_8UC1) throw Error("OrbExtractor: expected a non-empty 8-bit gray image");
+  if (options_.detector == "opencv") {
+    describer_->detectAndCompute(image, cv::noArray(), *keypoints, *descriptors);
+    return;
+  }
   BuildPyramid(image);
   std::vector<cv::KeyPoint> all;
   all.reserve(options_.num_features);

@@ -20,6 +20,7 @@ struct OrbOptions {
   int fast_threshold = 20;      // preferred FAST threshold
   int min_fast_threshold = 7;   // used in cells where no corner passes the preferred one
   int cell_size = 35;           // pixels; the adaptive threshold works per cell
+  std::string detector = "stitch";  // stitch: spread as above; opencv: cv::ORB's own detection (for comparison)
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
@@ -29,6 +30,7 @@ struct OrbOptions {
     v("fast_threshold", fast_threshold, "preferred FAST threshold");
     v("min_fast_threshold", min_fast_threshold, "FAST threshold in cells without strong corners");
     v("cell_size", cell_size, "cell size of the adaptive threshold, pixels");
+    v("detector", detector, "stitch (features spread over image and scales) or opencv (cv::ORB's strongest corners)");
   }
   bool Check(std::string* why) const;
 };

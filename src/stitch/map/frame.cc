@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include <opencv2/imgproc.hpp>
+
 namespace stitch {
 
 ScalePyramid ScalePyramid::From(const OrbOptions& options) {
@@ -104,6 +106,13 @@ std::vector<int> FeatureGrid::InArea(double x, double y, double radius, const st
   return found;
 }
 
+double ImageSharpness(const cv::Mat& image) {
+  cv::Mat half, laplacian;
+  cv::resize(image, half, cv::Size(), 0.5, 0.5, cv::INTER_AREA);
+  cv::Laplacian(half, laplacian, CV_16S, 1);
+  return cv::mean(cv::abs(laplacian))[0];
+}
+
 float QuantizeAngle(float degrees) {
   const int steps = static_cast<int>(std::lround(degrees * 256.0f / 360.0f)) & 255;
   return steps * 360.0f / 256.0f;
@@ -120,6 +129,7 @@ Frame MakeFrame(const cv::Mat& image, int frame_index, int64_t t_ns, OrbExtracto
   Frame frame;
   frame.frame_index = frame_index;
   frame.t_ns = t_ns;
+  frame.sharpness = ImageSharpness(image);
   extractor->Extract(image, &frame.keypoints, &frame.descriptors);
   // Positions in 1/8 pixel and orientations in 1/256 turn: what keyframe_t carries, so a keyframe
   // is the same in the tracker that made it and in every process that receives it.

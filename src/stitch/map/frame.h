@@ -81,10 +81,14 @@ struct Frame {
   std::vector<MapPointId> points;            // per feature; invalid when none
   std::vector<char> outlier;                 // per feature
   std::optional<Rigid3d> cam_from_world;
+  double sharpness = 0;                      // ImageSharpness of the image
 
   size_t size() const { return keypoints.size(); }
   int CountTracked() const;  // features with a point that is not an outlier
 };
+
+// Mean absolute Laplacian of the half-size image: falls sharply when motion blurs the image.
+double ImageSharpness(const cv::Mat& image);
 
 // Orientation rounded to 1/256 turn, in [0, 360).
 float QuantizeAngle(float degrees);

@@ -1,0 +1,58 @@
+#include "services/pipeline/inline_pipeline.h"
+
+#include <map>
+
+#include "stitch/util/time.h"
+
+namespace stitch {
+
+InlineRun RunInline(ImageSequence& sequence, const StitchConfig& config, const Vocabulary& vocabulary,
+                    const std::function<void(const InlineFrame&)>& on_frame) {
+  Tracking tracking(config.tracker.tracking, sequence.camera(), &vocabulary, sequence.nominal_fps());
+  LocalMapping mapping(config.mapper.mapping, sequence.camera(), config.tracker.tracking.orb, &vocabulary);
+  InlineRun run;
+  std::map<int64_t, int> component_of;
+  SequenceFrame frame;
+  while (sequence.Next(&frame)) {
+    InlineFrame done;
+    done.frame_index = frame.index;
+    done.t_ns = frame.t_ns;
+    if (frame.image.empty()) {
+      done.result.state = TrackingState::kSkipped;
+      done.result.reason = TrackingReason::kUndecodableFrame;
+      done.result.detail = frame.error;
+    } else {
+      Tracking::Output output = tracking.Track(frame.image, frame.index, frame.t_ns);
+      const Stopwatch mapping_clock;
+      for (size_t k = 0; k < output.new_keyframes.size(); ++k) {
+        const MappingReport report =
+            mapping.ProcessKeyframe(output.new_keyframes[k], k == 0 ? output.new_points : std::vector<MapPoint>());
+        tracking.ApplyUpdate(mapping.MakeUpdate(report.keyframe, 0));
+        ++run.keyframes;
+      }
+      if (!output.new_keyframes.empty()) done.mapping_ms = mapping_clock.ElapsedMs();
+      done.result = std::move(output.result);
+    }
+    if (done.result.state == TrackingState::kOk && done.result.cam_from_submap) {
+      const int64_t submap = done.result.submap.value;
+      if (!component_of.count(submap)) {
+        const int next = static_cast<int>(component_of.size());
+        component_of[submap] = next;
+      }
+      PoseRecord pose;
+      pose.frame_index = frame.index;
+      pose.t_ns = frame.t_ns;
+      pose.submap_id = submap;
+      pose.component = component_of[submap];
+      pose.is_keyframe = done.result.is_keyframe;
+      pose.world_from_cam = done.result.cam_from_submap->Inverse();
+      run.poses.push_back(pose);
+    }
+    if (on_frame) on_frame(done);
+    run.frames.push_back(std::move(done));
+  }
+  run.submaps = static_cast<int>(component_of.size());
+  return run;
+}
+
+}  // namespace stitch

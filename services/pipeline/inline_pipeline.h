@@ -1,0 +1,38 @@
+#pragma once
+// The tracker and mapper algorithms run one after the other in the calling thread, with no
+// transport between them: each keyframe is mapped and its update applied before the next frame,
+// exactly what lockstep pacing with `wait_for_mapper` gives over the bus. For benchmarks
+// (stitch bench: the same work, timed without the bus) and for tests of the SLAM core on whole
+// sequences.
+
+#include <functional>
+#include <vector>
+
+#include "services/config/stitch_config.h"
+#include "services/mapper/local_mapping.h"
+#include "services/tracker/tracking.h"
+#include "stitch/eval/evaluation.h"
+#include "stitch/io/image_sequence.h"
+
+namespace stitch {
+
+struct InlineFrame {
+  int frame_index = -1;
+  int64_t t_ns = 0;
+  TrackResult result;
+  double mapping_ms = 0;  // mapping the keyframe this frame made (0 if none)
+};
+
+struct InlineRun {
+  std::vector<InlineFrame> frames;
+  std::vector<PoseRecord> poses;  // the tracker's poses, each submap its own component
+  int keyframes = 0;              // keyframes made
+  int submaps = 0;
+};
+
+// Plays `sequence` through the tracker and mapper; `on_frame` (optional) sees every frame as it
+// is done. Throws stitch::Error on invalid settings.
+InlineRun RunInline(ImageSequence& sequence, const StitchConfig& config, const Vocabulary& vocabulary,
+                    const std::function<void(const InlineFrame&)>& on_frame = nullptr);
+
+}  // namespace stitch

@@ -1,0 +1,84 @@
+// The SLAM core (tracker and mapper algorithms, no transport) on synthetic flights with exact
+// ground truth.
+
+#include "services/pipeline/inline_pipeline.h"
+
+#include <set>
+
+#include <gtest/gtest.h>
+
+#include "stitch/source/source.h"
+
+namespace stitch {
+namespace {
+
+StitchConfig StripFlight(int frames) {
+  StitchConfig config;
+  config.synthetic.flight.num_frames = frames;
+  config.synthetic.flight.num_strips = 1;
+  config.synthetic.flight.strip_length_m = 1.15 * frames;  // the default flight's speed
+  return config;
+}
+
+const Vocabulary& DefaultVocabulary() {
+  static const Vocabulary* vocabulary = new Vocabulary(LoadVocabulary(StitchConfig()));
+  return *vocabulary;
+}
+
+double Extent(const Trajectory& truth) {
+  Eigen::Vector3d lo = Eigen::Vector3d::Constant(1e18), hi = -lo;
+  for (const auto& p : truth.poses()) {
+    lo = lo.cwiseMin(p.world_from_cam.translation);
+    hi = hi.cwiseMax(p.world_from_cam.translation);
+  }
+  return (hi - lo).maxCoeff();
+}
+
+TEST(InlinePipeline, CalmFlightIsTrackedCompletelyAndAccurately) {
+  const StitchConfig config = StripFlight(200);
+  SourceSpec spec;
+  spec.synthetic = config.synthetic;
+  spec.failures = "none";
+  FailureSchedule unused;
+  auto sequence = OpenSource(spec, &unused);
+  const InlineRun run = RunInline(*sequence, config, DefaultVocabulary());
+  EvaluationInput input;
+  input.frames_total = 200;
+  input.poses = run.poses;
+  input.ground_truth = sequence->ground_truth();
+  const Evaluation e = Evaluate(input);
+  EXPECT_GE(e.completeness, 0.98);
+  EXPECT_EQ(run.submaps, 1);
+  ASSERT_TRUE(e.errors);
+  const double extent = Extent(sequence->ground_truth());
+  EXPECT_LT(e.errors->ate_rmse_m, 0.01 * extent) << "extent " << extent << " m";
+  EXPECT_GT(run.keyframes, 10);
+}
+
+TEST(InlinePipeline, AGustClosesTheSubmapAndANewOneStartsAtOnce) {
+  const StitchConfig config = StripFlight(200);
+  SourceSpec spec;
+  spec.synthetic = config.synthetic;
+  spec.failures = "90:10";
+  FailureSchedule unused;
+  auto sequence = OpenSource(spec, &unused);
+  const InlineRun run = RunInline(*sequence, config, DefaultVocabulary());
+  EXPECT_GE(run.submaps, 2);
+  // Every usable frame (not in the gust) but a few around the gust and the first two has a pose.
+  int usable = 0, posed = 0;
+  std::set<int> with_pose;
+  for (const auto& p : run.poses) with_pose.insert(p.frame_index);
+  for (int i = 0; i < 200; ++i) {
+    if (i >= 90 && i < 100) continue;
+    ++usable;
+    posed += with_pose.count(i) > 0;
+  }
+  EXPECT_GE(posed, usable - 20) << posed << " of " << usable << " usable frames posed";
+  // The frame right after losing track is reported as lost, with a reason.
+  bool lost_reported = false;
+  for (const auto& f : run.frames) lost_reported |= f.result.state == TrackingState::kLost && !f.result.detail.empty();
+  EXPECT_TRUE(lost_reported);
+}
+
+}  // namespace
+}  // namespace stitch
