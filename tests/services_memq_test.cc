@@ -1,7 +1,12 @@
 // Ingest, tracker and mapper services on one in-process bus (memq://), as in a single process.
 
+#include <fstream>
+#include <map>
+#include <sstream>
+
 #include <gtest/gtest.h>
 
+#include "services/common/map_convert.h"
 #include "services/config/stitch_config.h"
 #include "services/ingest/ingest.h"
 #include "services/mapper/mapper_service.h"
@@ -24,6 +29,17 @@ TEST(ServicesInProcess, IngestTrackerAndMapperTrackAShortFlightOverMemq) {
   IngestService ingest(lcm.get(), "memq://", &publisher, config.ingest);
   TrackerService tracker(lcm.get(), &publisher, config.tracker, &vocabulary, dir / "frames.tsv");
   MapperService mapper(lcm.get(), &publisher, config.mapper, config.tracker.tracking.orb, &vocabulary, dir.path().string());
+  // What a merger would receive: every submap rebuilt from the SUBMAP channel.
+  const ScalePyramid pyramid = ScalePyramid::From(config.tracker.tracking.orb);
+  std::map<SubmapId, SubmapReplica> replicas;
+  std::vector<KeyframeId> missing;
+  bus::Subscriber merger_side(lcm.get());
+  merger_side.Subscribe<stitch::submap_update_t>(
+      bus::Channel("uav0", bus::kSubmap), [&](std::unique_ptr<stitch::submap_update_t> message, const std::string&) {
+        const SubmapUpdate update = FromMessage(*message, pyramid);
+        auto it = replicas.try_emplace(update.submap, update.submap, pyramid).first;
+        missing = ApplySubmapUpdate(update, &it->second);
+      });
   bus::Dispatcher dispatcher(lcm.get());
   dispatcher.Start();
   mapper.Start();
@@ -43,6 +59,29 @@ TEST(ServicesInProcess, IngestTrackerAndMapperTrackAShortFlightOverMemq) {
   // Every keyframe the tracker made reached the mapper and was mapped.
   EXPECT_GT(tracker.keyframes_published(), 3);
   EXPECT_EQ(mapper.keyframes_mapped(), tracker.keyframes_published());
+  // The submap arrived whole and closed, with the mapper's final keyframe poses.
+  ASSERT_EQ(replicas.size(), 1u);
+  const SubmapReplica& replica = replicas.begin()->second;
+  EXPECT_TRUE(replica.closed);
+  EXPECT_TRUE(missing.empty());
+  EXPECT_GT(replica.map.num_points(), 500u);
+  std::ifstream keyframes(dir / "keyframes.tsv");
+  std::string line;
+  int kept = 0;
+  while (std::getline(keyframes, line)) {
+    if (line.empty() || line[0] == '#') continue;
+    std::istringstream fields(line);
+    int64_t id, submap, frame_index, t_ns;
+    int culled;
+    double tx, ty, tz;
+    fields >> id >> submap >> frame_index >> t_ns >> culled >> tx >> ty >> tz;
+    if (culled) continue;
+    ++kept;
+    const Keyframe* keyframe = replica.map.FindKeyframe(KeyframeId(id));
+    ASSERT_NE(keyframe, nullptr) << id;
+    EXPECT_LT((keyframe->Centre() - Eigen::Vector3d(tx, ty, tz)).norm(), 1e-4);
+  }
+  EXPECT_EQ(static_cast<size_t>(kept), replica.map.num_keyframes());
   // The tracker's poses follow the ground truth.
   EvaluationInput input;
   input.frames_total = 60;

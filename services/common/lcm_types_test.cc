@@ -190,7 +190,7 @@ TEST(LcmTypes, MapMessagesRoundTrip) {
   submap.submap_id = 3;
   submap.revision = 2;
   submap.closed = true;
-  submap.camera = Camera();
+  submap.num_parts = 1;
   submap.num_keyframes = 2;
   submap.keyframes = {Keyframe(10, 2), Keyframe(20, 3)};
   submap.num_points = 1;

@@ -123,6 +123,68 @@ ReceivedKeyframe FromMessage(const stitch::keyframe_t& m, const ScalePyramid& py
   return received;
 }
 
+namespace {
+
+// Local-map and submap updates share their change arrays by name, except the poses' ids and
+// count, which are given as members.
+template <class Message>
+void EncodeChanges(const LocalMapUpdate& changes, std::vector<int64_t> Message::*pose_ids, int32_t Message::*num_poses,
+                   Message* m) {
+  for (const auto& [id, pose] : changes.keyframe_poses) {
+    (m->*pose_ids).push_back(id.value);
+    m->cam_from_submap.push_back(ToMessage(pose));
+  }
+  m->*num_poses = static_cast<int32_t>((m->*pose_ids).size());
+  for (const auto& [id, points] : changes.associations) {
+    stitch::keyframe_association_t a{};
+    a.keyframe_id = id.value;
+    a.num_features = static_cast<int32_t>(points.size());
+    for (MapPointId p : points) a.point_index.push_back(PointIndexOrNone(p));
+    m->associations.push_back(std::move(a));
+  }
+  m->num_associations = static_cast<int32_t>(m->associations.size());
+  for (const MapPoint& point : changes.points) m->points.push_back(ToMessage(point));
+  m->num_points = static_cast<int32_t>(m->points.size());
+  for (MapPointId id : changes.removed_points) m->removed_point_index.push_back(static_cast<int32_t>(IndexOf(id)));
+  m->num_removed_points = static_cast<int32_t>(m->removed_point_index.size());
+  for (KeyframeId id : changes.removed_keyframes) m->removed_keyframe_ids.push_back(id.value);
+  m->num_removed_keyframes = static_cast<int32_t>(m->removed_keyframe_ids.size());
+}
+
+// Fills `changes` (whose submap is set); throws stitch::Error naming `what` for inconsistent arrays.
+template <class Message>
+void DecodeChanges(const Message& m, const std::vector<int64_t>& pose_ids, const std::string& what,
+                   LocalMapUpdate* changes) {
+  const SubmapId submap = changes->submap;
+  if (pose_ids.size() != m.cam_from_submap.size()) throw Error(what + ": poses and ids disagree");
+  const auto own = [&](int64_t id) {
+    if (SubmapOf(KeyframeId(id)) != submap) throw Error(what + ": keyframe " + std::to_string(id) + " of another submap");
+    return KeyframeId(id);
+  };
+  for (size_t i = 0; i < pose_ids.size(); ++i) {
+    changes->keyframe_poses.push_back({own(pose_ids[i]), FromMessage(m.cam_from_submap[i])});
+  }
+  for (const auto& a : m.associations) {
+    if (a.num_features != static_cast<int>(a.point_index.size())) throw Error(what + ": inconsistent association");
+    std::vector<MapPointId> points;
+    for (int32_t index : a.point_index) points.push_back(PointIdOrNone(submap, index));
+    changes->associations.push_back({own(a.keyframe_id), std::move(points)});
+  }
+  for (const auto& p : m.points) changes->points.push_back(FromMessage(p, submap));
+  for (int32_t index : m.removed_point_index) {
+    if (index >= 0) changes->removed_points.push_back(MakeMapPointId(submap, static_cast<uint32_t>(index)));
+  }
+  for (int64_t id : m.removed_keyframe_ids) changes->removed_keyframes.push_back(own(id));
+}
+
+SubmapId CheckedSubmapId(int64_t value, const std::string& what) {
+  const SubmapId submap(value);
+  if (!submap.valid() || IndexOf(submap) != 0) throw Error(what + ": invalid submap id " + std::to_string(value));
+  return submap;
+}
+
+}  // namespace
+
 std::vector<stitch::local_map_update_t> ToMessages(const LocalMapUpdate& update, size_t max_part_bytes) {
   const std::vector<LocalMapUpdate> parts = SplitLocalMapUpdate(update, max_part_bytes);
   std::vector<stitch::local_map_update_t> messages;
@@ -135,55 +197,64 @@ std::vector<stitch::local_map_update_t> ToMessages(const LocalMapUpdate& update,
     m.num_parts = static_cast<int32_t>(parts.size());
     m.last_keyframe_id = part.last_keyframe.value;
     m.queued_keyframes = part.queued_keyframes;
-    for (const auto& [id, pose] : part.keyframe_poses) {
-      m.keyframe_ids.push_back(id.value);
-      m.cam_from_submap.push_back(ToMessage(pose));
-    }
-    m.num_keyframes = static_cast<int32_t>(m.keyframe_ids.size());
-    for (const auto& [id, points] : part.associations) {
-      stitch::keyframe_association_t a{};
-      a.keyframe_id = id.value;
-      a.num_features = static_cast<int32_t>(points.size());
-      for (MapPointId p : points) a.point_index.push_back(PointIndexOrNone(p));
-      m.associations.push_back(std::move(a));
-    }
-    m.num_associations = static_cast<int32_t>(m.associations.size());
-    for (const MapPoint& point : part.points) m.points.push_back(ToMessage(point));
-    m.num_points = static_cast<int32_t>(m.points.size());
-    for (MapPointId id : part.removed_points) m.removed_point_index.push_back(static_cast<int32_t>(IndexOf(id)));
-    m.num_removed_points = static_cast<int32_t>(m.removed_point_index.size());
-    for (KeyframeId id : part.removed_keyframes) m.removed_keyframe_ids.push_back(id.value);
-    m.num_removed_keyframes = static_cast<int32_t>(m.removed_keyframe_ids.size());
+    EncodeChanges(part, &stitch::local_map_update_t::keyframe_ids, &stitch::local_map_update_t::num_keyframes, &m);
     messages.push_back(std::move(m));
   }
   return messages;
 }
 
 LocalMapUpdate FromMessage(const stitch::local_map_update_t& m) {
-  const SubmapId submap(m.submap_id);
-  if (!submap.valid() || IndexOf(submap) != 0) throw Error("local map update: invalid submap id " + std::to_string(m.submap_id));
   LocalMapUpdate update;
-  update.submap = submap;
+  update.submap = CheckedSubmapId(m.submap_id, "local map update");
   update.revision = m.revision;
   update.last_keyframe = KeyframeId(m.last_keyframe_id);
   update.queued_keyframes = m.queued_keyframes;
-  if (m.keyframe_ids.size() != m.cam_from_submap.size()) throw Error("local map update: poses and ids disagree");
-  const auto own = [&](int64_t id) {
-    if (SubmapOf(KeyframeId(id)) != submap) throw Error("local map update: keyframe " + std::to_string(id) + " of another submap");
-    return KeyframeId(id);
-  };
-  for (size_t i = 0; i < m.keyframe_ids.size(); ++i) update.keyframe_poses.push_back({own(m.keyframe_ids[i]), FromMessage(m.cam_from_submap[i])});
-  for (const auto& a : m.associations) {
-    if (a.num_features != static_cast<int>(a.point_index.size())) throw Error("local map update: inconsistent association");
-    std::vector<MapPointId> points;
-    for (int32_t index : a.point_index) points.push_back(PointIdOrNone(submap, index));
-    update.associations.push_back({own(a.keyframe_id), std::move(points)});
+  DecodeChanges(m, m.keyframe_ids, "local map update", &update);
+  return update;
+}
+
+std::vector<stitch::submap_update_t> ToMessages(const SubmapUpdate& update, size_t max_part_bytes) {
+  const std::vector<SubmapUpdate> parts = SplitSubmapUpdate(update, max_part_bytes);
+  std::vector<stitch::submap_update_t> messages;
+  for (size_t p = 0; p < parts.size(); ++p) {
+    const SubmapUpdate& part = parts[p];
+    stitch::submap_update_t m{};
+    m.submap_id = part.submap.value;
+    m.revision = part.revision;
+    m.part = static_cast<int32_t>(p);
+    m.num_parts = static_cast<int32_t>(parts.size());
+    m.closed = part.closed;
+    m.full_state = part.full_state;
+    for (const Keyframe& keyframe : part.new_keyframes) m.keyframes.push_back(ToMessage(keyframe, *part.camera, {}));
+    m.num_keyframes = static_cast<int32_t>(m.keyframes.size());
+    EncodeChanges(part.changes, &stitch::submap_update_t::pose_keyframe_ids, &stitch::submap_update_t::num_poses, &m);
+    for (KeyframeId id : part.manifest) m.manifest_keyframe_ids.push_back(id.value);
+    m.num_manifest = static_cast<int32_t>(m.manifest_keyframe_ids.size());
+    messages.push_back(std::move(m));
   }
-  for (const auto& p : m.points) update.points.push_back(FromMessage(p, submap));
-  for (int32_t index : m.removed_point_index) {
-    if (index >= 0) update.removed_points.push_back(MakeMapPointId(submap, static_cast<uint32_t>(index)));
+  return messages;
+}
+
+SubmapUpdate FromMessage(const stitch::submap_update_t& m, const ScalePyramid& pyramid) {
+  const std::string what = "submap update " + std::to_string(m.submap_id);
+  SubmapUpdate update;
+  update.submap = CheckedSubmapId(m.submap_id, "submap update");
+  update.revision = m.revision;
+  update.closed = m.closed;
+  update.full_state = m.full_state;
+  for (const auto& k : m.keyframes) {
+    if (k.submap_id != m.submap_id) throw Error(what + ": keyframe " + std::to_string(k.keyframe_id) + " of another submap");
+    ReceivedKeyframe received = FromMessage(k, pyramid);
+    update.camera = received.camera;
+    update.new_keyframes.push_back(std::move(received.keyframe));
   }
-  for (int64_t id : m.removed_keyframe_ids) update.removed_keyframes.push_back(own(id));
+  update.changes.submap = update.submap;
+  update.changes.revision = m.revision;
+  DecodeChanges(m, m.pose_keyframe_ids, what, &update.changes);
+  for (int64_t id : m.manifest_keyframe_ids) {
+    if (SubmapOf(KeyframeId(id)) != update.submap) throw Error(what + ": manifest lists a keyframe of another submap");
+    update.manifest.push_back(KeyframeId(id));
+  }
   return update;
 }
 

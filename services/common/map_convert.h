@@ -10,7 +10,9 @@
 #include "stitch/local_map_update_t.hpp"
 #include "stitch/map/local_map_update.h"
 #include "stitch/map/map.h"
+#include "stitch/map/submap_update.h"
 #include "stitch/map_point_t.hpp"
+#include "stitch/submap_update_t.hpp"
 
 namespace stitch {
 
@@ -32,5 +34,11 @@ ReceivedKeyframe FromMessage(const stitch::keyframe_t& message, const ScalePyram
 // One LCM message per part (see SplitLocalMapUpdate).
 std::vector<stitch::local_map_update_t> ToMessages(const LocalMapUpdate& update, size_t max_part_bytes = 60000);
 LocalMapUpdate FromMessage(const stitch::local_map_update_t& message);
+
+// One LCM message per part (see SplitSubmapUpdate); `update.camera` must be set when it carries
+// keyframes.
+std::vector<stitch::submap_update_t> ToMessages(const SubmapUpdate& update, size_t max_part_bytes = 60000);
+// Throws stitch::Error saying what is inconsistent.
+SubmapUpdate FromMessage(const stitch::submap_update_t& message, const ScalePyramid& pyramid);
 
 }  // namespace stitch

@@ -62,7 +62,7 @@ MappingReport LocalMapping::ProcessKeyframe(Keyframe keyframe, const std::vector
     for (const auto& closed : closed_maps_) {
       if (closed->id() == submap) return report;
     }
-    CloseSubmap();
+    report.closed_submap = CloseSubmap();
   }
   if (!map_) {
     map_ = std::make_unique<Map>(submap, pyramid_, kMapperPointIndexBase);
@@ -313,6 +313,18 @@ std::vector<CulledKeyframe> LocalMapping::CulledKeyframePoses() const {
 LocalMapUpdate LocalMapping::MakeUpdate(KeyframeId keyframe, int queued_keyframes) {
   if (!map_) return {};
   return MakeLocalMapUpdate(map_.get(), keyframe, ++revision_, queued_keyframes);
+}
+
+SubmapUpdate LocalMapping::MakeSubmapUpdate(KeyframeId keyframe, const LocalMapUpdate& changes) const {
+  if (!map_) return {};
+  return MakeKeyframeSubmapUpdate(*map_, keyframe, camera_, changes);
+}
+
+SubmapUpdate LocalMapping::MakeFinalSubmapUpdate(SubmapId submap) {
+  for (const auto& closed : closed_maps_) {
+    if (closed->id() == submap) return MakeFullSubmapUpdate(closed.get(), ++revision_, /*closed=*/true);
+  }
+  return {};
 }
 
 }  // namespace stitch

@@ -15,6 +15,7 @@
 #include "stitch/features/vocabulary.h"
 #include "stitch/map/local_map_update.h"
 #include "stitch/map/map.h"
+#include "stitch/map/submap_update.h"
 
 namespace stitch {
 
@@ -52,6 +53,7 @@ struct CulledKeyframe {
 
 struct MappingReport {
   KeyframeId keyframe;
+  std::optional<SubmapId> closed_submap;  // the keyframe began a new submap and closed this one
   int new_points = 0;
   int fused = 0;
   int culled_points = 0;
@@ -70,6 +72,11 @@ class LocalMapping {
   MappingReport ProcessKeyframe(Keyframe keyframe, const std::vector<MapPoint>& new_points);
   // What the tracker needs to know after the last keyframe.
   LocalMapUpdate MakeUpdate(KeyframeId keyframe, int queued_keyframes);
+  // What the merger needs to know after the last keyframe: the keyframe in full and `changes`
+  // (the update just made for the tracker).
+  SubmapUpdate MakeSubmapUpdate(KeyframeId keyframe, const LocalMapUpdate& changes) const;
+  // The final state of a closed submap (empty update for one it does not know).
+  SubmapUpdate MakeFinalSubmapUpdate(SubmapId submap);
 
   const Map* map() const { return map_.get(); }
   // Submaps closed so far (the current one is not among them).

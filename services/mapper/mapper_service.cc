@@ -51,6 +51,9 @@ void MapperService::Stop() {
   if (!running_.exchange(false)) return;
   queue_.Close();
   if (worker_.joinable()) worker_.join();
+  if (mapping_) {
+    if (const auto closed = mapping_->CloseSubmap()) PublishSubmapUpdate(mapping_->MakeFinalSubmapUpdate(*closed));
+  }
   if (!record_dir_.empty()) {
     try {
       WriteRecords();
@@ -89,12 +92,23 @@ void MapperService::Process(const stitch::keyframe_t& message) {
   const KeyframeId id = received.keyframe.id;
   const MappingReport report = mapping_->ProcessKeyframe(std::move(received.keyframe), received.new_points);
   ++mapped_;
+  if (report.closed_submap) PublishSubmapUpdate(mapping_->MakeFinalSubmapUpdate(*report.closed_submap));
   const LocalMapUpdate update = mapping_->MakeUpdate(id, static_cast<int>(queue_.size()));
   for (auto& part : ToMessages(update)) publisher_->Publish(bus::Channel(publisher_->agent(), bus::kLocalMap), &part);
+  PublishSubmapUpdate(mapping_->MakeSubmapUpdate(id, update));
   STITCH_LOG(DEBUG) << "keyframe " << id << ": " << report.new_points << " new points, " << report.fused << " fused, "
                     << report.culled_points << " points and " << report.culled_keyframes.size()
                     << " keyframes culled, BA " << report.bundle_adjustment.initial_rms_px << " -> "
                     << report.bundle_adjustment.final_rms_px << " px, " << report.milliseconds << " ms";
+}
+
+void MapperService::PublishSubmapUpdate(const SubmapUpdate& update) {
+  if (!update.submap.valid()) return;
+  for (auto& part : ToMessages(update)) publisher_->Publish(bus::Channel(publisher_->agent(), bus::kSubmap), &part);
+  if (update.closed) {
+    STITCH_LOG(INFO) << "submap " << update.submap << " closed: " << update.manifest.size() << " keyframes, "
+                     << update.changes.points.size() << " points sent to the merger";
+  }
 }
 
 void MapperService::WriteRecords() const {

@@ -1,6 +1,8 @@
 #pragma once
 // The mapper service: receives keyframes on <agent>/KEYFRAME, maps each with LocalMapping in its
-// own worker thread, and publishes what changed on <agent>/LOCAL_MAP (in parts of about 60 kB).
+// own worker thread, and publishes what changed on <agent>/LOCAL_MAP for the tracker and on
+// <agent>/SUBMAP for the merger (each in parts of about 60 kB); a closed submap's final state
+// goes out when the next submap's first keyframe arrives, or at Stop.
 // When given a record folder it writes, at the end, map.ply (every submap's points, one colour
 // per submap) and keyframes.tsv (final keyframe poses, culled keyframes included).
 
@@ -34,6 +36,7 @@ class MapperService {
  private:
   void Work();
   void Process(const stitch::keyframe_t& message);
+  void PublishSubmapUpdate(const SubmapUpdate& update);
   void WriteRecords() const;
 
   bus::Publisher* publisher_;

@@ -54,7 +54,7 @@ int BenchCommand(int argc, char** argv) {
   args.AddOption("--dataset", &dataset, "PATH", "sequence to time (default: the synthetic flight)");
   args.AddOption("--calib", &calibration, "FILE", "calibration overriding the dataset's own");
   args.AddOption("--config", &config_path, "FILE", "YAML settings (e.g. synthetic.width: 752 for EuRoC-sized frames)");
-  args.AddOption("--failures", &failures, "SPEC", "induced failures (default: none)");
+  args.AddOption("--failures", &failures, "SPEC", "induced failures");
   args.AddOption("--max-frames", &max_frames, "N", "time at most N frames");
   args.AddOption("--json", &json_path, "FILE", "also write the figures as JSON");
   if (!args.Parse(argc, argv)) return args.exit_code();

@@ -1,0 +1,133 @@
+#include "stitch/map/submap_update.h"
+
+#include <algorithm>
+
+#include <gtest/gtest.h>
+
+namespace stitch {
+namespace {
+
+const SubmapId kSubmap = MakeSubmapId(1, 4);
+
+// The mapper's side: a submap grown keyframe by keyframe; each keyframe observes 30 points, 20 of
+// them shared with the previous keyframe.
+struct Sender {
+  Map map{kSubmap, ScalePyramid::From(OrbOptions())};
+  Camera camera = Camera::Pinhole(640, 480, 400, 400, 320, 240);
+  int revision = 0;
+
+  Sender() { map.EnableRemovalJournal(); }
+
+  SubmapUpdate AddKeyframe(uint32_t index) {
+    Keyframe keyframe;
+    keyframe.id = MakeKeyframeId(kSubmap, index);
+    keyframe.frame_index = static_cast<int>(10 * index);
+    keyframe.cam_from_world = Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(-0.5 * index, 0, 0));
+    const int n = 40;
+    keyframe.descriptors = cv::Mat(n, 32, CV_8U, cv::Scalar(index));
+    for (int i = 0; i < n; ++i) {
+      cv::KeyPoint kp(10.0f + 5 * i, 20.0f + index, 31);
+      kp.octave = i % 3;
+      keyframe.keypoints.push_back(kp);
+    }
+    keyframe.points.assign(n, MapPointId());
+    for (int i = 0; i < 30; ++i) {
+      const uint32_t point_index = 10 * index + static_cast<uint32_t>(i);
+      const MapPointId id = MakeMapPointId(kSubmap, point_index);
+      if (!map.FindPoint(id)) {
+        MapPoint point;
+        point.id = id;
+        point.position = Eigen::Vector3d(0.1 * point_index, 0.2, 5.0);
+        map.AddPoint(point);
+      }
+      keyframe.points[i] = id;
+    }
+    map.AddKeyframe(std::move(keyframe));
+    map.UpdateConnections(MakeKeyframeId(kSubmap, index));
+    const LocalMapUpdate changes = MakeLocalMapUpdate(&map, MakeKeyframeId(kSubmap, index), ++revision, 0);
+    return MakeKeyframeSubmapUpdate(map, MakeKeyframeId(kSubmap, index), camera, changes);
+  }
+};
+
+void ExpectSameSubmap(const Map& expected, const Map& actual) {
+  ASSERT_EQ(actual.num_keyframes(), expected.num_keyframes());
+  ASSERT_EQ(actual.num_points(), expected.num_points());
+  for (const auto& [id, keyframe] : expected.keyframes()) {
+    const Keyframe* copy = actual.FindKeyframe(id);
+    ASSERT_NE(copy, nullptr) << id;
+    EXPECT_EQ(copy->points, keyframe.points) << id;
+    EXPECT_LT((copy->cam_from_world.translation - keyframe.cam_from_world.translation).norm(), 1e-12);
+    EXPECT_EQ(copy->keypoints.size(), keyframe.keypoints.size());
+    EXPECT_EQ(cv::norm(copy->descriptors, keyframe.descriptors, cv::NORM_HAMMING), 0);
+  }
+  for (const auto& [id, point] : expected.points()) {
+    const MapPoint* copy = actual.FindPoint(id);
+    ASSERT_NE(copy, nullptr) << id;
+    EXPECT_LT((copy->position - point.position).norm(), 1e-12);
+    EXPECT_EQ(copy->observations, point.observations);
+  }
+}
+
+TEST(SubmapUpdate, KeyframeUpdatesRebuildTheSubmap) {
+  Sender sender;
+  SubmapReplica receiver(kSubmap, ScalePyramid::From(OrbOptions()));
+  for (uint32_t k = 0; k < 5; ++k) {
+    const SubmapUpdate update = sender.AddKeyframe(k);
+    EXPECT_EQ(update.new_keyframes.size(), 1u);
+    EXPECT_TRUE(ApplySubmapUpdate(update, &receiver).empty());
+  }
+  ExpectSameSubmap(sender.map, receiver.map);
+  EXPECT_EQ(receiver.map.FindKeyframe(MakeKeyframeId(kSubmap, 2))->covisibility.size(), 4u);
+}
+
+TEST(SubmapUpdate, PartsInAnyOrderAndTwiceGiveTheSameSubmap) {
+  Sender sender;
+  std::vector<SubmapUpdate> parts;
+  for (uint32_t k = 0; k < 4; ++k) {
+    for (SubmapUpdate& part : SplitSubmapUpdate(sender.AddKeyframe(k), 2500)) parts.push_back(std::move(part));
+  }
+  EXPECT_GT(parts.size(), 8u);  // small parts: each keyframe (about 1.9 kB) alone, points split
+  SubmapReplica receiver(kSubmap, ScalePyramid::From(OrbOptions()));
+  std::reverse(parts.begin(), parts.end());
+  for (const SubmapUpdate& part : parts) ApplySubmapUpdate(part, &receiver);
+  for (const SubmapUpdate& part : parts) ApplySubmapUpdate(part, &receiver);
+  // Reversed parts leave associations to points that arrived later unset; the final state
+  // (sent when the submap closes) repairs them.
+  ApplySubmapUpdate(MakeFullSubmapUpdate(&sender.map, 99, true), &receiver);
+  ExpectSameSubmap(sender.map, receiver.map);
+  EXPECT_TRUE(receiver.closed);
+  // A part that arrives after the final state changes nothing.
+  for (const SubmapUpdate& part : parts) ApplySubmapUpdate(part, &receiver);
+  ExpectSameSubmap(sender.map, receiver.map);
+}
+
+TEST(SubmapUpdate, ALostKeyframeIsReportedMissingAndRemovalsFollow) {
+  Sender sender;
+  SubmapReplica receiver(kSubmap, ScalePyramid::From(OrbOptions()));
+  ApplySubmapUpdate(sender.AddKeyframe(0), &receiver);
+  sender.AddKeyframe(1);  // lost on the way
+  const std::vector<KeyframeId> missing = ApplySubmapUpdate(sender.AddKeyframe(2), &receiver);
+  ASSERT_EQ(missing.size(), 1u);
+  EXPECT_EQ(missing[0], MakeKeyframeId(kSubmap, 1));
+
+  // The mapper culls keyframe 0: the next update's manifest and removals take it away here too.
+  sender.map.RemoveKeyframe(MakeKeyframeId(kSubmap, 0));
+  const SubmapUpdate final_state = MakeFullSubmapUpdate(&sender.map, 10, /*closed=*/true);
+  EXPECT_TRUE(final_state.closed);
+  EXPECT_TRUE(final_state.new_keyframes.empty());
+  const std::vector<KeyframeId> still_missing = ApplySubmapUpdate(final_state, &receiver);
+  EXPECT_EQ(receiver.map.FindKeyframe(MakeKeyframeId(kSubmap, 0)), nullptr);
+  ASSERT_EQ(still_missing.size(), 1u);  // a final state carries no features: keyframe 1 stays missing
+  EXPECT_EQ(receiver.map.num_keyframes(), 1u);
+}
+
+TEST(SubmapUpdate, AnUpdateOfAnotherSubmapChangesNothing) {
+  Sender sender;
+  SubmapReplica receiver(MakeSubmapId(1, 5), ScalePyramid::From(OrbOptions()));
+  ApplySubmapUpdate(sender.AddKeyframe(0), &receiver);
+  EXPECT_EQ(receiver.map.num_keyframes(), 0u);
+  EXPECT_EQ(receiver.map.num_points(), 0u);
+}
+
+}  // namespace
+}  // namespace stitch
