@@ -2,6 +2,8 @@
 
 #include <fstream>
 #include <map>
+#include <mutex>
+#include <optional>
 #include <sstream>
 
 #include <gtest/gtest.h>
@@ -20,45 +22,76 @@
 namespace stitch {
 namespace {
 
+// The services on one memq bus, playing the short flight. Subscribe test handlers on `lcm`
+// between construction and Play().
+struct InProcessStack {
+  InProcessStack(const std::function<void(StitchConfig*)>& adjust, bool with_mapper, const std::string& record_dir)
+      : config(LoadConfig(adjust)),
+        vocabulary(LoadVocabulary(config)),
+        lcm(bus::OpenLcm("memq://")),
+        publisher(lcm.get(), "uav0"),
+        ingest(lcm.get(), "memq://", &publisher, config.ingest),
+        tracker(lcm.get(), &publisher, config.tracker, &vocabulary, record_dir.empty() ? "" : record_dir + "/frames.tsv") {
+    if (with_mapper) mapper.emplace(lcm.get(), &publisher, config.mapper, config.tracker.tracking.orb, &vocabulary, record_dir);
+  }
+
+  static StitchConfig LoadConfig(const std::function<void(StitchConfig*)>& adjust) {
+    StitchConfig c = LoadStitchConfig(std::string(STITCH_SOURCE_DIR) + "/tests/short_flight.yaml");
+    if (adjust) adjust(&c);
+    return c;
+  }
+
+  // Plays the flight with `failures`, then stops every service (the mapper writes its records).
+  IngestSummary Play(const std::string& failures, int max_frames = -1) {
+    bus::Dispatcher dispatcher(lcm.get());
+    dispatcher.Start();
+    if (mapper) mapper->Start();
+    tracker.Start();
+    SourceSpec spec;
+    spec.synthetic = config.synthetic;
+    spec.failures = failures;
+    spec.max_frames = max_frames;
+    FailureSchedule spoil;
+    auto sequence = OpenSource(spec, &spoil);
+    ground_truth = sequence->ground_truth();
+    std::atomic<bool> stop{false};
+    const IngestSummary summary = ingest.Play(*sequence, spoil, stop);
+    tracker.Stop();
+    if (mapper) mapper->Stop();
+    dispatcher.Stop();
+    return summary;
+  }
+
+  StitchConfig config;
+  Vocabulary vocabulary;
+  std::unique_ptr<lcm::LCM> lcm;
+  bus::Publisher publisher;
+  IngestService ingest;
+  TrackerService tracker;
+  std::optional<MapperService> mapper;
+  Trajectory ground_truth;
+};
+
 TEST(ServicesInProcess, IngestTrackerAndMapperTrackAShortFlightOverMemq) {
   testing::TempDir dir;
-  const StitchConfig config = LoadStitchConfig(std::string(STITCH_SOURCE_DIR) + "/tests/short_flight.yaml");
-  const Vocabulary vocabulary = LoadVocabulary(config);
-  auto lcm = bus::OpenLcm("memq://");
-  bus::Publisher publisher(lcm.get(), "uav0");
-  IngestService ingest(lcm.get(), "memq://", &publisher, config.ingest);
-  TrackerService tracker(lcm.get(), &publisher, config.tracker, &vocabulary, dir / "frames.tsv");
-  MapperService mapper(lcm.get(), &publisher, config.mapper, config.tracker.tracking.orb, &vocabulary, dir.path().string());
+  InProcessStack stack(nullptr, /*with_mapper=*/true, dir.path().string());
   // What a merger would receive: every submap rebuilt from the SUBMAP channel.
-  const ScalePyramid pyramid = ScalePyramid::From(config.tracker.tracking.orb);
+  const ScalePyramid pyramid = ScalePyramid::From(stack.config.tracker.tracking.orb);
   std::map<SubmapId, SubmapReplica> replicas;
   std::vector<KeyframeId> missing;
-  bus::Subscriber merger_side(lcm.get());
+  bus::Subscriber merger_side(stack.lcm.get());
   merger_side.Subscribe<stitch::submap_update_t>(
       bus::Channel("uav0", bus::kSubmap), [&](std::unique_ptr<stitch::submap_update_t> message, const std::string&) {
         const SubmapUpdate update = FromMessage(*message, pyramid);
         auto it = replicas.try_emplace(update.submap, update.submap, pyramid).first;
         missing = ApplySubmapUpdate(update, &it->second);
       });
-  bus::Dispatcher dispatcher(lcm.get());
-  dispatcher.Start();
-  mapper.Start();
-  tracker.Start();
-  SourceSpec spec;
-  spec.synthetic = config.synthetic;
-  spec.failures = "none";
-  FailureSchedule spoil;
-  auto sequence = OpenSource(spec, &spoil);
-  std::atomic<bool> stop{false};
-  const IngestSummary summary = ingest.Play(*sequence, spoil, stop);
-  tracker.Stop();
-  mapper.Stop();
-  dispatcher.Stop();
+  const IngestSummary summary = stack.Play("none");
   EXPECT_EQ(summary.frames_published, 60);
   EXPECT_EQ(summary.frames_unacked, 0);
   // Every keyframe the tracker made reached the mapper and was mapped.
-  EXPECT_GT(tracker.keyframes_published(), 3);
-  EXPECT_EQ(mapper.keyframes_mapped(), tracker.keyframes_published());
+  EXPECT_GT(stack.tracker.keyframes_published(), 3);
+  EXPECT_EQ(stack.mapper->keyframes_mapped(), stack.tracker.keyframes_published());
   // The submap arrived whole and closed, with the mapper's final keyframe poses.
   ASSERT_EQ(replicas.size(), 1u);
   const SubmapReplica& replica = replicas.begin()->second;
@@ -95,48 +128,24 @@ TEST(ServicesInProcess, IngestTrackerAndMapperTrackAShortFlightOverMemq) {
     p.world_from_cam = r.world_from_cam;
     input.poses.push_back(p);
   }
-  input.ground_truth = sequence->ground_truth();
+  input.ground_truth = stack.ground_truth;
   const Evaluation e = Evaluate(input);
   EXPECT_GE(e.frames_localized, 56);
   ASSERT_TRUE(e.errors);
   EXPECT_LT(e.errors->ate_rmse_m, 0.3);
 }
 
-}  // namespace
-}  // namespace stitch
-
-namespace stitch {
-namespace {
-
 TEST(ServicesInProcess, TrackerWithoutAMapperKeepsTrackingAndSaysSo) {
-  StitchConfig config = LoadStitchConfig(std::string(STITCH_SOURCE_DIR) + "/tests/short_flight.yaml");
-  config.tracker.mapper_timeout_s = 0.4;
-  const Vocabulary vocabulary = LoadVocabulary(config);
-  auto lcm = bus::OpenLcm("memq://");
-  bus::Publisher publisher(lcm.get(), "uav0");
-  IngestService ingest(lcm.get(), "memq://", &publisher, config.ingest);
-  TrackerService tracker(lcm.get(), &publisher, config.tracker, &vocabulary, "");
+  InProcessStack stack([](StitchConfig* c) { c->tracker.mapper_timeout_s = 0.4; }, /*with_mapper=*/false, "");
   std::mutex mutex;
   std::vector<stitch::tracking_status_t> statuses;
-  bus::Subscriber subscriber(lcm.get());
+  bus::Subscriber subscriber(stack.lcm.get());
   subscriber.Subscribe<stitch::tracking_status_t>(bus::Channel("uav0", bus::kTrackingStatus),
                                                   [&](std::unique_ptr<stitch::tracking_status_t> s, const std::string&) {
                                                     std::lock_guard<std::mutex> lock(mutex);
                                                     statuses.push_back(*s);
                                                   });
-  bus::Dispatcher dispatcher(lcm.get());
-  dispatcher.Start();
-  tracker.Start();
-  SourceSpec spec;
-  spec.synthetic = config.synthetic;
-  spec.failures = "none";
-  spec.max_frames = 25;
-  FailureSchedule spoil;
-  auto sequence = OpenSource(spec, &spoil);
-  std::atomic<bool> stop{false};
-  const IngestSummary summary = ingest.Play(*sequence, spoil, stop);
-  tracker.Stop();
-  dispatcher.Stop();
+  const IngestSummary summary = stack.Play("none", 25);
   EXPECT_EQ(summary.frames_unacked, 0);
   std::lock_guard<std::mutex> lock(mutex);
   ASSERT_EQ(statuses.size(), 25u);
@@ -145,6 +154,38 @@ TEST(ServicesInProcess, TrackerWithoutAMapperKeepsTrackingAndSaysSo) {
   for (const auto& s : statuses) ok += s.state == stitch::tracking_status_t::STATE_OK;
   EXPECT_GT(ok, 15);
   EXPECT_FALSE(statuses.back().mapper_connected);
+}
+
+TEST(ServicesInProcess, ALossClosesTheSubmapForTheMergerBeforeTheNextOneStarts) {
+  InProcessStack stack(nullptr, /*with_mapper=*/true, "");
+  std::vector<std::pair<SubmapId, bool>> events;  // (submap, closed) per update, in arrival order
+  int first_closed_before_status = -1;            // frame of the last status before submap 1 closed
+  int last_status_frame = -1;
+  bus::Subscriber merger_side(stack.lcm.get());
+  merger_side.Subscribe<stitch::submap_update_t>(
+      bus::Channel("uav0", bus::kSubmap), [&](std::unique_ptr<stitch::submap_update_t> message, const std::string&) {
+        events.push_back({SubmapId(message->submap_id), message->closed});
+        if (message->closed && first_closed_before_status < 0) first_closed_before_status = last_status_frame;
+      });
+  merger_side.Subscribe<stitch::tracking_status_t>(
+      bus::Channel("uav0", bus::kTrackingStatus),
+      [&](std::unique_ptr<stitch::tracking_status_t> status, const std::string&) { last_status_frame = status->frame_index; });
+  stack.Play("30:6");
+  // Submap 1's final state (closed) arrives before anything of submap 2.
+  const SubmapId first = MakeSubmapId(0, 1), second = MakeSubmapId(0, 2);
+  int first_closed_at = -1, second_starts_at = -1;
+  for (size_t i = 0; i < events.size(); ++i) {
+    if (events[i].first == first && events[i].second && first_closed_at < 0) first_closed_at = static_cast<int>(i);
+    if (events[i].first == second && second_starts_at < 0) second_starts_at = static_cast<int>(i);
+  }
+  ASSERT_GE(first_closed_at, 0);
+  ASSERT_GE(second_starts_at, 0) << "a new submap after the loss";
+  EXPECT_LT(first_closed_at, second_starts_at);
+  // Closed when the tracker reported the loss (frame 32, the third blurred frame), not later
+  // when submap 2 began (frame 37).
+  EXPECT_GE(first_closed_before_status, 32);
+  EXPECT_LT(first_closed_before_status, 36);
+  EXPECT_TRUE(events.back().second) << "the last submap is closed at shutdown";
 }
 
 }  // namespace

@@ -57,12 +57,25 @@ MappingReport LocalMapping::ProcessKeyframe(Keyframe keyframe, const std::vector
   MappingReport report;
   report.keyframe = keyframe.id;
   const SubmapId submap = SubmapOf(keyframe.id);
-  if (map_ && map_->id() != submap) {
-    // Earlier submaps are done; a stale keyframe of a closed one is dropped.
-    for (const auto& closed : closed_maps_) {
-      if (closed->id() == submap) return report;
+  if (!map_ || map_->id() != submap) {
+    // A new keyframe of a closed submap reopens it (the tracker relocalized there); a copy of
+    // one it already holds is dropped.
+    const auto find_closed = [&]() {
+      return std::find_if(closed_maps_.begin(), closed_maps_.end(), [&](const auto& m) { return m->id() == submap; });
+    };
+    const bool was_closed = find_closed() != closed_maps_.end();
+    if (was_closed && (*find_closed())->FindKeyframe(keyframe.id)) return report;
+    if (map_) report.closed_submap = CloseSubmap();
+    if (was_closed) {
+      const auto closed = find_closed();
+      map_ = std::move(*closed);
+      closed_maps_.erase(closed);
+      report.reopened_submap = submap;
+      first_keyframe_ = KeyframeId();
+      for (const auto& [id, k] : map_->keyframes()) {
+        if (!first_keyframe_.valid() || id < first_keyframe_) first_keyframe_ = id;
+      }
     }
-    report.closed_submap = CloseSubmap();
   }
   if (!map_) {
     map_ = std::make_unique<Map>(submap, pyramid_, kMapperPointIndexBase);

@@ -53,7 +53,8 @@ struct CulledKeyframe {
 
 struct MappingReport {
   KeyframeId keyframe;
-  std::optional<SubmapId> closed_submap;  // the keyframe began a new submap and closed this one
+  std::optional<SubmapId> closed_submap;    // the keyframe began a new submap and closed this one
+  std::optional<SubmapId> reopened_submap;  // the keyframe belongs to this closed submap, current again
   int new_points = 0;
   int fused = 0;
   int culled_points = 0;
@@ -68,7 +69,8 @@ class LocalMapping {
   LocalMapping(const MappingOptions& options, const Camera& camera, const OrbOptions& orb, const Vocabulary* vocabulary);
 
   // Processes one keyframe from the tracker, with the points it created (the initial map).
-  // A keyframe of another submap than the current one closes the current submap first.
+  // A keyframe of another submap than the current one closes the current submap first; one of
+  // a closed submap reopens that submap.
   MappingReport ProcessKeyframe(Keyframe keyframe, const std::vector<MapPoint>& new_points);
   // What the tracker needs to know after the last keyframe.
   LocalMapUpdate MakeUpdate(KeyframeId keyframe, int queued_keyframes);

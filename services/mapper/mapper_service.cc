@@ -8,6 +8,7 @@
 #include "stitch/io/ply.h"
 #include "stitch/io/trajectory.h"
 #include "stitch/util/log.h"
+#include "stitch/tracking_status_t.hpp"
 #include "stitch/util/options.h"
 
 namespace stitch {
@@ -33,6 +34,23 @@ MapperService::MapperService(lcm::LCM* lcm, bus::Publisher* publisher, MapperOpt
                                                 STITCH_LOG(WARNING) << "mapper queue full: dropped keyframe " << (*dropped)->keyframe_id;
                                               }
                                             });
+  // The tracker closes a submap on loss; its status says so (submaps_closed goes up), and the
+  // submap's final state goes to the merger at once. A lost status only delays this until the
+  // next submap's first keyframe arrives.
+  subscriber_.Subscribe<stitch::tracking_status_t>(
+      bus::Channel(publisher_->agent(), bus::kTrackingStatus),
+      [this](std::unique_ptr<stitch::tracking_status_t> status, const std::string&) {
+        std::lock_guard<std::mutex> lock(tracker_mutex_);
+        if (status->header.sender_session != tracker_session_) {
+          tracker_session_ = status->header.sender_session;  // a (re)started tracker counts from 0
+          tracker_submaps_closed_ = status->submaps_closed;
+          return;
+        }
+        if (status->submaps_closed > tracker_submaps_closed_) {
+          tracker_submaps_closed_ = status->submaps_closed;
+          close_requested_ = status->submap_id;
+        }
+      });
   heartbeat_ = std::make_unique<Heartbeat>(publisher_, "mapper", [this] {
     return Heartbeat::Counts{received_.load(), mapped_.load(), subscriber_.rejected() + rejected_.load()};
   });
@@ -67,13 +85,22 @@ void MapperService::Stop() {
 
 void MapperService::Work() {
   while (true) {
-    auto keyframe = queue_.Pop(std::chrono::milliseconds(100));
-    if (!keyframe) {
-      if (queue_.closed()) return;
-      continue;
-    }
-    Process(**keyframe);
+    auto keyframe = queue_.Pop(std::chrono::milliseconds(20));
+    if (keyframe) Process(**keyframe);
+    if (queue_.size() == 0) CloseIfRequested();  // after the submap's queued keyframes
+    if (!keyframe && queue_.closed()) return;
   }
+}
+
+void MapperService::CloseIfRequested() {
+  int64_t requested;
+  {
+    std::lock_guard<std::mutex> lock(tracker_mutex_);
+    requested = close_requested_;
+    close_requested_ = -1;
+  }
+  if (requested < 0 || !mapping_ || !mapping_->map() || mapping_->map()->id().value != requested) return;
+  if (const auto closed = mapping_->CloseSubmap()) PublishSubmapUpdate(mapping_->MakeFinalSubmapUpdate(*closed));
 }
 
 void MapperService::Process(const stitch::keyframe_t& message) {
@@ -93,6 +120,9 @@ void MapperService::Process(const stitch::keyframe_t& message) {
   const MappingReport report = mapping_->ProcessKeyframe(std::move(received.keyframe), received.new_points);
   ++mapped_;
   if (report.closed_submap) PublishSubmapUpdate(mapping_->MakeFinalSubmapUpdate(*report.closed_submap));
+  if (report.reopened_submap) {
+    STITCH_LOG(INFO) << "submap " << *report.reopened_submap << " reopened (the tracker relocalized in it)";
+  }
   const LocalMapUpdate update = mapping_->MakeUpdate(id, static_cast<int>(queue_.size()));
   for (auto& part : ToMessages(update)) publisher_->Publish(bus::Channel(publisher_->agent(), bus::kLocalMap), &part);
   PublishSubmapUpdate(mapping_->MakeSubmapUpdate(id, update));

@@ -2,12 +2,14 @@
 // The mapper service: receives keyframes on <agent>/KEYFRAME, maps each with LocalMapping in its
 // own worker thread, and publishes what changed on <agent>/LOCAL_MAP for the tracker and on
 // <agent>/SUBMAP for the merger (each in parts of about 60 kB); a closed submap's final state
-// goes out when the next submap's first keyframe arrives, or at Stop.
+// goes out when the tracker reports the submap closed (<agent>/TRACKING_STATUS), else when the
+// next submap's first keyframe arrives, or at Stop. A keyframe of a closed submap reopens it.
 // When given a record folder it writes, at the end, map.ply (every submap's points, one colour
 // per submap) and keyframes.tsv (final keyframe poses, culled keyframes included).
 
 #include <atomic>
 #include <memory>
+#include <mutex>
 #include <string>
 #include <thread>
 
@@ -37,6 +39,7 @@ class MapperService {
   void Work();
   void Process(const stitch::keyframe_t& message);
   void PublishSubmapUpdate(const SubmapUpdate& update);
+  void CloseIfRequested();
   void WriteRecords() const;
 
   bus::Publisher* publisher_;
@@ -52,6 +55,10 @@ class MapperService {
   std::thread worker_;
   std::atomic<bool> running_{false};
   std::atomic<int64_t> received_{0}, mapped_{0}, rejected_{0};
+  std::mutex tracker_mutex_;  // what the tracker's statuses say about closed submaps
+  int64_t tracker_session_ = 0;
+  int tracker_submaps_closed_ = 0;
+  int64_t close_requested_ = -1;
 };
 
 }  // namespace stitch

@@ -8,7 +8,8 @@ namespace stitch {
 
 InlineRun RunInline(ImageSequence& sequence, const StitchConfig& config, const Vocabulary& vocabulary,
                     const std::function<void(const InlineFrame&)>& on_frame) {
-  Tracking tracking(config.tracker.tracking, sequence.camera(), &vocabulary, sequence.nominal_fps());
+  Tracking tracking(config.tracker.tracking, sequence.camera(), &vocabulary, sequence.nominal_fps(),
+                    ParseLossPolicy(config.tracker.on_loss));
   LocalMapping mapping(config.mapper.mapping, sequence.camera(), config.tracker.tracking.orb, &vocabulary);
   InlineRun run;
   std::map<int64_t, int> component_of;
@@ -23,6 +24,7 @@ InlineRun RunInline(ImageSequence& sequence, const StitchConfig& config, const V
       done.result.detail = frame.error;
     } else {
       Tracking::Output output = tracking.Track(frame.image, frame.index, frame.t_ns);
+      if (output.closed_submap && mapping.map() && mapping.map()->id() == *output.closed_submap) mapping.CloseSubmap();
       const Stopwatch mapping_clock;
       for (size_t k = 0; k < output.new_keyframes.size(); ++k) {
         const MappingReport report =

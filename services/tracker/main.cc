@@ -12,18 +12,20 @@
 int main(int argc, char** argv) {
   using namespace stitch;
   ServiceCommandLine common;
-  std::string record_path, on_loss;
+  std::string record_path, on_loss, state_file;
   ArgParser args("stitch-tracker",
                  "Tracks the camera in every frame on <agent>/FRAME; publishes <agent>/TRACKING_STATUS per frame "
                  "and acknowledges frames on <agent>/FRAME_ACK. Runs until SIGINT or SIGTERM.");
   common.Register(&args);
   args.AddOption("--record", &record_path, "FILE", "also write one line per frame to FILE (frames.tsv)");
   args.AddOption("--on-loss", &on_loss, "MODE", "submap or relocalize (overrides the config)");
+  args.AddOption("--state", &state_file, "FILE", "keep the next submap number in FILE across restarts (overrides the config)");
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {
     common.Apply("tracker");
     StitchConfig config = LoadStitchConfig(common.config_path);
     if (!on_loss.empty()) config.tracker.on_loss = on_loss;
+    if (!state_file.empty()) config.tracker.state_file = state_file;
     CheckOptions(config.tracker, "tracker");
     const Vocabulary vocabulary = LoadVocabulary(config);
     const auto& stop = InstallStopSignals();

@@ -12,6 +12,7 @@ struct TrackerOptions {
   std::string on_loss = "submap";  // submap: close the map and start a new one; relocalize: ORB-SLAM2-like
   bool wait_for_mapper = true;     // after a keyframe, wait for the mapper's update before the next frame
   double mapper_timeout_s = 5.0;   // ...for at most this long; then track on without it and say so
+  std::string state_file;          // keeps the next submap number across restarts ("" = none)
   TrackingOptions tracking;
 
   template <class Visitor>
@@ -20,6 +21,7 @@ struct TrackerOptions {
     v("on_loss", on_loss, "after tracking loss: submap (stitch) or relocalize (ORB-SLAM2-like baseline)");
     v("wait_for_mapper", wait_for_mapper, "after a keyframe, wait for the mapper before the next frame (reproducible runs)");
     v("mapper_timeout_s", mapper_timeout_s, "longest wait for the mapper, seconds; then track on without it");
+    v("state_file", state_file, "file keeping the next submap number, so submap ids stay unique across tracker restarts (empty: none)");
     v("tracking", tracking, "the tracking algorithm");
   }
 

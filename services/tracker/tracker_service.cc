@@ -1,5 +1,7 @@
 #include "services/tracker/tracker_service.h"
 
+#include <filesystem>
+
 #include "services/common/convert.h"
 #include "services/common/map_convert.h"
 #include "stitch/eval/frame_record.h"
@@ -49,9 +51,48 @@ TrackerService::TrackerService(lcm::LCM* lcm, bus::Publisher* publisher, Tracker
     return Heartbeat::Counts{received_.load(), tracked_.load(), subscriber_.rejected() + dropped_.load()};
   });
   if (!record_path_.empty()) {
-    record_.open(record_path_);
+    const bool resumed = std::filesystem::exists(record_path_) && std::filesystem::file_size(record_path_) > 0;
+    record_.open(record_path_, std::ios::app);
     if (!record_) throw Error(record_path_ + ": cannot write the tracker's frame record");
-    record_ << FrameRecordHeader();
+    if (!resumed) record_ << FrameRecordHeader();
+  }
+  if (!options_.state_file.empty()) {
+    const int next = ReadNextSubmapNumber(options_.state_file);
+    if (next > options_.tracking.first_submap_number) {
+      STITCH_LOG(INFO) << "resuming: submaps continue from number " << next << " (" << options_.state_file << ")";
+      options_.tracking.first_submap_number = next;
+    }
+  }
+}
+
+int ReadNextSubmapNumber(const std::string& path) {
+  if (!std::filesystem::exists(path)) return 0;
+  std::ifstream in(path);
+  std::string key;
+  int number = 0;
+  if (!(in >> key >> number) || key != "next_submap_number" || number < 1 || number > 65535) {
+    throw Error(path + ": not a tracker state file (expected 'next_submap_number N' with N in 1..65535)");
+  }
+  return number;
+}
+
+void WriteNextSubmapNumber(const std::string& path, int number) {
+  const std::string temporary = path + ".tmp";
+  {
+    std::ofstream out(temporary, std::ios::trunc);
+    out << "next_submap_number " << number << "\n";
+    if (!out.flush()) throw Error(temporary + ": cannot write the tracker state");
+  }
+  std::filesystem::rename(temporary, path);
+}
+
+void TrackerService::SaveState() {
+  if (options_.state_file.empty() || !tracking_ || tracking_->next_submap_number() == saved_submap_number_) return;
+  try {
+    WriteNextSubmapNumber(options_.state_file, tracking_->next_submap_number());
+    saved_submap_number_ = tracking_->next_submap_number();
+  } catch (const std::exception& e) {
+    STITCH_LOG(ERROR) << "cannot keep the submap number: " << e.what();
   }
 }
 
@@ -164,7 +205,7 @@ void TrackerService::Process(const stitch::frame_t& frame) {
     if (!tracking_) {
       const Camera camera = FromMessage(frame.camera);
       const double fps = 0;  // the tracker does not know the source's rate: one second of frames = 30
-      tracking_ = std::make_unique<Tracking>(options_.tracking, camera, vocabulary_, fps);
+      tracking_ = std::make_unique<Tracking>(options_.tracking, camera, vocabulary_, fps, ParseLossPolicy(options_.on_loss));
       STITCH_LOG(INFO) << "camera " << camera.Describe();
     }
     output = tracking_->Track(image, frame.frame_index, frame.t_ns);
@@ -182,6 +223,13 @@ void TrackerService::Process(const stitch::frame_t& frame) {
     unacknowledged_keyframes_.push_back(std::move(message));
     ++keyframes_;
   }
+  if (output.closed_submap) {
+    STITCH_LOG(INFO) << "submap " << *output.closed_submap << " closed";
+  }
+  if (output.reopened_submap) {
+    STITCH_LOG(INFO) << "submap " << *output.reopened_submap << " reopened";
+  }
+  SaveState();
   highest_processed_ = frame.frame_index;
   ++tracked_;
   Report(frame, output.result, ms);

@@ -4,7 +4,9 @@
 // tracking_status_t per frame, a frame_ack_t (lockstep pacing) and new keyframes on
 // <agent>/KEYFRAME. Frames that arrive twice are acknowledged again but tracked once; frames
 // that arrive after a newer one, or that wait while the queue is full (real-time), are reported
-// as dropped. Writes one line per frame to `record_path` (frames.tsv) when given.
+// as dropped. Writes one line per frame to `record_path` (frames.tsv) when given, appending to
+// what an earlier run of the tracker wrote there. With a state file, submap numbers continue
+// where the last run of the tracker left them.
 
 #include <atomic>
 #include <fstream>
@@ -48,6 +50,7 @@ class TrackerService {
   void Process(const stitch::frame_t& frame);
   void Report(const stitch::frame_t& frame, const TrackResult& result, float tracking_ms);
   void Ack(const stitch::frame_t& frame);
+  void SaveState();
 
   bus::Publisher* publisher_;
   TrackerOptions options_;
@@ -65,6 +68,13 @@ class TrackerService {
   std::atomic<bool> running_{false};
   std::atomic<int64_t> received_{0}, tracked_{0}, dropped_{0}, keyframes_{0};
   std::atomic<int> highest_received_{-1}, highest_processed_{-1};
+  int saved_submap_number_ = -1;
 };
+
+// The next submap number kept in a tracker state file (docs/ids.md); 0 when the file does not
+// exist. Throws stitch::Error for a file that exists but does not parse.
+int ReadNextSubmapNumber(const std::string& path);
+// Writes it atomically (a new file renamed over the old).
+void WriteNextSubmapNumber(const std::string& path, int number);
 
 }  // namespace stitch

@@ -3,9 +3,11 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <functional>
 #include <map>
 #include <set>
 
+#include "stitch/estimators/pnp.h"
 #include "stitch/estimators/pose_optimizer.h"
 #include "stitch/map/matcher.h"
 #include "stitch/util/error.h"
@@ -33,6 +35,9 @@ bool TrackingOptions::Check(std::string* why) const {
   if (!(keyframe_ratio > 0 && keyframe_ratio < 1)) return fail("tracker.keyframe_ratio must be in (0, 1)");
   if (max_keyframe_gap < 0) return fail("tracker.max_keyframe_gap must be >= 0");
   if (!(min_relative_sharpness >= 0 && min_relative_sharpness < 1)) return fail("tracker.min_relative_sharpness must be in [0, 1)");
+  if (relocalize_closed_after_frames < 0) return fail("tracker.relocalize_closed_after_frames must be >= 0");
+  if (relocalization_candidates < 1) return fail("tracker.relocalization_candidates must be >= 1");
+  if (relocalization_min_inliers < min_inliers) return fail("tracker.relocalization_min_inliers must be >= min_inliers");
   if (agent_number < 0 || agent_number > 32767) return fail("tracker.agent_number must be in [0, 32767]");
   if (first_submap_number < 1 || first_submap_number > 65535) return fail("tracker.first_submap_number must be in [1, 65535]");
   return true;
@@ -60,11 +65,19 @@ const char* TrackingReasonName(TrackingReason reason) {
     case TrackingReason::kDropped: return "dropped";
     case TrackingReason::kNoTracker: return "no tracker";
     case TrackingReason::kMotionBlur: return "motion blur";
+    case TrackingReason::kNotRelocalized: return "not relocalized";
   }
   return "?";
 }
 
-Tracking::Tracking(const TrackingOptions& options, const Camera& camera, const Vocabulary* vocabulary, double fps)
+LossPolicy ParseLossPolicy(const std::string& name) {
+  if (name == "submap") return LossPolicy::kNewSubmap;
+  if (name == "relocalize") return LossPolicy::kRelocalize;
+  throw Error("the loss policy must be submap or relocalize, not '" + name + "'");
+}
+
+Tracking::Tracking(const TrackingOptions& options, const Camera& camera, const Vocabulary* vocabulary, double fps,
+                   LossPolicy policy)
     : options_(options),
       camera_(camera),
       intrinsics_(camera.Intrinsics()),
@@ -78,6 +91,7 @@ Tracking::Tracking(const TrackingOptions& options, const Camera& camera, const V
         more.num_features *= 2;
         return more;
       }()),
+      policy_(policy),
       next_submap_number_(options.first_submap_number) {
   CheckOptions(options_, "tracker");
   if (!vocabulary_ || vocabulary_->empty()) throw Error("Tracking needs a vocabulary");
@@ -95,7 +109,7 @@ void Tracking::ResetInitialization() {
 std::optional<SubmapId> Tracking::CloseSubmap() {
   if (!map_) return std::nullopt;
   const SubmapId id = map_->id();
-  closed_maps_.push_back(std::move(map_));
+  ShelveCurrentSubmap();
   ++submaps_closed_;
   last_frame_.reset();
   velocity_.reset();
@@ -103,15 +117,68 @@ std::optional<SubmapId> Tracking::CloseSubmap() {
   local_keyframes_.clear();
   consecutive_failures_ = 0;
   typical_sharpness_ = 0;
+  lost_ = false;
+  frames_initializing_ = 0;
   ResetInitialization();
   return id;
 }
 
+void Tracking::ShelveCurrentSubmap() {
+  if (!map_) return;
+  closed_maps_.push_back({std::move(map_), next_keyframe_index_});
+}
+
+void Tracking::ReopenSubmap(SubmapId id) {
+  for (auto it = closed_maps_.begin(); it != closed_maps_.end(); ++it) {
+    if (it->map->id() != id) continue;
+    map_ = std::move(it->map);
+    next_keyframe_index_ = it->next_keyframe_index;
+    closed_maps_.erase(it);
+    return;
+  }
+}
+
+void Tracking::AddToDatabase(const Keyframe& keyframe) {
+  database_.Add(keyframe.id.value, SubmapOf(keyframe.id).value, keyframe.bow);
+}
+
 Tracking::Output Tracking::Track(const cv::Mat& image, int frame_index, int64_t t_ns) {
   const Stopwatch total;
+  Output output = TrackFrame(image, frame_index, t_ns);
+  TrackResult& result = output.result;
+  result.timings.total = total.ElapsedMs();
+  // Every change of state is logged with its frame and reason.
+  if (result.state != last_state_ || result.relocalized || output.closed_submap) {
+    std::string text = "frame " + std::to_string(frame_index) + ": " + TrackingStateName(last_state_) + " -> " +
+                       TrackingStateName(result.state);
+    if (result.state == TrackingState::kOk) {
+      text += " in submap " + std::to_string(result.submap.value);
+    } else if (result.reason != TrackingReason::kNone) {
+      text += std::string(" (") + TrackingReasonName(result.reason) + ")";
+    }
+    if (!result.detail.empty()) text += ": " + result.detail;
+    STITCH_LOG(INFO) << text;
+    last_state_ = result.state;
+  }
+  return output;
+}
+
+Tracking::Output Tracking::TrackFrame(const cv::Mat& image, int frame_index, int64_t t_ns) {
+  pose_diverged_ = false;
   if (!map_) {
-    Output output = Initialize(MakeFrame(image, frame_index, t_ns, &init_extractor_, undistorter_));
-    output.result.timings.total = total.ElapsedMs();
+    Frame frame = MakeFrame(image, frame_index, t_ns, &init_extractor_, undistorter_);
+    // The method re-initializes at once. When the new map cannot initialize (no parallax: hover,
+    // pure rotation), the camera may be back over a closed submap and relocalize there.
+    ++frames_initializing_;
+    const bool may_relocalize = !closed_maps_.empty() && frames_initializing_ > options_.relocalize_closed_after_frames &&
+                                static_cast<int>(frame.size()) > options_.init_min_features;
+    std::optional<Frame> copy;
+    if (may_relocalize) copy = frame;
+    Output output = Initialize(std::move(frame));
+    if (may_relocalize && output.result.state != TrackingState::kOk) {
+      Output relocalized;
+      if (Relocalize(&*copy, &relocalized)) return relocalized;
+    }
     return output;
   }
   Stopwatch step;
@@ -121,6 +188,15 @@ Tracking::Output Tracking::Track(const cv::Mat& image, int frame_index, int64_t 
   result.timings.extraction = step.ElapsedMs();
   result.submap = map_->id();
   result.num_features = static_cast<int>(frame.size());
+  if (lost_) {
+    // Relocalize policy: every frame is tried against the kept map, or discarded.
+    if (frame.size() >= 20 && Relocalize(&frame, &output)) return output;
+    result.state = TrackingState::kLost;
+    result.reason = TrackingReason::kNotRelocalized;
+    result.detail = "not relocalized in submap " + std::to_string(map_->id().value) + "; frame discarded";
+    result.submap_keyframes = static_cast<int>(map_->num_keyframes());
+    return output;
+  }
   bool ok = false;
   std::string why;
   const bool blurred = typical_sharpness_ > 0 && frame.sharpness < options_.min_relative_sharpness * typical_sharpness_;
@@ -143,62 +219,145 @@ Tracking::Output Tracking::Track(const cv::Mat& image, int frame_index, int64_t 
     if (!ok) ok = TrackReferenceKeyframe(&frame);
     result.timings.frame_to_frame = step.ElapsedMs() - result.timings.extraction;
     const double before_local_map = step.ElapsedMs();
+    // Right after untracked frames the pose comes from a weaker prediction: demand more support.
+    const int needed = consecutive_failures_ > 0 ? options_.min_inliers_after_failure : options_.min_inliers;
     if (!ok) {
-      result.reason = TrackingReason::kTooFewMatches;
-      why = "too few matches with the last frame and the reference keyframe";
-    } else if (!TrackLocalMap(&frame)) {
+      result.reason = pose_diverged_ ? TrackingReason::kPoseDiverged : TrackingReason::kTooFewMatches;
+      why = pose_diverged_ ? "pose optimization diverged" : "too few matches with the last frame and the reference keyframe";
+    } else if (!TrackLocalMap(&frame, needed)) {
       ok = false;
-      result.reason = TrackingReason::kTooFewMatches;
-      why = std::to_string(frame.CountTracked()) + " local map points tracked, need " + std::to_string(options_.min_inliers);
+      result.reason = pose_diverged_ ? TrackingReason::kPoseDiverged : TrackingReason::kTooFewMatches;
+      why = pose_diverged_ ? "pose optimization against the local map diverged"
+                           : std::to_string(frame.CountTracked()) + " local map points tracked, need " + std::to_string(needed);
     }
     result.timings.local_map = step.ElapsedMs() - before_local_map;
   }
   const double before_keyframe = step.ElapsedMs();
   if (ok) {
-    const int gap = last_frame_ ? frame_index - last_frame_->frame_index : 0;
-    if (last_frame_ && gap == 1) {
-      velocity_ = *frame.cam_from_world * last_frame_->cam_from_world->Inverse();
-    } else {
-      velocity_.reset();  // after a skipped frame the motion model is not trusted
-    }
-    const int inliers = frame.CountTracked();
-    typical_sharpness_ = typical_sharpness_ > 0 ? 0.9 * typical_sharpness_ + 0.1 * frame.sharpness : frame.sharpness;
     // A frame right after untracked ones does not become a keyframe: its pose is the least sure.
-    const bool after_failure = consecutive_failures_ > 0;
-    consecutive_failures_ = 0;
-    if (!after_failure && NeedKeyframe(frame, inliers)) {
-      output.new_keyframes.push_back(CreateKeyframe(frame));
-      result.is_keyframe = true;
-    }
-    for (size_t i = 0; i < frame.size(); ++i) {
-      if (frame.outlier[i]) frame.points[i] = MapPointId();
-    }
-    result.state = TrackingState::kOk;
-    result.reason = TrackingReason::kNone;
-    result.cam_from_submap = frame.cam_from_world;
-    result.num_tracked_points = inliers;
-    result.reference_keyframe = reference_keyframe_;
-    if (const Keyframe* reference = map_->FindKeyframe(reference_keyframe_)) {
-      result.cam_from_reference = *frame.cam_from_world * reference->cam_from_world.Inverse();
-    }
-    last_frame_ = std::move(frame);
+    OnTracked(&frame, &output, /*may_make_keyframe=*/consecutive_failures_ == 0);
   } else {
     ++consecutive_failures_;
     result.detail = why;
     if (consecutive_failures_ >= options_.lost_after_frames) {
       result.state = TrackingState::kLost;
       result.detail = "lost after " + std::to_string(consecutive_failures_) + " untracked frames (" + why + ")";
-      STITCH_LOG(INFO) << "frame " << frame_index << ": tracking lost in submap " << map_->id() << ": " << why
-                       << "; closing the submap and initializing a new one";
-      output.closed_submap = CloseSubmap();
+      if (policy_ == LossPolicy::kNewSubmap) {
+        result.detail += "; submap closed, a new one starts";
+        output.closed_submap = CloseSubmap();
+      } else {
+        result.detail += "; relocalizing in the kept map";
+        lost_ = true;
+        last_frame_.reset();
+        velocity_.reset();
+      }
     } else {
       result.state = TrackingState::kSkipped;
     }
   }
   result.submap_keyframes = map_ ? static_cast<int>(map_->num_keyframes()) : 0;
   result.timings.keyframe = step.ElapsedMs() - before_keyframe;
-  result.timings.total = total.ElapsedMs();
   return output;
+}
+
+void Tracking::OnTracked(Frame* frame, Output* output, bool may_make_keyframe) {
+  TrackResult& result = output->result;
+  const int gap = last_frame_ ? frame->frame_index - last_frame_->frame_index : 0;
+  if (last_frame_ && gap == 1) {
+    velocity_ = *frame->cam_from_world * last_frame_->cam_from_world->Inverse();
+  } else {
+    velocity_.reset();  // after a skipped frame the motion model is not trusted
+  }
+  const int inliers = frame->CountTracked();
+  typical_sharpness_ = typical_sharpness_ > 0 ? 0.9 * typical_sharpness_ + 0.1 * frame->sharpness : frame->sharpness;
+  consecutive_failures_ = 0;
+  if (may_make_keyframe && NeedKeyframe(*frame, inliers)) {
+    output->new_keyframes.push_back(CreateKeyframe(*frame));
+    result.is_keyframe = true;
+  }
+  for (size_t i = 0; i < frame->size(); ++i) {
+    if (frame->outlier[i]) frame->points[i] = MapPointId();
+  }
+  result.state = TrackingState::kOk;
+  result.reason = TrackingReason::kNone;
+  result.submap = map_->id();
+  result.cam_from_submap = frame->cam_from_world;
+  result.num_tracked_points = inliers;
+  result.reference_keyframe = reference_keyframe_;
+  if (const Keyframe* reference = map_->FindKeyframe(reference_keyframe_)) {
+    result.cam_from_reference = *frame->cam_from_world * reference->cam_from_world.Inverse();
+  }
+  result.submap_keyframes = static_cast<int>(map_->num_keyframes());
+  last_frame_ = std::move(*frame);
+}
+
+bool Tracking::Relocalize(Frame* frame, Output* output) {
+  ComputeBow(frame);
+  // The kept map (relocalize policy), or every closed submap while a new one initializes.
+  std::function<bool(int64_t)> accept;
+  if (map_) {
+    const int64_t current = map_->id().value;
+    accept = [current](int64_t submap) { return submap == current; };
+  }
+  std::vector<KeyframeDatabase::Candidate> candidates = database_.Query(frame->bow, accept);
+  if (candidates.empty()) return false;
+  int most_common = 0;
+  for (const auto& c : candidates) most_common = std::max(most_common, c.common_words);
+  candidates.erase(std::remove_if(candidates.begin(), candidates.end(),
+                                  [&](const auto& c) { return c.common_words < 0.8 * most_common; }),
+                   candidates.end());
+  std::sort(candidates.begin(), candidates.end(), [](const auto& a, const auto& b) { return a.score > b.score; });
+  if (static_cast<int>(candidates.size()) > options_.relocalization_candidates) candidates.resize(options_.relocalization_candidates);
+  const bool reopening = !map_;
+  for (const auto& candidate : candidates) {
+    if (!RelocalizeAgainst(frame, KeyframeId(candidate.keyframe_id))) continue;
+    ++relocalizations_;
+    lost_ = false;
+    last_frame_.reset();
+    velocity_.reset();
+    ResetInitialization();
+    OnTracked(frame, output, /*may_make_keyframe=*/false);
+    TrackResult& result = output->result;
+    result.relocalized = true;
+    result.detail = std::string(reopening ? "relocalized into closed submap " : "relocalized in submap ") +
+                    std::to_string(result.submap.value) + " at keyframe " + std::to_string(candidate.keyframe_id) +
+                    " with " + std::to_string(result.num_tracked_points) + " points";
+    if (reopening) output->reopened_submap = result.submap;
+    return true;
+  }
+  return false;
+}
+
+bool Tracking::RelocalizeAgainst(Frame* frame, KeyframeId candidate) {
+  const bool reopened = !map_;
+  if (reopened) ReopenSubmap(SubmapOf(candidate));
+  const auto give_up = [&]() {
+    if (reopened) ShelveCurrentSubmap();
+    return false;
+  };
+  const Keyframe* keyframe = map_ ? map_->FindKeyframe(candidate) : nullptr;
+  if (!keyframe) return give_up();
+  frame->points.assign(frame->size(), MapPointId());
+  frame->outlier.assign(frame->size(), 0);
+  if (SearchByBow(*keyframe, frame, *map_, 0.75) < 15) return give_up();
+  std::vector<PnpMatch> matches;
+  std::vector<int> features;
+  for (size_t i = 0; i < frame->size(); ++i) {
+    const MapPoint* point = frame->points[i].valid() ? map_->FindPoint(frame->points[i]) : nullptr;
+    if (!point) continue;
+    matches.push_back({frame->undistorted[i], point->position, pyramid_.scale[frame->keypoints[i].octave]});
+    features.push_back(static_cast<int>(i));
+  }
+  const std::optional<PnpResult> pnp = EstimatePoseRansac(matches, intrinsics_);
+  if (!pnp) return give_up();
+  for (size_t m = 0; m < features.size(); ++m) {
+    if (!pnp->inlier[m]) frame->points[features[m]] = MapPointId();
+  }
+  frame->cam_from_world = pnp->cam_from_world;
+  if (OptimizeFramePose(frame, true) < 10) return give_up();
+  reference_keyframe_ = candidate;
+  if (!TrackLocalMap(frame, options_.relocalization_min_inliers)) return give_up();
+  return true;
 }
 
 Tracking::Output Tracking::Initialize(Frame frame) {
@@ -267,7 +426,6 @@ Tracking::Output Tracking::Initialize(Frame frame) {
   result.submap_keyframes = static_cast<int>(map_->num_keyframes());
   result.detail = std::string("initialized from ") + (two_view->used_homography ? "a homography" : "an essential matrix") +
                   " with " + std::to_string(two_view->num_triangulated) + " points";
-  STITCH_LOG(INFO) << "frame " << frame.frame_index << ": new submap " << map_->id() << " " << result.detail;
   last_frame_ = std::move(frame);
   return output;
 }
@@ -332,6 +490,8 @@ bool Tracking::CreateInitialMap(Frame* frame, const std::vector<int>& matches, c
   velocity_.reset();
   consecutive_failures_ = 0;
   output->new_keyframes = {*map_->FindKeyframe(id0), *kf1};
+  AddToDatabase(*map_->FindKeyframe(id0));
+  AddToDatabase(*kf1);
   for (const auto& [id, point] : map_->points()) {
     MapPoint copy = point;
     copy.observations.clear();
@@ -357,7 +517,10 @@ int Tracking::OptimizeFramePose(Frame* frame, bool discard_outliers) {
   }
   if (observations.size() < 3) return 0;
   const PoseOptimizerResult optimized = OptimizePose(observations, *frame->cam_from_world, intrinsics_);
-  if (!optimized.converged) return 0;
+  if (!optimized.converged) {
+    pose_diverged_ = true;
+    return 0;
+  }
   frame->cam_from_world = optimized.cam_from_world;
   int inliers = 0;
   for (size_t o = 0; o < features.size(); ++o) {
@@ -402,7 +565,7 @@ bool Tracking::TrackReferenceKeyframe(Frame* frame) {
   return OptimizeFramePose(frame, true) >= 10;
 }
 
-bool Tracking::TrackLocalMap(Frame* frame) {
+bool Tracking::TrackLocalMap(Frame* frame, int min_inliers) {
   // Local keyframes: those observing the frame's points, their best neighbours, children, parent.
   std::map<KeyframeId, int> counts;
   for (size_t i = 0; i < frame->size(); ++i) {
@@ -453,9 +616,7 @@ bool Tracking::TrackLocalMap(Frame* frame) {
     }
   }
   SearchByProjection(frame, in_view, *map_, 1.0);
-  // Right after untracked frames the pose comes from a weaker prediction: demand more support.
-  const int needed = consecutive_failures_ > 0 ? options_.min_inliers_after_failure : options_.min_inliers;
-  return OptimizeFramePose(frame, false) >= needed;
+  return OptimizeFramePose(frame, false) >= min_inliers;
 }
 
 bool Tracking::NeedKeyframe(const Frame& frame, int inliers) const {
@@ -480,6 +641,7 @@ Keyframe Tracking::CreateKeyframe(const Frame& frame) {
   const KeyframeId id = MakeKeyframeId(map_->id(), next_keyframe_index_++);
   Keyframe& keyframe = map_->AddKeyframe(KeyframeFromFrame(copy, id));
   map_->UpdateConnections(id);
+  AddToDatabase(keyframe);
   reference_keyframe_ = id;
   last_keyframe_frame_index_ = frame.frame_index;
   last_keyframe_sent_ = id;
@@ -487,8 +649,13 @@ Keyframe Tracking::CreateKeyframe(const Frame& frame) {
 }
 
 void Tracking::ApplyUpdate(const LocalMapUpdate& update) {
-  if (!map_ || update.submap != map_->id()) return;
-  ApplyLocalMapUpdate(update, map_.get());
+  Map* target = map_ && map_->id() == update.submap ? map_.get() : nullptr;
+  for (auto& closed : closed_maps_) {
+    if (!target && closed.map->id() == update.submap) target = closed.map.get();
+  }
+  if (!target) return;
+  ApplyLocalMapUpdate(update, target);
+  for (KeyframeId id : update.removed_keyframes) database_.Remove(id.value);
   if (update.last_keyframe.value > mapper_processed_.value) mapper_processed_ = update.last_keyframe;
   mapper_connected_ = true;
 }

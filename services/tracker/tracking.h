@@ -4,6 +4,12 @@
 // constant-velocity model (falling back to the reference keyframe via bag of words), then
 // against the local map, and keyframe decisions. It keeps its own copy of the current submap,
 // which the mapper's updates refine. One owner thread; not thread-safe.
+//
+// Loss (docs/tracking-loss.md): `lost_after_frames` consecutive untracked frames make tracking
+// lost; fewer are skipped. Then, by policy: kNewSubmap closes the submap and initializes a new
+// one on the next usable frames; if that has not succeeded within `relocalize_closed_after_frames`
+// it also tries to relocalize into the closed submaps (reopening the one it lands in); kRelocalize (ORB-SLAM2's behaviour, the baseline) keeps the map
+// and discards frames until one relocalizes in it.
 
 #include <cstdint>
 #include <memory>
@@ -15,6 +21,7 @@
 
 #include "stitch/estimators/bundle_adjustment.h"
 #include "stitch/estimators/two_view.h"
+#include "stitch/features/keyframe_database.h"
 #include "stitch/features/orb_extractor.h"
 #include "stitch/features/vocabulary.h"
 #include "stitch/map/local_map_update.h"
@@ -34,6 +41,9 @@ struct TrackingOptions {
   double keyframe_ratio = 0.9;     // new keyframe when the frame tracks fewer than this x reference's points
   int max_keyframe_gap = 0;        // frames between keyframes at most (0: one second of frames)
   double min_relative_sharpness = 0.45;  // frames sharper than this x the recent tracked frames are tracked; others are blurred
+  int relocalization_candidates = 8;    // keyframes tried per frame when relocalizing
+  int relocalize_closed_after_frames = 20;  // submap policy: frames a new map tries to initialize before closed submaps are tried
+  int relocalization_min_inliers = 50;  // tracked points that accept a relocalized pose
   int agent_number = 0;            // high bits of every id this tracker makes
   int first_submap_number = 1;
 
@@ -50,6 +60,9 @@ struct TrackingOptions {
     v("keyframe_ratio", keyframe_ratio, "new keyframe when tracking fewer than this fraction of the reference keyframe's points");
     v("max_keyframe_gap", max_keyframe_gap, "frames between keyframes at most (0: one second)");
     v("min_relative_sharpness", min_relative_sharpness, "a frame less sharp than this fraction of recent tracked frames is skipped as motion-blurred (0: off)");
+    v("relocalize_closed_after_frames", relocalize_closed_after_frames, "submap policy: frames a new map tries to initialize alone before relocalization into closed submaps is tried too");
+    v("relocalization_candidates", relocalization_candidates, "keyframes (by bag of words) tried per frame when relocalizing");
+    v("relocalization_min_inliers", relocalization_min_inliers, "tracked points needed to accept a relocalized pose");
     v("agent_number", agent_number, "number of this aircraft in every id (0-32767)");
     v("first_submap_number", first_submap_number, "number of the first submap (1-65535)");
   }
@@ -57,6 +70,13 @@ struct TrackingOptions {
 };
 
 enum class TrackingState { kInitializing, kOk, kLost, kSkipped, kNotTracked };
+// What the tracker does when tracking is lost.
+enum class LossPolicy {
+  kNewSubmap,   // close the submap, start a new one at once (stitch)
+  kRelocalize,  // keep the map, discard frames until relocalized (ORB-SLAM2, the baseline)
+};
+// "submap" or "relocalize"; throws stitch::Error for anything else.
+LossPolicy ParseLossPolicy(const std::string& name);
 enum class TrackingReason {
   kNone,
   kTooFewFeatures,
@@ -67,6 +87,7 @@ enum class TrackingReason {
   kDropped,
   kNoTracker,
   kMotionBlur,
+  kNotRelocalized,
 };
 
 const char* TrackingStateName(TrackingState state);
@@ -92,6 +113,7 @@ struct TrackResult {
   int num_features = 0;
   int num_tracked_points = 0;
   bool is_keyframe = false;
+  bool relocalized = false;  // the pose comes from relocalization (in a kept or reopened submap)
   int submap_keyframes = 0;
   TrackTimings timings;
 };
@@ -103,13 +125,15 @@ class Tracking {
     std::vector<Keyframe> new_keyframes;  // to send to the mapper, in order
     std::vector<MapPoint> new_points;     // created with new_keyframes.front() (the initial map)
     std::optional<SubmapId> closed_submap;
+    std::optional<SubmapId> reopened_submap;  // relocalized into this closed submap, now current again
   };
 
   // `vocabulary` must outlive the tracker.
-  Tracking(const TrackingOptions& options, const Camera& camera, const Vocabulary* vocabulary, double fps);
+  Tracking(const TrackingOptions& options, const Camera& camera, const Vocabulary* vocabulary, double fps,
+           LossPolicy policy = LossPolicy::kNewSubmap);
 
   Output Track(const cv::Mat& image, int frame_index, int64_t t_ns);
-  // Applies the mapper's changes to the tracker's copy of the submap.
+  // Applies the mapper's changes to the tracker's copy of the submap (current or closed).
   void ApplyUpdate(const LocalMapUpdate& update);
   // Ends the current submap now (e.g. at shutdown); returns its id if there was one.
   std::optional<SubmapId> CloseSubmap();
@@ -120,17 +144,30 @@ class Tracking {
   void SetMapperConnected(bool connected) { mapper_connected_ = connected; }
   bool mapper_connected() const { return mapper_connected_; }
   int submaps_closed() const { return submaps_closed_; }
+  int relocalizations() const { return relocalizations_; }
+  // Number the next new submap gets (persisted by the service so ids stay unique across restarts).
+  int next_submap_number() const { return next_submap_number_; }
+  bool lost() const { return lost_; }
   const Map* map() const { return map_.get(); }
   const Camera& camera() const { return camera_; }
 
  private:
+  Output TrackFrame(const cv::Mat& image, int frame_index, int64_t t_ns);
   Output Initialize(Frame frame);
+  void OnTracked(Frame* frame, Output* output, bool may_make_keyframe);
+  void AddToDatabase(const Keyframe& keyframe);
   bool CreateInitialMap(Frame* frame, const std::vector<int>& matches, const TwoViewResult& two_view,
                         Output* output, std::string* why);
   bool TrackWithMotionModel(Frame* frame, const Rigid3d& predicted);
   bool TrackReferenceKeyframe(Frame* frame);
-  bool TrackLocalMap(Frame* frame);
+  bool TrackLocalMap(Frame* frame, int min_inliers);
   int OptimizeFramePose(Frame* frame, bool discard_outliers);
+  // Localizes `frame` from scratch in the current map (relocalize policy) or, while a new map
+  // initializes, in the closed submaps (reopening the one it lands in). Sets the tracking state.
+  bool Relocalize(Frame* frame, Output* output);
+  bool RelocalizeAgainst(Frame* frame, KeyframeId candidate);
+  void ReopenSubmap(SubmapId id);
+  void ShelveCurrentSubmap();  // back among the closed ones (a reopening that did not hold)
   bool NeedKeyframe(const Frame& frame, int inliers) const;
   Keyframe CreateKeyframe(const Frame& frame);
   void ComputeBow(Frame* frame) const;
@@ -147,11 +184,22 @@ class Tracking {
   OrbExtractor extractor_;
   OrbExtractor init_extractor_;  // twice the features, for initialization (as ORB-SLAM)
 
+  LossPolicy policy_;
   std::unique_ptr<Map> map_;  // the current submap; empty until initialized
-  std::vector<std::unique_ptr<Map>> closed_maps_;
+  struct ClosedSubmap {
+    std::unique_ptr<Map> map;
+    uint32_t next_keyframe_index = 0;
+  };
+  std::vector<ClosedSubmap> closed_maps_;
+  KeyframeDatabase database_;  // keyframes of the current and closed submaps, for relocalization
   int next_submap_number_;
   uint32_t next_keyframe_index_ = 0;
   int submaps_closed_ = 0;
+  int relocalizations_ = 0;
+  bool lost_ = false;           // relocalize policy: the map is kept but the camera is not in it
+  int frames_initializing_ = 0;  // frames since the last submap closed (submap policy)
+  bool pose_diverged_ = false;  // a pose optimization of this frame failed to converge
+  TrackingState last_state_ = TrackingState::kNotTracked;
 
   std::optional<Frame> init_reference_;
   std::vector<Eigen::Vector2d> init_previous_;

@@ -7,7 +7,7 @@
 #include <unistd.h>
 
 #include "tools/stitch/commands.h"
-#include "tools/stitch/process.h"
+#include "stitch/util/child_process.h"
 
 namespace {
 

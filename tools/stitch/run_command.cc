@@ -7,6 +7,9 @@
 #include <cstdio>
 #include <ctime>
 #include <filesystem>
+#include <fstream>
+#include <functional>
+#include <optional>
 #include <mutex>
 #include <random>
 #include <thread>
@@ -19,7 +22,7 @@
 #include "stitch/tracking_status_t.hpp"
 #include "stitch/util/options.h"
 #include "tools/stitch/commands.h"
-#include "tools/stitch/process.h"
+#include "stitch/util/child_process.h"
 #include "tools/stitch/run_outputs.h"
 
 namespace fs = std::filesystem;
@@ -40,6 +43,15 @@ struct RunArgs {
   std::string log_level = "info";
   int max_frames = -1;
   bool quiet = false;
+  bool compare = false;
+};
+
+// One run's outcome, for the comparison table.
+struct RunOutcome {
+  int exit_code = 0;
+  std::optional<Evaluation> evaluation;
+  std::string out;
+  std::string on_loss;
 };
 
 // What the launcher hears on the bus, for progress and for knowing when the tracker is done.
@@ -116,31 +128,11 @@ int RandomPort() {
   return 20000 + static_cast<int>(device() % 20000);
 }
 
-}  // namespace
 
-int RunCommand(int argc, char** argv) {
-  RunArgs a;
-  ArgParser args("stitch run",
-                 "Runs stitch on a sequence: ingest, tracker and mapper as separate processes over LCM, then "
-                 "evaluates the result. Without --dataset it flies the embedded "
-                 "synthetic UAV survey with 3 scheduled gusts.");
-  args.AddOption("--dataset", &a.dataset, "PATH", "TUM RGB-D / EuRoC / KITTI folder, image folder or video (detected)");
-  args.AddOption("--out", &a.out, "DIR", "output folder (default: a new folder under runs/)");
-  args.AddOption("--failures", &a.failures, "SPEC",
-                 "induced failures: none, FRAME:LENGTH,... or default (synthetic: 3 gusts; datasets: none)");
-  args.AddOption("--on-loss", &a.on_loss, "MODE", "submap (stitch, default) or relocalize (ORB-SLAM2-like baseline)");
-  args.AddOption("--config", &a.config_path, "FILE", "YAML settings (print the defaults with `stitch config`)");
-  args.AddOption("--calib", &a.calibration, "FILE", "calibration overriding the dataset's own");
-  args.AddOption("--max-frames", &a.max_frames, "N", "play at most N frames");
-  args.AddOption("--pacing", &a.pacing, "MODE", "lockstep (reproducible, default) or realtime");
-  args.AddOption("--lcm-url", &a.lcm_url, "URL", "bus for the services (default: a random local port, ttl=0)");
-  args.AddOption("--agent", &a.agent, "NAME", "agent name prefixing the channels");
-  args.AddOption("--log-level", &a.log_level, "LEVEL", "services' log level: debug, info, warning, error");
-  args.AddFlag("--quiet", &a.quiet, "no progress line");
-  args.AddEpilog("Outputs: trajectory.tum, map.ply, report.json, trajectory.png, frames.tsv, poses.tsv,\n"
-                 "groundtruth.tum (when known), config.yaml (resolved settings), logs/ (one per service).");
-  if (!args.Parse(argc, argv)) return args.exit_code();
 
+RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
+  RunOutcome outcome;
+  outcome.out = out;
   RunInfo info;
   StitchConfig config;
   SourceSummary source;
@@ -160,10 +152,11 @@ int RunCommand(int argc, char** argv) {
     if (source.num_frames == 0) throw Error("the sequence has no frames");
   } catch (const std::exception& e) {
     std::fprintf(stderr, "stitch run: %s\n", e.what());
-    return 2;
+    outcome.exit_code = 2;
+    return outcome;
   }
+  outcome.on_loss = config.tracker.on_loss;
 
-  const std::string out = a.out.empty() ? NewRunFolder() : a.out;
   const std::string url = a.lcm_url.empty() ? bus::LocalUdpUrl(RandomPort()) : a.lcm_url;
   info.source = source.description;
   info.dataset = a.dataset;
@@ -185,7 +178,8 @@ int RunCommand(int argc, char** argv) {
     lcm = bus::OpenLcm(url);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "stitch run: %s\n", e.what());
-    return 2;
+    outcome.exit_code = 2;
+    return outcome;
   }
 
   std::printf("stitch run: %s\n  on-loss %s, %s pacing, bus %s\n  output %s/\n", source.description.c_str(),
@@ -211,7 +205,8 @@ int RunCommand(int argc, char** argv) {
     children.push_back(std::make_unique<ChildProcess>("mapper", bin + "/stitch-mapper", mapper_args,
                                                       (fs::path(out) / "logs" / "mapper.log").string()));
     std::vector<std::string> tracker_args = common;
-    tracker_args.insert(tracker_args.end(), {"--record", (fs::path(out) / "frames.tsv").string()});
+    tracker_args.insert(tracker_args.end(), {"--record", (fs::path(out) / "frames.tsv").string(), "--state",
+                                             (fs::path(out) / "logs" / "tracker.state").string()});
     children.push_back(std::make_unique<ChildProcess>("tracker", bin + "/stitch-tracker", tracker_args,
                                                       (fs::path(out) / "logs" / "tracker.log").string()));
     std::vector<std::string> ingest_args = common;
@@ -300,12 +295,119 @@ int RunCommand(int argc, char** argv) {
                 Summarize(evaluation).c_str());
     for (const auto& note : info.notes) std::printf("note: %s\n", note.c_str());
     std::printf("outputs: %s/{trajectory.tum, map.ply, report.json, trajectory.png, logs/}\n", out.c_str());
+    outcome.evaluation = evaluation;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "stitch run: writing the outputs failed: %s\n", e.what());
-    return 1;
+    outcome.exit_code = 1;
+    return outcome;
   }
-  if (info.interrupted) return 130;
-  return exit_code;
+  outcome.exit_code = info.interrupted ? 130 : exit_code;
+  return outcome;
+}
+
+// Frames with a pose in any submap (before merging).
+int FramesPosedInAnySubmap(const Evaluation& e) {
+  int frames = 0;
+  for (const auto& submap : e.per_submap) frames += submap.frames;
+  return frames;
+}
+
+std::string FormatComparison(const std::vector<RunOutcome>& runs) {
+  std::string text = "\ncomparison (same sequence and failures)\n";
+  char line[256];
+  std::snprintf(line, sizeof(line), "  %-34s", "");
+  text += line;
+  for (const auto& run : runs) {
+    std::snprintf(line, sizeof(line), "%22s", ("--on-loss " + run.on_loss).c_str());
+    text += line;
+  }
+  text += "\n";
+  const auto row = [&](const char* name, const std::function<std::string(const Evaluation&)>& value) {
+    std::snprintf(line, sizeof(line), "  %-34s", name);
+    text += line;
+    for (const auto& run : runs) {
+      std::snprintf(line, sizeof(line), "%22s", run.evaluation ? value(*run.evaluation).c_str() : "failed");
+      text += line;
+    }
+    text += "\n";
+  };
+  const auto format = [](const char* f, auto... v) {
+    char buffer[64];
+    std::snprintf(buffer, sizeof(buffer), f, v...);
+    return std::string(buffer);
+  };
+  row("frames localized (largest map)", [&](const Evaluation& e) {
+    return format("%d (%.1f%%)", e.frames_localized, 100.0 * e.completeness);
+  });
+  row("frames posed in any submap", [&](const Evaluation& e) { return format("%d", FramesPosedInAnySubmap(e)); });
+  row("usable frames", [&](const Evaluation& e) { return format("%d", e.frames_total - e.frames_unusable); });
+  row("keyframes retained", [&](const Evaluation& e) { return format("%d", e.keyframes); });
+  row("submaps (merged in the largest)", [&](const Evaluation& e) { return format("%d (%d)", e.submaps, e.submaps_merged); });
+  row("ATE RMSE, largest map", [&](const Evaluation& e) {
+    return e.errors ? format("%.4f m", e.errors->ate_rmse_m) : std::string("n/a");
+  });
+  row("tracking time median", [&](const Evaluation& e) {
+    return e.tracking_ms_median ? format("%.1f ms", *e.tracking_ms_median) : std::string("n/a");
+  });
+  return text;
+}
+
+}  // namespace
+
+int RunCommand(int argc, char** argv) {
+  RunArgs a;
+  ArgParser args("stitch run",
+                 "Runs stitch on a sequence: ingest, tracker and mapper as separate processes over LCM, then "
+                 "evaluates the result. Without --dataset it flies the embedded "
+                 "synthetic UAV survey with 3 scheduled gusts.");
+  args.AddOption("--dataset", &a.dataset, "PATH", "TUM RGB-D / EuRoC / KITTI folder, image folder or video (detected)");
+  args.AddOption("--out", &a.out, "DIR", "output folder (default: a new folder under runs/)");
+  args.AddOption("--failures", &a.failures, "SPEC",
+                 "induced failures: none, FRAME:LENGTH,... or default (synthetic: 3 gusts; datasets: none)");
+  args.AddOption("--on-loss", &a.on_loss, "MODE", "submap (stitch, default) or relocalize (ORB-SLAM2-like baseline)");
+  args.AddOption("--config", &a.config_path, "FILE", "YAML settings (print the defaults with `stitch config`)");
+  args.AddOption("--calib", &a.calibration, "FILE", "calibration overriding the dataset's own");
+  args.AddOption("--max-frames", &a.max_frames, "N", "play at most N frames");
+  args.AddOption("--pacing", &a.pacing, "MODE", "lockstep (reproducible, default) or realtime");
+  args.AddOption("--lcm-url", &a.lcm_url, "URL", "bus for the services (default: a random local port, ttl=0)");
+  args.AddOption("--agent", &a.agent, "NAME", "agent name prefixing the channels");
+  args.AddOption("--log-level", &a.log_level, "LEVEL", "services' log level: debug, info, warning, error");
+  args.AddFlag("--quiet", &a.quiet, "no progress line");
+  args.AddFlag("--compare", &a.compare,
+               "run twice, --on-loss submap then relocalize, into DIR/submap and DIR/relocalize, and print both side by side");
+  args.AddEpilog("Outputs: trajectory.tum, map.ply, report.json, trajectory.png, frames.tsv, poses.tsv,\n"
+                 "groundtruth.tum (when known), config.yaml (resolved settings), logs/ (one per service).");
+  if (!args.Parse(argc, argv)) return args.exit_code();
+
+  const std::string out = a.out.empty() ? NewRunFolder() : a.out;
+  if (!a.compare) return RunOnce(a, out).exit_code;
+  if (!a.on_loss.empty()) {
+    std::fprintf(stderr, "stitch run: --compare runs both --on-loss modes; do not give --on-loss\n");
+    return 2;
+  }
+  std::vector<RunOutcome> runs;
+  for (const char* mode : {"submap", "relocalize"}) {
+    RunArgs one = a;
+    one.on_loss = mode;
+    runs.push_back(RunOnce(one, (fs::path(out) / mode).string()));
+    if (runs.back().exit_code == 2 || runs.back().exit_code == 130) return runs.back().exit_code;
+  }
+  const std::string table = FormatComparison(runs);
+  std::printf("%s", table.c_str());
+  std::ofstream(fs::path(out) / "comparison.txt") << table;
+  nlohmann::json j = nlohmann::json::array();
+  for (const auto& run : runs) {
+    j.push_back({{"on_loss", run.on_loss},
+                 {"out", run.out},
+                 {"exit_code", run.exit_code},
+                 {"report", run.evaluation ? ToJson(*run.evaluation) : nlohmann::json()}});
+  }
+  std::ofstream(fs::path(out) / "comparison.json") << j.dump(2) << "\n";
+  std::printf("comparison written to %s/comparison.{txt,json}\n", out.c_str());
+  for (const auto& run : runs) {
+    if (run.exit_code != 0) return run.exit_code;
+  }
+  return 0;
 }
 
 }  // namespace stitch

@@ -91,9 +91,10 @@ std::vector<KeyframeId> ApplySubmapUpdate(const SubmapUpdate& update, SubmapRepl
     for (KeyframeId id : unlisted) map.RemoveKeyframe(id);
   }
   if (!stale) {
+    // A closed submap is reopened when the tracker relocalizes in it: the newest update says.
+    if (update.revision >= replica->newest_revision) replica->closed = update.closed;
     replica->newest_revision = std::max(replica->newest_revision, update.revision);
     if (update.full_state) replica->full_state_revision = std::max(replica->full_state_revision, update.revision);
-    replica->closed = replica->closed || update.closed;
   }
   std::vector<KeyframeId> missing;
   for (KeyframeId id : replica->manifest) {

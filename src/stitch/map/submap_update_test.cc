@@ -121,6 +121,19 @@ TEST(SubmapUpdate, ALostKeyframeIsReportedMissingAndRemovalsFollow) {
   EXPECT_EQ(receiver.map.num_keyframes(), 1u);
 }
 
+TEST(SubmapUpdate, ASubmapReopenedAfterItsFinalStateIsOpenAgain) {
+  Sender sender;
+  SubmapReplica receiver(kSubmap, ScalePyramid::From(OrbOptions()));
+  ApplySubmapUpdate(sender.AddKeyframe(0), &receiver);
+  ApplySubmapUpdate(sender.AddKeyframe(1), &receiver);
+  ApplySubmapUpdate(MakeFullSubmapUpdate(&sender.map, ++sender.revision, /*closed=*/true), &receiver);
+  EXPECT_TRUE(receiver.closed);
+  // The tracker relocalized in it: new keyframes come with newer revisions.
+  ApplySubmapUpdate(sender.AddKeyframe(2), &receiver);
+  EXPECT_FALSE(receiver.closed);
+  EXPECT_EQ(receiver.map.num_keyframes(), 3u);
+}
+
 TEST(SubmapUpdate, AnUpdateOfAnotherSubmapChangesNothing) {
   Sender sender;
   SubmapReplica receiver(MakeSubmapId(1, 5), ScalePyramid::From(OrbOptions()));

@@ -1,4 +1,4 @@
-#include "tools/stitch/process.h"
+#include "stitch/util/child_process.h"
 
 #include <csignal>
 #include <cstring>

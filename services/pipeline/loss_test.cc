@@ -1,0 +1,247 @@
+// Tracking loss and relocalization (docs/tracking-loss.md) on scripted sequences: frames of the
+// synthetic flight played in a chosen order, with blackouts, repeats and blur, so the answer is
+// known.
+
+#include <cstdio>
+#include <map>
+#include <memory>
+#include <set>
+
+#include <gtest/gtest.h>
+#include <opencv2/imgproc.hpp>
+
+#include "services/pipeline/inline_pipeline.h"
+#include "stitch/source/source.h"
+
+namespace stitch {
+namespace {
+
+// One strip of the default flight, rendered once for all tests.
+struct RenderedStrip {
+  Camera camera;
+  std::vector<cv::Mat> images;
+  std::vector<Rigid3d> world_from_cam;
+};
+
+const RenderedStrip& Strip() {
+  static const RenderedStrip* strip = [] {
+    auto* s = new RenderedStrip;
+    SourceSpec spec;
+    spec.synthetic.flight.num_frames = 120;
+    spec.synthetic.flight.num_strips = 1;
+    spec.synthetic.flight.strip_length_m = 1.15 * 120;
+    spec.failures = "none";
+    FailureSchedule unused;
+    auto sequence = OpenSource(spec, &unused);
+    s->camera = sequence->camera();
+    SequenceFrame frame;
+    while (sequence->Next(&frame)) {
+      s->images.push_back(frame.image.clone());
+      s->world_from_cam.push_back(*sequence->ground_truth().PoseAt(frame.t_ns));
+    }
+    return s;
+  }();
+  return *strip;
+}
+
+const Vocabulary& DefaultVocabulary() {
+  static const Vocabulary* vocabulary = new Vocabulary(LoadVocabulary(StitchConfig()));
+  return *vocabulary;
+}
+
+// Frames of the strip in a scripted order; -1 is a black frame, -2 - i is frame i blurred
+// beyond use. Timestamps are 50 ms apart; ground truth follows the strip's frames.
+class ScriptedSequence : public ImageSequence {
+ public:
+  static constexpr int kBlack = -1;
+  static int Blurred(int frame) { return -2 - frame; }
+
+  explicit ScriptedSequence(std::vector<int> script) : script_(std::move(script)) {
+    for (size_t i = 0; i < script_.size(); ++i) {
+      const int source = script_[i] >= 0 ? script_[i] : script_[i] <= -2 ? -2 - script_[i] : -1;
+      if (source >= 0) truth_.Add({Time(static_cast<int>(i)), Strip().world_from_cam[source]});
+    }
+  }
+  std::string description() const override { return "scripted strip"; }
+  int size() const override { return static_cast<int>(script_.size()); }
+  const Camera& camera() const override { return Strip().camera; }
+  double nominal_fps() const override { return 20; }
+  const Trajectory& ground_truth() const override { return truth_; }
+  bool Next(SequenceFrame* frame) override {
+    if (next_ >= script_.size()) return false;
+    const int entry = script_[next_];
+    frame->index = static_cast<int>(next_);
+    frame->t_ns = Time(frame->index);
+    if (entry >= 0) {
+      frame->image = Strip().images[entry].clone();
+    } else if (entry == kBlack) {
+      frame->image = cv::Mat::zeros(Strip().images[0].size(), CV_8UC1);
+    } else {
+      cv::GaussianBlur(Strip().images[-2 - entry], frame->image, cv::Size(0, 0), 12);
+    }
+    ++next_;
+    return true;
+  }
+
+ private:
+  static int64_t Time(int index) { return 1'000'000'000LL + 50'000'000LL * index; }
+  std::vector<int> script_;
+  Trajectory truth_;
+  size_t next_ = 0;
+};
+
+// Appends frames [first, last] of the strip, or `count` copies of an entry.
+void Play(std::vector<int>* script, int first, int last) {
+  for (int i = first; i <= last; ++i) script->push_back(i);
+}
+void Repeat(std::vector<int>* script, int entry, int count) { script->insert(script->end(), count, entry); }
+
+InlineRun RunScript(const std::vector<int>& script, const std::string& on_loss) {
+  StitchConfig config;
+  config.tracker.on_loss = on_loss;
+  ScriptedSequence sequence(script);
+  return RunInline(sequence, config, DefaultVocabulary());
+}
+
+const InlineFrame* FirstOkFrom(const InlineRun& run, int from) {
+  for (const auto& f : run.frames) {
+    if (f.frame_index >= from && f.result.state == TrackingState::kOk) return &f;
+  }
+  return nullptr;
+}
+
+TEST(TrackingLoss, TheBaselineRelocalizesWhenTheCameraReturnsAfterABlackout) {
+  std::vector<int> script;
+  Play(&script, 0, 79);
+  Repeat(&script, ScriptedSequence::kBlack, 8);
+  Play(&script, 40, 79);  // back over the mapped half of the strip
+  const InlineRun run = RunScript(script, "relocalize");
+  EXPECT_EQ(run.submaps, 1);
+  // Lost during the blackout, with the reason; the map is kept.
+  for (int i = 80 + 3; i < 88; ++i) {
+    EXPECT_EQ(run.frames[i].result.state, TrackingState::kLost) << i;
+    EXPECT_EQ(run.frames[i].result.reason, TrackingReason::kNotRelocalized) << i;
+  }
+  // Relocalized within a few frames of the camera's return...
+  const InlineFrame* back = FirstOkFrom(run, 88);
+  ASSERT_NE(back, nullptr);
+  EXPECT_LE(back->frame_index, 88 + 3);
+  EXPECT_TRUE(back->result.relocalized);
+  // ...at the pose it had over the same place the first time (within 2% of the distance flown
+  // between frames 40 and 79, about 45 m).
+  std::map<int, Eigen::Vector3d> centre;
+  for (const auto& p : run.poses) centre[p.frame_index] = p.world_from_cam.translation;
+  ASSERT_TRUE(centre.count(40) && centre.count(79));
+  const double span = (centre[79] - centre[40]).norm();
+  int compared = 0;
+  for (int k = 0; k < 40; ++k) {
+    const int replay = 88 + k;
+    if (!centre.count(replay) || !centre.count(40 + k)) continue;
+    EXPECT_LT((centre[replay] - centre[40 + k]).norm(), 0.02 * span) << "frame " << replay;
+    ++compared;
+  }
+  EXPECT_GE(compared, 36);
+  // And against the ground truth (Sim3-aligned, in metres; the strip is 138 m long).
+  EvaluationInput input;
+  input.frames_total = static_cast<int>(script.size());
+  input.poses = run.poses;
+  ScriptedSequence truth(script);
+  input.ground_truth = truth.ground_truth();
+  const Evaluation e = Evaluate(input);
+  ASSERT_TRUE(e.errors);
+  EXPECT_LT(e.errors->ate_rmse_m, 0.3);
+  EXPECT_LT(e.errors->ate_max_m, 0.8);
+  std::printf("relocalized run: ATE %.3f m (max %.3f m) over %d frames\n", e.errors->ate_rmse_m, e.errors->ate_max_m,
+              e.frames_localized);
+}
+
+TEST(TrackingLoss, ANewMapThatCannotInitializeGivesWayToAClosedSubmapTheCameraIsBackIn) {
+  std::vector<int> script;
+  Play(&script, 0, 79);
+  Repeat(&script, ScriptedSequence::kBlack, 8);
+  Repeat(&script, 60, 40);  // hovering over a mapped place: no parallax to initialize from
+  const InlineRun run = RunScript(script, "submap");
+  const SubmapId first = run.frames[10].result.submap;
+  const InlineFrame* back = FirstOkFrom(run, 88);
+  ASSERT_NE(back, nullptr);
+  EXPECT_TRUE(back->result.relocalized);
+  EXPECT_EQ(back->result.submap, first) << "continued in the closed submap";
+  // Lost at frame 82 (the third black frame); relocalization into closed submaps is tried once
+  // the new map has tried to initialize for relocalize_closed_after_frames (20) frames.
+  EXPECT_EQ(run.frames[82].result.state, TrackingState::kLost);
+  EXPECT_GE(back->frame_index, 83 + 20);
+  EXPECT_LE(back->frame_index, 83 + 20 + 3);
+  for (int i = back->frame_index; i < static_cast<int>(script.size()); ++i) {
+    EXPECT_EQ(run.frames[i].result.state, TrackingState::kOk) << i;
+    EXPECT_EQ(run.frames[i].result.submap, first) << i;
+  }
+  EXPECT_EQ(run.submaps, 1);
+}
+
+TEST(TrackingLoss, ABlackoutDuringInitializationOnlyDelaysIt) {
+  std::vector<int> script;
+  Play(&script, 0, 0);  // the reference frame of the first initialization attempt
+  Repeat(&script, ScriptedSequence::kBlack, 5);
+  Play(&script, 6, 59);
+  const InlineRun run = RunScript(script, "submap");
+  for (int i = 1; i <= 5; ++i) {
+    EXPECT_EQ(run.frames[i].result.state, TrackingState::kInitializing) << i;
+    EXPECT_EQ(run.frames[i].result.reason, TrackingReason::kTooFewFeatures) << i;
+  }
+  const InlineFrame* first = FirstOkFrom(run, 0);
+  ASSERT_NE(first, nullptr);
+  EXPECT_LE(first->frame_index, 12);
+  EXPECT_EQ(run.submaps, 1);
+  EXPECT_GE(static_cast<int>(run.poses.size()), 60 - 12);
+}
+
+TEST(TrackingLoss, ALossRightAfterAKeyframeClosesTheSubmapWithThatKeyframe) {
+  // Where the clean strip makes its first keyframe after initialization (deterministic).
+  std::vector<int> clean;
+  Play(&clean, 0, 59);
+  const InlineRun reference = RunScript(clean, "submap");
+  int keyframe = -1;
+  for (const auto& f : reference.frames) {
+    if (f.frame_index > 3 && f.result.is_keyframe && keyframe < 0) keyframe = f.frame_index;
+  }
+  ASSERT_GT(keyframe, 3);
+
+  std::vector<int> script;
+  Play(&script, 0, keyframe);
+  Repeat(&script, ScriptedSequence::kBlack, 5);
+  Play(&script, keyframe + 6, keyframe + 60);
+  const InlineRun run = RunScript(script, "submap");
+  EXPECT_TRUE(run.frames[keyframe].result.is_keyframe);
+  EXPECT_EQ(run.frames[keyframe + 3].result.state, TrackingState::kLost);
+  EXPECT_EQ(run.submaps, 2);
+  // The new submap starts at once and keeps every frame after its initialization.
+  const InlineFrame* restart = FirstOkFrom(run, keyframe + 6);
+  ASSERT_NE(restart, nullptr);
+  EXPECT_NE(restart->result.submap, run.frames[keyframe].result.submap);
+  EXPECT_LE(restart->frame_index, keyframe + 6 + 8);
+  for (int i = restart->frame_index; i < static_cast<int>(script.size()); ++i) {
+    EXPECT_EQ(run.frames[i].result.state, TrackingState::kOk) << i;
+  }
+}
+
+TEST(TrackingLoss, TwoLossesInARowCloseOneSubmapAndBurnNoNumber) {
+  std::vector<int> script;
+  Play(&script, 0, 59);
+  Repeat(&script, ScriptedSequence::kBlack, 5);                   // the first failure
+  for (int i = 65; i < 70; ++i) script.push_back(ScriptedSequence::Blurred(i));  // the second, at once
+  Play(&script, 70, 119);
+  const InlineRun run = RunScript(script, "submap");
+  for (int i = 60; i < 70; ++i) EXPECT_NE(run.frames[i].result.state, TrackingState::kOk) << i;
+  int closes = 0;
+  for (const auto& f : run.frames) closes += f.result.state == TrackingState::kLost;
+  EXPECT_EQ(closes, 1);
+  std::set<int> numbers;
+  for (const auto& p : run.poses) numbers.insert(SubmapNumber(SubmapId(p.submap_id)));
+  EXPECT_EQ(numbers, (std::set<int>{1, 2}));
+  const InlineFrame* restart = FirstOkFrom(run, 70);
+  ASSERT_NE(restart, nullptr);
+  EXPECT_LE(restart->frame_index, 78);
+}
+
+}  // namespace
+}  // namespace stitch

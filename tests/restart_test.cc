@@ -1,0 +1,101 @@
+// A tracker that crashes mid-flight and is restarted: submap ids stay unique, no frame is lost.
+// The real programs over UDP multicast, the tracker killed with SIGKILL.
+
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+#include <set>
+#include <thread>
+
+#include <gtest/gtest.h>
+
+#include "services/common/bus.h"
+#include "stitch/eval/frame_record.h"
+#include "stitch/map/ids.h"
+#include "stitch/testing/temp_dir.h"
+#include "stitch/util/child_process.h"
+#include "tests/test_process.h"
+
+namespace stitch {
+namespace {
+
+using namespace std::chrono_literals;
+using testing::Bin;
+
+// Complete lines after the header (the file is being written).
+size_t CountRecords(const std::string& path) {
+  std::ifstream in(path);
+  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const size_t lines = static_cast<size_t>(std::count(text.begin(), text.end(), '\n'));
+  return lines > 0 ? lines - 1 : 0;
+}
+
+TEST(TrackerRestart, SubmapIdsStayUniqueAndNoFrameIsLost) {
+  testing::TempDir dir;
+  const std::string url = bus::LocalUdpUrl(7700 + getpid() % 90);
+  const std::vector<std::string> common = {"--lcm-url", url, "--config",
+                                           std::string(STITCH_SOURCE_DIR) + "/tests/short_flight.yaml"};
+  const auto with = [&](std::vector<std::string> extra) {
+    std::vector<std::string> args = common;
+    args.insert(args.end(), extra.begin(), extra.end());
+    return args;
+  };
+  const std::string frames = dir / "frames.tsv";
+  const std::string state = dir / "tracker.state";
+  const std::vector<std::string> tracker_args = with({"--record", frames, "--state", state});
+  ChildProcess mapper("mapper", Bin("stitch-mapper"), with({"--record", dir.path().string()}), dir / "mapper.log");
+  auto tracker = std::make_unique<ChildProcess>("tracker", Bin("stitch-tracker"), tracker_args, dir / "tracker1.log");
+  std::this_thread::sleep_for(500ms);  // subscribed before the first frame
+  ChildProcess ingest("ingest", Bin("stitch-ingest"), with({"--failures", "none"}), dir / "ingest.log");
+
+  // Let the first tracker map half the strip, then kill it.
+  const auto deadline = std::chrono::steady_clock::now() + 90s;
+  while (CountRecords(frames) < 30 && std::chrono::steady_clock::now() < deadline) std::this_thread::sleep_for(20ms);
+  ASSERT_GE(CountRecords(frames), 30u) << tracker->LogTail(10);
+  EXPECT_EQ(tracker->Terminate(0ms), 128 + SIGKILL);
+  const size_t before_restart = CountRecords(frames);
+  tracker = std::make_unique<ChildProcess>("tracker", Bin("stitch-tracker"), tracker_args, dir / "tracker2.log");
+
+  while (!ingest.Poll() && std::chrono::steady_clock::now() < deadline + 60s) std::this_thread::sleep_for(50ms);
+  ASSERT_TRUE(ingest.Poll()) << ingest.LogTail(10);
+  EXPECT_EQ(*ingest.Poll(), 0) << ingest.LogTail(10);
+  std::this_thread::sleep_for(500ms);
+  tracker->Terminate(15000ms);
+  mapper.Terminate(60000ms);
+
+  // Every frame was tracked by one of the two trackers (a frame in flight at the crash is
+  // re-sent by ingest and may appear twice).
+  const std::vector<FrameRecord> records = ReadFrameRecords(frames);
+  std::set<int> indices;
+  for (const auto& r : records) indices.insert(r.frame_index);
+  EXPECT_EQ(indices.size(), 60u);
+  EXPECT_EQ(*indices.rbegin(), 59);
+  // Before the crash: submap 1. After: a new submap with a new number, tracking again.
+  std::set<int> before, after;
+  int posed_after = 0;
+  for (size_t i = 0; i < records.size(); ++i) {
+    if (records[i].submap_id < 0) continue;
+    const int number = SubmapNumber(SubmapId(records[i].submap_id));
+    (i < before_restart ? before : after).insert(number);
+    posed_after += i >= before_restart && records[i].state == "OK";
+  }
+  EXPECT_EQ(before, std::set<int>{1});
+  EXPECT_EQ(after, std::set<int>{2});
+  EXPECT_GE(posed_after, static_cast<int>(records.size() - before_restart) - 6);
+  std::ifstream saved(state);
+  std::string key;
+  int next = 0;
+  saved >> key >> next;
+  EXPECT_EQ(key, "next_submap_number");
+  EXPECT_EQ(next, 3);
+  std::ifstream log(dir / "tracker2.log");
+  const std::string text((std::istreambuf_iterator<char>(log)), std::istreambuf_iterator<char>());
+  EXPECT_NE(text.find("resuming: submaps continue from number 2"), std::string::npos) << text;
+}
+
+}  // namespace
+}  // namespace stitch
