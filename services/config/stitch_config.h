@@ -7,6 +7,7 @@
 
 #include "services/ingest/ingest_options.h"
 #include "services/mapper/mapper_options.h"
+#include "services/merger/merger.h"
 #include "services/tracker/tracker_options.h"
 #include "stitch/synthetic/synthetic_sequence.h"
 
@@ -18,6 +19,7 @@ struct StitchConfig {
   IngestOptions ingest;
   TrackerOptions tracker;
   MapperOptions mapper;
+  MergerOptions merger;
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
@@ -26,9 +28,10 @@ struct StitchConfig {
     v("ingest", ingest, "frame source service");
     v("tracker", tracker, "tracking service");
     v("mapper", mapper, "local mapping service");
+    v("merger", merger, "submap merging service");
   }
   bool Check(std::string* why) const {
-    return synthetic.Check(why) && ingest.Check(why) && tracker.Check(why) && mapper.Check(why);
+    return synthetic.Check(why) && ingest.Check(why) && tracker.Check(why) && mapper.Check(why) && merger.Check(why);
   }
 };
 

@@ -16,7 +16,7 @@ int main(int argc, char** argv) {
                  "Builds the local map from the keyframes on <agent>/KEYFRAME (triangulation, local bundle "
                  "adjustment, culling) and publishes the changes on <agent>/LOCAL_MAP. Runs until SIGINT or SIGTERM.");
   common.Register(&args);
-  args.AddOption("--record", &record_dir, "DIR", "at the end, write map.ply and keyframes.tsv to DIR");
+  args.AddOption("--record", &record_dir, "DIR", "at the end, write submaps.ply and keyframes.tsv to DIR");
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {
     common.Apply("mapper");

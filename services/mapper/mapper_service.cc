@@ -171,7 +171,7 @@ void MapperService::WriteRecords() const {
     keyframes << culled.id.value << " " << SubmapOf(culled.id).value << " " << culled.frame_index << " " << culled.t_ns
               << " 1 " << FormatTumPose(culled.cam_from_world.Inverse()) << "\n";
   }
-  WritePly((std::filesystem::path(record_dir_) / "map.ply").string(), cloud);
+  WritePly((std::filesystem::path(record_dir_) / "submaps.ply").string(), cloud);
   STITCH_LOG(INFO) << "wrote " << cloud.size() << " map points of " << maps.size() << " submaps to " << record_dir_;
 }
 

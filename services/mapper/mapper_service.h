@@ -4,7 +4,7 @@
 // <agent>/SUBMAP for the merger (each in parts of about 60 kB); a closed submap's final state
 // goes out when the tracker reports the submap closed (<agent>/TRACKING_STATUS), else when the
 // next submap's first keyframe arrives, or at Stop. A keyframe of a closed submap reopens it.
-// When given a record folder it writes, at the end, map.ply (every submap's points, one colour
+// When given a record folder it writes, at the end, submaps.ply (every submap's points in its own frame, one colour
 // per submap) and keyframes.tsv (final keyframe poses, culled keyframes included).
 
 #include <atomic>

@@ -11,6 +11,10 @@ InlineRun RunInline(ImageSequence& sequence, const StitchConfig& config, const V
   Tracking tracking(config.tracker.tracking, sequence.camera(), &vocabulary, sequence.nominal_fps(),
                     ParseLossPolicy(config.tracker.on_loss));
   LocalMapping mapping(config.mapper.mapping, sequence.camera(), config.tracker.tracking.orb, &vocabulary);
+  Merger merger(config.merger, &vocabulary, ScalePyramid::From(config.tracker.tracking.orb));
+  const auto close_submap = [&]() {
+    if (const auto closed = mapping.CloseSubmap()) merger.Apply(mapping.MakeFinalSubmapUpdate(*closed));
+  };
   InlineRun run;
   std::map<int64_t, int> component_of;
   SequenceFrame frame;
@@ -24,12 +28,15 @@ InlineRun RunInline(ImageSequence& sequence, const StitchConfig& config, const V
       done.result.detail = frame.error;
     } else {
       Tracking::Output output = tracking.Track(frame.image, frame.index, frame.t_ns);
-      if (output.closed_submap && mapping.map() && mapping.map()->id() == *output.closed_submap) mapping.CloseSubmap();
+      if (output.closed_submap && mapping.map() && mapping.map()->id() == *output.closed_submap) close_submap();
       const Stopwatch mapping_clock;
       for (size_t k = 0; k < output.new_keyframes.size(); ++k) {
         const MappingReport report =
             mapping.ProcessKeyframe(output.new_keyframes[k], k == 0 ? output.new_points : std::vector<MapPoint>());
-        tracking.ApplyUpdate(mapping.MakeUpdate(report.keyframe, 0));
+        if (report.closed_submap) merger.Apply(mapping.MakeFinalSubmapUpdate(*report.closed_submap));
+        const LocalMapUpdate update = mapping.MakeUpdate(report.keyframe, 0);
+        tracking.ApplyUpdate(update);
+        merger.Apply(mapping.MakeSubmapUpdate(report.keyframe, update));
         ++run.keyframes;
       }
       if (!output.new_keyframes.empty()) done.mapping_ms = mapping_clock.ElapsedMs();
@@ -54,6 +61,16 @@ InlineRun RunInline(ImageSequence& sequence, const StitchConfig& config, const V
     run.frames.push_back(std::move(done));
   }
   run.submaps = static_cast<int>(component_of.size());
+  close_submap();
+  run.graph = merger.Solve();
+  for (const PoseRecord& pose : run.poses) {
+    const auto placed = run.graph.placement.find(SubmapId(pose.submap_id));
+    if (placed == run.graph.placement.end()) continue;
+    PoseRecord merged = pose;
+    merged.component = placed->second.component;
+    merged.world_from_cam = TransformPose(placed->second.world_from_submap, pose.world_from_cam);
+    run.merged_poses.push_back(merged);
+  }
   return run;
 }
 

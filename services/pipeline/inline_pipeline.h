@@ -10,6 +10,7 @@
 
 #include "services/config/stitch_config.h"
 #include "services/mapper/local_mapping.h"
+#include "services/merger/merger.h"
 #include "services/tracker/tracking.h"
 #include "stitch/eval/evaluation.h"
 #include "stitch/io/image_sequence.h"
@@ -26,12 +27,14 @@ struct InlineFrame {
 struct InlineRun {
   std::vector<InlineFrame> frames;
   std::vector<PoseRecord> poses;  // the tracker's poses, each submap its own component
+  std::vector<PoseRecord> merged_poses;  // the same, placed by the merger (component = merged map)
+  Merger::Graph graph;                   // the merger's submap graph at the end
   int keyframes = 0;              // keyframes made
   int submaps = 0;
 };
 
-// Plays `sequence` through the tracker and mapper; `on_frame` (optional) sees every frame as it
-// is done. Throws stitch::Error on invalid settings.
+// Plays `sequence` through the tracker, mapper and merger; `on_frame` (optional) sees every
+// frame as it is done. Throws stitch::Error on invalid settings.
 InlineRun RunInline(ImageSequence& sequence, const StitchConfig& config, const Vocabulary& vocabulary,
                     const std::function<void(const InlineFrame&)>& on_frame = nullptr);
 

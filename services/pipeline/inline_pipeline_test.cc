@@ -3,6 +3,7 @@
 
 #include "services/pipeline/inline_pipeline.h"
 
+#include <cstdio>
 #include <set>
 
 #include <gtest/gtest.h>
@@ -78,6 +79,23 @@ TEST(InlinePipeline, AGustClosesTheSubmapAndANewOneStartsAtOnce) {
   bool lost_reported = false;
   for (const auto& f : run.frames) lost_reported |= f.result.state == TrackingState::kLost && !f.result.detail.empty();
   EXPECT_TRUE(lost_reported);
+  // The merger joins the two submaps into one map, as accurate as each submap alone.
+  EvaluationInput input;
+  input.frames_total = 200;
+  input.poses = run.merged_poses;
+  input.ground_truth = sequence->ground_truth();
+  const Evaluation merged = Evaluate(input);
+  std::printf("merged: %d submaps in the largest map, %d frames, ATE %.3f m; %zu connections, %zu edges\n",
+              merged.submaps_merged, merged.frames_localized, merged.errors ? merged.errors->ate_rmse_m : -1.0,
+              0 * run.graph.edges.size() + run.graph.tree.size(), run.graph.edges.size());
+  for (const auto& e : run.graph.edges) {
+    std::printf("edge %d-%d F=%d M=%d theta=%.1f C=%.1f\n", SubmapNumber(e.a), SubmapNumber(e.b), e.connected_frames,
+                e.map_points, e.median_angle_deg, e.strength);
+  }
+  EXPECT_EQ(merged.submaps_merged, run.submaps);
+  EXPECT_GE(merged.frames_localized, posed);
+  ASSERT_TRUE(merged.errors);
+  EXPECT_LT(merged.errors->ate_rmse_m, 0.01 * Extent(sequence->ground_truth()));
 }
 
 }  // namespace

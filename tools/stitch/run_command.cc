@@ -200,6 +200,10 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
   std::string failure;
   std::vector<std::unique_ptr<ChildProcess>> children;
   try {
+    std::vector<std::string> merger_args = common;
+    merger_args.insert(merger_args.end(), {"--record", out});
+    children.push_back(std::make_unique<ChildProcess>("merger", bin + "/stitch-merger", merger_args,
+                                                      (fs::path(out) / "logs" / "merger.log").string()));
     std::vector<std::string> mapper_args = common;
     mapper_args.insert(mapper_args.end(), {"--record", out});
     children.push_back(std::make_unique<ChildProcess>("mapper", bin + "/stitch-mapper", mapper_args,
@@ -218,9 +222,10 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
   } catch (const std::exception& e) {
     failure = e.what();
   }
-  ChildProcess* mapper = children.size() > 0 ? children[0].get() : nullptr;
-  ChildProcess* tracker = children.size() > 1 ? children[1].get() : nullptr;
-  ChildProcess* ingest = children.size() > 2 ? children[2].get() : nullptr;
+  ChildProcess* merger = children.size() > 0 ? children[0].get() : nullptr;
+  ChildProcess* mapper = children.size() > 1 ? children[1].get() : nullptr;
+  ChildProcess* tracker = children.size() > 2 ? children[2].get() : nullptr;
+  ChildProcess* ingest = children.size() > 3 ? children[3].get() : nullptr;
 
   // Progress until ingest has played everything and the tracker has caught up.
   const bool tty = isatty(STDOUT_FILENO) && !a.quiet;
@@ -247,7 +252,7 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
       info.interrupted = true;
       break;
     }
-    for (ChildProcess* service : {mapper, tracker}) {
+    for (ChildProcess* service : {merger, mapper, tracker}) {
       if (service && service->Poll()) {
         failure = "the " + service->name() + " exited unexpectedly (status " + std::to_string(*service->Poll()) +
                   "); end of " + service->log_path() + ":\n" + service->LogTail(8);
@@ -273,9 +278,10 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
   if (tty) std::printf("\n");
 
   // Shut the services down, upstream first: each drains its queue and writes its files on SIGTERM
-  // (the mapper may still have keyframes to map).
+  // (the mapper may still have keyframes to map, the merger submap updates to merge).
   for (auto it = children.rbegin(); it != children.rend(); ++it) {
-    const int status = (*it)->Terminate(std::chrono::milliseconds((*it)->name() == "mapper" ? 120000 : 15000));
+    const bool slow = (*it)->name() == "mapper" || (*it)->name() == "merger";
+    const int status = (*it)->Terminate(std::chrono::milliseconds(slow ? 120000 : 15000));
     if (status != 0 && status != 128 + SIGTERM && status != 130 && !info.interrupted && failure.empty()) {
       failure = (*it)->name() + " ended with status " + std::to_string(status) + "; see " + (*it)->log_path();
     }
@@ -357,7 +363,7 @@ std::string FormatComparison(const std::vector<RunOutcome>& runs) {
 int RunCommand(int argc, char** argv) {
   RunArgs a;
   ArgParser args("stitch run",
-                 "Runs stitch on a sequence: ingest, tracker and mapper as separate processes over LCM, then "
+                 "Runs stitch on a sequence: ingest, tracker, mapper and merger as separate processes over LCM, then "
                  "evaluates the result. Without --dataset it flies the embedded "
                  "synthetic UAV survey with 3 scheduled gusts.");
   args.AddOption("--dataset", &a.dataset, "PATH", "TUM RGB-D / EuRoC / KITTI folder, image folder or video (detected)");

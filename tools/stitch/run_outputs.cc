@@ -127,6 +127,29 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
       input.poses.push_back(p);
     }
   }
+  // The merger's placements: each submap's merged map and its Sim3 into that map's frame.
+  if (fs::exists(dir / "submaps.tsv")) {
+    std::map<int64_t, std::pair<int, Sim3d>> placement;
+    ForEachDataLine((dir / "submaps.tsv").string(), [&](const std::string& line, int line_number) {
+      std::istringstream fields(line);
+      int64_t id, root;
+      int component, closed;
+      size_t keyframes, points;
+      double s, qx, qy, qz, qw, tx, ty, tz;
+      fields >> id >> component >> root >> keyframes >> points >> closed >> s >> qx >> qy >> qz >> qw >> tx >> ty >> tz;
+      if (!fields) throw Error(Str() << run_dir << "/submaps.tsv:" << line_number << ": malformed placement");
+      placement[id] = {component, Sim3d(s, Eigen::Quaterniond(qw, qx, qy, qz).normalized(), Eigen::Vector3d(tx, ty, tz))};
+    });
+    for (auto& p : input.poses) {
+      const auto placed = placement.find(p.submap_id);
+      if (placed == placement.end()) {
+        p.component = 1000 + p.component;  // the merger never heard of it: a map of its own
+        continue;
+      }
+      p.component = placed->second.first;
+      p.world_from_cam = TransformPose(placed->second.second, p.world_from_cam);
+    }
+  }
   WritePoseRecords((dir / "poses.tsv").string(), input.poses);
   if (fs::exists(dir / "groundtruth.tum")) input.ground_truth = Trajectory::ReadTum((dir / "groundtruth.tum").string());
 
@@ -140,7 +163,7 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
   trajectory.WriteTum((dir / "trajectory.tum").string());
   if (!fs::exists(dir / "map.ply")) {
     WritePly((dir / "map.ply").string(), {});
-    info->notes.push_back("map.ply is empty: no mapper produced map points in this run");
+    info->notes.push_back("map.ply is empty: no merger wrote a map in this run");
   }
   if (!records.empty() && no_core == static_cast<int>(records.size())) {
     info->notes.push_back("the tracker has no SLAM core yet (issue #3): all " + std::to_string(records.size()) +

@@ -64,6 +64,13 @@ struct Sim3d {
   }
 };
 
+// A camera pose carried into another frame by a similarity: world_from_cam = world_from_submap *
+// submap_from_cam (the scale goes into the translation; the camera stays metric-free).
+inline Rigid3d TransformPose(const Sim3d& world_from_submap, const Rigid3d& submap_from_cam) {
+  return Rigid3d((world_from_submap.rotation * submap_from_cam.rotation).normalized(),
+                 world_from_submap * submap_from_cam.translation);
+}
+
 // Rotation angle of a quaternion, radians in [0, pi].
 inline double RotationAngle(const Eigen::Quaterniond& q) {
   return 2.0 * std::atan2(q.vec().norm(), std::abs(q.w()));

@@ -185,14 +185,22 @@ int SearchByProjection(Frame* frame, const std::vector<PointInView>& points, con
   return matched;
 }
 
-int SearchByBow(const Keyframe& keyframe, Frame* frame, const Map& map, double ratio) {
+namespace {
+
+// Features of A matched to features of B under the same vocabulary node (best under 50 bits,
+// `ratio` to the second best, rotation-consistent). `usable_a` / `usable_b` say which take part.
+template <class UsableA, class UsableB>
+std::vector<std::pair<int, int>> MatchUnderSameNodes(const FeatureVector& nodes_a, const cv::Mat& descriptors_a,
+                                                     const std::vector<cv::KeyPoint>& keypoints_a, UsableA usable_a,
+                                                     const FeatureVector& nodes_b, const cv::Mat& descriptors_b,
+                                                     const std::vector<cv::KeyPoint>& keypoints_b, UsableB usable_b,
+                                                     double ratio) {
   RotationHistogram histogram;
-  std::vector<char> taken(frame->size(), 0);
-  for (size_t j = 0; j < frame->size(); ++j) taken[j] = frame->points[j].valid();
-  int matched = 0;
-  auto a = keyframe.bow_features.nodes.begin();
-  auto b = frame->bow_features.nodes.begin();
-  while (a != keyframe.bow_features.nodes.end() && b != frame->bow_features.nodes.end()) {
+  std::vector<std::pair<int, int>> matches;
+  std::vector<char> taken(keypoints_b.size(), 0);
+  auto a = nodes_a.nodes.begin();
+  auto b = nodes_b.nodes.begin();
+  while (a != nodes_a.nodes.end() && b != nodes_b.nodes.end()) {
     if (a->first < b->first) {
       ++a;
       continue;
@@ -202,13 +210,11 @@ int SearchByBow(const Keyframe& keyframe, Frame* frame, const Map& map, double r
       continue;
     }
     for (int i : a->second) {
-      const MapPointId id = keyframe.points[i];
-      const MapPoint* point = id.valid() ? map.FindPoint(id) : nullptr;
-      if (!point) continue;
+      if (!usable_a(i)) continue;
       int best = 256, second = 256, best_index = -1;
       for (int j : b->second) {
-        if (taken[j]) continue;
-        const int d = HammingDistance(keyframe.descriptors.ptr<uint8_t>(i), frame->descriptors.ptr<uint8_t>(j));
+        if (taken[j] || !usable_b(j)) continue;
+        const int d = HammingDistance(descriptors_a.ptr<uint8_t>(i), descriptors_b.ptr<uint8_t>(j));
         if (d < best) {
           second = best;
           best = d;
@@ -218,20 +224,42 @@ int SearchByBow(const Keyframe& keyframe, Frame* frame, const Map& map, double r
         }
       }
       if (best > kDescriptorDistanceLow || best >= ratio * second) continue;
-      frame->points[best_index] = id;
-      frame->outlier[best_index] = 0;
       taken[best_index] = 1;
-      ++matched;
-      histogram.Add(keyframe.keypoints[i].angle, frame->keypoints[best_index].angle, best_index);
+      histogram.Add(keypoints_a[i].angle, keypoints_b[best_index].angle, static_cast<int>(matches.size()));
+      matches.push_back({i, best_index});
     }
     ++a;
     ++b;
   }
-  for (int j : histogram.Rejected()) {
-    frame->points[j] = MapPointId();
-    --matched;
+  std::vector<char> rejected(matches.size(), 0);
+  for (int m : histogram.Rejected()) rejected[m] = 1;
+  std::vector<std::pair<int, int>> kept;
+  for (size_t m = 0; m < matches.size(); ++m) {
+    if (!rejected[m]) kept.push_back(matches[m]);
   }
-  return matched;
+  return kept;
+}
+
+}  // namespace
+
+int SearchByBow(const Keyframe& keyframe, Frame* frame, const Map& map, double ratio) {
+  const auto has_point = [&](int i) { return keyframe.points[i].valid() && map.FindPoint(keyframe.points[i]); };
+  const auto free = [&](int j) { return !frame->points[j].valid(); };
+  const auto matches = MatchUnderSameNodes(keyframe.bow_features, keyframe.descriptors, keyframe.keypoints, has_point,
+                                           frame->bow_features, frame->descriptors, frame->keypoints, free, ratio);
+  for (const auto& [i, j] : matches) {
+    frame->points[j] = keyframe.points[i];
+    frame->outlier[j] = 0;
+  }
+  return static_cast<int>(matches.size());
+}
+
+std::vector<std::pair<int, int>> MatchKeyframesByBow(const Keyframe& a, const Map& map_a, const Keyframe& b,
+                                                     const Map& map_b, double ratio) {
+  const auto in_a = [&](int i) { return a.points[i].valid() && map_a.FindPoint(a.points[i]); };
+  const auto in_b = [&](int j) { return b.points[j].valid() && map_b.FindPoint(b.points[j]); };
+  return MatchUnderSameNodes(a.bow_features, a.descriptors, a.keypoints, in_a, b.bow_features, b.descriptors, b.keypoints,
+                             in_b, ratio);
 }
 
 Eigen::Matrix3d FundamentalMatrix(const Rigid3d& cam1_from_world, const Rigid3d& cam2_from_world, const PinholeIntrinsics& k) {

@@ -48,6 +48,11 @@ int SearchByProjection(Frame* frame, const std::vector<PointInView>& points, con
 // vocabulary node (both must have their bag of words computed). Assigns frame->points.
 int SearchByBow(const Keyframe& keyframe, Frame* frame, const Map& map, double ratio = 0.7);
 
+// Place recognition: features of `a` and `b` that both observe a map point (of their own
+// submaps), matched under the same vocabulary node. Returns (feature in a, feature in b) pairs.
+std::vector<std::pair<int, int>> MatchKeyframesByBow(const Keyframe& a, const Map& map_a, const Keyframe& b,
+                                                     const Map& map_b, double ratio = 0.75);
+
 // Triangulation: unmatched features of kf1 and kf2 under the same vocabulary node whose positions
 // agree with the epipolar geometry (`f21`: x2^T f21 x1 = 0 in undistorted pixels) and are not
 // near the epipole. Returns (feature in kf1, feature in kf2) pairs.

@@ -1,0 +1,51 @@
+// stitch-merger: joins the submaps on <agent>/SUBMAP into one map (ground station).
+
+#include <cstdio>
+#include <thread>
+
+#include "services/common/bus.h"
+#include "services/common/service.h"
+#include "services/config/stitch_config.h"
+#include "services/merger/merger_service.h"
+#include "stitch/util/time.h"
+
+int main(int argc, char** argv) {
+  using namespace stitch;
+  ServiceCommandLine common;
+  std::string record_dir;
+  ArgParser args("stitch-merger",
+                 "Receives submap updates on <agent>/SUBMAP, finds connected frames between submaps, builds the submap "
+                 "graph and merges along its strongest connections; publishes <agent>/GLOBAL_MAP. Runs until SIGINT "
+                 "or SIGTERM.");
+  common.Register(&args);
+  args.AddOption("--record", &record_dir, "DIR",
+                 "write submaps.tsv, graph.dot, graph.png, merge_log.tsv and retrieval.tsv to DIR");
+  if (!args.Parse(argc, argv)) return args.exit_code();
+  try {
+    common.Apply("merger");
+    const StitchConfig config = LoadStitchConfig(common.config_path);
+    const Vocabulary vocabulary = LoadVocabulary(config);
+    const auto& stop = InstallStopSignals();
+    auto lcm = bus::OpenLcm(common.lcm_url);
+    bus::Publisher publisher(lcm.get(), common.agent);
+    MergerService merger(lcm.get(), &publisher, config.merger, config.tracker.tracking.orb, &vocabulary, record_dir);
+    bus::Dispatcher dispatcher(lcm.get());
+    dispatcher.Start();
+    merger.Start();
+    STITCH_LOG(INFO) << "listening on " << common.lcm_url;
+    while (!stop.load()) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    // The mappers send their final submap states as they stop: keep listening until the bus has
+    // been quiet for half a second (at most 5 s).
+    const double deadline = MonotonicSeconds() + 5.0;
+    while (MonotonicSeconds() < deadline && MonotonicSeconds() - merger.last_receive_time() < 0.5) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    }
+    dispatcher.Stop();
+    merger.Stop();
+    STITCH_LOG(INFO) << "stopped after " << merger.updates_received() << " submap updates";
+    return 0;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "stitch-merger: %s\n", e.what());
+    return 1;
+  }
+}

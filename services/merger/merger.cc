@@ -1,0 +1,209 @@
+#include "services/merger/merger.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "stitch/map/matcher.h"
+#include "stitch/util/error.h"
+#include "stitch/util/options.h"
+
+namespace stitch {
+namespace {
+
+constexpr int kDirectIndexLevel = 2;
+
+double Median(std::vector<double> values) {
+  if (values.empty()) return 0;
+  const size_t middle = values.size() / 2;
+  std::nth_element(values.begin(), values.begin() + middle, values.end());
+  return values[middle];
+}
+
+}  // namespace
+
+bool MergerOptions::Check(std::string* why) const {
+  auto fail = [&](const std::string& m) { if (why) *why = m; return false; };
+  if (!(min_connection_strength >= 0)) return fail("merger.min_connection_strength must be >= 0");
+  if (max_candidates < 1) return fail("merger.max_candidates must be >= 1");
+  if (min_matches < 3 || sim3_min_inliers < 3) return fail("merger.min_matches and merger.sim3_min_inliers must be >= 3");
+  if (!(match_ratio > 0 && match_ratio <= 1)) return fail("merger.match_ratio must be in (0, 1]");
+  return true;
+}
+
+Merger::Merger(const MergerOptions& options, const Vocabulary* vocabulary, const ScalePyramid& pyramid)
+    : options_(options), vocabulary_(vocabulary), pyramid_(pyramid) {
+  CheckOptions(options_, "merger");
+  if (!vocabulary_ || vocabulary_->empty()) throw Error("the merger needs a vocabulary");
+}
+
+const Undistorter& Merger::UndistorterFor(const Camera& camera) {
+  const std::string key = camera.Describe();
+  auto it = undistorters_.find(key);
+  if (it == undistorters_.end()) it = undistorters_.emplace(key, Undistorter(camera)).first;
+  return it->second;
+}
+
+std::vector<KeyframeId> Merger::Apply(const SubmapUpdate& update) {
+  if (!update.submap.valid()) return {};
+  SubmapReplica& replica = submaps_.try_emplace(update.submap, update.submap, pyramid_).first->second;
+  const std::vector<KeyframeId> missing = ApplySubmapUpdate(update, &replica);
+  // Keyframes the mapper culled leave the database too.
+  const auto first = prepared_.lower_bound(MakeKeyframeId(update.submap, 0));
+  std::vector<KeyframeId> gone;
+  for (auto it = first; it != prepared_.end() && SubmapOf(*it) == update.submap; ++it) {
+    if (!replica.map.FindKeyframe(*it)) gone.push_back(*it);
+  }
+  for (KeyframeId id : gone) {
+    database_.Remove(id.value);
+    prepared_.erase(id);
+  }
+  if (!replica.camera) return missing;
+  std::vector<KeyframeId> fresh;
+  for (const auto& [id, keyframe] : replica.map.keyframes()) {
+    if (!prepared_.count(id)) fresh.push_back(id);
+  }
+  std::sort(fresh.begin(), fresh.end());
+  for (KeyframeId id : fresh) Prepare(&replica, replica.map.FindKeyframe(id));
+  for (KeyframeId id : fresh) retrievals_.push_back(Retrieve(replica, *replica.map.FindKeyframe(id)));
+  return missing;
+}
+
+void Merger::Prepare(SubmapReplica* replica, Keyframe* keyframe) {
+  const Undistorter& undistorter = UndistorterFor(*replica->camera);
+  keyframe->undistorted.clear();
+  for (const auto& k : keyframe->keypoints) keyframe->undistorted.push_back(undistorter.Undistort(k.pt.x, k.pt.y));
+  keyframe->bow = vocabulary_->Transform(keyframe->descriptors, &keyframe->bow_features, kDirectIndexLevel);
+  database_.Add(keyframe->id.value, replica->map.id().value, keyframe->bow);
+  prepared_.insert(keyframe->id);
+}
+
+RetrievalRecord Merger::Retrieve(const SubmapReplica& replica, const Keyframe& keyframe) {
+  RetrievalRecord r;
+  r.keyframe = keyframe.id;
+  const Map& map = replica.map;
+  for (const auto& [id, other] : map.keyframes()) {
+    if (id < keyframe.id && (!r.previous.valid() || r.previous < id) && prepared_.count(id)) r.previous = id;
+  }
+  if (!r.previous.valid()) {
+    r.skipped = "first keyframe of its submap";
+    return r;
+  }
+  // The nearby keyframe: the covisible one whose shared points are closest to half of ours.
+  const double own = std::max(1, keyframe.CountPoints());
+  double closest = 2;
+  for (const auto& [id, shared] : keyframe.covisibility) {
+    const double distance = std::abs(shared / own - 0.5);
+    if (prepared_.count(id) && distance < closest) {
+      closest = distance;
+      r.nearby = id;
+    }
+  }
+  if (!r.nearby.valid()) {
+    r.skipped = "no covisible keyframe";
+    return r;
+  }
+  const Keyframe& previous = *map.FindKeyframe(r.previous);
+  const Keyframe& nearby = *map.FindKeyframe(r.nearby);
+  r.n0 = CommonWords(keyframe.bow, previous.bow);
+  r.s0 = ScoreL1(keyframe.bow, previous.bow);
+  r.n1 = CommonWords(keyframe.bow, nearby.bow);
+  r.s1 = ScoreL1(keyframe.bow, nearby.bow);
+  if (r.n0 == 0 || !(r.s0 > 0)) {
+    r.skipped = "no word shared with the previous keyframe";
+    return r;
+  }
+  r.k = std::min(1.0, static_cast<double>(r.n1) / r.n0);
+  r.l = std::min(1.0, r.s1 / r.s0);
+  const int64_t own_submap = map.id().value;
+  std::vector<KeyframeDatabase::Candidate> candidates =
+      database_.Query(keyframe.bow, [own_submap](int64_t submap) { return submap != own_submap; });
+  if (candidates.empty()) {
+    r.skipped = "no other submap shares a word";
+    return r;
+  }
+  int most_words = 0;
+  for (const auto& c : candidates) most_words = std::max(most_words, c.common_words);
+  candidates.erase(std::remove_if(candidates.begin(), candidates.end(),
+                                  [&](const auto& c) { return c.common_words < r.k * most_words; }),
+                   candidates.end());
+  r.shared_word_candidates = static_cast<int>(candidates.size());
+  double best_score = 0;
+  for (const auto& c : candidates) best_score = std::max(best_score, c.score);
+  candidates.erase(
+      std::remove_if(candidates.begin(), candidates.end(), [&](const auto& c) { return c.score < r.l * best_score; }),
+      candidates.end());
+  std::sort(candidates.begin(), candidates.end(), [](const auto& a, const auto& b) {
+    return a.score > b.score || (a.score == b.score && a.keyframe_id < b.keyframe_id);
+  });
+  if (static_cast<int>(candidates.size()) > options_.max_candidates) candidates.resize(options_.max_candidates);
+  for (const auto& c : candidates) {
+    const KeyframeId id(c.keyframe_id);
+    r.candidates.push_back(id);
+    const auto other = submaps_.find(SubmapId(c.submap_id));
+    if (other == submaps_.end() || !other->second.camera) continue;
+    const Keyframe* candidate = other->second.map.FindKeyframe(id);
+    if (!candidate) continue;
+    if (auto connection = Verify(replica, keyframe, other->second, *candidate)) {
+      connections_.push_back(*connection);
+      r.connected.push_back(id);
+    }
+  }
+  return r;
+}
+
+std::optional<ConnectedFrame> Merger::Verify(const SubmapReplica& a, const Keyframe& keyframe_a, const SubmapReplica& b,
+                                             const Keyframe& keyframe_b) const {
+  const auto matches = MatchKeyframesByBow(keyframe_a, a.map, keyframe_b, b.map, options_.match_ratio);
+  if (static_cast<int>(matches.size()) < options_.min_matches) return std::nullopt;
+  std::vector<Sim3Correspondence> pairs;
+  for (const auto& [i, j] : matches) {
+    Sim3Correspondence c;
+    c.point_a = a.map.FindPoint(keyframe_a.points[i])->position;
+    c.point_b = b.map.FindPoint(keyframe_b.points[j])->position;
+    c.pixel_a = keyframe_a.undistorted[i];
+    c.pixel_b = keyframe_b.undistorted[j];
+    c.sigma2_a = pyramid_.sigma2[keyframe_a.keypoints[i].octave];
+    c.sigma2_b = pyramid_.sigma2[keyframe_b.keypoints[j].octave];
+    pairs.push_back(c);
+  }
+  Sim3Options sim3;
+  sim3.min_inliers = options_.sim3_min_inliers;
+  sim3.seed = static_cast<uint64_t>(keyframe_a.id.value ^ (keyframe_b.id.value << 1));
+  // One camera model per agent: both submaps share a's intrinsics (several agents with
+  // different cameras are issue #7's).
+  const auto estimate = EstimateSim3(pairs, keyframe_a.cam_from_world, keyframe_b.cam_from_world, a.camera->Intrinsics(), sim3);
+  if (!estimate) return std::nullopt;
+  ConnectedFrame connection;
+  connection.keyframe_a = keyframe_a.id;
+  connection.keyframe_b = keyframe_b.id;
+  connection.b_from_a = estimate->b_from_a;
+  connection.map_points = estimate->num_inliers;
+  // Intersection angles in a's frame: rays from the two camera centres to each agreeing point.
+  const Eigen::Vector3d centre_a = keyframe_a.Centre();
+  const Eigen::Vector3d centre_b = estimate->b_from_a.Inverse() * keyframe_b.Centre();
+  std::vector<double> angles;
+  for (size_t m = 0; m < pairs.size(); ++m) {
+    if (!estimate->inlier[m]) continue;
+    const Eigen::Vector3d ray_a = (pairs[m].point_a - centre_a).normalized();
+    const Eigen::Vector3d ray_b = (pairs[m].point_a - centre_b).normalized();
+    angles.push_back(std::acos(std::clamp(ray_a.dot(ray_b), -1.0, 1.0)) * 180.0 / M_PI);
+  }
+  connection.median_angle_deg = Median(angles);
+  return connection;
+}
+
+Merger::Graph Merger::Solve() const {
+  Graph graph;
+  graph.edges = SummarizeConnections(connections_);
+  std::vector<SubmapId> ids;
+  std::map<SubmapId, int> keyframes;
+  for (const auto& [id, replica] : submaps_) {
+    ids.push_back(id);
+    keyframes[id] = static_cast<int>(replica.map.num_keyframes());
+  }
+  graph.tree = MinimumSpanningForest(ids, graph.edges, options_.min_connection_strength);
+  graph.placement = PlaceSubmaps(keyframes, graph.tree);
+  return graph;
+}
+
+}  // namespace stitch

@@ -1,0 +1,92 @@
+#pragma once
+// The merger's algorithm (no LCM here; MergerService carries it over the bus), DESIGN.md steps
+// 2-4: it keeps a copy of every submap from the mappers' updates; for each new keyframe of a
+// submap it retrieves connected frames in the other submaps with the adaptive thresholds
+// k = N1/N0 and l = S1/S0, verifies each by matching map points and a Sim3, and from the
+// verified connections builds the submap graph, whose minimum spanning tree decides the merges.
+// One owner thread; not thread-safe.
+
+#include <map>
+#include <optional>
+#include <set>
+#include <string>
+#include <vector>
+
+#include "services/merger/submap_graph.h"
+#include "stitch/estimators/sim3_estimation.h"
+#include "stitch/features/keyframe_database.h"
+#include "stitch/features/vocabulary.h"
+#include "stitch/map/frame.h"
+#include "stitch/map/submap_update.h"
+
+namespace stitch {
+
+struct MergerOptions {
+  double min_connection_strength = 10.0;  // C needed for two submaps to merge
+  int max_candidates = 3;                 // connected-frame candidates verified per keyframe
+  int min_matches = 20;                   // descriptor matches with map points to try a Sim3
+  double match_ratio = 0.75;              // best / second-best descriptor distance
+  int sim3_min_inliers = 20;              // map points agreeing with the Sim3 for a connected frame
+
+  template <class Visitor>
+  void VisitFields(Visitor& v) {
+    v("min_connection_strength", min_connection_strength, "connection strength C = F + 0.1 M + 0.1 theta^2 needed to merge two submaps");
+    v("max_candidates", max_candidates, "connected-frame candidates verified per keyframe");
+    v("min_matches", min_matches, "descriptor matches between map points needed to try a Sim3");
+    v("match_ratio", match_ratio, "best / second-best descriptor distance for a match");
+    v("sim3_min_inliers", sim3_min_inliers, "map points that must agree with the Sim3 of a connected frame");
+  }
+  bool Check(std::string* why) const;
+};
+
+// One connected-frame query, as the method's thresholds need to be studied.
+struct RetrievalRecord {
+  KeyframeId keyframe, previous, nearby;
+  int n0 = 0, n1 = 0;        // words shared with the previous / the ~50%-overlap keyframe
+  double s0 = 0, s1 = 0;     // BoW scores with them
+  double k = 0, l = 0;       // N1/N0 and S1/S0
+  int shared_word_candidates = 0;   // frames in other submaps passing k
+  std::vector<KeyframeId> candidates;  // ...then passing l (verified in this order, at most max_candidates)
+  std::vector<KeyframeId> connected;   // verified
+  std::string skipped;       // why there was no query (first keyframe, no other submap...)
+};
+
+class Merger {
+ public:
+  // `vocabulary` must outlive the merger.
+  Merger(const MergerOptions& options, const Vocabulary* vocabulary, const ScalePyramid& pyramid);
+
+  // Applies one update (or part) from a mapper; its new keyframes are queried and verified.
+  // Returns the keyframes the submap's manifest lists but this copy lacks.
+  std::vector<KeyframeId> Apply(const SubmapUpdate& update);
+
+  struct Graph {
+    std::vector<SubmapEdge> edges;  // every pair of submaps with verified connections
+    std::vector<SubmapEdge> tree;   // Kruskal's choice, in merging order
+    std::map<SubmapId, SubmapPlacement> placement;
+  };
+  Graph Solve() const;
+
+  const std::map<SubmapId, SubmapReplica>& submaps() const { return submaps_; }
+  const std::vector<ConnectedFrame>& connections() const { return connections_; }
+  const std::vector<RetrievalRecord>& retrievals() const { return retrievals_; }
+
+ private:
+  void Prepare(SubmapReplica* replica, Keyframe* keyframe);
+  RetrievalRecord Retrieve(const SubmapReplica& replica, const Keyframe& keyframe);
+  std::optional<ConnectedFrame> Verify(const SubmapReplica& a, const Keyframe& keyframe_a, const SubmapReplica& b,
+                                       const Keyframe& keyframe_b) const;
+  const Undistorter& UndistorterFor(const Camera& camera);
+
+  MergerOptions options_;
+  const Vocabulary* vocabulary_;
+  ScalePyramid pyramid_;
+  std::map<SubmapId, SubmapReplica> submaps_;
+  std::map<std::string, Undistorter> undistorters_;  // by camera description
+  KeyframeDatabase database_;
+  std::set<KeyframeId> prepared_;                    // keyframes with undistorted points and BoW
+  std::vector<ConnectedFrame> connections_;
+  std::vector<RetrievalRecord> retrievals_;
+};
+
+}  // namespace stitch

@@ -1,0 +1,279 @@
+#include "services/merger/merger_service.h"
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "services/common/convert.h"
+#include "services/common/map_convert.h"
+#include "stitch/global_map_t.hpp"
+#include "stitch/io/ply.h"
+#include "stitch/util/log.h"
+#include "stitch/util/time.h"
+
+namespace stitch {
+namespace {
+
+std::string Name(SubmapId id) { return std::to_string(AgentNumber(id)) + ":" + std::to_string(SubmapNumber(id)); }
+
+}  // namespace
+
+MergerService::MergerService(lcm::LCM* lcm, bus::Publisher* publisher, const MergerOptions& options,
+                             const OrbOptions& orb, const Vocabulary* vocabulary, std::string record_dir)
+    : publisher_(publisher),
+      pyramid_(ScalePyramid::From(orb)),
+      record_dir_(std::move(record_dir)),
+      merger_(options, vocabulary, pyramid_),
+      subscriber_(lcm),
+      // Submap updates are state that matters: a generous queue, and a loud log if it overflows.
+      queue_(20000, BoundedQueue<std::unique_ptr<stitch::submap_update_t>>::WhenFull::kDropOldest) {
+  subscriber_.Subscribe<stitch::submap_update_t>(
+      bus::Channel(publisher_->agent(), bus::kSubmap),
+      [this](std::unique_ptr<stitch::submap_update_t> update, const std::string&) {
+        ++received_;
+        last_receive_ = MonotonicSeconds();
+        if (queue_.Push(std::move(update))) {
+          ++rejected_;
+          STITCH_LOG(ERROR) << "merger queue full: dropped the oldest submap update";
+        }
+      });
+  heartbeat_ = std::make_unique<Heartbeat>(publisher_, "merger", [this] {
+    return Heartbeat::Counts{received_.load(), processed_.load(), subscriber_.rejected() + rejected_.load()};
+  });
+  merge_log_.push_back("# event\tcurrent_map\tunconnected_submaps (stack, newest last)\tmerged_maps");
+}
+
+MergerService::~MergerService() { Stop(); }
+
+void MergerService::Start() {
+  if (running_.exchange(true)) return;
+  worker_ = std::thread([this] { Work(); });
+  heartbeat_->Start();
+  heartbeat_->SetState(stitch::service_status_t::STATE_RUNNING);
+}
+
+void MergerService::Stop() {
+  if (!running_.exchange(false)) return;
+  queue_.Close();
+  if (worker_.joinable()) worker_.join();
+  const Merger::Graph graph = merger_.Solve();
+  PublishGlobalMap(graph);
+  if (!record_dir_.empty()) {
+    try {
+      WriteRecords(graph);
+    } catch (const std::exception& e) {
+      STITCH_LOG(ERROR) << "writing the merger's records failed: " << e.what();
+    }
+  }
+  heartbeat_->SetState(stitch::service_status_t::STATE_FINISHED);
+  heartbeat_->Stop();
+}
+
+void MergerService::Work() {
+  while (true) {
+    auto update = queue_.Pop(std::chrono::milliseconds(100));
+    if (!update) {
+      if (queue_.closed()) return;
+      continue;
+    }
+    Process(**update);
+  }
+}
+
+void MergerService::Process(const stitch::submap_update_t& message) {
+  SubmapUpdate update;
+  try {
+    update = FromMessage(message, pyramid_);
+  } catch (const Error& e) {
+    ++rejected_;
+    STITCH_LOG(WARNING) << "rejected a submap update: " << e.what();
+    return;
+  }
+  const std::vector<KeyframeId> missing = merger_.Apply(update);
+  ++processed_;
+  if (!missing.empty() && update.closed) {
+    STITCH_LOG(WARNING) << "submap " << Name(update.submap) << " closed with " << missing.size()
+                        << " keyframes never received (lost on the way)";
+  }
+  const bool newly_closed = update.closed && !closed_seen_[update.submap];
+  closed_seen_[update.submap] = update.closed;
+  if (merger_.connections().size() != connections_seen_ || newly_closed || message.part == 0) {
+    connections_seen_ = merger_.connections().size();
+    OnGraphChange(newly_closed ? "submap " + Name(update.submap) + " closed"
+                               : "keyframe of submap " + Name(update.submap));
+  }
+}
+
+void MergerService::OnGraphChange(const std::string& event) {
+  const Merger::Graph graph = merger_.Solve();
+  // The current map: the merged map holding the newest submap; the stack: every other submap.
+  SubmapId newest;
+  for (const auto& [id, replica] : merger_.submaps()) {
+    if (!newest.valid() || newest < id) newest = id;
+  }
+  if (!newest.valid()) return;
+  const int current = graph.placement.at(newest).component;
+  std::string current_map, stack;
+  std::map<int, std::string> merged;
+  for (const auto& [id, placement] : graph.placement) {
+    std::string& into = placement.component == current ? current_map : stack;
+    into += (into.empty() ? "" : " ") + Name(id);
+    merged[placement.component] += (merged[placement.component].empty() ? "" : "+") + Name(id);
+  }
+  std::string maps;
+  for (const auto& [component, names] : merged) maps += (maps.empty() ? "" : " ") + names;
+  const std::string row = current_map + "\t" + stack + "\t" + maps;
+  if (row == last_stack_) return;
+  last_stack_ = row;
+  merge_log_.push_back(event + "\t" + row);
+  STITCH_LOG(INFO) << event << ": current map " << current_map << "; unconnected " << (stack.empty() ? "-" : stack);
+  PublishGlobalMap(graph);
+}
+
+void MergerService::PublishGlobalMap(const Merger::Graph& graph) {
+  stitch::global_map_t m{};
+  m.revision = ++revision_;
+  for (const auto& [id, placement] : graph.placement) {
+    const SubmapReplica& replica = merger_.submaps().at(id);
+    stitch::submap_placement_t p{};
+    p.agent = publisher_->agent();
+    p.submap_id = id.value;
+    p.component = placement.component;
+    p.world_from_submap = ToMessage(placement.world_from_submap);
+    p.num_keyframes = static_cast<int32_t>(replica.map.num_keyframes());
+    p.num_points = static_cast<int32_t>(replica.map.num_points());
+    p.closed = replica.closed;
+    m.submaps.push_back(p);
+  }
+  m.num_submaps = static_cast<int32_t>(m.submaps.size());
+  for (const SubmapEdge& e : graph.edges) {
+    stitch::submap_edge_t edge{};
+    edge.submap_a = e.a.value;
+    edge.submap_b = e.b.value;
+    edge.strength = e.strength;
+    edge.connected_frames = e.connected_frames;
+    edge.map_points = e.map_points;
+    edge.median_angle_deg = e.median_angle_deg;
+    for (const SubmapEdge& t : graph.tree) edge.in_spanning_tree |= t.a == e.a && t.b == e.b;
+    edge.b_from_a = ToMessage(e.b_from_a);
+    m.edges.push_back(edge);
+  }
+  m.num_edges = static_cast<int32_t>(m.edges.size());
+  m.num_poses = 0;  // per-frame poses: the tracker's statuses composed with the placements
+  publisher_->Publish(bus::Channel(publisher_->agent(), bus::kGlobalMap), &m);
+}
+
+void MergerService::WriteRecords(const Merger::Graph& graph) const {
+  const std::filesystem::path dir(record_dir_);
+  std::filesystem::create_directories(dir);
+  {
+    std::ofstream out(dir / "submaps.tsv");
+    out << "# submap_id component root keyframes points closed scale qx qy qz qw tx ty tz (world_from_submap)\n";
+    for (const auto& [id, placement] : graph.placement) {
+      const SubmapReplica& replica = merger_.submaps().at(id);
+      const Sim3d& s = placement.world_from_submap;
+      char line[400];
+      std::snprintf(line, sizeof(line), "%lld %d %lld %zu %zu %d %.9g %.9g %.9g %.9g %.9g %.9g %.9g %.9g\n",
+                    static_cast<long long>(id.value), placement.component, static_cast<long long>(placement.root.value),
+                    replica.map.num_keyframes(), replica.map.num_points(), replica.closed ? 1 : 0, s.scale,
+                    s.rotation.x(), s.rotation.y(), s.rotation.z(), s.rotation.w(), s.translation.x(),
+                    s.translation.y(), s.translation.z());
+      out << line;
+    }
+  }
+  {
+    // map.ply: the largest merged map's points in its frame, one colour per submap.
+    static const uint8_t kPalette[][3] = {{30, 90, 200}, {220, 40, 40}, {40, 160, 40}, {180, 40, 180}, {220, 150, 20},
+                                          {0, 140, 140}, {160, 60, 90}, {200, 110, 0}, {100, 100, 100}, {180, 180, 60}};
+    std::vector<ColouredPoint> cloud;
+    int colour = 0;
+    for (const auto& [id, placement] : graph.placement) {
+      if (placement.component != 0) continue;
+      for (const auto& [point_id, point] : merger_.submaps().at(id).map.points()) {
+        ColouredPoint p;
+        p.position = (placement.world_from_submap * point.position).cast<float>();
+        p.red = kPalette[colour % 10][0];
+        p.green = kPalette[colour % 10][1];
+        p.blue = kPalette[colour % 10][2];
+        cloud.push_back(p);
+      }
+      ++colour;
+    }
+    WritePly((dir / "map.ply").string(), cloud);
+  }
+  {
+    std::ofstream out(dir / "graph.dot");
+    out << "graph submaps {\n  // edge weight -C; bold: Kruskal's spanning tree\n";
+    for (const auto& [id, placement] : graph.placement) {
+      out << "  \"" << Name(id) << "\" [label=\"" << Name(id) << "\\n" << merger_.submaps().at(id).map.num_keyframes()
+          << " kf, map " << placement.component << "\"];\n";
+    }
+    for (const SubmapEdge& e : graph.edges) {
+      bool in_tree = false;
+      for (const SubmapEdge& t : graph.tree) in_tree |= t.a == e.a && t.b == e.b;
+      char label[128];
+      std::snprintf(label, sizeof(label), "C=%.1f (F=%d M=%d %.0f deg)", e.strength, e.connected_frames, e.map_points,
+                    e.median_angle_deg);
+      out << "  \"" << Name(e.a) << "\" -- \"" << Name(e.b) << "\" [label=\"" << label << "\""
+          << (in_tree ? ", style=bold" : ", style=dashed") << "];\n";
+    }
+    out << "}\n";
+  }
+  {
+    // The graph as a picture: submaps on a circle, edges with their strength.
+    const int size = 640;
+    cv::Mat image(size, size, CV_8UC3, cv::Scalar(255, 255, 255));
+    std::map<SubmapId, cv::Point> at;
+    const size_t n = graph.placement.size();
+    size_t i = 0;
+    for (const auto& [id, placement] : graph.placement) {
+      const double angle = 2 * M_PI * static_cast<double>(i++) / std::max<size_t>(1, n) - M_PI / 2;
+      at[id] = cv::Point(size / 2 + static_cast<int>(230 * std::cos(angle)), size / 2 + static_cast<int>(230 * std::sin(angle)));
+    }
+    for (const SubmapEdge& e : graph.edges) {
+      bool in_tree = false;
+      for (const SubmapEdge& t : graph.tree) in_tree |= t.a == e.a && t.b == e.b;
+      cv::line(image, at[e.a], at[e.b], in_tree ? cv::Scalar(40, 40, 200) : cv::Scalar(180, 180, 180), in_tree ? 3 : 1,
+               cv::LINE_AA);
+      char label[32];
+      std::snprintf(label, sizeof(label), "%.0f", e.strength);
+      cv::putText(image, label, (at[e.a] + at[e.b]) / 2, cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+    }
+    static const cv::Scalar kColours[] = {{200, 90, 30}, {40, 40, 220}, {40, 160, 40}, {180, 40, 180}, {20, 150, 220}};
+    for (const auto& [id, placement] : graph.placement) {
+      cv::circle(image, at[id], 22, kColours[placement.component % 5], cv::FILLED, cv::LINE_AA);
+      cv::putText(image, Name(id), at[id] + cv::Point(-16, 5), cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(255, 255, 255),
+                  1, cv::LINE_AA);
+    }
+    cv::putText(image, "submap graph: edges labelled C, spanning tree in red, one colour per merged map",
+                cv::Point(10, 20), cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+    cv::imwrite((dir / "graph.png").string(), image);
+  }
+  {
+    std::ofstream out(dir / "merge_log.tsv");
+    for (const std::string& line : merge_log_) out << line << "\n";
+  }
+  {
+    std::ofstream out(dir / "retrieval.tsv");
+    out << "# keyframe previous nearby N0 N1 S0 S1 k l shared_word_candidates candidates connected skipped\n";
+    const auto list = [](const std::vector<KeyframeId>& ids) {
+      std::string text;
+      for (KeyframeId id : ids) text += (text.empty() ? "" : ",") + std::to_string(id.value);
+      return text.empty() ? std::string("-") : text;
+    };
+    for (const RetrievalRecord& r : merger_.retrievals()) {
+      char numbers[200];
+      std::snprintf(numbers, sizeof(numbers), "%d\t%d\t%.4f\t%.4f\t%.3f\t%.3f\t%d", r.n0, r.n1, r.s0, r.s1, r.k, r.l,
+                    r.shared_word_candidates);
+      out << r.keyframe.value << "\t" << r.previous.value << "\t" << r.nearby.value << "\t" << numbers << "\t"
+          << list(r.candidates) << "\t" << list(r.connected) << "\t" << (r.skipped.empty() ? "-" : r.skipped) << "\n";
+    }
+  }
+  STITCH_LOG(INFO) << "wrote the submap graph (" << graph.placement.size() << " submaps, " << graph.edges.size()
+                   << " edges, " << graph.tree.size() << " merges) to " << record_dir_;
+}
+
+}  // namespace stitch

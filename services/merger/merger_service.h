@@ -1,0 +1,63 @@
+#pragma once
+// The merger service (ground station): receives submap updates on <agent>/SUBMAP, runs Merger in
+// its own worker thread, and publishes the global map on <agent>/GLOBAL_MAP whenever the submap
+// graph changes. With a record folder it writes, as the graph changes and at the end:
+// submaps.tsv (each submap's merged map and Sim3), graph.dot and graph.png (the submap graph,
+// spanning tree in bold), merge_log.tsv (the stack of unconnected submaps and the current map at
+// each event, as the method's merging-process table) and retrieval.tsv (each connected-frame
+// query's N0, N1, S0, S1, k, l and candidates).
+
+#include <atomic>
+#include <memory>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "services/common/bus.h"
+#include "services/common/service.h"
+#include "services/merger/merger.h"
+#include "stitch/submap_update_t.hpp"
+#include "stitch/util/bounded_queue.h"
+
+namespace stitch {
+
+class MergerService {
+ public:
+  // Subscribes at once: construct before the Dispatcher starts. `vocabulary` must outlive it.
+  MergerService(lcm::LCM* lcm, bus::Publisher* publisher, const MergerOptions& options, const OrbOptions& orb,
+                const Vocabulary* vocabulary, std::string record_dir);
+  ~MergerService();
+
+  void Start();
+  // Merges what is queued, writes the records, stops the worker.
+  void Stop();
+
+  int64_t updates_received() const { return received_.load(); }
+  double last_receive_time() const { return last_receive_.load(); }  // MonotonicSeconds()
+
+ private:
+  void Work();
+  void Process(const stitch::submap_update_t& message);
+  void OnGraphChange(const std::string& event);
+  void PublishGlobalMap(const Merger::Graph& graph);
+  void WriteRecords(const Merger::Graph& graph) const;
+
+  bus::Publisher* publisher_;
+  ScalePyramid pyramid_;
+  std::string record_dir_;
+  Merger merger_;
+  bus::Subscriber subscriber_;
+  BoundedQueue<std::unique_ptr<stitch::submap_update_t>> queue_;
+  std::unique_ptr<Heartbeat> heartbeat_;
+  std::thread worker_;
+  std::atomic<bool> running_{false};
+  std::atomic<int64_t> received_{0}, processed_{0}, rejected_{0};
+  std::atomic<double> last_receive_{0};
+  size_t connections_seen_ = 0;
+  std::map<SubmapId, bool> closed_seen_;
+  std::vector<std::string> merge_log_;  // lines of merge_log.tsv
+  std::string last_stack_;
+  int revision_ = 0;
+};
+
+}  // namespace stitch

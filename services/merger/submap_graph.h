@@ -1,0 +1,55 @@
+#pragma once
+// The merger's submap graph (DESIGN.md, steps 3-4): verified connected frames between submaps
+// give each pair of submaps a connection strength C = F + 0.1 M + 0.1 theta_m^2; pairs at or
+// above a threshold are edges of weight -C, and Kruskal's minimum spanning tree over them (the
+// strongest connections) decides which submaps merge, and in which order. Each merged map is
+// then expressed in the frame of its largest submap by composing the edges' Sim3 along the tree.
+
+#include <map>
+#include <vector>
+
+#include "stitch/geometry/rigid3.h"
+#include "stitch/map/ids.h"
+
+namespace stitch {
+
+// A keyframe of submap `a` verified against a keyframe of submap `b`.
+struct ConnectedFrame {
+  KeyframeId keyframe_a, keyframe_b;
+  Sim3d b_from_a;              // submap b's frame from submap a's
+  int map_points = 0;          // matched map points that agree with b_from_a
+  double median_angle_deg = 0; // median intersection angle of those points' rays from the two cameras
+};
+
+// F + 0.1 M + 0.1 theta^2, theta capped at 45 degrees.
+double ConnectionStrength(int connected_frames, int map_points, double median_angle_deg);
+
+struct SubmapEdge {
+  SubmapId a, b;
+  int connected_frames = 0;    // F
+  int map_points = 0;          // M
+  double median_angle_deg = 0; // theta_m, over the connected frames
+  double strength = 0;         // C
+  Sim3d b_from_a;              // from the connected frame with the most map points
+};
+
+// One edge per pair of submaps with connected frames between them (either direction).
+std::vector<SubmapEdge> SummarizeConnections(const std::vector<ConnectedFrame>& connections);
+
+// Kruskal on weights -strength over the edges with strength >= `min_strength`: the tree edges
+// in the order they are taken (strongest first; ties by the smaller submap ids).
+std::vector<SubmapEdge> MinimumSpanningForest(const std::vector<SubmapId>& submaps, std::vector<SubmapEdge> edges,
+                                              double min_strength);
+
+struct SubmapPlacement {
+  int component = -1;         // merged map; 0 is the one with the most keyframes
+  SubmapId root;              // the component's largest submap, whose frame is the component's
+  Sim3d world_from_submap;
+};
+
+// Components of the forest and each submap's Sim3 in its component (composed along the tree
+// from the root). `keyframes` gives each submap's size.
+std::map<SubmapId, SubmapPlacement> PlaceSubmaps(const std::map<SubmapId, int>& keyframes,
+                                                 const std::vector<SubmapEdge>& tree);
+
+}  // namespace stitch
