@@ -34,7 +34,8 @@ TEST(StitchRun, TracksAShortFlightWithTheServicesAsProcesses) {
   ASSERT_EQ(result.exit_code, 0) << result.output;
   for (const char* file : {"trajectory.tum", "map.ply", "report.json", "trajectory.png", "frames.tsv", "poses.tsv",
                            "keyframes.tsv", "groundtruth.tum", "config.yaml", "run.json", "logs/tracker.log",
-                           "logs/ingest.log", "logs/mapper.log"}) {
+                           "logs/ingest.log", "logs/mapper.log", "logs/merger.log", "submaps.tsv", "graph.dot",
+                           "graph.png", "merge_log.tsv", "retrieval.tsv", "keyframes_merged.tsv"}) {
     EXPECT_TRUE(fs::exists(fs::path(out) / file)) << file;
   }
   const auto report = ReadJson(out + "/report.json");

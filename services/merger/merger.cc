@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "services/merger/pose_graph.h"
 #include "stitch/map/matcher.h"
 #include "stitch/util/error.h"
 #include "stitch/util/options.h"
@@ -11,6 +12,9 @@ namespace stitch {
 namespace {
 
 constexpr int kDirectIndexLevel = 2;
+// A submap's own relative poses come from bundle adjustment over many points; a connected
+// frame's Sim3 from a few dozen: the pose graph trusts the former more.
+constexpr double kIntraSubmapWeight = 10.0;
 
 double Median(std::vector<double> values) {
   if (values.empty()) return 0;
@@ -192,7 +196,7 @@ std::optional<ConnectedFrame> Merger::Verify(const SubmapReplica& a, const Keyfr
   return connection;
 }
 
-Merger::Graph Merger::Solve() const {
+Merger::Graph Merger::Solve(bool refine) const {
   Graph graph;
   graph.edges = SummarizeConnections(connections_);
   std::vector<SubmapId> ids;
@@ -203,7 +207,60 @@ Merger::Graph Merger::Solve() const {
   }
   graph.tree = MinimumSpanningForest(ids, graph.edges, options_.min_connection_strength);
   graph.placement = PlaceSubmaps(keyframes, graph.tree);
+  if (refine) graph.keyframe_poses = RefineKeyframePoses(graph.placement);
   return graph;
+}
+
+std::map<KeyframeId, Sim3d> Merger::RefineKeyframePoses(const std::map<SubmapId, SubmapPlacement>& placement) const {
+  const auto as_sim3 = [](const Rigid3d& r) { return Sim3d(1.0, r.rotation, r.translation); };
+  std::map<KeyframeId, Sim3d> poses;
+  std::vector<KeyframeId> fixed;
+  std::vector<PoseGraphEdge> edges;
+  for (const auto& [id, replica] : submaps_) {
+    const SubmapPlacement& place = placement.at(id);
+    const Map& map = replica.map;
+    KeyframeId first;
+    for (const auto& [kf_id, keyframe] : map.keyframes()) {
+      poses[kf_id] = place.world_from_submap * as_sim3(keyframe.cam_from_world.Inverse());
+      if (!first.valid() || kf_id < first) first = kf_id;
+    }
+    if (id == place.root && first.valid()) fixed.push_back(first);
+    // Within the submap: its strongest covisibility links and consecutive keyframes, as measured
+    // by its own poses.
+    KeyframeId previous;
+    std::vector<KeyframeId> ordered_ids;
+    for (const auto& [kf_id, keyframe] : map.keyframes()) ordered_ids.push_back(kf_id);
+    std::sort(ordered_ids.begin(), ordered_ids.end());
+    for (KeyframeId kf_id : ordered_ids) {
+      const Keyframe& keyframe = *map.FindKeyframe(kf_id);
+      const auto link = [&](KeyframeId other_id) {
+        const Keyframe* other = map.FindKeyframe(other_id);
+        if (!other) return;
+        edges.push_back({kf_id, other_id, as_sim3(keyframe.cam_from_world * other->cam_from_world.Inverse()),
+                         kIntraSubmapWeight});
+      };
+      if (previous.valid()) link(previous);
+      for (size_t n = 0; n < keyframe.ordered.size(); ++n) {
+        const auto& [weight, other] = keyframe.ordered[n];
+        if (other < kf_id && (weight >= 100 || n == 0) && other != previous) link(other);
+      }
+      previous = kf_id;
+    }
+  }
+  // Between submaps of one merged map: every verified connected frame.
+  for (const ConnectedFrame& c : connections_) {
+    const SubmapId a = SubmapOf(c.keyframe_a), b = SubmapOf(c.keyframe_b);
+    const auto pa = placement.find(a), pb = placement.find(b);
+    if (pa == placement.end() || pb == placement.end() || pa->second.component != pb->second.component) continue;
+    const Keyframe* ka = submaps_.at(a).map.FindKeyframe(c.keyframe_a);
+    const Keyframe* kb = submaps_.at(b).map.FindKeyframe(c.keyframe_b);
+    if (!ka || !kb) continue;
+    edges.push_back({c.keyframe_a, c.keyframe_b,
+                     as_sim3(ka->cam_from_world) * c.b_from_a.Inverse() * as_sim3(kb->cam_from_world.Inverse()), 1.0,
+                     /*robust=*/true});
+  }
+  OptimizePoseGraph(&poses, edges, fixed);
+  return poses;
 }
 
 }  // namespace stitch

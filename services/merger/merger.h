@@ -64,8 +64,11 @@ class Merger {
     std::vector<SubmapEdge> edges;  // every pair of submaps with verified connections
     std::vector<SubmapEdge> tree;   // Kruskal's choice, in merging order
     std::map<SubmapId, SubmapPlacement> placement;
+    // With `refine`: every keyframe's world_from_cam in its merged map after the Sim3 pose-graph
+    // optimization over all verified connections (not only the tree's).
+    std::map<KeyframeId, Sim3d> keyframe_poses;
   };
-  Graph Solve() const;
+  Graph Solve(bool refine = false) const;
 
   const std::map<SubmapId, SubmapReplica>& submaps() const { return submaps_; }
   const std::vector<ConnectedFrame>& connections() const { return connections_; }
@@ -77,6 +80,7 @@ class Merger {
   std::optional<ConnectedFrame> Verify(const SubmapReplica& a, const Keyframe& keyframe_a, const SubmapReplica& b,
                                        const Keyframe& keyframe_b) const;
   const Undistorter& UndistorterFor(const Camera& camera);
+  std::map<KeyframeId, Sim3d> RefineKeyframePoses(const std::map<SubmapId, SubmapPlacement>& placement) const;
 
   MergerOptions options_;
   const Vocabulary* vocabulary_;

@@ -59,7 +59,10 @@ void MergerService::Stop() {
   if (!running_.exchange(false)) return;
   queue_.Close();
   if (worker_.joinable()) worker_.join();
-  const Merger::Graph graph = merger_.Solve();
+  const Stopwatch clock;
+  const Merger::Graph graph = merger_.Solve(/*refine=*/true);
+  STITCH_LOG(INFO) << "pose graph over " << graph.keyframe_poses.size() << " keyframes optimized in " << clock.ElapsedMs()
+                   << " ms";
   PublishGlobalMap(graph);
   if (!record_dir_.empty()) {
     try {
@@ -192,9 +195,19 @@ void MergerService::WriteRecords(const Merger::Graph& graph) const {
     int colour = 0;
     for (const auto& [id, placement] : graph.placement) {
       if (placement.component != 0) continue;
-      for (const auto& [point_id, point] : merger_.submaps().at(id).map.points()) {
+      const Map& map = merger_.submaps().at(id).map;
+      for (const auto& [point_id, point] : map.points()) {
+        // Moved with a keyframe that sees it, by that keyframe's refined pose.
+        Eigen::Vector3d position = placement.world_from_submap * point.position;
+        if (!point.observations.empty()) {
+          const KeyframeId observer = point.observations.begin()->first;
+          const auto refined = graph.keyframe_poses.find(observer);
+          if (refined != graph.keyframe_poses.end()) {
+            position = refined->second * (map.FindKeyframe(observer)->cam_from_world * point.position);
+          }
+        }
         ColouredPoint p;
-        p.position = (placement.world_from_submap * point.position).cast<float>();
+        p.position = position.cast<float>();
         p.red = kPalette[colour % 10][0];
         p.green = kPalette[colour % 10][1];
         p.blue = kPalette[colour % 10][2];
@@ -203,6 +216,18 @@ void MergerService::WriteRecords(const Merger::Graph& graph) const {
       ++colour;
     }
     WritePly((dir / "map.ply").string(), cloud);
+  }
+  {
+    std::ofstream out(dir / "keyframes_merged.tsv");
+    out << "# keyframe_id submap_id component scale qx qy qz qw tx ty tz (world_from_cam, refined by the pose graph)\n";
+    for (const auto& [id, pose] : graph.keyframe_poses) {
+      char line[300];
+      std::snprintf(line, sizeof(line), "%lld %lld %d %.9g %.9g %.9g %.9g %.9g %.9g %.9g %.9g\n",
+                    static_cast<long long>(id.value), static_cast<long long>(SubmapOf(id).value),
+                    graph.placement.at(SubmapOf(id)).component, pose.scale, pose.rotation.x(), pose.rotation.y(),
+                    pose.rotation.z(), pose.rotation.w(), pose.translation.x(), pose.translation.y(), pose.translation.z());
+      out << line;
+    }
   }
   {
     std::ofstream out(dir / "graph.dot");

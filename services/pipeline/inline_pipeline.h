@@ -27,7 +27,7 @@ struct InlineFrame {
 struct InlineRun {
   std::vector<InlineFrame> frames;
   std::vector<PoseRecord> poses;  // the tracker's poses, each submap its own component
-  std::vector<PoseRecord> merged_poses;  // the same, placed by the merger (component = merged map)
+  std::vector<PoseRecord> merged_poses;  // the same, placed by the merger's Sim3 per submap (no pose graph)
   Merger::Graph graph;                   // the merger's submap graph at the end
   int keyframes = 0;              // keyframes made
   int submaps = 0;

@@ -171,6 +171,10 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
 
   std::unique_ptr<lcm::LCM> lcm;
   try {
+    // A run never writes over another run's records (the tracker appends to frames.tsv).
+    if (fs::exists(out) && !fs::is_empty(out)) {
+      throw Error(out + " exists and is not empty; give --out a new folder (or remove that one)");
+    }
     fs::create_directories(fs::path(out) / "logs");
     SaveStitchConfig(config, (fs::path(out) / "config.yaml").string());
     if (!source.ground_truth.empty()) source.ground_truth.WriteTum((fs::path(out) / "groundtruth.tum").string());
@@ -367,7 +371,7 @@ int RunCommand(int argc, char** argv) {
                  "evaluates the result. Without --dataset it flies the embedded "
                  "synthetic UAV survey with 3 scheduled gusts.");
   args.AddOption("--dataset", &a.dataset, "PATH", "TUM RGB-D / EuRoC / KITTI folder, image folder or video (detected)");
-  args.AddOption("--out", &a.out, "DIR", "output folder (default: a new folder under runs/)");
+  args.AddOption("--out", &a.out, "DIR", "output folder, new or empty (default: a new folder under runs/)");
   args.AddOption("--failures", &a.failures, "SPEC",
                  "induced failures: none, FRAME:LENGTH,... or default (synthetic: 3 gusts; datasets: none)");
   args.AddOption("--on-loss", &a.on_loss, "MODE", "submap (stitch, default) or relocalize (ORB-SLAM2-like baseline)");

@@ -7,6 +7,7 @@
 #include <sstream>
 
 #include "stitch/eval/frame_record.h"
+#include "stitch/map/ids.h"
 #include "stitch/io/ply.h"
 #include "stitch/io/trajectory.h"
 #include "stitch/util/error.h"
@@ -73,6 +74,7 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
   if (fs::exists(dir / "frames.tsv")) records = ReadFrameRecords((dir / "frames.tsv").string());
   // Final keyframe poses from the mapper (culled keyframes placed through their parents).
   std::map<int64_t, Rigid3d> keyframe_cam_from_world;
+  std::map<int64_t, int> keyframe_frame_index;
   int keyframes_retained = 0;
   if (fs::exists(dir / "keyframes.tsv")) {
     ForEachDataLine((dir / "keyframes.tsv").string(), [&](const std::string& line, int line_number) {
@@ -85,6 +87,7 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
         throw Error(Str() << run_dir << "/keyframes.tsv:" << line_number << ": malformed keyframe");
       }
       keyframe_cam_from_world[id] = world_from_cam.Inverse();
+      keyframe_frame_index[id] = frame_index;
       keyframes_retained += culled == 0;
     });
   }
@@ -140,6 +143,31 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
       if (!fields) throw Error(Str() << run_dir << "/submaps.tsv:" << line_number << ": malformed placement");
       placement[id] = {component, Sim3d(s, Eigen::Quaterniond(qw, qx, qy, qz).normalized(), Eigen::Vector3d(tx, ty, tz))};
     });
+    // Refined keyframe poses: a frame follows the keyframe it was tracked against.
+    std::map<int64_t, Sim3d> keyframe_world_from_cam;
+    if (fs::exists(dir / "keyframes_merged.tsv")) {
+      ForEachDataLine((dir / "keyframes_merged.tsv").string(), [&](const std::string& line, int line_number) {
+        std::istringstream fields(line);
+        int64_t id, submap;
+        int component;
+        double s, qx, qy, qz, qw, tx, ty, tz;
+        fields >> id >> submap >> component >> s >> qx >> qy >> qz >> qw >> tx >> ty >> tz;
+        if (!fields) throw Error(Str() << run_dir << "/keyframes_merged.tsv:" << line_number << ": malformed pose");
+        keyframe_world_from_cam[id] = Sim3d(s, Eigen::Quaterniond(qw, qx, qy, qz).normalized(), Eigen::Vector3d(tx, ty, tz));
+      });
+    }
+    // The pose graph's correction of each merged keyframe (refined against placed), by submap
+    // and frame; every frame takes the correction of the nearest keyframe of its submap, so
+    // frames tracked against keyframes the mapper culled move with their neighbours.
+    std::map<int64_t, std::map<int, Sim3d>> corrections;
+    for (const auto& [id, refined] : keyframe_world_from_cam) {
+      const auto in_submap = keyframe_cam_from_world.find(id);
+      const auto placed = placement.find(SubmapOf(KeyframeId(id)).value);
+      if (in_submap == keyframe_cam_from_world.end() || placed == placement.end()) continue;
+      const Rigid3d submap_from_cam = in_submap->second.Inverse();
+      const Sim3d placed_pose = placed->second.second * Sim3d(1.0, submap_from_cam.rotation, submap_from_cam.translation);
+      corrections[placed->first][keyframe_frame_index[id]] = refined * placed_pose.Inverse();
+    }
     for (auto& p : input.poses) {
       const auto placed = placement.find(p.submap_id);
       if (placed == placement.end()) {
@@ -147,7 +175,17 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
         continue;
       }
       p.component = placed->second.first;
-      p.world_from_cam = TransformPose(placed->second.second, p.world_from_cam);
+      Sim3d world_from_cam = placed->second.second * Sim3d(1.0, p.world_from_cam.rotation, p.world_from_cam.translation);
+      const auto submap_corrections = corrections.find(p.submap_id);
+      if (submap_corrections != corrections.end() && !submap_corrections->second.empty()) {
+        const auto& by_frame = submap_corrections->second;
+        auto next = by_frame.lower_bound(p.frame_index);
+        if (next == by_frame.end() || (next != by_frame.begin() && p.frame_index - std::prev(next)->first < next->first - p.frame_index)) {
+          next = std::prev(next);
+        }
+        world_from_cam = next->second * world_from_cam;
+      }
+      p.world_from_cam = Rigid3d(world_from_cam.rotation, world_from_cam.translation);
     }
   }
   WritePoseRecords((dir / "poses.tsv").string(), input.poses);
