@@ -120,14 +120,20 @@ void MergerService::OnGraphChange(const std::string& event) {
   if (!newest.valid()) return;
   const int current = graph.placement.at(newest).component;
   std::string current_map, stack;
-  std::map<int, std::string> merged;
+  // Merged maps listed by their oldest submap (component numbers follow sizes and may change).
+  std::map<int, SubmapId> oldest;
+  for (const auto& [id, placement] : graph.placement) {
+    if (!oldest.count(placement.component)) oldest[placement.component] = id;  // placement is ordered by id
+  }
+  std::map<SubmapId, std::string> merged;
   for (const auto& [id, placement] : graph.placement) {
     std::string& into = placement.component == current ? current_map : stack;
     into += (into.empty() ? "" : " ") + Name(id);
-    merged[placement.component] += (merged[placement.component].empty() ? "" : "+") + Name(id);
+    std::string& names = merged[oldest[placement.component]];
+    names += (names.empty() ? "" : "+") + Name(id);
   }
   std::string maps;
-  for (const auto& [component, names] : merged) maps += (maps.empty() ? "" : " ") + names;
+  for (const auto& [first, names] : merged) maps += (maps.empty() ? "" : " ") + names;
   const std::string row = current_map + "\t" + stack + "\t" + maps;
   if (row == last_stack_) return;
   last_stack_ = row;
