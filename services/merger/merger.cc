@@ -147,17 +147,20 @@ RetrievalRecord Merger::Retrieve(const SubmapReplica& replica, const Keyframe& k
     if (other == submaps_.end() || !other->second.camera) continue;
     const Keyframe* candidate = other->second.map.FindKeyframe(id);
     if (!candidate) continue;
-    if (auto connection = Verify(replica, keyframe, other->second, *candidate)) {
+    int matches = 0, inliers = 0;
+    if (auto connection = Verify(replica, keyframe, other->second, *candidate, &matches, &inliers)) {
       connections_.push_back(*connection);
       r.connected.push_back(id);
     }
+    r.verification.push_back({matches, inliers});
   }
   return r;
 }
 
 std::optional<ConnectedFrame> Merger::Verify(const SubmapReplica& a, const Keyframe& keyframe_a, const SubmapReplica& b,
-                                             const Keyframe& keyframe_b) const {
+                                             const Keyframe& keyframe_b, int* match_count, int* inlier_count) const {
   const auto matches = MatchKeyframesByBow(keyframe_a, a.map, keyframe_b, b.map, options_.match_ratio);
+  *match_count = static_cast<int>(matches.size());
   if (static_cast<int>(matches.size()) < options_.min_matches) return std::nullopt;
   std::vector<Sim3Correspondence> pairs;
   for (const auto& [i, j] : matches) {
@@ -175,7 +178,8 @@ std::optional<ConnectedFrame> Merger::Verify(const SubmapReplica& a, const Keyfr
   sim3.seed = static_cast<uint64_t>(keyframe_a.id.value ^ (keyframe_b.id.value << 1));
   // One camera model per agent: both submaps share a's intrinsics (several agents with
   // different cameras are issue #7's).
-  const auto estimate = EstimateSim3(pairs, keyframe_a.cam_from_world, keyframe_b.cam_from_world, a.camera->Intrinsics(), sim3);
+  const auto estimate = EstimateSim3(pairs, keyframe_a.cam_from_world, keyframe_b.cam_from_world, a.camera->Intrinsics(), sim3,
+                                     inlier_count);
   if (!estimate) return std::nullopt;
   ConnectedFrame connection;
   connection.keyframe_a = keyframe_a.id;

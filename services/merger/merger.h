@@ -48,6 +48,7 @@ struct RetrievalRecord {
   int shared_word_candidates = 0;   // frames in other submaps passing k
   std::vector<KeyframeId> candidates;  // ...then passing l (verified in this order, at most max_candidates)
   std::vector<KeyframeId> connected;   // verified
+  std::vector<std::pair<int, int>> verification;  // per candidate: descriptor matches, Sim3 inliers (0 if not tried)
   std::string skipped;       // why there was no query (first keyframe, no other submap...)
 };
 
@@ -77,8 +78,9 @@ class Merger {
  private:
   void Prepare(SubmapReplica* replica, Keyframe* keyframe);
   RetrievalRecord Retrieve(const SubmapReplica& replica, const Keyframe& keyframe);
+  // `matches` / `inliers` (optional) receive the counts whatever the outcome.
   std::optional<ConnectedFrame> Verify(const SubmapReplica& a, const Keyframe& keyframe_a, const SubmapReplica& b,
-                                       const Keyframe& keyframe_b) const;
+                                       const Keyframe& keyframe_b, int* matches, int* inliers) const;
   const Undistorter& UndistorterFor(const Camera& camera);
   std::map<KeyframeId, Sim3d> RefineKeyframePoses(const std::map<SubmapId, SubmapPlacement>& placement) const;
 

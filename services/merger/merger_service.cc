@@ -289,7 +289,8 @@ void MergerService::WriteRecords(const Merger::Graph& graph) const {
   }
   {
     std::ofstream out(dir / "retrieval.tsv");
-    out << "# keyframe previous nearby N0 N1 S0 S1 k l shared_word_candidates candidates connected skipped\n";
+    out << "# keyframe previous nearby N0 N1 S0 S1 k l shared_word_candidates candidates connected "
+           "verification(matches/inliers per candidate) skipped\n";
     const auto list = [](const std::vector<KeyframeId>& ids) {
       std::string text;
       for (KeyframeId id : ids) text += (text.empty() ? "" : ",") + std::to_string(id.value);
@@ -300,7 +301,12 @@ void MergerService::WriteRecords(const Merger::Graph& graph) const {
       std::snprintf(numbers, sizeof(numbers), "%d\t%d\t%.4f\t%.4f\t%.3f\t%.3f\t%d", r.n0, r.n1, r.s0, r.s1, r.k, r.l,
                     r.shared_word_candidates);
       out << r.keyframe.value << "\t" << r.previous.value << "\t" << r.nearby.value << "\t" << numbers << "\t"
-          << list(r.candidates) << "\t" << list(r.connected) << "\t" << (r.skipped.empty() ? "-" : r.skipped) << "\n";
+          << list(r.candidates) << "\t" << list(r.connected) << "\t";
+      std::string verification;
+      for (const auto& [matches, inliers] : r.verification) {
+        verification += (verification.empty() ? "" : ",") + std::to_string(matches) + "/" + std::to_string(inliers);
+      }
+      out << (verification.empty() ? "-" : verification) << "\t" << (r.skipped.empty() ? "-" : r.skipped) << "\n";
     }
   }
   STITCH_LOG(INFO) << "wrote the submap graph (" << graph.placement.size() << " submaps, " << graph.edges.size()

@@ -7,15 +7,19 @@
 namespace stitch {
 
 InlineRun RunInline(ImageSequence& sequence, const StitchConfig& config, const Vocabulary& vocabulary,
-                    const std::function<void(const InlineFrame&)>& on_frame) {
+                    const std::function<void(const InlineFrame&)>& on_frame, bool keep_submap_updates) {
   Tracking tracking(config.tracker.tracking, sequence.camera(), &vocabulary, sequence.nominal_fps(),
                     ParseLossPolicy(config.tracker.on_loss));
   LocalMapping mapping(config.mapper.mapping, sequence.camera(), config.tracker.tracking.orb, &vocabulary);
   Merger merger(config.merger, &vocabulary, ScalePyramid::From(config.tracker.tracking.orb));
-  const auto close_submap = [&]() {
-    if (const auto closed = mapping.CloseSubmap()) merger.Apply(mapping.MakeFinalSubmapUpdate(*closed));
-  };
   InlineRun run;
+  const auto send = [&](const SubmapUpdate& update) {
+    merger.Apply(update);
+    if (keep_submap_updates) run.submap_updates.push_back(update);
+  };
+  const auto close_submap = [&]() {
+    if (const auto closed = mapping.CloseSubmap()) send(mapping.MakeFinalSubmapUpdate(*closed));
+  };
   std::map<int64_t, int> component_of;
   SequenceFrame frame;
   while (sequence.Next(&frame)) {
@@ -33,10 +37,10 @@ InlineRun RunInline(ImageSequence& sequence, const StitchConfig& config, const V
       for (size_t k = 0; k < output.new_keyframes.size(); ++k) {
         const MappingReport report =
             mapping.ProcessKeyframe(output.new_keyframes[k], k == 0 ? output.new_points : std::vector<MapPoint>());
-        if (report.closed_submap) merger.Apply(mapping.MakeFinalSubmapUpdate(*report.closed_submap));
+        if (report.closed_submap) send(mapping.MakeFinalSubmapUpdate(*report.closed_submap));
         const LocalMapUpdate update = mapping.MakeUpdate(report.keyframe, 0);
         tracking.ApplyUpdate(update);
-        merger.Apply(mapping.MakeSubmapUpdate(report.keyframe, update));
+        send(mapping.MakeSubmapUpdate(report.keyframe, update));
         ++run.keyframes;
       }
       if (!output.new_keyframes.empty()) done.mapping_ms = mapping_clock.ElapsedMs();

@@ -29,6 +29,7 @@ struct InlineRun {
   std::vector<PoseRecord> poses;  // the tracker's poses, each submap its own component
   std::vector<PoseRecord> merged_poses;  // the same, placed by the merger's Sim3 per submap (no pose graph)
   Merger::Graph graph;                   // the merger's submap graph at the end
+  std::vector<SubmapUpdate> submap_updates;  // what the mapper sent the merger, in order (when asked)
   int keyframes = 0;              // keyframes made
   int submaps = 0;
 };
@@ -36,6 +37,6 @@ struct InlineRun {
 // Plays `sequence` through the tracker, mapper and merger; `on_frame` (optional) sees every
 // frame as it is done. Throws stitch::Error on invalid settings.
 InlineRun RunInline(ImageSequence& sequence, const StitchConfig& config, const Vocabulary& vocabulary,
-                    const std::function<void(const InlineFrame&)>& on_frame = nullptr);
+                    const std::function<void(const InlineFrame&)>& on_frame = nullptr, bool keep_submap_updates = false);
 
 }  // namespace stitch

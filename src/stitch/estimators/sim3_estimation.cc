@@ -99,7 +99,7 @@ std::vector<char> Sim3Inliers(const std::vector<Sim3Correspondence>& pairs, cons
 
 std::optional<Sim3Estimate> EstimateSim3(const std::vector<Sim3Correspondence>& pairs, const Rigid3d& cam_a_from_a,
                                          const Rigid3d& cam_b_from_b, const PinholeIntrinsics& intrinsics,
-                                         const Sim3Options& options) {
+                                         const Sim3Options& options, int* inliers) {
   const int n = static_cast<int>(pairs.size());
   if (n < std::max(3, options.min_inliers)) return std::nullopt;
   std::mt19937_64 rng(options.seed);
@@ -124,12 +124,14 @@ std::optional<Sim3Estimate> EstimateSim3(const std::vector<Sim3Correspondence>& 
       best.num_inliers = count;
     }
   }
+  if (inliers) *inliers = best.num_inliers;
   if (best.num_inliers < options.min_inliers) return std::nullopt;
   // Refine on the inliers, then judge every pair again with the refined similarity.
   Sim3Estimate refined;
   refined.b_from_a = Refine(pairs, best.inlier, best.b_from_a, cam_a_from_a, cam_b_from_b, intrinsics, options);
   refined.inlier = Sim3Inliers(pairs, refined.b_from_a, cam_a_from_a, cam_b_from_b, intrinsics, options.chi2_threshold);
   refined.num_inliers = static_cast<int>(std::count(refined.inlier.begin(), refined.inlier.end(), 1));
+  if (inliers) *inliers = refined.num_inliers;
   if (refined.num_inliers < options.min_inliers) return std::nullopt;
   return refined;
 }

@@ -40,10 +40,11 @@ struct Sim3Estimate {
 };
 
 // The keyframes' poses in their own submaps (`cam_a_from_a`, `cam_b_from_b`) and the shared
-// intrinsics. nullopt when fewer than `min_inliers` pairs agree, before or after refinement.
+// intrinsics. nullopt when fewer than `min_inliers` pairs agree, before or after refinement;
+// `inliers` (optional) receives the best count found either way.
 std::optional<Sim3Estimate> EstimateSim3(const std::vector<Sim3Correspondence>& pairs, const Rigid3d& cam_a_from_a,
                                          const Rigid3d& cam_b_from_b, const PinholeIntrinsics& intrinsics,
-                                         const Sim3Options& options = {});
+                                         const Sim3Options& options = {}, int* inliers = nullptr);
 
 // Which pairs `b_from_a` explains (both reprojections within the threshold).
 std::vector<char> Sim3Inliers(const std::vector<Sim3Correspondence>& pairs, const Sim3d& b_from_a,
