@@ -4,6 +4,7 @@
 #include <cmath>
 
 #include "services/merger/pose_graph.h"
+#include "stitch/features/descriptor.h"
 #include "stitch/map/matcher.h"
 #include "stitch/util/error.h"
 #include "stitch/util/options.h"
@@ -76,6 +77,7 @@ void Merger::Prepare(SubmapReplica* replica, Keyframe* keyframe) {
   const Undistorter& undistorter = UndistorterFor(*replica->camera);
   keyframe->undistorted.clear();
   for (const auto& k : keyframe->keypoints) keyframe->undistorted.push_back(undistorter.Undistort(k.pt.x, k.pt.y));
+  keyframe->grid = FeatureGrid(keyframe->undistorted, undistorter);
   keyframe->bow = vocabulary_->Transform(keyframe->descriptors, &keyframe->bow_features, kDirectIndexLevel);
   database_.Add(keyframe->id.value, replica->map.id().value, keyframe->bow);
   prepared_.insert(keyframe->id);
@@ -173,13 +175,17 @@ std::optional<ConnectedFrame> Merger::Verify(const SubmapReplica& a, const Keyfr
     c.sigma2_b = pyramid_.sigma2[keyframe_b.keypoints[j].octave];
     pairs.push_back(c);
   }
+  const PinholeIntrinsics k = a.camera->Intrinsics();
   Sim3Options sim3;
   sim3.min_inliers = options_.sim3_min_inliers;
   sim3.seed = static_cast<uint64_t>(keyframe_a.id.value ^ (keyframe_b.id.value << 1));
-  // One camera model per agent: both submaps share a's intrinsics (several agents with
-  // different cameras are issue #7's).
-  const auto estimate = EstimateSim3(pairs, keyframe_a.cam_from_world, keyframe_b.cam_from_world, a.camera->Intrinsics(), sim3,
-                                     inlier_count);
+  std::optional<Sim3Estimate> estimate;
+  if (static_cast<int>(pairs.size()) >= options_.sim3_min_inliers) {
+    estimate = EstimateSim3(pairs, keyframe_a.cam_from_world, keyframe_b.cam_from_world, k, sim3, inlier_count);
+  }
+  if (!estimate && options_.match_by_projection) {
+    estimate = VerifyByProjection(a, keyframe_a, b, keyframe_b, matches, &pairs, inlier_count);
+  }
   if (!estimate) return std::nullopt;
   ConnectedFrame connection;
   connection.keyframe_a = keyframe_a.id;
@@ -198,6 +204,61 @@ std::optional<ConnectedFrame> Merger::Verify(const SubmapReplica& a, const Keyfr
   }
   connection.median_angle_deg = Median(angles);
   return connection;
+}
+
+// Too few descriptor matches agree: a first similarity from fewer, then more matches by
+// projecting the candidate's points with it (as ORB-SLAM's SearchBySim3), then the similarity
+// from all of them, which must reach the full inlier count.
+std::optional<Sim3Estimate> Merger::VerifyByProjection(const SubmapReplica& a, const Keyframe& keyframe_a,
+                                                       const SubmapReplica& b, const Keyframe& keyframe_b,
+                                                       const std::vector<std::pair<int, int>>& matches,
+                                                       std::vector<Sim3Correspondence>* correspondences,
+                                                       int* inlier_count) const {
+  std::vector<Sim3Correspondence>& pairs = *correspondences;
+  const PinholeIntrinsics k = a.camera->Intrinsics();
+  Sim3Options first_guess;
+  first_guess.min_inliers = std::max(6, options_.sim3_min_inliers / 2);
+  first_guess.seed = static_cast<uint64_t>(keyframe_a.id.value ^ (keyframe_b.id.value << 1));
+  const auto guess = EstimateSim3(pairs, keyframe_a.cam_from_world, keyframe_b.cam_from_world, k, first_guess, inlier_count);
+  if (!guess) return std::nullopt;
+  std::vector<char> used_a(keyframe_a.keypoints.size(), 0), used_b(keyframe_b.keypoints.size(), 0);
+  for (const auto& [i, j] : matches) {
+    used_a[i] = 1;
+    used_b[j] = 1;
+  }
+  const Sim3d a_from_b = guess->b_from_a.Inverse();
+  for (size_t j = 0; j < keyframe_b.keypoints.size(); ++j) {
+    const MapPoint* point_b = keyframe_b.points[j].valid() ? b.map.FindPoint(keyframe_b.points[j]) : nullptr;
+    if (used_b[j] || !point_b) continue;
+    const Eigen::Vector3d in_cam_a = keyframe_a.cam_from_world * (a_from_b * point_b->position);
+    if (in_cam_a.z() <= 0) continue;
+    const Eigen::Vector2d pixel = k.Project(in_cam_a);
+    const double radius = 7.5 * pyramid_.scale[keyframe_b.keypoints[j].octave];
+    int best = 101, best_index = -1;
+    for (int i : keyframe_a.grid.InArea(pixel.x(), pixel.y(), radius, keyframe_a.keypoints, keyframe_a.undistorted)) {
+      const MapPoint* point_a = keyframe_a.points[i].valid() ? a.map.FindPoint(keyframe_a.points[i]) : nullptr;
+      if (used_a[i] || !point_a) continue;
+      const int d = HammingDistance(point_b->descriptor.data(), keyframe_a.descriptors.ptr<uint8_t>(i));
+      if (d < best) {
+        best = d;
+        best_index = i;
+      }
+    }
+    if (best_index < 0 || best > 100) continue;
+    used_a[best_index] = 1;
+    Sim3Correspondence c;
+    c.point_a = a.map.FindPoint(keyframe_a.points[best_index])->position;
+    c.point_b = point_b->position;
+    c.pixel_a = keyframe_a.undistorted[best_index];
+    c.pixel_b = keyframe_b.undistorted[j];
+    c.sigma2_a = pyramid_.sigma2[keyframe_a.keypoints[best_index].octave];
+    c.sigma2_b = pyramid_.sigma2[keyframe_b.keypoints[j].octave];
+    pairs.push_back(c);
+  }
+  Sim3Options sim3;
+  sim3.min_inliers = options_.sim3_min_inliers;
+  sim3.seed = first_guess.seed;
+  return EstimateSim3(pairs, keyframe_a.cam_from_world, keyframe_b.cam_from_world, k, sim3, inlier_count);
 }
 
 Merger::Graph Merger::Solve(bool refine) const {
