@@ -24,8 +24,8 @@ namespace stitch {
 struct MergerOptions {
   double min_connection_strength = 10.0;  // C needed for two submaps to merge
   int max_candidates = 3;                 // connected-frame candidates verified per keyframe
-  int min_matches = 20;                   // descriptor matches with map points to try a Sim3
-  bool match_by_projection = false;       // when too few matches agree, look for more by projection (see merger.md)
+  int min_matches = 12;                   // descriptor matches with map points to try a Sim3
+  bool match_by_projection = true;        // when too few matches agree, look for more by projection (see merger.md)
   double match_ratio = 0.75;              // best / second-best descriptor distance
   int sim3_min_inliers = 20;              // map points agreeing with the Sim3 for a connected frame
 
@@ -35,7 +35,7 @@ struct MergerOptions {
     v("max_candidates", max_candidates, "connected-frame candidates verified per keyframe");
     v("min_matches", min_matches, "descriptor matches between map points needed to try a Sim3");
     v("match_ratio", match_ratio, "best / second-best descriptor distance for a match");
-    v("match_by_projection", match_by_projection, "when too few matches agree with a Sim3, search more by projecting with a first guess (experimental)");
+    v("match_by_projection", match_by_projection, "when too few matches agree with a Sim3, search more by projecting with a first guess");
     v("sim3_min_inliers", sim3_min_inliers, "map points that must agree with the Sim3 of a connected frame");
   }
   bool Check(std::string* why) const;
