@@ -121,7 +121,7 @@ void MapperService::Process(const stitch::keyframe_t& message) {
   ++mapped_;
   if (report.closed_submap) PublishSubmapUpdate(mapping_->MakeFinalSubmapUpdate(*report.closed_submap));
   if (report.reopened_submap) {
-    STITCH_LOG(INFO) << "submap " << *report.reopened_submap << " reopened (the tracker relocalized in it)";
+    STITCH_LOG(INFO) << "submap " << SubmapName(*report.reopened_submap) << " reopened (the tracker relocalized in it)";
   }
   const LocalMapUpdate update = mapping_->MakeUpdate(id, static_cast<int>(queue_.size()));
   for (auto& part : ToMessages(update)) publisher_->Publish(bus::Channel(publisher_->agent(), bus::kLocalMap), &part);
@@ -136,7 +136,7 @@ void MapperService::PublishSubmapUpdate(const SubmapUpdate& update) {
   if (!update.submap.valid()) return;
   for (auto& part : ToMessages(update)) publisher_->Publish(bus::Channel(publisher_->agent(), bus::kSubmap), &part);
   if (update.closed) {
-    STITCH_LOG(INFO) << "submap " << update.submap << " closed: " << update.manifest.size() << " keyframes, "
+    STITCH_LOG(INFO) << "submap " << SubmapName(update.submap) << " closed: " << update.manifest.size() << " keyframes, "
                      << update.changes.points.size() << " points sent to the merger";
   }
 }

@@ -15,11 +15,6 @@
 #include "stitch/util/time.h"
 
 namespace stitch {
-namespace {
-
-std::string Name(SubmapId id) { return std::to_string(AgentNumber(id)) + ":" + std::to_string(SubmapNumber(id)); }
-
-}  // namespace
 
 MergerService::MergerService(lcm::LCM* lcm, bus::Publisher* publisher, const MergerOptions& options,
                              const OrbOptions& orb, const Vocabulary* vocabulary, std::string record_dir)
@@ -98,15 +93,15 @@ void MergerService::Process(const stitch::submap_update_t& message) {
   const std::vector<KeyframeId> missing = merger_.Apply(update);
   ++processed_;
   if (!missing.empty() && update.closed) {
-    STITCH_LOG(WARNING) << "submap " << Name(update.submap) << " closed with " << missing.size()
+    STITCH_LOG(WARNING) << "submap " << SubmapName(update.submap) << " closed with " << missing.size()
                         << " keyframes never received (lost on the way)";
   }
   const bool newly_closed = update.closed && !closed_seen_[update.submap];
   closed_seen_[update.submap] = update.closed;
   if (merger_.connections().size() != connections_seen_ || newly_closed || message.part == 0) {
     connections_seen_ = merger_.connections().size();
-    OnGraphChange(newly_closed ? "submap " + Name(update.submap) + " closed"
-                               : "keyframe of submap " + Name(update.submap));
+    OnGraphChange(newly_closed ? "submap " + SubmapName(update.submap) + " closed"
+                               : "keyframe of submap " + SubmapName(update.submap));
   }
 }
 
@@ -128,9 +123,9 @@ void MergerService::OnGraphChange(const std::string& event) {
   std::map<SubmapId, std::string> merged;
   for (const auto& [id, placement] : graph.placement) {
     std::string& into = placement.component == current ? current_map : stack;
-    into += (into.empty() ? "" : " ") + Name(id);
+    into += (into.empty() ? "" : " ") + SubmapName(id);
     std::string& names = merged[oldest[placement.component]];
-    names += (names.empty() ? "" : "+") + Name(id);
+    names += (names.empty() ? "" : "+") + SubmapName(id);
   }
   std::string maps;
   for (const auto& [first, names] : merged) maps += (maps.empty() ? "" : " ") + names;
@@ -239,7 +234,7 @@ void MergerService::WriteRecords(const Merger::Graph& graph) const {
     std::ofstream out(dir / "graph.dot");
     out << "graph submaps {\n  // edge weight -C; bold: Kruskal's spanning tree\n";
     for (const auto& [id, placement] : graph.placement) {
-      out << "  \"" << Name(id) << "\" [label=\"" << Name(id) << "\\n" << merger_.submaps().at(id).map.num_keyframes()
+      out << "  \"" << SubmapName(id) << "\" [label=\"" << SubmapName(id) << "\\n" << merger_.submaps().at(id).map.num_keyframes()
           << " kf, map " << placement.component << "\"];\n";
     }
     for (const SubmapEdge& e : graph.edges) {
@@ -248,7 +243,7 @@ void MergerService::WriteRecords(const Merger::Graph& graph) const {
       char label[128];
       std::snprintf(label, sizeof(label), "C=%.1f (F=%d M=%d %.0f deg)", e.strength, e.connected_frames, e.map_points,
                     e.median_angle_deg);
-      out << "  \"" << Name(e.a) << "\" -- \"" << Name(e.b) << "\" [label=\"" << label << "\""
+      out << "  \"" << SubmapName(e.a) << "\" -- \"" << SubmapName(e.b) << "\" [label=\"" << label << "\""
           << (in_tree ? ", style=bold" : ", style=dashed") << "];\n";
     }
     out << "}\n";
@@ -276,7 +271,7 @@ void MergerService::WriteRecords(const Merger::Graph& graph) const {
     static const cv::Scalar kColours[] = {{200, 90, 30}, {40, 40, 220}, {40, 160, 40}, {180, 40, 180}, {20, 150, 220}};
     for (const auto& [id, placement] : graph.placement) {
       cv::circle(image, at[id], 22, kColours[placement.component % 5], cv::FILLED, cv::LINE_AA);
-      cv::putText(image, Name(id), at[id] + cv::Point(-16, 5), cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(255, 255, 255),
+      cv::putText(image, SubmapName(id), at[id] + cv::Point(-16, 5), cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(255, 255, 255),
                   1, cv::LINE_AA);
     }
     cv::putText(image, "submap graph: edges labelled C, spanning tree in red, one colour per merged map",

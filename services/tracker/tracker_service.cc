@@ -224,10 +224,10 @@ void TrackerService::Process(const stitch::frame_t& frame) {
     ++keyframes_;
   }
   if (output.closed_submap) {
-    STITCH_LOG(INFO) << "submap " << *output.closed_submap << " closed";
+    STITCH_LOG(INFO) << "submap " << SubmapName(*output.closed_submap) << " closed";
   }
   if (output.reopened_submap) {
-    STITCH_LOG(INFO) << "submap " << *output.reopened_submap << " reopened";
+    STITCH_LOG(INFO) << "submap " << SubmapName(*output.reopened_submap) << " reopened";
   }
   SaveState();
   highest_processed_ = frame.frame_index;

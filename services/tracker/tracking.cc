@@ -152,7 +152,7 @@ Tracking::Output Tracking::Track(const cv::Mat& image, int frame_index, int64_t 
     std::string text = "frame " + std::to_string(frame_index) + ": " + TrackingStateName(last_state_) + " -> " +
                        TrackingStateName(result.state);
     if (result.state == TrackingState::kOk) {
-      text += " in submap " + std::to_string(result.submap.value);
+      text += " in submap " + SubmapName(result.submap);
     } else if (result.reason != TrackingReason::kNone) {
       text += std::string(" (") + TrackingReasonName(result.reason) + ")";
     }
@@ -193,7 +193,7 @@ Tracking::Output Tracking::TrackFrame(const cv::Mat& image, int frame_index, int
     if (frame.size() >= 20 && Relocalize(&frame, &output)) return output;
     result.state = TrackingState::kLost;
     result.reason = TrackingReason::kNotRelocalized;
-    result.detail = "not relocalized in submap " + std::to_string(map_->id().value) + "; frame discarded";
+    result.detail = "not relocalized in submap " + SubmapName(map_->id()) + "; frame discarded";
     result.submap_keyframes = static_cast<int>(map_->num_keyframes());
     return output;
   }
@@ -320,7 +320,7 @@ bool Tracking::Relocalize(Frame* frame, Output* output) {
     TrackResult& result = output->result;
     result.relocalized = true;
     result.detail = std::string(reopening ? "relocalized into closed submap " : "relocalized in submap ") +
-                    std::to_string(result.submap.value) + " at keyframe " + std::to_string(candidate.keyframe_id) +
+                    SubmapName(result.submap) + " at keyframe " + std::to_string(IndexOf(KeyframeId(candidate.keyframe_id))) +
                     " with " + std::to_string(result.num_tracked_points) + " points";
     if (reopening) output->reopened_submap = result.submap;
     return true;

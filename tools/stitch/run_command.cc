@@ -17,6 +17,7 @@
 #include "services/common/bus.h"
 #include "services/common/service.h"
 #include "services/config/stitch_config.h"
+#include "stitch/map/ids.h"
 #include "stitch/sequence_info_t.hpp"
 #include "stitch/source/source.h"
 #include "stitch/tracking_status_t.hpp"
@@ -243,9 +244,9 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
     const double seconds = clock.ElapsedSeconds();
     const double fps = seconds > 0 ? done / seconds : 0;
     if (tty) {
-      std::printf("\r  frame %5d/%d  %5.1f fps  tracker %-12s submap %lld  keyframes %d   ", done, source.num_frames, fps,
+      std::printf("\r  frame %5d/%d  %5.1f fps  tracker %-12s submap %-6s keyframes %d   ", done, source.num_frames, fps,
                   snapshot.statuses ? StateName(snapshot.latest.state) : "starting",
-                  static_cast<long long>(snapshot.latest.submap_id), snapshot.latest.submap_keyframes);
+                  SubmapName(SubmapId(snapshot.latest.submap_id)).c_str(), snapshot.latest.submap_keyframes);
       std::fflush(stdout);
     } else if (!a.quiet && source.num_frames > 0 && done * 10 / source.num_frames > last_decile) {
       last_decile = done * 10 / source.num_frames;

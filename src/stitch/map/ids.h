@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <functional>
 #include <ostream>
+#include <string>
 
 namespace stitch {
 
@@ -50,6 +51,11 @@ constexpr uint32_t IndexOf(Id<Tag> id) {
 }
 constexpr int SubmapNumber(SubmapId id) { return static_cast<int>((id.value >> 32) & 0xffff); }
 constexpr int AgentNumber(SubmapId id) { return static_cast<int>((id.value >> 48) & 0x7fff); }
+
+// "agent:submap" (e.g. "0:3") for logs and people; ids stay int64 everywhere else.
+inline std::string SubmapName(SubmapId id) {
+  return id.valid() ? std::to_string(AgentNumber(id)) + ":" + std::to_string(SubmapNumber(id)) : std::string("-");
+}
 
 }  // namespace stitch
 
