@@ -19,7 +19,7 @@ int main(int argc, char** argv) {
                  "or SIGTERM.");
   common.Register(&args);
   args.AddOption("--record", &record_dir, "DIR",
-                 "write submaps.tsv, graph.dot, graph.png, merge_log.tsv and retrieval.tsv to DIR");
+                 "write map.ply, submaps.tsv, keyframes_merged.tsv, graph.dot, graph.png, merge_log.tsv and retrieval.tsv to DIR");
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {
     common.Apply("merger");

@@ -386,8 +386,10 @@ int RunCommand(int argc, char** argv) {
   args.AddFlag("--quiet", &a.quiet, "no progress line");
   args.AddFlag("--compare", &a.compare,
                "run twice, --on-loss submap then relocalize, into DIR/submap and DIR/relocalize, and print both side by side");
-  args.AddEpilog("Outputs: trajectory.tum, map.ply, report.json, trajectory.png, frames.tsv, poses.tsv,\n"
-                 "groundtruth.tum (when known), config.yaml (resolved settings), logs/ (one per service).");
+  args.AddEpilog("Outputs: trajectory.tum, map.ply (the largest merged map), report.json, trajectory.png,\n"
+                 "frames.tsv, poses.tsv, groundtruth.tum (when known), config.yaml (resolved settings), the\n"
+                 "merger's graph.png, graph.dot, merge_log.tsv, retrieval.tsv, submaps.tsv, keyframes_merged.tsv,\n"
+                 "the mapper's keyframes.tsv and submaps.ply, logs/ (one per service).");
   if (!args.Parse(argc, argv)) return args.exit_code();
 
   const std::string out = a.out.empty() ? NewRunFolder() : a.out;
