@@ -30,6 +30,28 @@ double Median(std::vector<double> values) {
   return values[middle];
 }
 
+// The adaptive thresholds of DESIGN.md on database candidates: at least k x the best
+// shared-word count, then at least l x the best score; the `keep` best by score remain. Returns
+// how many passed k.
+int ApplyAdaptiveThresholds(std::vector<KeyframeDatabase::Candidate>* candidates, double k, double l, int keep) {
+  int most_words = 0;
+  for (const auto& c : *candidates) most_words = std::max(most_words, c.common_words);
+  candidates->erase(std::remove_if(candidates->begin(), candidates->end(),
+                                   [&](const auto& c) { return c.common_words < k * most_words; }),
+                    candidates->end());
+  const int passed_k = static_cast<int>(candidates->size());
+  double best_score = 0;
+  for (const auto& c : *candidates) best_score = std::max(best_score, c.score);
+  candidates->erase(
+      std::remove_if(candidates->begin(), candidates->end(), [&](const auto& c) { return c.score < l * best_score; }),
+      candidates->end());
+  std::sort(candidates->begin(), candidates->end(), [](const auto& a, const auto& b) {
+    return a.score > b.score || (a.score == b.score && a.keyframe_id < b.keyframe_id);
+  });
+  if (static_cast<int>(candidates->size()) > keep) candidates->resize(keep);
+  return passed_k;
+}
+
 }  // namespace
 
 bool MergerOptions::Check(std::string* why) const {
@@ -38,7 +60,8 @@ bool MergerOptions::Check(std::string* why) const {
   if (max_candidates < 1) return fail("merger.max_candidates must be >= 1");
   if (min_matches < 3 || sim3_min_inliers < 3) return fail("merger.min_matches and merger.sim3_min_inliers must be >= 3");
   if (!(match_ratio > 0 && match_ratio <= 1)) return fail("merger.match_ratio must be in (0, 1]");
-  return true;
+  if (loop_min_separation < 1) return fail("merger.loop_min_separation must be >= 1");
+  return merged_map.Check(why);
 }
 
 Merger::Merger(const MergerOptions& options, const Vocabulary* vocabulary, const ScalePyramid& pyramid)
@@ -129,25 +152,8 @@ RetrievalRecord Merger::Retrieve(const SubmapReplica& replica, const Keyframe& k
   const int64_t own_submap = map.id().value;
   std::vector<KeyframeDatabase::Candidate> candidates =
       database_.Query(keyframe.bow, [own_submap](int64_t submap) { return submap != own_submap; });
-  if (candidates.empty()) {
-    r.skipped = "no other submap shares a word";
-    return r;
-  }
-  int most_words = 0;
-  for (const auto& c : candidates) most_words = std::max(most_words, c.common_words);
-  candidates.erase(std::remove_if(candidates.begin(), candidates.end(),
-                                  [&](const auto& c) { return c.common_words < r.k * most_words; }),
-                   candidates.end());
-  r.shared_word_candidates = static_cast<int>(candidates.size());
-  double best_score = 0;
-  for (const auto& c : candidates) best_score = std::max(best_score, c.score);
-  candidates.erase(
-      std::remove_if(candidates.begin(), candidates.end(), [&](const auto& c) { return c.score < r.l * best_score; }),
-      candidates.end());
-  std::sort(candidates.begin(), candidates.end(), [](const auto& a, const auto& b) {
-    return a.score > b.score || (a.score == b.score && a.keyframe_id < b.keyframe_id);
-  });
-  if (static_cast<int>(candidates.size()) > options_.max_candidates) candidates.resize(options_.max_candidates);
+  if (candidates.empty()) r.skipped = "no other submap shares a word";
+  r.shared_word_candidates = ApplyAdaptiveThresholds(&candidates, r.k, r.l, options_.max_candidates);
   for (const auto& c : candidates) {
     const KeyframeId id(c.keyframe_id);
     r.candidates.push_back(id);
@@ -162,7 +168,36 @@ RetrievalRecord Merger::Retrieve(const SubmapReplica& replica, const Keyframe& k
     }
     r.verification.push_back({matches, inliers});
   }
+  if (options_.loop_closure) RetrieveLoops(replica, keyframe, &r);
   return r;
+}
+
+void Merger::RetrieveLoops(const SubmapReplica& replica, const Keyframe& keyframe, RetrievalRecord* r) {
+  const int64_t own_submap = replica.map.id().value;
+  std::vector<KeyframeDatabase::Candidate> candidates =
+      database_.Query(keyframe.bow, [own_submap](int64_t submap) { return submap == own_submap; });
+  // Away from the covisible window: no shared point, and far back in the submap.
+  candidates.erase(std::remove_if(candidates.begin(), candidates.end(),
+                                  [&](const auto& c) {
+                                    const KeyframeId id(c.keyframe_id);
+                                    return keyframe.covisibility.count(id) ||
+                                           static_cast<int64_t>(IndexOf(id)) + options_.loop_min_separation >
+                                               static_cast<int64_t>(IndexOf(keyframe.id));
+                                  }),
+                   candidates.end());
+  ApplyAdaptiveThresholds(&candidates, r->k, r->l, options_.max_candidates);
+  for (const auto& c : candidates) {
+    const KeyframeId id(c.keyframe_id);
+    r->loop_candidates.push_back(id);
+    const Keyframe* candidate = replica.map.FindKeyframe(id);
+    if (!candidate) continue;
+    int matches = 0, inliers = 0;
+    if (auto loop = Verify(replica, keyframe, replica, *candidate, &matches, &inliers)) {
+      loops_.push_back(*loop);
+      r->loops.push_back(id);
+    }
+    r->verification.push_back({matches, inliers});
+  }
 }
 
 std::optional<ConnectedFrame> Merger::Verify(const SubmapReplica& a, const Keyframe& keyframe_a, const SubmapReplica& b,
@@ -171,7 +206,9 @@ std::optional<ConnectedFrame> Merger::Verify(const SubmapReplica& a, const Keyfr
   *match_count = static_cast<int>(matches.size());
   if (static_cast<int>(matches.size()) < options_.min_matches) return std::nullopt;
   std::vector<Sim3Correspondence> pairs;
+  std::vector<std::pair<MapPointId, MapPointId>> point_ids;
   for (const auto& [i, j] : matches) {
+    point_ids.push_back({keyframe_a.points[i], keyframe_b.points[j]});
     Sim3Correspondence c;
     c.point_a = a.map.FindPoint(keyframe_a.points[i])->position;
     c.point_b = b.map.FindPoint(keyframe_b.points[j])->position;
@@ -190,7 +227,7 @@ std::optional<ConnectedFrame> Merger::Verify(const SubmapReplica& a, const Keyfr
     estimate = EstimateSim3(pairs, keyframe_a.cam_from_world, keyframe_b.cam_from_world, k, sim3, inlier_count);
   }
   if (!estimate && options_.match_by_projection) {
-    estimate = VerifyByProjection(a, keyframe_a, b, keyframe_b, matches, &pairs, inlier_count);
+    estimate = VerifyByProjection(a, keyframe_a, b, keyframe_b, matches, &pairs, &point_ids, inlier_count);
   }
   if (!estimate) return std::nullopt;
   ConnectedFrame connection;
@@ -204,6 +241,7 @@ std::optional<ConnectedFrame> Merger::Verify(const SubmapReplica& a, const Keyfr
   std::vector<double> angles;
   for (size_t m = 0; m < pairs.size(); ++m) {
     if (!estimate->inlier[m]) continue;
+    connection.point_pairs.push_back(point_ids[m]);
     const Eigen::Vector3d ray_a = (pairs[m].point_a - centre_a).normalized();
     const Eigen::Vector3d ray_b = (pairs[m].point_a - centre_b).normalized();
     angles.push_back(std::acos(std::clamp(ray_a.dot(ray_b), -1.0, 1.0)) * 180.0 / M_PI);
@@ -219,6 +257,7 @@ std::optional<Sim3Estimate> Merger::VerifyByProjection(const SubmapReplica& a, c
                                                        const SubmapReplica& b, const Keyframe& keyframe_b,
                                                        const std::vector<std::pair<int, int>>& matches,
                                                        std::vector<Sim3Correspondence>* correspondences,
+                                                       std::vector<std::pair<MapPointId, MapPointId>>* point_ids,
                                                        int* inlier_count) const {
   std::vector<Sim3Correspondence>& pairs = *correspondences;
   const PinholeIntrinsics k = a.camera->Intrinsics();
@@ -260,6 +299,7 @@ std::optional<Sim3Estimate> Merger::VerifyByProjection(const SubmapReplica& a, c
     c.sigma2_a = pyramid_.sigma2[keyframe_a.keypoints[best_index].octave];
     c.sigma2_b = pyramid_.sigma2[keyframe_b.keypoints[j].octave];
     pairs.push_back(c);
+    point_ids->push_back({keyframe_a.points[best_index], keyframe_b.points[j]});
   }
   Sim3Options sim3;
   sim3.min_inliers = options_.sim3_min_inliers;
@@ -278,11 +318,12 @@ Merger::Graph Merger::Solve(bool refine) const {
   }
   graph.tree = MinimumSpanningForest(ids, graph.edges, options_.min_connection_strength);
   graph.placement = PlaceSubmaps(keyframes, graph.tree);
-  if (refine) graph.keyframe_poses = RefineKeyframePoses(graph.placement);
+  if (refine) graph.keyframe_poses = RefineKeyframePoses(graph.placement, &graph);
   return graph;
 }
 
-std::map<KeyframeId, Sim3d> Merger::RefineKeyframePoses(const std::map<SubmapId, SubmapPlacement>& placement) const {
+std::map<KeyframeId, Sim3d> Merger::RefineKeyframePoses(const std::map<SubmapId, SubmapPlacement>& placement,
+                                                        Graph* graph) const {
   const auto as_sim3 = [](const Rigid3d& r) { return Sim3d(1.0, r.rotation, r.translation); };
   std::map<KeyframeId, Sim3d> poses;
   std::vector<KeyframeId> fixed;
@@ -338,9 +379,58 @@ std::map<KeyframeId, Sim3d> Merger::RefineKeyframePoses(const std::map<SubmapId,
       continue;
     }
     edges.push_back({c.keyframe_a, c.keyframe_b, measured, 1.0, /*robust=*/true});
+    graph->agreeing.push_back(c);
+  }
+  // Within a submap: confirmed loops (they measure the drift, so no check against the placement).
+  for (const ConnectedFrame& c : ConfirmedLoops()) {
+    const Map& map = submaps_.at(SubmapOf(c.keyframe_a)).map;
+    const Keyframe* ka = map.FindKeyframe(c.keyframe_a);
+    const Keyframe* kb = map.FindKeyframe(c.keyframe_b);
+    if (!ka || !kb) continue;
+    const Sim3d measured = as_sim3(ka->cam_from_world) * c.b_from_a.Inverse() * as_sim3(kb->cam_from_world.Inverse());
+    // Confirmed, so weighted as the submap's own edges, without the robust cost that would
+    // shrug off the large error a loop is there to correct.
+    edges.push_back({c.keyframe_a, c.keyframe_b, measured, kIntraSubmapWeight, /*robust=*/false});
+    graph->agreeing.push_back(c);
+    ++graph->loops_used;
   }
   OptimizePoseGraph(&poses, edges, fixed);
   return poses;
+}
+
+std::vector<ConnectedFrame> Merger::ConfirmedLoops() const {
+  // A loop is confirmed by another whose ends are near its own (in the keyframes' numbering) and
+  // whose correction agrees: a wrong loop rarely repeats itself.
+  constexpr uint32_t kNearKeyframes = 8;
+  constexpr double kMaxRotationRad = 2.0 * M_PI / 180.0;
+  constexpr double kMaxLogScale = 0.05;
+  constexpr double kMaxShiftOfDepth = 0.1;  // of the keyframe's median depth
+  const auto near = [](KeyframeId a, KeyframeId b) {
+    return SubmapOf(a) == SubmapOf(b) && std::max(IndexOf(a), IndexOf(b)) - std::min(IndexOf(a), IndexOf(b)) <= kNearKeyframes;
+  };
+  std::vector<ConnectedFrame> confirmed;
+  for (size_t i = 0; i < loops_.size(); ++i) {
+    const ConnectedFrame& loop = loops_[i];
+    const Map& map = submaps_.at(SubmapOf(loop.keyframe_a)).map;
+    const Keyframe* keyframe = map.FindKeyframe(loop.keyframe_a);
+    if (!keyframe || !map.FindKeyframe(loop.keyframe_b)) continue;
+    const Eigen::Vector3d centre = keyframe->Centre();
+    const double depth = map.MedianDepth(loop.keyframe_a);
+    for (size_t j = 0; j < loops_.size(); ++j) {
+      const ConnectedFrame& other = loops_[j];
+      if (i == j || other.keyframe_a == loop.keyframe_a || !near(other.keyframe_a, loop.keyframe_a) ||
+          !near(other.keyframe_b, loop.keyframe_b)) {
+        continue;
+      }
+      const Sim3d difference = loop.b_from_a.Inverse() * other.b_from_a;
+      if (RotationAngle(difference.rotation) < kMaxRotationRad && std::abs(std::log(difference.scale)) < kMaxLogScale &&
+          (loop.b_from_a * centre - other.b_from_a * centre).norm() < kMaxShiftOfDepth * depth) {
+        confirmed.push_back(loop);
+        break;
+      }
+    }
+  }
+  return confirmed;
 }
 
 }  // namespace stitch

@@ -12,6 +12,7 @@
 #include <string>
 #include <vector>
 
+#include "services/merger/merged_map.h"
 #include "services/merger/submap_graph.h"
 #include "stitch/estimators/sim3_estimation.h"
 #include "stitch/features/keyframe_database.h"
@@ -28,6 +29,9 @@ struct MergerOptions {
   bool match_by_projection = true;        // when too few matches agree, look for more by projection (see merger.md)
   double match_ratio = 0.75;              // best / second-best descriptor distance
   int sim3_min_inliers = 20;              // map points agreeing with the Sim3 for a connected frame
+  bool loop_closure = true;               // connected frames within a submap, away from the covisible window
+  int loop_min_separation = 20;           // keyframes between a loop's two ends
+  MergedMapOptions merged_map;            // fusing points and the global bundle adjustment
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
@@ -37,6 +41,9 @@ struct MergerOptions {
     v("match_ratio", match_ratio, "best / second-best descriptor distance for a match");
     v("match_by_projection", match_by_projection, "when too few matches agree with a Sim3, search more by projecting with a first guess");
     v("sim3_min_inliers", sim3_min_inliers, "map points that must agree with the Sim3 of a connected frame");
+    v("loop_closure", loop_closure, "look for connected frames within each submap too (in-map loop closure)");
+    v("loop_min_separation", loop_min_separation, "keyframes (by number) between the two ends of a loop");
+    v("merged_map", merged_map, "fusing duplicate points and the global bundle adjustment after the pose graph");
   }
   bool Check(std::string* why) const;
 };
@@ -50,7 +57,10 @@ struct RetrievalRecord {
   int shared_word_candidates = 0;   // frames in other submaps passing k
   std::vector<KeyframeId> candidates;  // ...then passing l (verified in this order, at most max_candidates)
   std::vector<KeyframeId> connected;   // verified
-  std::vector<std::pair<int, int>> verification;  // per candidate: descriptor matches, Sim3 inliers (0 if not tried)
+  // Per candidate, then per loop candidate: descriptor matches, Sim3 inliers (0 if not tried).
+  std::vector<std::pair<int, int>> verification;
+  std::vector<KeyframeId> loop_candidates;  // in the same submap, outside the covisible window
+  std::vector<KeyframeId> loops;            // verified
   std::string skipped;       // why there was no query (first keyframe, no other submap...)
 };
 
@@ -70,24 +80,33 @@ class Merger {
     // With `refine`: every keyframe's world_from_cam in its merged map after the Sim3 pose-graph
     // optimization over all verified connections (not only the tree's).
     std::map<KeyframeId, Sim3d> keyframe_poses;
+    std::vector<ConnectedFrame> agreeing;  // with `refine`: the connections and loops the pose graph used
+    int loops_used = 0;                    // of those, loops (both ends in one submap)
   };
   Graph Solve(bool refine = false) const;
 
   const std::map<SubmapId, SubmapReplica>& submaps() const { return submaps_; }
   const std::vector<ConnectedFrame>& connections() const { return connections_; }
+  const std::vector<ConnectedFrame>& loops() const { return loops_; }  // both ends in one submap
   const std::vector<RetrievalRecord>& retrievals() const { return retrievals_; }
+  const MergerOptions& options() const { return options_; }
 
  private:
   void Prepare(SubmapReplica* replica, Keyframe* keyframe);
   RetrievalRecord Retrieve(const SubmapReplica& replica, const Keyframe& keyframe);
+  void RetrieveLoops(const SubmapReplica& replica, const Keyframe& keyframe, RetrievalRecord* record);
   // `matches` / `inliers` (optional) receive the counts whatever the outcome.
   std::optional<ConnectedFrame> Verify(const SubmapReplica& a, const Keyframe& keyframe_a, const SubmapReplica& b,
                                        const Keyframe& keyframe_b, int* matches, int* inliers) const;
   std::optional<Sim3Estimate> VerifyByProjection(const SubmapReplica& a, const Keyframe& keyframe_a, const SubmapReplica& b,
                                                  const Keyframe& keyframe_b, const std::vector<std::pair<int, int>>& matches,
-                                                 std::vector<Sim3Correspondence>* pairs, int* inlier_count) const;
+                                                 std::vector<Sim3Correspondence>* pairs,
+                                                 std::vector<std::pair<MapPointId, MapPointId>>* point_ids,
+                                                 int* inlier_count) const;
   const Undistorter& UndistorterFor(const Camera& camera);
-  std::map<KeyframeId, Sim3d> RefineKeyframePoses(const std::map<SubmapId, SubmapPlacement>& placement) const;
+  std::map<KeyframeId, Sim3d> RefineKeyframePoses(const std::map<SubmapId, SubmapPlacement>& placement, Graph* graph) const;
+  // Loops confirmed by another loop between the same places with the same correction.
+  std::vector<ConnectedFrame> ConfirmedLoops() const;
 
   MergerOptions options_;
   const Vocabulary* vocabulary_;
@@ -97,6 +116,7 @@ class Merger {
   KeyframeDatabase database_;
   std::set<KeyframeId> prepared_;                    // keyframes with undistorted points and BoW
   std::vector<ConnectedFrame> connections_;
+  std::vector<ConnectedFrame> loops_;
   std::vector<RetrievalRecord> retrievals_;
 };
 

@@ -54,20 +54,47 @@ void MergerService::Stop() {
   if (!running_.exchange(false)) return;
   queue_.Close();
   if (worker_.joinable()) worker_.join();
-  const Stopwatch clock;
-  const Merger::Graph graph = merger_.Solve(/*refine=*/true);
-  STITCH_LOG(INFO) << "pose graph over " << graph.keyframe_poses.size() << " keyframes optimized in " << clock.ElapsedMs()
-                   << " ms";
-  PublishGlobalMap(graph);
+  if (!refined_ || refined_at_ != processed_.load()) Refine("the run ended");
+  const Merger::Graph& graph = refined_->graph;
+  const std::optional<MergedMap>& merged = refined_->merged;
   if (!record_dir_.empty()) {
     try {
-      WriteRecords(graph);
+      WriteRecords(graph, merged ? &*merged : nullptr);
     } catch (const std::exception& e) {
       STITCH_LOG(ERROR) << "writing the merger's records failed: " << e.what();
     }
   }
   heartbeat_->SetState(stitch::service_status_t::STATE_FINISHED);
   heartbeat_->Stop();
+}
+
+std::optional<MergedMap> MergerService::MergeLargestMap(Merger::Graph* graph) const {
+  SubmapId root;
+  int members = 0;
+  for (const auto& [id, placement] : graph->placement) {
+    if (placement.component != 0) continue;
+    root = placement.root;
+    ++members;
+  }
+  int loops = 0;  // confirmed loops within component 0
+  for (const ConnectedFrame& c : graph->agreeing) {
+    loops += SubmapOf(c.keyframe_a) == SubmapOf(c.keyframe_b) && graph->placement.at(SubmapOf(c.keyframe_a)).component == 0;
+  }
+  if (members < 2 && loops == 0) return std::nullopt;
+  const SubmapReplica& replica = merger_.submaps().at(root);
+  if (!replica.camera) return std::nullopt;
+  const Stopwatch clock;
+  MergedMap merged = AssembleMergedMap(merger_.submaps(), graph->placement, graph->keyframe_poses, graph->agreeing, 0,
+                                       pyramid_, replica.camera->Intrinsics(), merger_.options().merged_map);
+  for (const auto& [id, pose] : merged.keyframe_poses) graph->keyframe_poses[id] = pose;
+  const BundleAdjustmentReport& ba = merged.bundle_adjustment;
+  STITCH_LOG(INFO) << "merged map of " << members << " submaps with " << loops << " loops: " << merged.map.num_keyframes() << " keyframes, "
+                   << merged.map.num_points() << " points; fused " << merged.points_fused_by_connection
+                   << " points from connected frames and " << merged.points_fused_by_projection
+                   << " by projection; bundle adjustment " << ba.initial_rms_px << " -> " << ba.final_rms_px << " px rms ("
+                   << ba.observations << " observations, " << ba.outliers_removed << " outliers removed) in "
+                   << clock.ElapsedMs() << " ms";
+  return merged;
 }
 
 void MergerService::Work() {
@@ -103,6 +130,22 @@ void MergerService::Process(const stitch::submap_update_t& message) {
     OnGraphChange(newly_closed ? "submap " + SubmapName(update.submap) + " closed"
                                : "keyframe of submap " + SubmapName(update.submap));
   }
+  // A closed submap changes the merged map for good: refine it now (pose graph, fused points,
+  // bundle adjustment) in this worker, while the subscriber keeps queueing updates...
+  // ...once its final state has arrived whole (the last part of the closing update).
+  if (update.closed && message.part == message.num_parts - 1 && refined_closed_.insert(update.submap).second) {
+    Refine("submap " + SubmapName(update.submap) + " closed");
+  }
+}
+
+void MergerService::Refine(const std::string& why) {
+  const Stopwatch clock;
+  Refined refined{merger_.Solve(/*refine=*/true), std::nullopt};
+  refined.merged = MergeLargestMap(&refined.graph);
+  PublishGlobalMap(refined.graph);
+  refined_ = std::move(refined);
+  refined_at_ = processed_.load();
+  STITCH_LOG(INFO) << "refined the merged maps (" << why << ") in " << clock.ElapsedMs() << " ms";
 }
 
 void MergerService::OnGraphChange(const std::string& event) {
@@ -166,11 +209,25 @@ void MergerService::PublishGlobalMap(const Merger::Graph& graph) {
     m.edges.push_back(edge);
   }
   m.num_edges = static_cast<int32_t>(m.edges.size());
-  m.num_poses = 0;  // per-frame poses: the tracker's statuses composed with the placements
+  // The refined keyframe poses (after the pose graph and the bundle adjustment), when there are;
+  // frames between keyframes follow the nearest one.
+  for (const auto& [id, pose] : graph.keyframe_poses) {
+    const Keyframe* keyframe = merger_.submaps().at(SubmapOf(id)).map.FindKeyframe(id);
+    if (!keyframe) continue;
+    stitch::trajectory_pose_t p{};
+    p.frame_index = keyframe->frame_index;
+    p.t_ns = keyframe->t_ns;
+    p.submap_id = SubmapOf(id).value;
+    p.component = graph.placement.at(SubmapOf(id)).component;
+    p.is_keyframe = true;
+    p.world_from_cam = ToMessage(pose);
+    m.trajectory.push_back(p);
+  }
+  m.num_poses = static_cast<int32_t>(m.trajectory.size());
   publisher_->Publish(bus::Channel(publisher_->agent(), bus::kGlobalMap), &m);
 }
 
-void MergerService::WriteRecords(const Merger::Graph& graph) const {
+void MergerService::WriteRecords(const Merger::Graph& graph, const MergedMap* merged) const {
   const std::filesystem::path dir(record_dir_);
   std::filesystem::create_directories(dir);
   {
@@ -194,7 +251,24 @@ void MergerService::WriteRecords(const Merger::Graph& graph) const {
                                           {0, 140, 140}, {160, 60, 90}, {200, 110, 0}, {100, 100, 100}, {180, 180, 60}};
     std::vector<ColouredPoint> cloud;
     int colour = 0;
+    std::map<SubmapId, int> colours;
     for (const auto& [id, placement] : graph.placement) {
+      if (placement.component == 0) colours[id] = colour++;
+    }
+    const auto add = [&](const Eigen::Vector3d& position, SubmapId submap) {
+      ColouredPoint p;
+      p.position = position.cast<float>();
+      const uint8_t* rgb = kPalette[colours[submap] % 10];
+      p.red = rgb[0];
+      p.green = rgb[1];
+      p.blue = rgb[2];
+      cloud.push_back(p);
+    };
+    if (merged) {  // fused and adjusted
+      for (const auto& [id, point] : merged->map.points()) add(point.position, SubmapOf(id));
+    }
+    for (const auto& [id, placement] : graph.placement) {
+      if (merged) break;
       if (placement.component != 0) continue;
       const Map& map = merger_.submaps().at(id).map;
       for (const auto& [point_id, point] : map.points()) {
@@ -207,14 +281,8 @@ void MergerService::WriteRecords(const Merger::Graph& graph) const {
             position = refined->second * (map.FindKeyframe(observer)->cam_from_world * point.position);
           }
         }
-        ColouredPoint p;
-        p.position = position.cast<float>();
-        p.red = kPalette[colour % 10][0];
-        p.green = kPalette[colour % 10][1];
-        p.blue = kPalette[colour % 10][2];
-        cloud.push_back(p);
+        add(position, id);
       }
-      ++colour;
     }
     WritePly((dir / "map.ply").string(), cloud);
   }
@@ -227,6 +295,22 @@ void MergerService::WriteRecords(const Merger::Graph& graph) const {
                     static_cast<long long>(id.value), static_cast<long long>(SubmapOf(id).value),
                     graph.placement.at(SubmapOf(id)).component, pose.scale, pose.rotation.x(), pose.rotation.y(),
                     pose.rotation.z(), pose.rotation.w(), pose.translation.x(), pose.translation.y(), pose.translation.z());
+      out << line;
+    }
+  }
+  {
+    std::ofstream out(dir / "connections.tsv");
+    out << "# keyframe_a keyframe_b map_points median_angle_deg scale qx qy qz qw tx ty tz (b_from_a: submap b's frame from "
+           "a's; loops within one submap last)\n";
+    std::vector<ConnectedFrame> all = merger_.connections();
+    all.insert(all.end(), merger_.loops().begin(), merger_.loops().end());
+    for (const ConnectedFrame& c : all) {
+      const Sim3d& s = c.b_from_a;
+      char line[300];
+      std::snprintf(line, sizeof(line), "%lld %lld %d %.3f %.9g %.9g %.9g %.9g %.9g %.9g %.9g %.9g\n",
+                    static_cast<long long>(c.keyframe_a.value), static_cast<long long>(c.keyframe_b.value), c.map_points,
+                    c.median_angle_deg, s.scale, s.rotation.x(), s.rotation.y(), s.rotation.z(), s.rotation.w(),
+                    s.translation.x(), s.translation.y(), s.translation.z());
       out << line;
     }
   }
@@ -285,7 +369,7 @@ void MergerService::WriteRecords(const Merger::Graph& graph) const {
   {
     std::ofstream out(dir / "retrieval.tsv");
     out << "# keyframe previous nearby N0 N1 S0 S1 k l shared_word_candidates candidates connected "
-           "verification(matches/inliers per candidate) skipped\n";
+           "verification(matches/inliers per candidate) loop_candidates loops skipped\n";
     const auto list = [](const std::vector<KeyframeId>& ids) {
       std::string text;
       for (KeyframeId id : ids) text += (text.empty() ? "" : ",") + std::to_string(id.value);
@@ -301,7 +385,8 @@ void MergerService::WriteRecords(const Merger::Graph& graph) const {
       for (const auto& [matches, inliers] : r.verification) {
         verification += (verification.empty() ? "" : ",") + std::to_string(matches) + "/" + std::to_string(inliers);
       }
-      out << (verification.empty() ? "-" : verification) << "\t" << (r.skipped.empty() ? "-" : r.skipped) << "\n";
+      out << (verification.empty() ? "-" : verification) << "\t" << list(r.loop_candidates) << "\t" << list(r.loops) << "\t"
+          << (r.skipped.empty() ? "-" : r.skipped) << "\n";
     }
   }
   STITCH_LOG(INFO) << "wrote the submap graph (" << graph.placement.size() << " submaps, " << graph.edges.size()

@@ -9,6 +9,8 @@
 
 #include <atomic>
 #include <memory>
+#include <optional>
+#include <set>
 #include <string>
 #include <thread>
 #include <vector>
@@ -40,7 +42,12 @@ class MergerService {
   void Process(const stitch::submap_update_t& message);
   void OnGraphChange(const std::string& event);
   void PublishGlobalMap(const Merger::Graph& graph);
-  void WriteRecords(const Merger::Graph& graph) const;
+  // The largest merged map with its points fused and bundle adjusted; its keyframe poses replace
+  // the pose graph's in `graph`. nullopt when it holds one submap.
+  std::optional<MergedMap> MergeLargestMap(Merger::Graph* graph) const;
+  // Pose graph, merged map and bundle adjustment, then publishes; kept in refined_.
+  void Refine(const std::string& why);
+  void WriteRecords(const Merger::Graph& graph, const MergedMap* merged) const;
 
   bus::Publisher* publisher_;
   ScalePyramid pyramid_;
@@ -55,9 +62,16 @@ class MergerService {
   std::atomic<double> last_receive_{0};
   size_t connections_seen_ = 0;
   std::map<SubmapId, bool> closed_seen_;
+  std::set<SubmapId> refined_closed_;  // closed submaps the merged maps were refined with
   std::vector<std::string> merge_log_;  // lines of merge_log.tsv
   std::string last_stack_;
   int revision_ = 0;
+  struct Refined {
+    Merger::Graph graph;
+    std::optional<MergedMap> merged;
+  };
+  std::optional<Refined> refined_;  // the latest refinement...
+  int64_t refined_at_ = -1;          // ...after this many processed updates
 };
 
 }  // namespace stitch

@@ -7,6 +7,7 @@
 
 #include <map>
 #include <vector>
+#include <utility>
 
 #include "stitch/geometry/rigid3.h"
 #include "stitch/map/ids.h"
@@ -19,6 +20,7 @@ struct ConnectedFrame {
   Sim3d b_from_a;              // submap b's frame from submap a's
   int map_points = 0;          // matched map points that agree with b_from_a
   double median_angle_deg = 0; // median intersection angle of those points' rays from the two cameras
+  std::vector<std::pair<MapPointId, MapPointId>> point_pairs;  // those points: (in a, in b)
 };
 
 // F + 0.1 M + 0.1 theta^2, theta capped at 45 degrees.

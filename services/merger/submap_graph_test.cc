@@ -34,9 +34,9 @@ TEST(SubmapGraph, ConnectionStrengthFollowsTheFormulaAndCapsTheAngle) {
 TEST(SubmapGraph, ConnectionsOfAPairInEitherDirectionMakeOneEdge) {
   const Sim3d b_from_a(2.0, Eigen::Quaterniond::Identity(), Eigen::Vector3d(1, 0, 0));
   std::vector<ConnectedFrame> connections = {
-      {MakeKeyframeId(S('A'), 5), MakeKeyframeId(S('B'), 7), b_from_a, 40, 10.0},
-      {MakeKeyframeId(S('B'), 8), MakeKeyframeId(S('A'), 6), b_from_a.Inverse(), 60, 20.0},
-      {MakeKeyframeId(S('B'), 9), MakeKeyframeId(S('A'), 7), b_from_a.Inverse(), 30, 30.0},
+      {MakeKeyframeId(S('A'), 5), MakeKeyframeId(S('B'), 7), b_from_a, 40, 10.0, {}},
+      {MakeKeyframeId(S('B'), 8), MakeKeyframeId(S('A'), 6), b_from_a.Inverse(), 60, 20.0, {}},
+      {MakeKeyframeId(S('B'), 9), MakeKeyframeId(S('A'), 7), b_from_a.Inverse(), 30, 30.0, {}},
   };
   const auto edges = SummarizeConnections(connections);
   ASSERT_EQ(edges.size(), 1u);

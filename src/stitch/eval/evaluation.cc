@@ -12,6 +12,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "stitch/geometry/similarity.h"
+#include "stitch/map/ids.h"
 #include "stitch/util/error.h"
 #include "stitch/util/text_file.h"
 
@@ -153,8 +154,17 @@ Evaluation Evaluate(const EvaluationInput& input) {
       if (input.ground_truth.PoseAt(p.t_ns, input.max_association_gap_ns)) ++s.frames_with_ground_truth;
     }
     if (e.has_ground_truth) {
-      if (const auto errors = CompareTrajectories(ToStamped(poses), input.ground_truth, input.max_association_gap_ns)) {
-        s.ate_rmse_m = errors->ate_rmse_m;
+      const auto own = CompareTrajectories(ToStamped(poses), input.ground_truth, input.max_association_gap_ns);
+      if (own) s.ate_rmse_m = own->ate_rmse_m;
+      if (e.errors && s.component == e.largest_component) {
+        const Sim3d& map_alignment = e.errors->ground_truth_from_estimate;
+        std::vector<double> errors;
+        for (const auto& p : poses) {
+          if (const auto truth = input.ground_truth.PoseAt(p.t_ns, input.max_association_gap_ns)) {
+            errors.push_back((map_alignment * p.world_from_cam.translation - truth->translation).norm());
+          }
+        }
+        if (!errors.empty()) s.ate_in_map_m = Rms(errors);
       }
     }
     e.per_submap.push_back(s);
@@ -190,7 +200,8 @@ nlohmann::json ToJson(const Evaluation& e) {
   json submaps = json::array();
   for (const auto& s : e.per_submap) {
     submaps.push_back({{"submap_id", s.submap_id}, {"component", s.component}, {"frames", s.frames},
-                       {"frames_with_ground_truth", s.frames_with_ground_truth}, {"ate_rmse_m", optional(s.ate_rmse_m)}});
+                       {"frames_with_ground_truth", s.frames_with_ground_truth}, {"ate_rmse_m", optional(s.ate_rmse_m)},
+                       {"ate_in_map_m", optional(s.ate_in_map_m)}});
   }
   j["per_submap"] = submaps;
   return j;
@@ -215,6 +226,14 @@ std::string Summarize(const Evaluation& e) {
     std::snprintf(line, sizeof(line), "  ATE RMSE          n/a (no ground truth)\n");
   }
   text += line;
+  if (e.submaps_merged > 1) {
+    for (const auto& s : e.per_submap) {
+      if (s.component != e.largest_component || !s.ate_in_map_m || !s.ate_rmse_m) continue;
+      std::snprintf(line, sizeof(line), "    submap %-6s %4d frames, ATE %.4f m on its own, %.4f m in the merged map\n",
+                    SubmapName(SubmapId(s.submap_id)).c_str(), s.frames, *s.ate_rmse_m, *s.ate_in_map_m);
+      text += line;
+    }
+  }
   if (e.tracking_ms_median) {
     std::snprintf(line, sizeof(line), "  tracking time     %.1f ms median, %.1f ms p95\n", *e.tracking_ms_median, *e.tracking_ms_p95);
     text += line;

@@ -48,6 +48,9 @@ struct SubmapEvaluation {
   int frames = 0;
   int frames_with_ground_truth = 0;
   std::optional<double> ate_rmse_m;  // this submap aligned on its own (needs 3 poses)
+  // In the largest merged map: this submap's frames under the map's alignment. Far above
+  // ate_rmse_m, the merge placed the submap badly.
+  std::optional<double> ate_in_map_m;
 };
 
 struct TrajectoryErrors {

@@ -96,6 +96,28 @@ TEST(Evaluation, CompletenessCountsTheLargestMergedMapOnly) {
   }
 }
 
+TEST(Evaluation, AMisplacedSubmapShowsInItsAteInTheMergedMap) {
+  const Trajectory gt = GroundTruth(100);
+  std::vector<PoseRecord> poses = Estimate(gt, kEstFromGt, 0.0, 0);
+  // Submap 2 (frames 30..99) shifted as a whole: alone it is exact, in the map it is not.
+  for (auto& p : poses) {
+    if (p.submap_id == 2) p.world_from_cam.translation += Eigen::Vector3d(0.3, 0, 0);
+  }
+  EvaluationInput input;
+  input.frames_total = 100;
+  input.poses = poses;
+  input.ground_truth = gt;
+  const Evaluation e = Evaluate(input);
+  ASSERT_EQ(e.per_submap.size(), 2u);
+  for (const SubmapEvaluation& s : e.per_submap) {
+    ASSERT_TRUE(s.ate_rmse_m && s.ate_in_map_m);
+    EXPECT_LT(*s.ate_rmse_m, 1e-9);
+    EXPECT_GT(*s.ate_in_map_m, 0.1);  // 0.3 units = 0.81 m, shared out by the alignment
+  }
+  EXPECT_NE(Summarize(e).find("in the merged map"), std::string::npos);
+  EXPECT_TRUE(ToJson(e)["per_submap"][0].contains("ate_in_map_m"));
+}
+
 TEST(Evaluation, NoGroundTruthGivesNullAte) {
   EvaluationInput input;
   input.frames_total = 10;
