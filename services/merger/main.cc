@@ -12,7 +12,7 @@
 int main(int argc, char** argv) {
   using namespace stitch;
   ServiceCommandLine common;
-  std::string record_dir;
+  std::string record_dir, state_dir;
   ArgParser args("stitch-merger",
                  "Receives submap updates on <agent>/SUBMAP, finds connected frames between submaps, builds the submap "
                  "graph and merges along its strongest connections; publishes <agent>/GLOBAL_MAP. Runs until SIGINT "
@@ -20,6 +20,9 @@ int main(int argc, char** argv) {
   common.Register(&args);
   args.AddOption("--record", &record_dir, "DIR",
                  "write map.ply, submaps.tsv, keyframes_merged.tsv, graph.dot, graph.png, merge_log.tsv and retrieval.tsv to DIR");
+  args.AddOption("--state", &state_dir, "DIR",
+                 "keep the merger's store in DIR (submap_updates.lcmlog, appended as updates arrive); a merger "
+                 "restarted with the same DIR resumes where the last one stopped or was killed");
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {
     common.Apply("merger");
@@ -28,7 +31,8 @@ int main(int argc, char** argv) {
     const auto& stop = InstallStopSignals();
     auto lcm = bus::OpenLcm(common.lcm_url);
     bus::Publisher publisher(lcm.get(), common.agent);
-    MergerService merger(lcm.get(), &publisher, config.merger, config.tracker.tracking.orb, &vocabulary, record_dir);
+    MergerService merger(lcm.get(), &publisher, config.merger, config.tracker.tracking.orb, &vocabulary, record_dir,
+                         state_dir);
     bus::Dispatcher dispatcher(lcm.get());
     dispatcher.Start();
     merger.Start();

@@ -17,7 +17,8 @@
 namespace stitch {
 
 MergerService::MergerService(lcm::LCM* lcm, bus::Publisher* publisher, const MergerOptions& options,
-                             const OrbOptions& orb, const Vocabulary* vocabulary, std::string record_dir)
+                             const OrbOptions& orb, const Vocabulary* vocabulary, std::string record_dir,
+                             const std::string& state_dir)
     : publisher_(publisher),
       pyramid_(ScalePyramid::From(orb)),
       record_dir_(std::move(record_dir)),
@@ -39,12 +40,34 @@ MergerService::MergerService(lcm::LCM* lcm, bus::Publisher* publisher, const Mer
     return Heartbeat::Counts{received_.load(), processed_.load(), subscriber_.rejected() + rejected_.load()};
   });
   merge_log_.push_back("# event\tcurrent_map\tunconnected_submaps (stack, newest last)\tmerged_maps");
+  if (!state_dir.empty()) journal_ = std::make_unique<UpdateJournal>(state_dir, bus::Channel(publisher_->agent(), bus::kSubmap));
 }
 
 MergerService::~MergerService() { Stop(); }
 
+int64_t MergerService::Replay(const std::string& log_path) {
+  recovering_ = true;
+  const int64_t count = ReadSubmapUpdateLog(log_path, bus::Channel(publisher_->agent(), bus::kSubmap),
+                                            [this](const stitch::submap_update_t& update) { Process(update); });
+  recovering_ = false;
+  return count;
+}
+
 void MergerService::Start() {
   if (running_.exchange(true)) return;
+  if (journal_) {
+    // Resume: what the journal holds goes through the merger again (updates are idempotent), with
+    // one refinement at the end instead of one per closed submap.
+    const Stopwatch clock;
+    recovering_ = true;
+    const int64_t count = journal_->Recover([this](const stitch::submap_update_t& update) { Process(update, true); });
+    recovering_ = false;
+    if (count > 0) {
+      if (!refined_closed_.empty()) Refine("resumed from the journal");
+      STITCH_LOG(INFO) << "resumed from " << journal_->path() << ": " << count << " submap updates, "
+                       << merger_.submaps().size() << " submaps, in " << clock.ElapsedMs() << " ms";
+    }
+  }
   worker_ = std::thread([this] { Work(); });
   heartbeat_->Start();
   heartbeat_->SetState(stitch::service_status_t::STATE_RUNNING);
@@ -108,7 +131,7 @@ void MergerService::Work() {
   }
 }
 
-void MergerService::Process(const stitch::submap_update_t& message) {
+void MergerService::Process(const stitch::submap_update_t& message, bool from_journal) {
   SubmapUpdate update;
   try {
     update = FromMessage(message, pyramid_);
@@ -116,6 +139,14 @@ void MergerService::Process(const stitch::submap_update_t& message) {
     ++rejected_;
     STITCH_LOG(WARNING) << "rejected a submap update: " << e.what();
     return;
+  }
+  if (journal_ && !from_journal && !journal_failed_) {
+    try {
+      journal_->Append(message);
+    } catch (const Error& e) {
+      journal_failed_ = true;  // keep merging; a restart would now lose what follows
+      STITCH_LOG(ERROR) << e.what() << "; the merger goes on without persisting its store";
+    }
   }
   const std::vector<KeyframeId> missing = merger_.Apply(update);
   ++processed_;
@@ -133,7 +164,8 @@ void MergerService::Process(const stitch::submap_update_t& message) {
   // A closed submap changes the merged map for good: refine it now (pose graph, fused points,
   // bundle adjustment) in this worker, while the subscriber keeps queueing updates...
   // ...once its final state has arrived whole (the last part of the closing update).
-  if (update.closed && message.part == message.num_parts - 1 && refined_closed_.insert(update.submap).second) {
+  if (update.closed && message.part == message.num_parts - 1 && refined_closed_.insert(update.submap).second &&
+      !recovering_) {
     Refine("submap " + SubmapName(update.submap) + " closed");
   }
 }

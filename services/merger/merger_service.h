@@ -18,6 +18,7 @@
 #include "services/common/bus.h"
 #include "services/common/service.h"
 #include "services/merger/merger.h"
+#include "services/merger/update_journal.h"
 #include "stitch/submap_update_t.hpp"
 #include "stitch/util/bounded_queue.h"
 
@@ -26,20 +27,26 @@ namespace stitch {
 class MergerService {
  public:
   // Subscribes at once: construct before the Dispatcher starts. `vocabulary` must outlive it.
+  // With a `state_dir`, every accepted update is journaled there (UpdateJournal) and Start()
+  // first resumes from what the folder already holds.
   MergerService(lcm::LCM* lcm, bus::Publisher* publisher, const MergerOptions& options, const OrbOptions& orb,
-                const Vocabulary* vocabulary, std::string record_dir);
+                const Vocabulary* vocabulary, std::string record_dir, const std::string& state_dir = "");
   ~MergerService();
 
+  // Feeds the submap updates recorded in an LCM log (a journal or an lcm-logger recording) through
+  // the merger, as if they had arrived; call before Start(). Returns how many.
+  int64_t Replay(const std::string& log_path);
   void Start();
   // Merges what is queued, writes the records, stops the worker.
   void Stop();
 
   int64_t updates_received() const { return received_.load(); }
+  int64_t updates_processed() const { return processed_.load(); }
   double last_receive_time() const { return last_receive_.load(); }  // MonotonicSeconds()
 
  private:
   void Work();
-  void Process(const stitch::submap_update_t& message);
+  void Process(const stitch::submap_update_t& message, bool from_journal = false);
   void OnGraphChange(const std::string& event);
   void PublishGlobalMap(const Merger::Graph& graph);
   // The largest merged map with its points fused and bundle adjusted; its keyframe poses replace
@@ -56,6 +63,9 @@ class MergerService {
   bus::Subscriber subscriber_;
   BoundedQueue<std::unique_ptr<stitch::submap_update_t>> queue_;
   std::unique_ptr<Heartbeat> heartbeat_;
+  std::unique_ptr<UpdateJournal> journal_;
+  bool journal_failed_ = false;
+  bool recovering_ = false;
   std::thread worker_;
   std::atomic<bool> running_{false};
   std::atomic<int64_t> received_{0}, processed_{0}, rejected_{0};

@@ -9,5 +9,6 @@ int RenderCommand(int argc, char** argv);  // stitch render
 int ConfigCommand(int argc, char** argv);  // stitch config
 int VocabCommand(int argc, char** argv);   // stitch vocab train|info
 int BenchCommand(int argc, char** argv);   // stitch bench
+int MapCommand(int argc, char** argv);     // stitch map
 
 }  // namespace stitch

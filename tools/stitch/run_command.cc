@@ -44,6 +44,7 @@ struct RunArgs {
   std::string log_level = "info";
   int max_frames = -1;
   bool quiet = false;
+  bool journal = false;  // keep the merger's journal in OUT/merger
   bool compare = false;
 };
 
@@ -207,6 +208,7 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
   try {
     std::vector<std::string> merger_args = common;
     merger_args.insert(merger_args.end(), {"--record", out});
+    if (a.journal) merger_args.insert(merger_args.end(), {"--state", (fs::path(out) / "merger").string()});
     children.push_back(std::make_unique<ChildProcess>("merger", bin + "/stitch-merger", merger_args,
                                                       (fs::path(out) / "logs" / "merger.log").string()));
     std::vector<std::string> mapper_args = common;
@@ -384,12 +386,16 @@ int RunCommand(int argc, char** argv) {
   args.AddOption("--agent", &a.agent, "NAME", "agent name prefixing the channels");
   args.AddOption("--log-level", &a.log_level, "LEVEL", "services' log level: debug, info, warning, error");
   args.AddFlag("--quiet", &a.quiet, "no progress line");
+  args.AddFlag("--journal", &a.journal,
+               "keep the merger's journal of submap updates in DIR/merger (about 73 MB for the default flight); "
+               "`stitch map` rebuilds the merged map from it");
   args.AddFlag("--compare", &a.compare,
                "run twice, --on-loss submap then relocalize, into DIR/submap and DIR/relocalize, and print both side by side");
   args.AddEpilog("Outputs: trajectory.tum, map.ply (the largest merged map), report.json, trajectory.png,\n"
                  "frames.tsv, poses.tsv, groundtruth.tum (when known), config.yaml (resolved settings), the\n"
                  "merger's graph.png, graph.dot, merge_log.tsv, retrieval.tsv, submaps.tsv, keyframes_merged.tsv,\n"
-                 "the mapper's keyframes.tsv and submaps.ply, logs/ (one per service).");
+                 "the mapper's keyframes.tsv and submaps.ply, logs/ (one per service); with --journal,\n"
+                 "merger/submap_updates.lcmlog.");
   if (!args.Parse(argc, argv)) return args.exit_code();
 
   const std::string out = a.out.empty() ? NewRunFolder() : a.out;

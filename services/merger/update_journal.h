@@ -1,0 +1,49 @@
+#pragma once
+// The merger's store on disk: every submap update it has accepted, appended in LCM's log format
+// and flushed one by one, so a merger killed at any moment (SIGKILL included) and restarted with
+// the same folder reads them back and carries on with nothing lost. Being an LCM log, the journal
+// can also be replayed with lcm-logplayer into another merger, or kept as the run's record.
+
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <string>
+
+#include <lcm/lcm-cpp.hpp>
+
+#include "stitch/submap_update_t.hpp"
+
+namespace stitch {
+
+// Reads the submap updates on `channel` from an LCM log (the journal, or an lcm-logger
+// recording of a flight, whose other channels are passed over) and calls `each` with them in
+// order; returns how many. `whole_end` (optional) receives the file offset after the last whole
+// record. Throws stitch::Error when the file cannot be read.
+int64_t ReadSubmapUpdateLog(const std::string& path, const std::string& channel,
+                            const std::function<void(const stitch::submap_update_t&)>& each, long* whole_end = nullptr);
+
+class UpdateJournal {
+ public:
+  // Opens (creating) `dir`/submap_updates.lcmlog. Throws stitch::Error when it cannot.
+  UpdateJournal(const std::string& dir, std::string channel);
+
+  // Calls `each` with every update already in the journal, in order, and returns how many. A
+  // record cut short by a kill mid-write is dropped and the file cut back to the last whole one;
+  // a record that does not decode is skipped with a warning.
+  int64_t Recover(const std::function<void(const stitch::submap_update_t&)>& each);
+
+  // Appends one update and flushes it to the operating system. Throws stitch::Error on a write
+  // failure (a full disk): the caller must know the store is no longer complete.
+  void Append(const stitch::submap_update_t& update);
+
+  const std::string& path() const { return path_; }
+  int64_t appended() const { return appended_; }
+
+ private:
+  std::string path_;
+  std::string channel_;
+  std::unique_ptr<lcm::LogFile> writer_;
+  int64_t appended_ = 0;
+};
+
+}  // namespace stitch

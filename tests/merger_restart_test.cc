@@ -1,0 +1,165 @@
+// The merger killed with SIGKILL halfway through a flight and restarted with the same state
+// folder: it resumes from its journal and ends with the same merged map as a merger that ran
+// through, and `stitch map` rebuilds that map from the journal. The real stitch-merger over UDP
+// multicast; the submap updates are those a mapper sent in an in-process run of a strip with a
+// gust (two submaps to merge).
+
+#include <unistd.h>
+
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <sstream>
+#include <thread>
+
+#include <gtest/gtest.h>
+
+#include "services/common/bus.h"
+#include "services/common/map_convert.h"
+#include "services/config/stitch_config.h"
+#include "services/pipeline/inline_pipeline.h"
+#include "stitch/source/source.h"
+#include "stitch/testing/temp_dir.h"
+#include "stitch/util/child_process.h"
+#include "tests/test_process.h"
+
+namespace stitch {
+namespace {
+
+using namespace std::chrono_literals;
+using testing::Bin;
+
+// What the mapper publishes on <agent>/SUBMAP during a 200-frame strip with a gust at frame 90.
+std::vector<stitch::submap_update_t> GustStripUpdates() {
+  StitchConfig config;
+  config.synthetic.flight.num_frames = 200;
+  config.synthetic.flight.num_strips = 1;
+  config.synthetic.flight.strip_length_m = 1.15 * 200;
+  SourceSpec spec;
+  spec.synthetic = config.synthetic;
+  spec.failures = "90:10";
+  FailureSchedule unused;
+  auto sequence = OpenSource(spec, &unused);
+  const Vocabulary vocabulary = LoadVocabulary(config);
+  const InlineRun run = RunInline(*sequence, config, vocabulary, nullptr, /*keep_submap_updates=*/true);
+  std::vector<stitch::submap_update_t> messages;
+  for (const SubmapUpdate& update : run.submap_updates) {
+    for (auto& part : ToMessages(update)) messages.push_back(std::move(part));
+  }
+  return messages;
+}
+
+int64_t JournalRecords(const std::string& path) {
+  if (!std::filesystem::exists(path)) return 0;
+  lcm::LogFile log(path, "r");
+  int64_t count = 0;
+  while (log.good() && log.readNextEvent()) ++count;
+  return count;
+}
+
+// keyframes_merged.tsv: keyframe id -> the rest of its line.
+std::map<std::string, std::string> MergedKeyframes(const std::string& path) {
+  std::map<std::string, std::string> rows;
+  std::ifstream in(path);
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.empty() || line[0] == '#') continue;
+    std::istringstream fields(line);
+    std::string id;
+    fields >> id;
+    rows[id] = line;
+  }
+  return rows;
+}
+
+class MergerProcess {
+ public:
+  MergerProcess(const std::string& url, const std::string& state, const std::string& record, const std::string& log)
+      : process_("merger", Bin("stitch-merger"), {"--lcm-url", url, "--state", state, "--record", record}, log) {
+    std::this_thread::sleep_for(700ms);  // subscribed (and resumed) before the first message
+  }
+  ChildProcess& process() { return process_; }
+
+ private:
+  ChildProcess process_;
+};
+
+void Publish(bus::Publisher* publisher, std::vector<stitch::submap_update_t>* messages, size_t from, size_t to) {
+  for (size_t i = from; i < to; ++i) {
+    publisher->Publish(bus::Channel("uav0", bus::kSubmap), &(*messages)[i]);
+    std::this_thread::sleep_for(3ms);  // well inside the receive buffer
+  }
+}
+
+bool WaitForJournal(const std::string& path, int64_t records, std::chrono::seconds timeout) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  while (JournalRecords(path) < records) {
+    if (std::chrono::steady_clock::now() > deadline) return false;
+    std::this_thread::sleep_for(50ms);
+  }
+  return true;
+}
+
+TEST(MergerRestart, AMergerKilledHalfwayResumesFromItsJournalAndLosesNothing) {
+  std::vector<stitch::submap_update_t> messages = GustStripUpdates();
+  ASSERT_GT(messages.size(), 20u);
+  testing::TempDir dir;
+  const std::string url = bus::LocalUdpUrl(7800 + getpid() % 90);
+  auto lcm = bus::OpenLcm(url);
+  bus::Publisher publisher(lcm.get(), "uav0");
+  const size_t half = messages.size() / 2;
+
+  // A merger that runs through.
+  {
+    MergerProcess merger(url, dir / "state_through", dir / "through", dir / "through.log");
+    Publish(&publisher, &messages, 0, messages.size());
+    ASSERT_TRUE(WaitForJournal(dir / "state_through/submap_updates.lcmlog", messages.size(), 60s))
+        << merger.process().LogTail(10);
+    EXPECT_EQ(merger.process().Terminate(30s), 0) << merger.process().LogTail(10);
+  }
+  // One killed halfway, then restarted on the same state folder.
+  const std::string journal = dir / "state/submap_updates.lcmlog";
+  {
+    MergerProcess merger(url, dir / "state", dir / "first", dir / "first.log");
+    Publish(&publisher, &messages, 0, half);
+    ASSERT_TRUE(WaitForJournal(journal, half, 60s)) << merger.process().LogTail(10);
+    EXPECT_EQ(merger.process().Terminate(0ms), 128 + SIGKILL);
+  }
+  {
+    MergerProcess merger(url, dir / "state", dir / "resumed", dir / "resumed.log");
+    Publish(&publisher, &messages, half, messages.size());
+    ASSERT_TRUE(WaitForJournal(journal, messages.size(), 60s)) << merger.process().LogTail(10);
+    EXPECT_EQ(merger.process().Terminate(30s), 0) << merger.process().LogTail(10);
+    std::ifstream log(dir / "resumed.log");
+    const std::string text((std::istreambuf_iterator<char>(log)), std::istreambuf_iterator<char>());
+    EXPECT_NE(text.find("resumed from"), std::string::npos) << text;
+  }
+  EXPECT_EQ(JournalRecords(journal), static_cast<int64_t>(messages.size()));
+
+  // The same merged map: every keyframe, at the same refined pose.
+  const auto through = MergedKeyframes(dir / "through/keyframes_merged.tsv");
+  const auto resumed = MergedKeyframes(dir / "resumed/keyframes_merged.tsv");
+  ASSERT_GT(through.size(), 20u);
+  EXPECT_EQ(resumed, through);
+  // The journal is an LCM log: `stitch map` rebuilds the same merged map from it, offline.
+  const testing::CommandResult rebuilt = testing::RunProgram({Bin("stitch"), "map", journal, "--out", dir / "rebuilt"});
+  ASSERT_EQ(rebuilt.exit_code, 0) << rebuilt.output;
+  EXPECT_EQ(MergedKeyframes(dir / "rebuilt/keyframes_merged.tsv"), through);
+
+  std::ifstream submaps(dir / "resumed/submaps.tsv");
+  int merged = 0;
+  std::string line;
+  while (std::getline(submaps, line)) {
+    if (line.empty() || line[0] == '#') continue;
+    std::istringstream fields(line);
+    int64_t id = -1;
+    int component = -1;
+    fields >> id >> component;
+    merged += component == 0;
+  }
+  EXPECT_EQ(merged, 2) << "both submaps in merged map 0";
+}
+
+}  // namespace
+}  // namespace stitch

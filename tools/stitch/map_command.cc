@@ -1,0 +1,57 @@
+// stitch map: rebuilds a merged map from recorded submap updates, without a bus or a flight.
+
+#include <cstdio>
+#include <filesystem>
+
+#include "services/common/bus.h"
+#include "services/config/stitch_config.h"
+#include "services/merger/merger_service.h"
+#include "stitch/util/args.h"
+#include "stitch/util/error.h"
+#include "stitch/util/time.h"
+#include "tools/stitch/commands.h"
+
+namespace fs = std::filesystem;
+
+namespace stitch {
+
+int MapCommand(int argc, char** argv) {
+  std::vector<std::string> logs;
+  std::string out, config_path, agent = "uav0";
+  ArgParser args("stitch map",
+                 "Rebuilds the merged map from recorded submap updates: the merger's journal "
+                 "(RUN/merger/submap_updates.lcmlog, kept by `stitch run --journal` and by `stitch-merger --state`) or an "
+                 "lcm-logger recording that holds <agent>/SUBMAP. Runs the merger over them as they were received and "
+                 "writes its outputs to --out: map.ply, submaps.tsv, keyframes_merged.tsv, connections.tsv, graph.dot, "
+                 "graph.png, merge_log.tsv, retrieval.tsv.");
+  args.AddPositional(&logs, "LOG", "an LCM log with submap updates");
+  args.AddOption("--out", &out, "DIR", "where to write the merged map (created; must not hold one already)");
+  args.AddOption("--config", &config_path, "FILE", "YAML settings (default: built-in; a run's config.yaml reproduces it)");
+  args.AddOption("--agent", &agent, "NAME", "whose updates to take (channel <agent>/SUBMAP)");
+  if (!args.Parse(argc, argv)) return args.exit_code();
+  try {
+    if (logs.size() != 1) throw Error("give one LCM log (see --help)");
+    if (out.empty()) throw Error("give --out DIR");
+    if (!fs::exists(logs[0])) throw Error(logs[0] + ": no such file");
+    if (fs::exists(fs::path(out) / "submaps.tsv")) throw Error(out + " already holds a merged map; give a new folder");
+    bus::CheckAgentName(agent);
+    const StitchConfig config = LoadStitchConfig(config_path);
+    const Vocabulary vocabulary = LoadVocabulary(config);
+    auto lcm = bus::OpenLcm("memq://");
+    bus::Publisher publisher(lcm.get(), agent);
+    MergerService merger(lcm.get(), &publisher, config.merger, config.tracker.tracking.orb, &vocabulary, out);
+    const Stopwatch clock;
+    const int64_t count = merger.Replay(logs[0]);
+    if (count == 0) throw Error(logs[0] + ": no submap update on " + bus::Channel(agent, bus::kSubmap));
+    merger.Start();
+    merger.Stop();
+    std::printf("merged %lld submap updates from %s in %.1f s; outputs in %s\n", static_cast<long long>(count),
+                logs[0].c_str(), clock.ElapsedMs() / 1000.0, out.c_str());
+    return 0;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "stitch map: %s\n", e.what());
+    return 1;
+  }
+}
+
+}  // namespace stitch
