@@ -31,6 +31,7 @@ IngestService::IngestService(lcm::LCM* lcm, const std::string& lcm_url, bus::Pub
   const std::string agent = publisher_->agent();
   subscriber_.Subscribe<stitch::frame_ack_t>(
       bus::Channel(agent, bus::kFrameAck), [this](std::unique_ptr<stitch::frame_ack_t> ack, const std::string&) {
+        if (ack->frame_session != publisher_->session()) return;  // another ingest's (or an earlier run's) frame
         std::lock_guard<std::mutex> lock(mutex_);
         highest_acked_ = std::max(highest_acked_, ack->frame_index);
         changed_.notify_all();

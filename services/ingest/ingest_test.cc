@@ -241,6 +241,7 @@ TEST(Ingest, LostAcksAreRecoveredByResending) {
                                           if (++copies[f->frame_index] < 2) return;
                                           stitch::frame_ack_t ack{};
                                           ack.frame_index = f->frame_index;
+                                          ack.frame_session = f->header.sender_session;
                                           publisher.Publish(bus::Channel("uav0", bus::kFrameAck), &ack);
                                         });
   Heartbeat heartbeat(&publisher, "tracker", [] { return Heartbeat::Counts{}; });
@@ -256,6 +257,40 @@ TEST(Ingest, LostAcksAreRecoveredByResending) {
   dispatcher.Stop();
   EXPECT_EQ(summary.frames_published, 4);
   EXPECT_EQ(summary.resends, 4);
+  EXPECT_EQ(summary.frames_unacked, 0);
+}
+
+TEST(Ingest, AcksOfAnotherIngestsFramesDoNotCount) {
+  // Acks naming another sender's frames (an earlier run, a second ingest) arrive for every frame
+  // number; only the re-sends' own acks let the ingest go on.
+  auto lcm = bus::OpenLcm("memq://");
+  bus::Publisher publisher(lcm.get(), "uav0");
+  IngestOptions options = Lockstep();
+  options.ack_timeout_s = 0.05;
+  IngestService ingest(lcm.get(), "memq://", &publisher, options);
+  std::map<int, int> copies;
+  bus::Subscriber subscriber(lcm.get());
+  subscriber.Subscribe<stitch::frame_t>(bus::Channel("uav0", bus::kFrame),
+                                        [&](std::unique_ptr<stitch::frame_t> f, const std::string&) {
+                                          stitch::frame_ack_t ack{};
+                                          ack.frame_index = f->frame_index;
+                                          ack.frame_session = f->header.sender_session + 1;
+                                          if (++copies[f->frame_index] >= 2) ack.frame_session = f->header.sender_session;
+                                          publisher.Publish(bus::Channel("uav0", bus::kFrameAck), &ack);
+                                        });
+  Heartbeat heartbeat(&publisher, "tracker", [] { return Heartbeat::Counts{}; });
+  bus::Dispatcher dispatcher(lcm.get());
+  dispatcher.Start();
+  heartbeat.Start();
+  heartbeat.SetState(stitch::service_status_t::STATE_RUNNING);
+  FailureSchedule spoil;
+  auto sequence = OpenSource(ShortFlight(4), &spoil);
+  std::atomic<bool> stop{false};
+  const IngestSummary summary = ingest.Play(*sequence, spoil, stop);
+  heartbeat.Stop();
+  dispatcher.Stop();
+  EXPECT_EQ(summary.frames_published, 4);
+  EXPECT_EQ(summary.resends, 4);  // each frame waited for its own ack
   EXPECT_EQ(summary.frames_unacked, 0);
 }
 

@@ -118,6 +118,16 @@ void TrackerService::Stop() {
 
 void TrackerService::OnFrame(std::unique_ptr<stitch::frame_t> frame) {
   // Runs in the dispatcher thread: decide, enqueue, return.
+  // A new ingest (restarted, or the next flight) numbers its frames afresh: what an earlier one
+  // sent says nothing about which of its frames are duplicates or late.
+  if (frame->header.sender_session != ingest_session_.load()) {
+    if (ingest_session_.load() != 0) {
+      STITCH_LOG(INFO) << "frames from a new ingest session: their numbering starts over";
+    }
+    ingest_session_ = frame->header.sender_session;
+    highest_received_ = -1;
+    highest_processed_ = -1;
+  }
   if (frame->frame_index <= highest_processed_.load()) {
     Ack(*frame);  // a re-send of a frame already tracked: the ack was lost
     return;
@@ -230,7 +240,7 @@ void TrackerService::Process(const stitch::frame_t& frame) {
     STITCH_LOG(INFO) << "submap " << SubmapName(*output.reopened_submap) << " reopened";
   }
   SaveState();
-  highest_processed_ = frame.frame_index;
+  if (frame.header.sender_session == ingest_session_.load()) highest_processed_ = frame.frame_index;
   ++tracked_;
   Report(frame, output.result, ms);
   Ack(frame);
@@ -277,6 +287,7 @@ void TrackerService::Ack(const stitch::frame_t& frame) {
   stitch::frame_ack_t ack{};
   ack.frame_index = frame.frame_index;
   ack.t_ns = frame.t_ns;
+  ack.frame_session = frame.header.sender_session;
   publisher_->Publish(bus::Channel(publisher_->agent(), bus::kFrameAck), &ack);
 }
 

@@ -67,7 +67,8 @@ class TrackerService {
   std::thread worker_;
   std::atomic<bool> running_{false};
   std::atomic<int64_t> received_{0}, tracked_{0}, dropped_{0}, keyframes_{0};
-  std::atomic<int> highest_received_{-1}, highest_processed_{-1};
+  std::atomic<int> highest_received_{-1}, highest_processed_{-1};  // frame numbers of...
+  std::atomic<int64_t> ingest_session_{0};                           // ...this ingest's frames
   int saved_submap_number_ = -1;
 };
 

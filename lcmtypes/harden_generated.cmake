@@ -1,0 +1,25 @@
+# Run after lcm-gen (cmake -DHEADERS="a.hpp;b.hpp" -P harden_generated.cmake). LCM 1.3.1's
+# generated C++ decode trusts two things a malformed message controls:
+#  - a string's length: it rejects one longer than the buffer but not 0 or negative, and then
+#    copies (size_t)(length - 1) bytes (a crash; found by tests/bus_fuzz_test);
+#  - an array's count: it resizes the vector before reading the elements, so a count of 10^8 in
+#    a 1 kB message allocates gigabytes before the decode fails.
+# Every element of our arrays takes at least one byte, so a count above the bytes left is
+# malformed. This adds both checks to each generated header, and fails the build if the
+# generated code no longer looks as expected (a new lcm-gen: review the checks).
+foreach(header ${HEADERS})
+  file(READ ${header} code)
+  set(original "${code}")
+  string(REGEX REPLACE "if\\(__([A-Za-z0-9_]+)_len__ > maxlen - pos\\) return -1;"
+         "if(__\\1_len__ < 1 || __\\1_len__ > maxlen - pos) return -1;" code "${code}")
+  string(REGEX REPLACE "this->([A-Za-z0-9_]+)\\.resize\\(this->([A-Za-z0-9_]+)\\);"
+         "if(this->\\2 < 0 || this->\\2 > maxlen - pos) { return -1; } this->\\1.resize(this->\\2);" code "${code}")
+  string(FIND "${code}" ".assign(" has_string)
+  string(FIND "${code}" "_len__ < 1 ||" checked_string)
+  if(has_string GREATER -1 AND checked_string EQUAL -1)
+    message(FATAL_ERROR "${header}: lcm-gen's string decode changed; review lcmtypes/harden_generated.cmake")
+  endif()
+  if(NOT code STREQUAL original)
+    file(WRITE ${header} "${code}")
+  endif()
+endforeach()
