@@ -72,6 +72,27 @@ struct InProcessStack {
   Trajectory ground_truth;
 };
 
+// Every keyframe the mapper kept (its keyframes.tsv) is in the replica at the same pose.
+void ExpectReplicaIsTheMappersSubmap(const SubmapReplica& replica, const std::string& keyframes_tsv) {
+  std::ifstream keyframes(keyframes_tsv);
+  std::string line;
+  int kept = 0;
+  while (std::getline(keyframes, line)) {
+    if (line.empty() || line[0] == '#') continue;
+    std::istringstream fields(line);
+    int64_t id, submap, frame_index, t_ns;
+    int culled;
+    double tx, ty, tz;
+    fields >> id >> submap >> frame_index >> t_ns >> culled >> tx >> ty >> tz;
+    if (culled) continue;
+    ++kept;
+    const Keyframe* keyframe = replica.map.FindKeyframe(KeyframeId(id));
+    ASSERT_NE(keyframe, nullptr) << id;
+    EXPECT_LT((keyframe->Centre() - Eigen::Vector3d(tx, ty, tz)).norm(), 1e-4);
+  }
+  EXPECT_EQ(static_cast<size_t>(kept), replica.map.num_keyframes());
+}
+
 TEST(ServicesInProcess, IngestTrackerAndMapperTrackAShortFlightOverMemq) {
   testing::TempDir dir;
   InProcessStack stack(nullptr, /*with_mapper=*/true, dir.path().string());
@@ -98,23 +119,7 @@ TEST(ServicesInProcess, IngestTrackerAndMapperTrackAShortFlightOverMemq) {
   EXPECT_TRUE(replica.closed);
   EXPECT_TRUE(missing.empty());
   EXPECT_GT(replica.map.num_points(), 500u);
-  std::ifstream keyframes(dir / "keyframes.tsv");
-  std::string line;
-  int kept = 0;
-  while (std::getline(keyframes, line)) {
-    if (line.empty() || line[0] == '#') continue;
-    std::istringstream fields(line);
-    int64_t id, submap, frame_index, t_ns;
-    int culled;
-    double tx, ty, tz;
-    fields >> id >> submap >> frame_index >> t_ns >> culled >> tx >> ty >> tz;
-    if (culled) continue;
-    ++kept;
-    const Keyframe* keyframe = replica.map.FindKeyframe(KeyframeId(id));
-    ASSERT_NE(keyframe, nullptr) << id;
-    EXPECT_LT((keyframe->Centre() - Eigen::Vector3d(tx, ty, tz)).norm(), 1e-4);
-  }
-  EXPECT_EQ(static_cast<size_t>(kept), replica.map.num_keyframes());
+  ExpectReplicaIsTheMappersSubmap(replica, dir / "keyframes.tsv");
   // The tracker's poses follow the ground truth.
   EvaluationInput input;
   input.frames_total = 60;
@@ -133,6 +138,48 @@ TEST(ServicesInProcess, IngestTrackerAndMapperTrackAShortFlightOverMemq) {
   EXPECT_GE(e.frames_localized, 56);
   ASSERT_TRUE(e.errors);
   EXPECT_LT(e.errors->ate_rmse_m, 0.3);
+}
+
+// What the merger receives from a flight: the bytes on SUBMAP, and every submap rebuilt.
+struct MergerSide {
+  explicit MergerSide(lcm::LCM* lcm, const ScalePyramid& pyramid) : pyramid(pyramid), subscriber(lcm) {
+    subscriber.Subscribe<stitch::submap_update_t>(
+        bus::Channel("uav0", bus::kSubmap), [this](std::unique_ptr<stitch::submap_update_t> message, const std::string&) {
+          bytes += message->getEncodedSize();
+          const SubmapUpdate update = FromMessage(*message, this->pyramid);
+          auto it = replicas.try_emplace(update.submap, update.submap, this->pyramid).first;
+          ApplySubmapUpdate(update, &it->second);
+        });
+  }
+  ScalePyramid pyramid;
+  bus::Subscriber subscriber;
+  int64_t bytes = 0;
+  std::map<SubmapId, SubmapReplica> replicas;
+};
+
+TEST(ServicesInProcess, ThinnedSubmapUpdatesCostLessAndStillEndInTheMappersExactSubmap) {
+  const auto fly = [](bool thin) {
+    testing::TempDir dir;
+    InProcessStack stack(
+        [thin](StitchConfig* c) {
+          c->mapper.submap_point_resend_fraction = thin ? 0.01 : 0.0;
+          c->mapper.submap_window_associations = !thin;
+        },
+        /*with_mapper=*/true, dir.path().string());
+    MergerSide merger(stack.lcm.get(), ScalePyramid::From(stack.config.tracker.tracking.orb));
+    stack.Play("none");
+    EXPECT_EQ(merger.replicas.size(), 1u);
+    if (merger.replicas.size() == 1) {
+      EXPECT_TRUE(merger.replicas.begin()->second.closed);
+      // The final state brings the replica to the mapper's submap whatever was left out before.
+      ExpectReplicaIsTheMappersSubmap(merger.replicas.begin()->second, dir / "keyframes.tsv");
+    }
+    return merger.bytes;
+  };
+  const int64_t full_bytes = fly(false), thin_bytes = fly(true);
+  std::printf("SUBMAP bytes: %lld with every refinement, %lld thinned\n", static_cast<long long>(full_bytes),
+              static_cast<long long>(thin_bytes));
+  EXPECT_LT(thin_bytes, full_bytes * 6 / 10);
 }
 
 TEST(ServicesInProcess, TrackerWithoutAMapperKeepsTrackingAndSaysSo) {

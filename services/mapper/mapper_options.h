@@ -9,16 +9,33 @@ namespace stitch {
 
 struct MapperOptions {
   int max_queued_keyframes = 200;  // beyond this the oldest waiting keyframe is dropped (and logged)
+  // Submap updates to the merger (over the link) carry a refined point again only when it moved
+  // by more than this fraction of its distance from its reference keyframe (new points always; the
+  // final state at close carries every point). 0: every refined point of the window, every time.
+  double submap_point_resend_fraction = 0.01;
+  // Whether a keyframe's submap update also carries the window keyframes' changed associations
+  // (about 4 kB each, re-sent as points are added); without them the merger learns them from the
+  // final state at close (the new keyframe always carries its own).
+  bool submap_window_associations = false;
   MappingOptions mapping;
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
     v("max_queued_keyframes", max_queued_keyframes, "keyframes that may wait for the mapper");
+    v("submap_point_resend_fraction", submap_point_resend_fraction,
+      "send a refined point to the merger again only when it moved by more than this fraction of its distance to "
+      "its reference keyframe (0: always)");
+    v("submap_window_associations", submap_window_associations,
+      "send the window keyframes' changed associations with every submap update (else at close only)");
     v("mapping", mapping, "the local mapping algorithm");
   }
   bool Check(std::string* why) const {
     if (max_queued_keyframes < 1) {
       if (why) *why = "mapper.max_queued_keyframes must be >= 1";
+      return false;
+    }
+    if (!(submap_point_resend_fraction >= 0)) {
+      if (why) *why = "mapper.submap_point_resend_fraction must be >= 0";
       return false;
     }
     return mapping.Check(why);

@@ -1,5 +1,6 @@
 #include "services/mapper/mapper_service.h"
 
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -72,6 +73,10 @@ void MapperService::Stop() {
   if (mapping_) {
     if (const auto closed = mapping_->CloseSubmap()) PublishSubmapUpdate(mapping_->MakeFinalSubmapUpdate(*closed));
   }
+  if (points_thinned_ > 0) {
+    STITCH_LOG(INFO) << "left " << points_thinned_ << " point refinements under "
+                     << options_.submap_point_resend_fraction << " of their distance out of the submap updates";
+  }
   if (!record_dir_.empty()) {
     try {
       WriteRecords();
@@ -125,11 +130,50 @@ void MapperService::Process(const stitch::keyframe_t& message) {
   }
   const LocalMapUpdate update = mapping_->MakeUpdate(id, static_cast<int>(queue_.size()));
   for (auto& part : ToMessages(update)) publisher_->Publish(bus::Channel(publisher_->agent(), bus::kLocalMap), &part);
-  PublishSubmapUpdate(mapping_->MakeSubmapUpdate(id, update));
+  SubmapUpdate to_merger = mapping_->MakeSubmapUpdate(id, update);
+  ThinPoints(&to_merger);
+  PublishSubmapUpdate(to_merger);
   STITCH_LOG(DEBUG) << "keyframe " << id << ": " << report.new_points << " new points, " << report.fused << " fused, "
                     << report.culled_points << " points and " << report.culled_keyframes.size()
                     << " keyframes culled, BA " << report.bundle_adjustment.initial_rms_px << " -> "
                     << report.bundle_adjustment.final_rms_px << " px, " << report.milliseconds << " ms";
+}
+
+void MapperService::ThinPoints(SubmapUpdate* update) {
+  const double fraction = options_.submap_point_resend_fraction;
+  const Map* map = mapping_ ? mapping_->map() : nullptr;
+  if (!map) return;
+  std::vector<MapPoint>& points = update->changes.points;
+  const size_t before = points.size();
+  points.erase(std::remove_if(points.begin(), points.end(),
+                              [&](const MapPoint& point) {
+                                const auto sent = sent_positions_.find(point.id);
+                                if (sent == sent_positions_.end() || !(fraction > 0)) return false;
+                                const Keyframe* reference = map->FindKeyframe(point.reference_keyframe);
+                                const double distance =
+                                    reference ? (point.position - reference->Centre()).norm() : point.max_distance;
+                                return (point.position - sent->second).norm() <= fraction * distance;
+                              }),
+               points.end());
+  for (const MapPoint& point : points) sent_positions_[point.id] = point.position;
+  points_thinned_ += static_cast<int64_t>(before - points.size());
+  // A keyframe's associations go again only when they changed, and only when asked for.
+  auto& associations = update->changes.associations;
+  associations.erase(std::remove_if(associations.begin(), associations.end(),
+                                    [&](const auto& association) {
+                                      if (!options_.submap_window_associations) return true;
+                                      size_t hash = association.second.size();
+                                      for (MapPointId p : association.second) {
+                                        hash = hash * 1000003u ^ std::hash<int64_t>()(p.value);
+                                      }
+                                      auto [it, fresh] = sent_associations_.try_emplace(association.first, hash);
+                                      if (fresh || it->second != hash) {
+                                        it->second = hash;
+                                        return false;
+                                      }
+                                      return true;
+                                    }),
+                     associations.end());
 }
 
 void MapperService::PublishSubmapUpdate(const SubmapUpdate& update) {

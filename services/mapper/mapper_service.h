@@ -12,6 +12,7 @@
 #include <mutex>
 #include <string>
 #include <thread>
+#include <unordered_map>
 
 #include "services/common/bus.h"
 #include "services/common/service.h"
@@ -38,6 +39,9 @@ class MapperService {
  private:
   void Work();
   void Process(const stitch::keyframe_t& message);
+  // Leaves out of a keyframe's submap update the refined points the merger already has close
+  // enough (MapperOptions::submap_point_resend_fraction) and associations it already has.
+  void ThinPoints(SubmapUpdate* update);
   void PublishSubmapUpdate(const SubmapUpdate& update);
   void CloseIfRequested();
   void WriteRecords() const;
@@ -59,6 +63,9 @@ class MapperService {
   int64_t tracker_session_ = 0;
   int tracker_submaps_closed_ = 0;
   int64_t close_requested_ = -1;
+  std::unordered_map<MapPointId, Eigen::Vector3d> sent_positions_;  // what the merger was last sent
+  std::unordered_map<KeyframeId, size_t> sent_associations_;        // (a hash of each keyframe's)
+  int64_t points_thinned_ = 0;
 };
 
 }  // namespace stitch
