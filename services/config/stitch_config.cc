@@ -1,7 +1,9 @@
 #include "services/config/stitch_config.h"
 
+#include <filesystem>
 #include <fstream>
 
+#include "stitch/util/child_process.h"
 #include "stitch/util/options.h"
 
 namespace stitch {
@@ -15,7 +17,13 @@ StitchConfig LoadStitchConfig(const std::string& path) {
   return ReadOptions<StitchConfig>(LoadYamlFile(path), path);
 }
 
-std::string DefaultVocabularyPath() { return STITCH_DEFAULT_VOCABULARY; }
+std::string DefaultVocabularyPath() {
+  // The source tree's, in a build; beside an installed program, <prefix>/share/stitch.
+  if (std::filesystem::exists(STITCH_DEFAULT_VOCABULARY)) return STITCH_DEFAULT_VOCABULARY;
+  const std::filesystem::path installed =
+      std::filesystem::path(ExecutableDir()) / ".." / "share" / "stitch" / "default.stitchvoc";
+  return std::filesystem::exists(installed) ? installed.lexically_normal().string() : STITCH_DEFAULT_VOCABULARY;
+}
 
 Vocabulary LoadVocabulary(const StitchConfig& config) {
   return Vocabulary::Load(config.vocabulary.empty() ? DefaultVocabularyPath() : config.vocabulary);
