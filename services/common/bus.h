@@ -31,6 +31,7 @@ inline constexpr char kTrackingStatus[] = "TRACKING_STATUS";
 inline constexpr char kKeyframe[] = "KEYFRAME";
 inline constexpr char kLocalMap[] = "LOCAL_MAP";
 inline constexpr char kSubmap[] = "SUBMAP";
+inline constexpr char kSubmapRequest[] = "SUBMAP_REQUEST";
 inline constexpr char kGlobalMap[] = "GLOBAL_MAP";
 inline constexpr char kService[] = "SERVICE";
 

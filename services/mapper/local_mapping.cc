@@ -340,4 +340,63 @@ SubmapUpdate LocalMapping::MakeFinalSubmapUpdate(SubmapId submap) {
   return {};
 }
 
+SubmapUpdate LocalMapping::MakeResendUpdate(SubmapId submap, const std::vector<KeyframeId>& keyframes,
+                                            bool full_state) {
+  Map* found = map_ && map_->id() == submap ? map_.get() : nullptr;
+  for (const auto& closed : closed_maps_) {
+    if (closed->id() == submap) found = closed.get();
+  }
+  if (!found) return {};
+  const bool closed = found != map_.get();
+  // A closed submap goes in full: its final state is what settles it at the receiver, and a
+  // partial update marked closed would let the receiver think it had it.
+  full_state = full_state || closed;
+  LocalMapUpdate changes;
+  SubmapUpdate update;
+  if (full_state) {
+    update = MakeFullSubmapUpdate(found, ++revision_, closed);
+  } else {
+    changes.revision = ++revision_;
+    std::set<MapPointId> points;
+    for (KeyframeId id : keyframes) {
+      const Keyframe* keyframe = found->FindKeyframe(id);
+      if (!keyframe) continue;
+      changes.associations.push_back({id, keyframe->points});
+      for (MapPointId p : keyframe->points) {
+        if (p.valid() && found->FindPoint(p)) points.insert(p);
+      }
+    }
+    for (MapPointId p : points) {
+      MapPoint copy = *found->FindPoint(p);
+      copy.observations.clear();
+      changes.points.push_back(std::move(copy));
+    }
+  }
+  for (KeyframeId id : keyframes) {
+    if (!found->FindKeyframe(id)) continue;  // culled since: the manifest no longer lists it
+    SubmapUpdate one = MakeKeyframeSubmapUpdate(*found, id, camera_, changes);
+    if (!full_state && update.new_keyframes.empty()) {
+      update = one;  // carries `changes` and the manifest
+      update.closed = closed;
+      continue;
+    }
+    for (Keyframe& keyframe : one.new_keyframes) update.new_keyframes.push_back(std::move(keyframe));
+  }
+  update.camera = camera_;
+  return update;
+}
+
+SubmapUpdate LocalMapping::MakeManifestUpdate() {
+  SubmapUpdate update;
+  if (!map_ || map_->num_keyframes() == 0) return update;
+  update.submap = map_->id();
+  update.revision = ++revision_;
+  update.camera = camera_;
+  update.changes.submap = map_->id();
+  update.changes.revision = update.revision;
+  for (const auto& [id, keyframe] : map_->keyframes()) update.manifest.push_back(id);
+  std::sort(update.manifest.begin(), update.manifest.end());
+  return update;
+}
+
 }  // namespace stitch

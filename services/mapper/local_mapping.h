@@ -79,6 +79,13 @@ class LocalMapping {
   SubmapUpdate MakeSubmapUpdate(KeyframeId keyframe, const LocalMapUpdate& changes) const;
   // The final state of a closed submap (empty update for one it does not know).
   SubmapUpdate MakeFinalSubmapUpdate(SubmapId submap);
+  // Part of a submap again, open or closed, for a receiver that lost it: those of `keyframes` it
+  // still holds, in full with the points they observe, and with `full_state` (always, for a
+  // closed submap) every pose, association and point. Empty for a submap it does not know.
+  SubmapUpdate MakeResendUpdate(SubmapId submap, const std::vector<KeyframeId>& keyframes, bool full_state);
+  // The current submap's manifest alone (a few bytes per keyframe): lets a receiver that lost
+  // the newest keyframe's update notice it while the aircraft makes no new keyframe.
+  SubmapUpdate MakeManifestUpdate();
 
   const Map* map() const { return map_.get(); }
   // Submaps closed so far (the current one is not among them).

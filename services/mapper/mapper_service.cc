@@ -9,7 +9,9 @@
 #include "stitch/io/ply.h"
 #include "stitch/io/trajectory.h"
 #include "stitch/util/log.h"
+#include "stitch/submap_request_t.hpp"
 #include "stitch/tracking_status_t.hpp"
+#include "stitch/util/time.h"
 #include "stitch/util/options.h"
 
 namespace stitch {
@@ -52,6 +54,15 @@ MapperService::MapperService(lcm::LCM* lcm, bus::Publisher* publisher, MapperOpt
           close_requested_ = status->submap_id;
         }
       });
+  // The merger asks again for what the link lost.
+  subscriber_.Subscribe<stitch::submap_request_t>(
+      bus::Channel(publisher_->agent(), bus::kSubmapRequest),
+      [this](std::unique_ptr<stitch::submap_request_t> request, const std::string&) {
+        std::lock_guard<std::mutex> lock(requests_mutex_);
+        Request& wanted = requests_[SubmapId(request->submap_id)];
+        for (int64_t id : request->keyframe_ids) wanted.keyframes.insert(KeyframeId(id));
+        wanted.full_state |= request->full_state;
+      });
   heartbeat_ = std::make_unique<Heartbeat>(publisher_, "mapper", [this] {
     return Heartbeat::Counts{received_.load(), mapped_.load(), subscriber_.rejected() + rejected_.load()};
   });
@@ -93,6 +104,16 @@ void MapperService::Work() {
     auto keyframe = queue_.Pop(std::chrono::milliseconds(20));
     if (keyframe) Process(**keyframe);
     if (queue_.size() == 0) CloseIfRequested();  // after the submap's queued keyframes
+    ResendIfRequested();
+    // Idle (the aircraft is not exploring): say once a second which keyframes the current submap
+    // holds, so a merger that lost the newest one asks for it.
+    const double now = MonotonicSeconds();
+    if (keyframe) {
+      last_activity_ = now;
+    } else if (mapping_ && now - last_activity_ > 1.0) {
+      last_activity_ = now;
+      PublishSubmapUpdate(mapping_->MakeManifestUpdate());
+    }
     if (!keyframe && queue_.closed()) return;
   }
 }
@@ -106,6 +127,29 @@ void MapperService::CloseIfRequested() {
   }
   if (requested < 0 || !mapping_ || !mapping_->map() || mapping_->map()->id().value != requested) return;
   if (const auto closed = mapping_->CloseSubmap()) PublishSubmapUpdate(mapping_->MakeFinalSubmapUpdate(*closed));
+}
+
+void MapperService::ResendIfRequested() {
+  std::map<SubmapId, Request> requests;
+  {
+    std::lock_guard<std::mutex> lock(requests_mutex_);
+    requests.swap(requests_);
+  }
+  if (requests.empty() || !mapping_) return;
+  const double now = MonotonicSeconds();
+  for (const auto& [submap, wanted] : requests) {
+    // Requests repeat until the merger has what it asked for; one answer per half second is enough.
+    double& last = last_resend_[submap];
+    if (now - last < 0.5) continue;
+    last = now;
+    const SubmapUpdate update =
+        mapping_->MakeResendUpdate(submap, {wanted.keyframes.begin(), wanted.keyframes.end()}, wanted.full_state);
+    if (!update.submap.valid()) continue;
+    for (auto& part : ToMessages(update)) publisher_->Publish(bus::Channel(publisher_->agent(), bus::kSubmap), &part);
+    ++resends_;
+    STITCH_LOG(INFO) << "sent " << update.new_keyframes.size() << " keyframes of submap " << SubmapName(submap)
+                     << (wanted.full_state ? " and its whole state" : "") << " again: the merger lacked them";
+  }
 }
 
 void MapperService::Process(const stitch::keyframe_t& message) {

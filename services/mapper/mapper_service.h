@@ -13,6 +13,8 @@
 #include <string>
 #include <thread>
 #include <unordered_map>
+#include <map>
+#include <set>
 
 #include "services/common/bus.h"
 #include "services/common/service.h"
@@ -35,6 +37,7 @@ class MapperService {
 
   int64_t keyframes_received() const { return received_.load(); }
   int64_t keyframes_mapped() const { return mapped_.load(); }
+  int64_t submap_resends() const { return resends_.load(); }
 
  private:
   void Work();
@@ -44,6 +47,8 @@ class MapperService {
   void ThinPoints(SubmapUpdate* update);
   void PublishSubmapUpdate(const SubmapUpdate& update);
   void CloseIfRequested();
+  // Answers the merger's requests for what the link lost (in the worker: it owns the maps).
+  void ResendIfRequested();
   void WriteRecords() const;
 
   bus::Publisher* publisher_;
@@ -65,6 +70,15 @@ class MapperService {
   int64_t close_requested_ = -1;
   std::unordered_map<MapPointId, Eigen::Vector3d> sent_positions_;  // what the merger was last sent
   std::unordered_map<KeyframeId, size_t> sent_associations_;        // (a hash of each keyframe's)
+  std::mutex requests_mutex_;
+  struct Request {
+    std::set<KeyframeId> keyframes;
+    bool full_state = false;
+  };
+  std::map<SubmapId, Request> requests_;  // from the merger
+  std::map<SubmapId, double> last_resend_;               // MonotonicSeconds()
+  std::atomic<int64_t> resends_{0};
+  double last_activity_ = 0;  // MonotonicSeconds() of the last keyframe or manifest sent (worker only)
   int64_t points_thinned_ = 0;
 };
 

@@ -61,6 +61,7 @@ bool MergerOptions::Check(std::string* why) const {
   if (min_matches < 3 || sim3_min_inliers < 3) return fail("merger.min_matches and merger.sim3_min_inliers must be >= 3");
   if (!(match_ratio > 0 && match_ratio <= 1)) return fail("merger.match_ratio must be in (0, 1]");
   if (loop_min_separation < 1) return fail("merger.loop_min_separation must be >= 1");
+  if (!(resend_interval_s > 0)) return fail("merger.resend_interval_s must be > 0");
   return merged_map.Check(why);
 }
 

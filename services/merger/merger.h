@@ -29,6 +29,8 @@ struct MergerOptions {
   bool match_by_projection = true;        // when too few matches agree, look for more by projection (see merger.md)
   double match_ratio = 0.75;              // best / second-best descriptor distance
   int sim3_min_inliers = 20;              // map points agreeing with the Sim3 for a connected frame
+  bool request_resends = true;            // ask the mapper again for what the link lost
+  double resend_interval_s = 1.0;         // between two requests for one submap
   bool loop_closure = true;               // connected frames within a submap, away from the covisible window
   int loop_min_separation = 20;           // keyframes between a loop's two ends
   MergedMapOptions merged_map;            // fusing points and the global bundle adjustment
@@ -41,6 +43,9 @@ struct MergerOptions {
     v("match_ratio", match_ratio, "best / second-best descriptor distance for a match");
     v("match_by_projection", match_by_projection, "when too few matches agree with a Sim3, search more by projecting with a first guess");
     v("sim3_min_inliers", sim3_min_inliers, "map points that must agree with the Sim3 of a connected frame");
+    v("request_resends", request_resends,
+      "ask the mapper (on <agent>/SUBMAP_REQUEST) for keyframes and final states the link lost");
+    v("resend_interval_s", resend_interval_s, "seconds between two requests for one submap");
     v("loop_closure", loop_closure, "look for connected frames within each submap too (in-map loop closure)");
     v("loop_min_separation", loop_min_separation, "keyframes (by number) between the two ends of a loop");
     v("merged_map", merged_map, "fusing duplicate points and the global bundle adjustment after the pose graph");

@@ -10,6 +10,7 @@
 #include "services/common/convert.h"
 #include "services/common/map_convert.h"
 #include "stitch/global_map_t.hpp"
+#include "stitch/submap_request_t.hpp"
 #include "stitch/io/ply.h"
 #include "stitch/util/log.h"
 #include "stitch/util/time.h"
@@ -123,11 +124,9 @@ std::optional<MergedMap> MergerService::MergeLargestMap(Merger::Graph* graph) co
 void MergerService::Work() {
   while (true) {
     auto update = queue_.Pop(std::chrono::milliseconds(100));
-    if (!update) {
-      if (queue_.closed()) return;
-      continue;
-    }
-    Process(**update);
+    if (update) Process(**update);
+    RequestWhatWasLost();
+    if (!update && queue_.closed()) return;
   }
 }
 
@@ -150,9 +149,11 @@ void MergerService::Process(const stitch::submap_update_t& message, bool from_jo
   }
   const std::vector<KeyframeId> missing = merger_.Apply(update);
   ++processed_;
-  if (!missing.empty() && update.closed) {
+  last_update_[update.submap] = MonotonicSeconds();
+  if (!missing.empty() && update.closed && message.part == message.num_parts - 1) {
     STITCH_LOG(WARNING) << "submap " << SubmapName(update.submap) << " closed with " << missing.size()
-                        << " keyframes never received (lost on the way)";
+                        << " keyframes never received (lost on the way"
+                        << (merger_.options().request_resends ? "; asking for them again)" : ")");
   }
   const bool newly_closed = update.closed && !closed_seen_[update.submap];
   closed_seen_[update.submap] = update.closed;
@@ -168,6 +169,48 @@ void MergerService::Process(const stitch::submap_update_t& message, bool from_jo
       !recovering_) {
     Refine("submap " + SubmapName(update.submap) + " closed");
   }
+}
+
+void MergerService::RequestWhatWasLost() {
+  const MergerOptions& options = merger_.options();
+  const double now = MonotonicSeconds();
+  std::map<int, SubmapId> newest;  // per aircraft
+  for (const auto& [id, replica] : merger_.submaps()) {
+    SubmapId& n = newest[AgentNumber(id)];
+    if (!n.valid() || n < id) n = id;
+  }
+  int64_t missing_total = 0;
+  std::map<KeyframeId, double> missing_since;
+  for (const auto& [id, replica] : merger_.submaps()) {
+    stitch::submap_request_t request{};
+    request.submap_id = id.value;
+    for (KeyframeId kf : replica.manifest) {
+      if (replica.map.FindKeyframe(kf)) continue;
+      ++missing_total;
+      // The parts of one update arrive within milliseconds: a keyframe is lost when it stays
+      // missing for a while.
+      const auto since = missing_since_.find(kf);
+      const double first = since != missing_since_.end() ? since->second : now;
+      missing_since[kf] = first;
+      if (now - first > 0.3 * options.resend_interval_s) request.keyframe_ids.push_back(kf.value);
+    }
+    // Left open while a newer submap of its aircraft goes on, and quiet: its final state was lost
+    // (a submap the tracker reopened is not quiet).
+    const auto heard = last_update_.find(id);
+    request.full_state = !replica.closed && newest[AgentNumber(id)] != id &&
+                         (heard == last_update_.end() || now - heard->second > 3 * options.resend_interval_s);
+    if (!options.request_resends || (request.keyframe_ids.empty() && !request.full_state)) continue;
+    double& last = last_request_[id];
+    if (now - last < options.resend_interval_s) continue;
+    last = now;
+    request.num_keyframes = static_cast<int32_t>(request.keyframe_ids.size());
+    publisher_->Publish(bus::Channel(publisher_->agent(), bus::kSubmapRequest), &request);
+    ++requests_;
+    STITCH_LOG(INFO) << "asked for submap " << SubmapName(id) << " again: " << request.num_keyframes
+                     << " keyframes missing" << (request.full_state ? ", final state missing" : "");
+  }
+  keyframes_missing_ = missing_total;
+  missing_since_.swap(missing_since);
 }
 
 void MergerService::Refine(const std::string& why) {

@@ -42,11 +42,19 @@ class MergerService {
 
   int64_t updates_received() const { return received_.load(); }
   int64_t updates_processed() const { return processed_.load(); }
+  int64_t requests_sent() const { return requests_.load(); }
+  // The store; read it only after Stop() (the worker owns it while running).
+  const Merger& merger() const { return merger_; }
+  // Keyframes listed by manifests but not received, over every submap (as of the last update).
+  int64_t keyframes_missing() const { return keyframes_missing_.load(); }
   double last_receive_time() const { return last_receive_.load(); }  // MonotonicSeconds()
 
  private:
   void Work();
   void Process(const stitch::submap_update_t& message, bool from_journal = false);
+  // Asks the mapper for keyframes a manifest lists but never arrived, and for the final state of
+  // a submap left open while a newer one of its aircraft goes on (its closing update was lost).
+  void RequestWhatWasLost();
   void OnGraphChange(const std::string& event);
   void PublishGlobalMap(const Merger::Graph& graph);
   // The largest merged map with its points fused and bundle adjusted; its keyframe poses replace
@@ -73,6 +81,9 @@ class MergerService {
   size_t connections_seen_ = 0;
   std::map<SubmapId, bool> closed_seen_;
   std::set<SubmapId> refined_closed_;  // closed submaps the merged maps were refined with
+  std::map<SubmapId, double> last_request_, last_update_;  // MonotonicSeconds()
+  std::map<KeyframeId, double> missing_since_;             // listed by a manifest, not received
+  std::atomic<int64_t> requests_{0}, keyframes_missing_{0};
   std::vector<std::string> merge_log_;  // lines of merge_log.tsv
   std::string last_stack_;
   int revision_ = 0;

@@ -1,0 +1,149 @@
+// A lossy link between the aircraft and the ground: the aircraft's services on one in-process
+// bus, the merger on another, and a relay between them that drops a fifth of the messages each
+// way (submap updates down, requests up). The merger asks again for what was lost and ends
+// with every keyframe the mapper kept; without the requests it does not.
+
+#include <chrono>
+#include <fstream>
+#include <sstream>
+#include <thread>
+
+#include <gtest/gtest.h>
+
+#include "services/config/stitch_config.h"
+#include "services/ingest/ingest.h"
+#include "services/mapper/mapper_service.h"
+#include "services/merger/merger_service.h"
+#include "services/tracker/tracker_service.h"
+#include "stitch/source/source.h"
+#include "stitch/testing/temp_dir.h"
+#include "stitch/util/rng.h"
+
+namespace stitch {
+namespace {
+
+using namespace std::chrono_literals;
+
+// Forwards one channel from one bus to another, dropping each message with probability `loss`.
+class LossyRelay {
+ public:
+  LossyRelay(lcm::LCM* from, lcm::LCM* to, const std::string& channel, double loss, uint64_t seed)
+      : from_(from), to_(to), loss_(loss), rng_(seed) {
+    subscription_ = from_->subscribe(channel, &LossyRelay::On, this);
+  }
+  ~LossyRelay() { from_->unsubscribe(subscription_); }
+  int dropped() const { return dropped_; }
+  int forwarded() const { return forwarded_; }
+
+ private:
+  void On(const lcm::ReceiveBuffer* buffer, const std::string& channel) {
+    if (rng_.Uniform() < loss_) {
+      ++dropped_;
+      return;
+    }
+    to_->publish(channel, buffer->data, buffer->data_size);
+    ++forwarded_;
+  }
+  lcm::LCM* from_;
+  lcm::LCM* to_;
+  double loss_;
+  Rng rng_;
+  lcm::Subscription* subscription_ = nullptr;
+  int dropped_ = 0, forwarded_ = 0;
+};
+
+struct Outcome {
+  size_t kept = 0, received = 0;  // keyframes the mapper kept / of those, in the merger's store
+  bool first_closed = false;      // the first submap, closed by the gust, is closed at the merger
+  int dropped = 0;
+  int64_t requests = 0, resends = 0;
+};
+
+Outcome FlyOverALossyLink(bool request_resends) {
+  testing::TempDir dir;
+  StitchConfig config = LoadStitchConfig(std::string(STITCH_SOURCE_DIR) + "/tests/short_flight.yaml");
+  config.merger.request_resends = request_resends;
+  config.merger.resend_interval_s = 0.3;
+  const Vocabulary vocabulary = LoadVocabulary(config);
+  auto aircraft = bus::OpenLcm("memq://");
+  auto ground = bus::OpenLcm("memq://");
+  bus::Publisher aircraft_publisher(aircraft.get(), "uav0"), ground_publisher(ground.get(), "uav0");
+  IngestService ingest(aircraft.get(), "memq://", &aircraft_publisher, config.ingest);
+  TrackerService tracker(aircraft.get(), &aircraft_publisher, config.tracker, &vocabulary, "");
+  MapperService mapper(aircraft.get(), &aircraft_publisher, config.mapper, config.tracker.tracking.orb, &vocabulary,
+                       dir.path().string());
+  MergerService merger(ground.get(), &ground_publisher, config.merger, config.tracker.tracking.orb, &vocabulary, "");
+  LossyRelay down(aircraft.get(), ground.get(), "uav0/SUBMAP", 0.2, 17);
+  LossyRelay up(ground.get(), aircraft.get(), "uav0/SUBMAP_REQUEST", 0.2, 23);
+  bus::Dispatcher aircraft_dispatcher(aircraft.get()), ground_dispatcher(ground.get());
+  aircraft_dispatcher.Start();
+  ground_dispatcher.Start();
+  merger.Start();
+  mapper.Start();
+  tracker.Start();
+  SourceSpec spec;
+  spec.synthetic = config.synthetic;
+  spec.failures = "30:6";  // two submaps
+  FailureSchedule spoil;
+  auto sequence = OpenSource(spec, &spoil);
+  std::atomic<bool> stop{false};
+  ingest.Play(*sequence, spoil, stop);
+  tracker.Stop();
+  // The aircraft stays up (hovering) while the ground catches up: at least 3 s, until nothing
+  // has been missing for a second (at most 20 s).
+  const auto start = std::chrono::steady_clock::now();
+  auto complete_since = start;
+  while (std::chrono::steady_clock::now() - start < 20s) {
+    const auto now = std::chrono::steady_clock::now();
+    if (merger.keyframes_missing() > 0) complete_since = now;
+    if (now - start > 3s && now - complete_since > 1s) break;
+    std::this_thread::sleep_for(50ms);
+  }
+  Outcome outcome;
+  outcome.resends = mapper.submap_resends();
+  mapper.Stop();
+  std::this_thread::sleep_for(300ms);
+  merger.Stop();
+  aircraft_dispatcher.Stop();
+  ground_dispatcher.Stop();
+  outcome.dropped = down.dropped() + up.dropped();
+  outcome.requests = merger.requests_sent();
+  const auto first = merger.merger().submaps().find(MakeSubmapId(0, 1));
+  outcome.first_closed = first != merger.merger().submaps().end() && first->second.closed;
+  std::ifstream keyframes(dir / "keyframes.tsv");
+  std::string line;
+  while (std::getline(keyframes, line)) {
+    if (line.empty() || line[0] == '#') continue;
+    std::istringstream fields(line);
+    int64_t id, submap, frame_index, t_ns;
+    int culled;
+    fields >> id >> submap >> frame_index >> t_ns >> culled;
+    if (culled) continue;
+    ++outcome.kept;
+    const auto replica = merger.merger().submaps().find(SubmapId(submap));
+    if (replica != merger.merger().submaps().end() && replica->second.map.FindKeyframe(KeyframeId(id))) {
+      ++outcome.received;
+    }
+  }
+  return outcome;
+}
+
+TEST(LossyLink, TheMergerAsksAgainForWhatAFifthLostAndGetsEveryKeyframe) {
+  const Outcome with = FlyOverALossyLink(/*request_resends=*/true);
+  std::printf("with requests: %zu of %zu keyframes, %d messages dropped, %lld requests, %lld re-sends\n", with.received,
+              with.kept, with.dropped, static_cast<long long>(with.requests), static_cast<long long>(with.resends));
+  EXPECT_GT(with.dropped, 5);
+  EXPECT_GT(with.kept, 10u);
+  EXPECT_GT(with.requests, 0);
+  EXPECT_GT(with.resends, 0);
+  EXPECT_EQ(with.received, with.kept);
+  EXPECT_TRUE(with.first_closed);
+
+  const Outcome without = FlyOverALossyLink(/*request_resends=*/false);
+  std::printf("without: %zu of %zu keyframes, %d messages dropped\n", without.received, without.kept, without.dropped);
+  EXPECT_EQ(without.requests, 0);
+  EXPECT_LT(without.received, without.kept);
+}
+
+}  // namespace
+}  // namespace stitch
