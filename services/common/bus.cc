@@ -22,6 +22,18 @@ std::string Channel(const std::string& agent, const char* suffix) {
 }
 
 // A 2 MiB receive buffer holds several full frames; the kernel caps it at net.core.rmem_max.
+std::vector<std::string> SplitAgents(const std::string& list) {
+  std::vector<std::string> agents;
+  size_t start = 0;
+  while (start <= list.size() && !list.empty()) {
+    const size_t comma = std::min(list.find(',', start), list.size());
+    agents.push_back(list.substr(start, comma - start));
+    CheckAgentName(agents.back());
+    start = comma + 1;
+  }
+  return agents;
+}
+
 std::string DefaultLcmUrl() { return "udpm://239.255.76.67:7667?ttl=0&recv_buf_size=2097152"; }
 
 std::string LocalUdpUrl(int port) {

@@ -39,6 +39,8 @@ inline constexpr char kService[] = "SERVICE";
 // [A-Za-z0-9_-]{1,32} (channels are regular expressions to LCM).
 std::string Channel(const std::string& agent, const char* suffix);
 void CheckAgentName(const std::string& agent);
+// "uav0,uav1" -> {"uav0", "uav1"}, each checked; "" -> {}.
+std::vector<std::string> SplitAgents(const std::string& list);
 
 // LCM's default multicast group with ttl=0: nothing leaves this machine.
 std::string DefaultLcmUrl();

@@ -12,7 +12,7 @@
 int main(int argc, char** argv) {
   using namespace stitch;
   ServiceCommandLine common;
-  std::string record_dir, state_dir;
+  std::string record_dir, state_dir, agents_list;
   ArgParser args("stitch-merger",
                  "Receives submap updates on <agent>/SUBMAP, finds connected frames between submaps, builds the submap "
                  "graph and merges along its strongest connections; publishes <agent>/GLOBAL_MAP. Runs until SIGINT "
@@ -23,6 +23,9 @@ int main(int argc, char** argv) {
   args.AddOption("--state", &state_dir, "DIR",
                  "keep the merger's store in DIR (submap_updates.lcmlog, appended as updates arrive); a merger "
                  "restarted with the same DIR resumes where the last one stopped or was killed");
+  args.AddOption("--agents", &agents_list, "A,B,...",
+                 "merge the submaps of these aircraft (their <agent>/SUBMAP), e.g. uav0,uav1 (default: --agent); each "
+                 "aircraft needs its own tracker.agent_number");
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {
     common.Apply("merger");
@@ -32,7 +35,7 @@ int main(int argc, char** argv) {
     auto lcm = bus::OpenLcm(common.lcm_url);
     bus::Publisher publisher(lcm.get(), common.agent);
     MergerService merger(lcm.get(), &publisher, config.merger, config.tracker.tracking.orb, &vocabulary, record_dir,
-                         state_dir);
+                         state_dir, bus::SplitAgents(agents_list));
     bus::Dispatcher dispatcher(lcm.get());
     dispatcher.Start();
     merger.Start();

@@ -19,7 +19,7 @@ namespace stitch {
 
 MergerService::MergerService(lcm::LCM* lcm, bus::Publisher* publisher, const MergerOptions& options,
                              const OrbOptions& orb, const Vocabulary* vocabulary, std::string record_dir,
-                             const std::string& state_dir)
+                             const std::string& state_dir, std::vector<std::string> agents)
     : publisher_(publisher),
       pyramid_(ScalePyramid::From(orb)),
       record_dir_(std::move(record_dir)),
@@ -27,28 +27,33 @@ MergerService::MergerService(lcm::LCM* lcm, bus::Publisher* publisher, const Mer
       subscriber_(lcm),
       // Submap updates are state that matters: a generous queue, and a loud log if it overflows.
       queue_(20000, BoundedQueue<std::unique_ptr<stitch::submap_update_t>>::WhenFull::kDropOldest) {
-  subscriber_.Subscribe<stitch::submap_update_t>(
-      bus::Channel(publisher_->agent(), bus::kSubmap),
-      [this](std::unique_ptr<stitch::submap_update_t> update, const std::string&) {
-        ++received_;
-        last_receive_ = MonotonicSeconds();
-        if (queue_.Push(std::move(update))) {
-          ++rejected_;
-          STITCH_LOG(ERROR) << "merger queue full: dropped the oldest submap update";
-        }
-      });
+  agents_ = agents.empty() ? std::vector<std::string>{publisher_->agent()} : std::move(agents);
+  std::set<std::string> channels;
+  for (const std::string& agent : agents_) {
+    channels.insert(bus::Channel(agent, bus::kSubmap));
+    subscriber_.Subscribe<stitch::submap_update_t>(
+        bus::Channel(agent, bus::kSubmap), [this](std::unique_ptr<stitch::submap_update_t> update, const std::string&) {
+          ++received_;
+          last_receive_ = MonotonicSeconds();
+          if (queue_.Push(std::move(update))) {
+            ++rejected_;
+            STITCH_LOG(ERROR) << "merger queue full: dropped the oldest submap update";
+          }
+        });
+  }
+  submap_channels_ = channels;
   heartbeat_ = std::make_unique<Heartbeat>(publisher_, "merger", [this] {
     return Heartbeat::Counts{received_.load(), processed_.load(), subscriber_.rejected() + rejected_.load()};
   });
   merge_log_.push_back("# event\tcurrent_map\tunconnected_submaps (stack, newest last)\tmerged_maps");
-  if (!state_dir.empty()) journal_ = std::make_unique<UpdateJournal>(state_dir, bus::Channel(publisher_->agent(), bus::kSubmap));
+  if (!state_dir.empty()) journal_ = std::make_unique<UpdateJournal>(state_dir, submap_channels_);
 }
 
 MergerService::~MergerService() { Stop(); }
 
 int64_t MergerService::Replay(const std::string& log_path) {
   recovering_ = true;
-  const int64_t count = ReadSubmapUpdateLog(log_path, bus::Channel(publisher_->agent(), bus::kSubmap),
+  const int64_t count = ReadSubmapUpdateLog(log_path, submap_channels_,
                                             [this](const stitch::submap_update_t& update) { Process(update); });
   recovering_ = false;
   return count;
@@ -147,6 +152,14 @@ void MergerService::Process(const stitch::submap_update_t& message, bool from_jo
       STITCH_LOG(ERROR) << e.what() << "; the merger goes on without persisting its store";
     }
   }
+  // Two aircraft with the same agent number would mix their submaps: keep the first's.
+  const auto [known, fresh] = agent_of_.try_emplace(update.submap, message.header.agent);
+  if (!fresh && known->second != message.header.agent) {
+    ++rejected_;
+    STITCH_LOG(WARNING) << "rejected an update of submap " << SubmapName(update.submap) << " from " << message.header.agent
+                        << ": that submap is " << known->second << "'s (two aircraft with one agent_number?)";
+    return;
+  }
   const std::vector<KeyframeId> missing = merger_.Apply(update);
   ++processed_;
   last_update_[update.submap] = MonotonicSeconds();
@@ -204,7 +217,9 @@ void MergerService::RequestWhatWasLost() {
     if (now - last < options.resend_interval_s) continue;
     last = now;
     request.num_keyframes = static_cast<int32_t>(request.keyframe_ids.size());
-    publisher_->Publish(bus::Channel(publisher_->agent(), bus::kSubmapRequest), &request);
+    const auto agent = agent_of_.find(id);
+    publisher_->Publish(bus::Channel(agent != agent_of_.end() ? agent->second : publisher_->agent(), bus::kSubmapRequest),
+                        &request);
     ++requests_;
     STITCH_LOG(INFO) << "asked for submap " << SubmapName(id) << " again: " << request.num_keyframes
                      << " keyframes missing" << (request.full_state ? ", final state missing" : "");
@@ -261,7 +276,8 @@ void MergerService::PublishGlobalMap(const Merger::Graph& graph) {
   for (const auto& [id, placement] : graph.placement) {
     const SubmapReplica& replica = merger_.submaps().at(id);
     stitch::submap_placement_t p{};
-    p.agent = publisher_->agent();
+    const auto agent = agent_of_.find(id);
+    p.agent = agent != agent_of_.end() ? agent->second : publisher_->agent();
     p.submap_id = id.value;
     p.component = placement.component;
     p.world_from_submap = ToMessage(placement.world_from_submap);

@@ -29,8 +29,10 @@ class MergerService {
   // Subscribes at once: construct before the Dispatcher starts. `vocabulary` must outlive it.
   // With a `state_dir`, every accepted update is journaled there (UpdateJournal) and Start()
   // first resumes from what the folder already holds.
+  // `agents`: the aircraft whose <agent>/SUBMAP it merges (empty: the publisher's own agent).
   MergerService(lcm::LCM* lcm, bus::Publisher* publisher, const MergerOptions& options, const OrbOptions& orb,
-                const Vocabulary* vocabulary, std::string record_dir, const std::string& state_dir = "");
+                const Vocabulary* vocabulary, std::string record_dir, const std::string& state_dir = "",
+                std::vector<std::string> agents = {});
   ~MergerService();
 
   // Feeds the submap updates recorded in an LCM log (a journal or an lcm-logger recording) through
@@ -83,6 +85,9 @@ class MergerService {
   std::set<SubmapId> refined_closed_;  // closed submaps the merged maps were refined with
   std::map<SubmapId, double> last_request_, last_update_;  // MonotonicSeconds()
   std::map<KeyframeId, double> missing_since_;             // listed by a manifest, not received
+  std::vector<std::string> agents_;                        // whose submaps it merges
+  std::set<std::string> submap_channels_;                  // their <agent>/SUBMAP
+  std::map<SubmapId, std::string> agent_of_;               // each submap's aircraft (from its updates)
   std::atomic<int64_t> requests_{0}, keyframes_missing_{0};
   std::vector<std::string> merge_log_;  // lines of merge_log.tsv
   std::string last_stack_;

@@ -4,27 +4,28 @@
 #include <filesystem>
 #include <vector>
 
+#include "services/common/bus.h"
 #include "stitch/util/error.h"
 #include "stitch/util/log.h"
 #include "stitch/util/time.h"
 
 namespace stitch {
 
-UpdateJournal::UpdateJournal(const std::string& dir, std::string channel)
-    : path_((std::filesystem::path(dir) / "submap_updates.lcmlog").string()), channel_(std::move(channel)) {
+UpdateJournal::UpdateJournal(const std::string& dir, std::set<std::string> channels)
+    : path_((std::filesystem::path(dir) / "submap_updates.lcmlog").string()), channels_(std::move(channels)) {
   std::error_code error;
   std::filesystem::create_directories(dir, error);
   if (error) throw Error("merger state folder " + dir + ": " + error.message());
 }
 
-int64_t ReadSubmapUpdateLog(const std::string& path, const std::string& channel,
+int64_t ReadSubmapUpdateLog(const std::string& path, const std::set<std::string>& channels,
                             const std::function<void(const stitch::submap_update_t&)>& each, long* whole_end) {
   lcm::LogFile reader(path, "r");
   if (!reader.good()) throw Error(path + ": cannot read this LCM log");
   int64_t count = 0, undecodable = 0;
   while (const lcm::LogEvent* event = reader.readNextEvent()) {
     if (whole_end) *whole_end = std::ftell(reader.getFilePtr());
-    if (event->channel != channel) continue;
+    if (!channels.count(event->channel)) continue;
     stitch::submap_update_t update;
     if (update.decode(event->data, 0, static_cast<int>(event->datalen)) != static_cast<int>(event->datalen)) {
       ++undecodable;
@@ -34,7 +35,7 @@ int64_t ReadSubmapUpdateLog(const std::string& path, const std::string& channel,
     ++count;
   }
   if (undecodable > 0) {
-    STITCH_LOG(WARNING) << path << ": skipped " << undecodable << " records on " << channel << " that do not decode";
+    STITCH_LOG(WARNING) << path << ": skipped " << undecodable << " submap update records that do not decode";
   }
   return count;
 }
@@ -43,7 +44,7 @@ int64_t UpdateJournal::Recover(const std::function<void(const stitch::submap_upd
   int64_t count = 0;
   if (std::filesystem::exists(path_)) {
     long whole_end = 0;  // file offset after the last whole record
-    count = ReadSubmapUpdateLog(path_, channel_, each, &whole_end);
+    count = ReadSubmapUpdateLog(path_, channels_, each, &whole_end);
     const auto size = std::filesystem::file_size(path_);
     if (static_cast<uintmax_t>(whole_end) < size) {
       STITCH_LOG(WARNING) << path_ << ": cut " << size - whole_end << " bytes of a record left unfinished";
@@ -62,7 +63,7 @@ void UpdateJournal::Append(const stitch::submap_update_t& update) {
   lcm::LogEvent event;
   event.eventnum = appended_;
   event.timestamp = WallUtime();
-  event.channel = channel_;
+  event.channel = bus::Channel(update.header.agent, bus::kSubmap);
   event.datalen = static_cast<int32_t>(bytes.size());
   event.data = bytes.data();
   if (writer_->writeEvent(&event) != 0 || std::fflush(writer_->getFilePtr()) != 0) {

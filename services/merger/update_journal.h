@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <set>
 #include <string>
 
 #include <lcm/lcm-cpp.hpp>
@@ -15,24 +16,25 @@
 
 namespace stitch {
 
-// Reads the submap updates on `channel` from an LCM log (the journal, or an lcm-logger
-// recording of a flight, whose other channels are passed over) and calls `each` with them in
-// order; returns how many. `whole_end` (optional) receives the file offset after the last whole
-// record. Throws stitch::Error when the file cannot be read.
-int64_t ReadSubmapUpdateLog(const std::string& path, const std::string& channel,
+// Reads the submap updates on `channels` (<agent>/SUBMAP of each aircraft) from an LCM log (the
+// journal, or an lcm-logger recording of a flight, whose other channels are passed over) and
+// calls `each` with them in order; returns how many. `whole_end` (optional) receives the file
+// offset after the last whole record. Throws stitch::Error when the file cannot be read.
+int64_t ReadSubmapUpdateLog(const std::string& path, const std::set<std::string>& channels,
                             const std::function<void(const stitch::submap_update_t&)>& each, long* whole_end = nullptr);
 
 class UpdateJournal {
  public:
-  // Opens (creating) `dir`/submap_updates.lcmlog. Throws stitch::Error when it cannot.
-  UpdateJournal(const std::string& dir, std::string channel);
+  // Opens (creating) `dir`/submap_updates.lcmlog for the updates on `channels` (<agent>/SUBMAP of
+  // each aircraft). Throws stitch::Error when it cannot.
+  UpdateJournal(const std::string& dir, std::set<std::string> channels);
 
   // Calls `each` with every update already in the journal, in order, and returns how many. A
   // record cut short by a kill mid-write is dropped and the file cut back to the last whole one;
   // a record that does not decode is skipped with a warning.
   int64_t Recover(const std::function<void(const stitch::submap_update_t&)>& each);
 
-  // Appends one update and flushes it to the operating system. Throws stitch::Error on a write
+  // Appends one update (on <its header's agent>/SUBMAP) and flushes it to the operating system. Throws stitch::Error on a write
   // failure (a full disk): the caller must know the store is no longer complete.
   void Append(const stitch::submap_update_t& update);
 
@@ -41,7 +43,7 @@ class UpdateJournal {
 
  private:
   std::string path_;
-  std::string channel_;
+  std::set<std::string> channels_;
   std::unique_ptr<lcm::LogFile> writer_;
   int64_t appended_ = 0;
 };

@@ -17,7 +17,7 @@ namespace stitch {
 
 int MapCommand(int argc, char** argv) {
   std::vector<std::string> logs;
-  std::string out, config_path, agent = "uav0";
+  std::string out, config_path, agents = "uav0";
   ArgParser args("stitch map",
                  "Rebuilds the merged map from recorded submap updates: the merger's journal "
                  "(RUN/merger/submap_updates.lcmlog, kept by `stitch run --journal` and by `stitch-merger --state`) or an "
@@ -27,22 +27,24 @@ int MapCommand(int argc, char** argv) {
   args.AddPositional(&logs, "LOG", "an LCM log with submap updates");
   args.AddOption("--out", &out, "DIR", "where to write the merged map (created; must not hold one already)");
   args.AddOption("--config", &config_path, "FILE", "YAML settings (default: built-in; a run's config.yaml reproduces it)");
-  args.AddOption("--agent", &agent, "NAME", "whose updates to take (channel <agent>/SUBMAP)");
+  args.AddOption("--agents", &agents, "A,B,...", "whose updates to take (channels <agent>/SUBMAP)");
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {
     if (logs.size() != 1) throw Error("give one LCM log (see --help)");
     if (out.empty()) throw Error("give --out DIR");
     if (!fs::exists(logs[0])) throw Error(logs[0] + ": no such file");
     if (fs::exists(fs::path(out) / "submaps.tsv")) throw Error(out + " already holds a merged map; give a new folder");
-    bus::CheckAgentName(agent);
+    const std::vector<std::string> agent_list = bus::SplitAgents(agents);
+    if (agent_list.empty()) throw Error("--agents: name at least one aircraft");
     const StitchConfig config = LoadStitchConfig(config_path);
     const Vocabulary vocabulary = LoadVocabulary(config);
     auto lcm = bus::OpenLcm("memq://");
-    bus::Publisher publisher(lcm.get(), agent);
-    MergerService merger(lcm.get(), &publisher, config.merger, config.tracker.tracking.orb, &vocabulary, out);
+    bus::Publisher publisher(lcm.get(), agent_list.front());
+    MergerService merger(lcm.get(), &publisher, config.merger, config.tracker.tracking.orb, &vocabulary, out, "",
+                         agent_list);
     const Stopwatch clock;
     const int64_t count = merger.Replay(logs[0]);
-    if (count == 0) throw Error(logs[0] + ": no submap update on " + bus::Channel(agent, bus::kSubmap));
+    if (count == 0) throw Error(logs[0] + ": no submap update of " + agents);
     merger.Start();
     merger.Stop();
     std::printf("merged %lld submap updates from %s in %.1f s; outputs in %s\n", static_cast<long long>(count),
