@@ -42,12 +42,7 @@ std::vector<stitch::submap_update_t> GustStripUpdates() {
   FailureSchedule unused;
   auto sequence = OpenSource(spec, &unused);
   const Vocabulary vocabulary = LoadVocabulary(config);
-  const InlineRun run = RunInline(*sequence, config, vocabulary, nullptr, /*keep_submap_updates=*/true);
-  std::vector<stitch::submap_update_t> messages;
-  for (const SubmapUpdate& update : run.submap_updates) {
-    for (auto& part : ToMessages(update)) messages.push_back(std::move(part));
-  }
-  return messages;
+  return ToMessages(RunInline(*sequence, config, vocabulary, nullptr, /*keep_submap_updates=*/true).submap_updates);
 }
 
 int64_t JournalRecords(const std::string& path) {

@@ -258,4 +258,12 @@ SubmapUpdate FromMessage(const stitch::submap_update_t& m, const ScalePyramid& p
   return update;
 }
 
+std::vector<stitch::submap_update_t> ToMessages(const std::vector<SubmapUpdate>& updates) {
+  std::vector<stitch::submap_update_t> messages;
+  for (const SubmapUpdate& update : updates) {
+    for (auto& part : ToMessages(update)) messages.push_back(std::move(part));
+  }
+  return messages;
+}
+
 }  // namespace stitch

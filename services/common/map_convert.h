@@ -38,6 +38,8 @@ LocalMapUpdate FromMessage(const stitch::local_map_update_t& message);
 // One LCM message per part (see SplitSubmapUpdate); `update.camera` must be set when it carries
 // keyframes.
 std::vector<stitch::submap_update_t> ToMessages(const SubmapUpdate& update, size_t max_part_bytes = 60000);
+// The messages of several updates, in order (what a mapper publishes over a flight).
+std::vector<stitch::submap_update_t> ToMessages(const std::vector<SubmapUpdate>& updates);
 // Throws stitch::Error saying what is inconsistent.
 SubmapUpdate FromMessage(const stitch::submap_update_t& message, const ScalePyramid& pyramid);
 

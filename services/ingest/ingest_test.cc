@@ -3,8 +3,11 @@
 
 #include "services/ingest/ingest.h"
 
-#include <fstream>
 #include <unistd.h>
+
+#include <fstream>
+#include <functional>
+#include <optional>
 
 #include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
@@ -227,8 +230,10 @@ TEST(Ingest, LockstepWithoutATrackerFailsWithAClearError) {
   }
 }
 
-TEST(Ingest, LostAcksAreRecoveredByResending) {
-  // A tracker stand-in that ignores the first copy of every frame, as if its ack had been lost.
+// Plays four frames in lockstep against a tracker stand-in that answers the n-th copy of frame
+// `frame` with the ack `answer(frame, copy)` returns (none when it returns nullopt).
+IngestSummary PlayAgainstAStandIn(
+    const std::function<std::optional<stitch::frame_ack_t>(const stitch::frame_t&, int)>& answer) {
   auto lcm = bus::OpenLcm("memq://");
   bus::Publisher publisher(lcm.get(), "uav0");
   IngestOptions options = Lockstep();
@@ -238,11 +243,9 @@ TEST(Ingest, LostAcksAreRecoveredByResending) {
   bus::Subscriber subscriber(lcm.get());
   subscriber.Subscribe<stitch::frame_t>(bus::Channel("uav0", bus::kFrame),
                                         [&](std::unique_ptr<stitch::frame_t> f, const std::string&) {
-                                          if (++copies[f->frame_index] < 2) return;
-                                          stitch::frame_ack_t ack{};
-                                          ack.frame_index = f->frame_index;
-                                          ack.frame_session = f->header.sender_session;
-                                          publisher.Publish(bus::Channel("uav0", bus::kFrameAck), &ack);
+                                          if (auto ack = answer(*f, ++copies[f->frame_index])) {
+                                            publisher.Publish(bus::Channel("uav0", bus::kFrameAck), &*ack);
+                                          }
                                         });
   Heartbeat heartbeat(&publisher, "tracker", [] { return Heartbeat::Counts{}; });
   bus::Dispatcher dispatcher(lcm.get());
@@ -255,40 +258,32 @@ TEST(Ingest, LostAcksAreRecoveredByResending) {
   const IngestSummary summary = ingest.Play(*sequence, spoil, stop);
   heartbeat.Stop();
   dispatcher.Stop();
+  return summary;
+}
+
+stitch::frame_ack_t AckOf(const stitch::frame_t& frame, int64_t session) {
+  stitch::frame_ack_t ack{};
+  ack.frame_index = frame.frame_index;
+  ack.frame_session = session;
+  return ack;
+}
+
+TEST(Ingest, LostAcksAreRecoveredByResending) {
+  // The first copy of every frame goes unanswered, as if its ack had been lost.
+  const IngestSummary summary = PlayAgainstAStandIn([](const stitch::frame_t& f, int copy) {
+    return copy < 2 ? std::nullopt : std::optional(AckOf(f, f.header.sender_session));
+  });
   EXPECT_EQ(summary.frames_published, 4);
   EXPECT_EQ(summary.resends, 4);
   EXPECT_EQ(summary.frames_unacked, 0);
 }
 
 TEST(Ingest, AcksOfAnotherIngestsFramesDoNotCount) {
-  // Acks naming another sender's frames (an earlier run, a second ingest) arrive for every frame
-  // number; only the re-sends' own acks let the ingest go on.
-  auto lcm = bus::OpenLcm("memq://");
-  bus::Publisher publisher(lcm.get(), "uav0");
-  IngestOptions options = Lockstep();
-  options.ack_timeout_s = 0.05;
-  IngestService ingest(lcm.get(), "memq://", &publisher, options);
-  std::map<int, int> copies;
-  bus::Subscriber subscriber(lcm.get());
-  subscriber.Subscribe<stitch::frame_t>(bus::Channel("uav0", bus::kFrame),
-                                        [&](std::unique_ptr<stitch::frame_t> f, const std::string&) {
-                                          stitch::frame_ack_t ack{};
-                                          ack.frame_index = f->frame_index;
-                                          ack.frame_session = f->header.sender_session + 1;
-                                          if (++copies[f->frame_index] >= 2) ack.frame_session = f->header.sender_session;
-                                          publisher.Publish(bus::Channel("uav0", bus::kFrameAck), &ack);
-                                        });
-  Heartbeat heartbeat(&publisher, "tracker", [] { return Heartbeat::Counts{}; });
-  bus::Dispatcher dispatcher(lcm.get());
-  dispatcher.Start();
-  heartbeat.Start();
-  heartbeat.SetState(stitch::service_status_t::STATE_RUNNING);
-  FailureSchedule spoil;
-  auto sequence = OpenSource(ShortFlight(4), &spoil);
-  std::atomic<bool> stop{false};
-  const IngestSummary summary = ingest.Play(*sequence, spoil, stop);
-  heartbeat.Stop();
-  dispatcher.Stop();
+  // The first copy of every frame is answered with an ack naming another sender's frames (an
+  // earlier run, a second ingest); only the re-sends' own acks let the ingest go on.
+  const IngestSummary summary = PlayAgainstAStandIn([](const stitch::frame_t& f, int copy) {
+    return std::optional(AckOf(f, f.header.sender_session + (copy < 2 ? 1 : 0)));
+  });
   EXPECT_EQ(summary.frames_published, 4);
   EXPECT_EQ(summary.resends, 4);  // each frame waited for its own ack
   EXPECT_EQ(summary.frames_unacked, 0);
