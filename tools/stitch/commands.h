@@ -10,5 +10,6 @@ int ConfigCommand(int argc, char** argv);  // stitch config
 int VocabCommand(int argc, char** argv);   // stitch vocab train|info
 int BenchCommand(int argc, char** argv);   // stitch bench
 int MapCommand(int argc, char** argv);     // stitch map
+int RecordCommand(int argc, char** argv);  // stitch record
 
 }  // namespace stitch

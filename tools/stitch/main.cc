@@ -25,6 +25,7 @@ constexpr char kUsage[] =
     "  vocab     train a bag-of-words vocabulary, or describe one\n"
     "  bench     time tracking and mapping on a sequence (no bus)\n"
     "  map       rebuild the merged map from recorded submap updates (a merger's journal or an LCM log)\n"
+    "  record    record a flight's features (what crosses to the ground) with lcm-logger\n"
     "  ingest    run the ingest service alone (same as stitch-ingest)\n"
     "  tracker   run the tracker service alone (same as stitch-tracker)\n"
     "  mapper    run the mapper service alone (same as stitch-mapper)\n"
@@ -48,6 +49,7 @@ int main(int argc, char** argv) {
   if (command == "vocab") return stitch::VocabCommand(argc - 1, argv + 1);
   if (command == "bench") return stitch::BenchCommand(argc - 1, argv + 1);
   if (command == "map") return stitch::MapCommand(argc - 1, argv + 1);
+  if (command == "record") return stitch::RecordCommand(argc - 1, argv + 1);
   if (command == "version" || command == "--version") {
     std::printf("stitch %s\n", STITCH_VERSION);
     return 0;
