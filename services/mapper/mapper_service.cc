@@ -175,7 +175,7 @@ void MapperService::Process(const stitch::keyframe_t& message) {
   const LocalMapUpdate update = mapping_->MakeUpdate(id, static_cast<int>(queue_.size()));
   for (auto& part : ToMessages(update)) publisher_->Publish(bus::Channel(publisher_->agent(), bus::kLocalMap), &part);
   SubmapUpdate to_merger = mapping_->MakeSubmapUpdate(id, update);
-  ThinPoints(&to_merger);
+  ThinForTheLink(&to_merger);
   PublishSubmapUpdate(to_merger);
   STITCH_LOG(DEBUG) << "keyframe " << id << ": " << report.new_points << " new points, " << report.fused << " fused, "
                     << report.culled_points << " points and " << report.culled_keyframes.size()
@@ -183,7 +183,7 @@ void MapperService::Process(const stitch::keyframe_t& message) {
                     << report.bundle_adjustment.final_rms_px << " px, " << report.milliseconds << " ms";
 }
 
-void MapperService::ThinPoints(SubmapUpdate* update) {
+void MapperService::ThinForTheLink(SubmapUpdate* update) {
   const double fraction = options_.submap_point_resend_fraction;
   const Map* map = mapping_ ? mapping_->map() : nullptr;
   if (!map) return;

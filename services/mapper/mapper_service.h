@@ -44,7 +44,7 @@ class MapperService {
   void Process(const stitch::keyframe_t& message);
   // Leaves out of a keyframe's submap update the refined points the merger already has close
   // enough (MapperOptions::submap_point_resend_fraction) and associations it already has.
-  void ThinPoints(SubmapUpdate* update);
+  void ThinForTheLink(SubmapUpdate* update);
   void PublishSubmapUpdate(const SubmapUpdate& update);
   void CloseIfRequested();
   // Answers the merger's requests for what the link lost (in the worker: it owns the maps).

@@ -14,15 +14,14 @@ MapPointId Resolve(const std::map<MapPointId, MapPointId>& replaced, MapPointId 
   return id;
 }
 
-// Fuses `duplicate` and `other` (the one with fewer observations goes); returns the survivor.
-MapPointId FusePair(Map* map, MapPointId a, MapPointId b, std::map<MapPointId, MapPointId>* replaced) {
+// Makes points `a` and `b` one (the one with fewer observations goes) and records which went.
+void FusePair(Map* map, MapPointId a, MapPointId b, std::map<MapPointId, MapPointId>* replaced) {
   const MapPoint* point_a = map->FindPoint(a);
   const MapPoint* point_b = map->FindPoint(b);
   const bool keep_a = point_a->observations.size() >= point_b->observations.size();
   const MapPointId keep = keep_a ? a : b, duplicate = keep_a ? b : a;
   map->ReplacePoint(duplicate, keep);
   (*replaced)[duplicate] = keep;
-  return keep;
 }
 
 void RefreshGeometry(Map* map) {

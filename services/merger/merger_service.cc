@@ -357,22 +357,21 @@ void MergerService::WriteRecords(const Merger::Graph& graph, const MergedMap* me
     };
     if (merged) {  // fused and adjusted
       for (const auto& [id, point] : merged->map.points()) add(point.position, SubmapOf(id));
-    }
-    for (const auto& [id, placement] : graph.placement) {
-      if (merged) break;
-      if (placement.component != 0) continue;
-      const Map& map = merger_.submaps().at(id).map;
-      for (const auto& [point_id, point] : map.points()) {
-        // Moved with a keyframe that sees it, by that keyframe's refined pose.
-        Eigen::Vector3d position = placement.world_from_submap * point.position;
-        if (!point.observations.empty()) {
-          const KeyframeId observer = point.observations.begin()->first;
-          const auto refined = graph.keyframe_poses.find(observer);
-          if (refined != graph.keyframe_poses.end()) {
-            position = refined->second * (map.FindKeyframe(observer)->cam_from_world * point.position);
+    } else {  // one submap: its points, each moved with a keyframe that sees it
+      for (const auto& [id, placement] : graph.placement) {
+        if (placement.component != 0) continue;
+        const Map& map = merger_.submaps().at(id).map;
+        for (const auto& [point_id, point] : map.points()) {
+          Eigen::Vector3d position = placement.world_from_submap * point.position;
+          if (!point.observations.empty()) {
+            const KeyframeId observer = point.observations.begin()->first;
+            const auto refined = graph.keyframe_poses.find(observer);
+            if (refined != graph.keyframe_poses.end()) {
+              position = refined->second * (map.FindKeyframe(observer)->cam_from_world * point.position);
+            }
           }
+          add(position, id);
         }
-        add(position, id);
       }
     }
     WritePly((dir / "map.ply").string(), cloud);
