@@ -103,6 +103,9 @@ TEST(StitchRun, BadInputsGiveAClearErrorAndANonZeroExit) {
       {{Bin("stitch-ingest"), "--pacing", "warp"}, "pacing"},
       {{Bin("stitch-ingest"), "--agent", "uav 0"}, "agent name"},
       {{Bin("stitch-tracker"), "--config", dir / "typo.yaml"}, "pacnig"},
+      {{Bin("stitch-link"), "--peer", "nowhere"}, "ADDRESS:PORT"},
+      {{Bin("stitch-link"), "--loss", "2"}, "link.loss"},
+      {{Bin("stitch"), "run", "--link-loss", "0.1"}, "need --link"},
   };
   for (const auto& c : cases) {
     const auto result = RunProgram(c.args, 30);
@@ -122,7 +125,9 @@ TEST(StitchRun, EveryCommandHasHelp) {
                                              {Bin("stitch"), "render", "--help"},
                                              {Bin("stitch"), "config", "--help"},
                                              {Bin("stitch-ingest"), "--help"},
-                                             {Bin("stitch-tracker"), "--help"}}) {
+                                             {Bin("stitch-tracker"), "--help"},
+                                             {Bin("stitch"), "link", "--help"},
+                                             {Bin("stitch-link"), "--help"}}) {
     const auto result = RunProgram(args, 10);
     EXPECT_EQ(result.exit_code, 0) << args[0] << " " << args[1];
     EXPECT_NE(result.output.find("usage:"), std::string::npos) << result.output;

@@ -23,6 +23,9 @@
 
 namespace stitch::bus {
 
+// Messages LCM keeps per subscription while the dispatcher is busy.
+inline constexpr int kSubscriptionQueueCapacity = 2000;
+
 // Channel suffixes.
 inline constexpr char kFrame[] = "FRAME";
 inline constexpr char kFrameAck[] = "FRAME_ACK";
@@ -119,7 +122,11 @@ class Subscriber {
       }
       handler(std::move(message), on);
     });
-    subscriptions_.push_back(lcm_->subscribe(channel, &RawHandler::OnMessage, raw.get()));
+    lcm::Subscription* subscription = lcm_->subscribe(channel, &RawHandler::OnMessage, raw.get());
+    // LCM drops what arrives while more than this many messages wait for the dispatcher (30 by
+    // default, which a burst of submap parts from the link bridge exceeds); handlers only queue.
+    subscription->setQueueCapacity(kSubscriptionQueueCapacity);
+    subscriptions_.push_back(subscription);
     handlers_.push_back(std::move(raw));
   }
 

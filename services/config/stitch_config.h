@@ -6,6 +6,7 @@
 #include <string>
 
 #include "services/ingest/ingest_options.h"
+#include "services/link/link_options.h"
 #include "services/mapper/mapper_options.h"
 #include "services/merger/merger.h"
 #include "services/tracker/tracker_options.h"
@@ -20,6 +21,7 @@ struct StitchConfig {
   TrackerOptions tracker;
   MapperOptions mapper;
   MergerOptions merger;
+  LinkOptions link;
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
@@ -29,9 +31,11 @@ struct StitchConfig {
     v("tracker", tracker, "tracking service");
     v("mapper", mapper, "local mapping service");
     v("merger", merger, "submap merging service");
+    v("link", link, "link bridge between the aircraft's and the ground's networks (stitch-link)");
   }
   bool Check(std::string* why) const {
-    return synthetic.Check(why) && ingest.Check(why) && tracker.Check(why) && mapper.Check(why) && merger.Check(why);
+    return synthetic.Check(why) && ingest.Check(why) && tracker.Check(why) && mapper.Check(why) && merger.Check(why) &&
+           link.Check(why);
   }
 };
 

@@ -29,6 +29,7 @@ constexpr char kUsage[] =
     "  ingest    run the ingest service alone (same as stitch-ingest)\n"
     "  tracker   run the tracker service alone (same as stitch-tracker)\n"
     "  mapper    run the mapper service alone (same as stitch-mapper)\n"
+    "  link      bridge chosen channels to the other side of a radio link (same as stitch-link)\n"
     "  version   print the version\n";
 
 }  // namespace
@@ -54,7 +55,7 @@ int main(int argc, char** argv) {
     std::printf("stitch %s\n", STITCH_VERSION);
     return 0;
   }
-  if (command == "ingest" || command == "tracker" || command == "mapper") {
+  if (command == "ingest" || command == "tracker" || command == "mapper" || command == "link") {
     const std::string service = stitch::ExecutableDir() + "/stitch-" + command;
     argv[1] = const_cast<char*>(service.c_str());
     execv(service.c_str(), argv + 1);

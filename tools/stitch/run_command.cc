@@ -25,6 +25,7 @@
 #include "tools/stitch/commands.h"
 #include "stitch/util/child_process.h"
 #include "tools/stitch/run_outputs.h"
+#include "tools/stitch/split_network.h"
 
 namespace fs = std::filesystem;
 
@@ -46,6 +47,9 @@ struct RunArgs {
   bool quiet = false;
   bool journal = false;  // keep the merger's journal in OUT/merger
   bool compare = false;
+  bool link = false;     // a link bridge pair between the aircraft's bus and the ground's
+  bool netns = false;    // and the two sides in two network namespaces
+  double link_loss = -1, link_delay_ms = -1, link_budget = -1;  // < 0: as configured
 };
 
 // One run's outcome, for the comparison table.
@@ -144,6 +148,9 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
     config = LoadStitchConfig(a.config_path);
     if (!a.pacing.empty()) config.ingest.pacing = a.pacing;
     if (!a.on_loss.empty()) config.tracker.on_loss = a.on_loss;
+    if (a.link_loss >= 0) config.link.loss = a.link_loss;
+    if (a.link_delay_ms >= 0) config.link.delay_ms = a.link_delay_ms;
+    if (a.link_budget >= 0) config.link.budget_bytes_per_s = a.link_budget;
     CheckOptions(config, "settings");
     spec.dataset_path = a.dataset;
     spec.calibration_path = a.calibration;
@@ -159,7 +166,20 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
   }
   outcome.on_loss = config.tracker.on_loss;
 
+  const bool linked = a.link || a.netns;
   const std::string url = a.lcm_url.empty() ? bus::LocalUdpUrl(RandomPort()) : a.lcm_url;
+  // With a link, the merger is on a bus of its own, reached only through the bridges.
+  std::string ground_url = url;
+  if (linked) {
+    do ground_url = bus::LocalUdpUrl(RandomPort());
+    while (ground_url == url);
+    char text[160];
+    std::snprintf(text, sizeof(text), "loss %g, delay %g ms, jitter %g ms, budget %s%s", config.link.loss,
+                  config.link.delay_ms, config.link.jitter_ms,
+                  config.link.budget_bytes_per_s > 0 ? (std::to_string(static_cast<int64_t>(config.link.budget_bytes_per_s)) + " B/s").c_str() : "none",
+                  a.netns ? ", two network namespaces" : ", loopback");
+    info.link = text;
+  }
   info.source = source.description;
   info.dataset = a.dataset;
   info.frames_total = source.num_frames;
@@ -172,6 +192,7 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
   info.started_at = Timestamp("%Y-%m-%dT%H:%M:%S%z");
 
   std::unique_ptr<lcm::LCM> lcm;
+  std::unique_ptr<SplitNetwork> network;
   try {
     // A run never writes over another run's records (the tracker appends to frames.tsv).
     if (fs::exists(out) && !fs::is_empty(out)) {
@@ -181,6 +202,10 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
     SaveStitchConfig(config, (fs::path(out) / "config.yaml").string());
     if (!source.ground_truth.empty()) source.ground_truth.WriteTum((fs::path(out) / "groundtruth.tum").string());
     SaveRunInfo(info, out);
+    if (a.netns) {
+      network = std::make_unique<SplitNetwork>((fs::path(out) / "logs" / "netns.log").string());
+      network->EnterAircraft();  // this launcher listens on the aircraft's side
+    }
     lcm = bus::OpenLcm(url);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "stitch run: %s\n", e.what());
@@ -188,8 +213,11 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
     return outcome;
   }
 
-  std::printf("stitch run: %s\n  on-loss %s, %s pacing, bus %s\n  output %s/\n", source.description.c_str(),
-              info.on_loss.c_str(), info.pacing.c_str(), url.c_str(), out.c_str());
+  std::printf("stitch run: %s\n  on-loss %s, %s pacing, bus %s\n", source.description.c_str(), info.on_loss.c_str(),
+              info.pacing.c_str(), url.c_str());
+  if (linked) std::printf("  merger on %s behind a link: %s\n", ground_url.c_str(), info.link.c_str());
+  if (network) std::printf("  %s\n", network->Describe().c_str());
+  std::printf("  output %s/\n", out.c_str());
   std::fflush(stdout);
 
   const auto& stop = InstallStopSignals();
@@ -199,40 +227,58 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
 
   const std::string bin = ExecutableDir();
   const std::string config_file = (fs::path(out) / "config.yaml").string();
-  const std::vector<std::string> common = {"--lcm-url", url, "--agent", a.agent, "--config", config_file,
-                                           "--log-level", a.log_level};
+  const auto common_on = [&](const std::string& bus_url) {
+    return std::vector<std::string>{"--lcm-url", bus_url, "--agent",     a.agent,
+                                    "--config",  config_file, "--log-level", a.log_level};
+  };
+  const std::vector<std::string> common = common_on(url), ground_common = common_on(ground_url);
   const Stopwatch clock;
   int exit_code = 0;
   std::string failure;
   std::vector<std::unique_ptr<ChildProcess>> children;
+  const auto start = [&](const std::string& name, const std::string& program, std::vector<std::string> args) {
+    children.push_back(std::make_unique<ChildProcess>(name, bin + "/" + program, args,
+                                                      (fs::path(out) / "logs" / (name + ".log")).string()));
+    return children.back().get();
+  };
+  const auto with = [](std::vector<std::string> args, const std::vector<std::string>& more) {
+    args.insert(args.end(), more.begin(), more.end());
+    return args;
+  };
+  ChildProcess *merger = nullptr, *mapper = nullptr, *tracker = nullptr, *ingest = nullptr;
+  std::vector<ChildProcess*> links;
   try {
-    std::vector<std::string> merger_args = common;
-    merger_args.insert(merger_args.end(), {"--record", out});
-    if (a.journal) merger_args.insert(merger_args.end(), {"--state", (fs::path(out) / "merger").string()});
-    children.push_back(std::make_unique<ChildProcess>("merger", bin + "/stitch-merger", merger_args,
-                                                      (fs::path(out) / "logs" / "merger.log").string()));
-    std::vector<std::string> mapper_args = common;
-    mapper_args.insert(mapper_args.end(), {"--record", out});
-    children.push_back(std::make_unique<ChildProcess>("mapper", bin + "/stitch-mapper", mapper_args,
-                                                      (fs::path(out) / "logs" / "mapper.log").string()));
-    std::vector<std::string> tracker_args = common;
-    tracker_args.insert(tracker_args.end(), {"--record", (fs::path(out) / "frames.tsv").string(), "--state",
-                                             (fs::path(out) / "logs" / "tracker.state").string()});
-    children.push_back(std::make_unique<ChildProcess>("tracker", bin + "/stitch-tracker", tracker_args,
-                                                      (fs::path(out) / "logs" / "tracker.log").string()));
-    std::vector<std::string> ingest_args = common;
-    ingest_args.insert(ingest_args.end(), {"--failures", a.failures, "--max-frames", std::to_string(a.max_frames)});
-    if (!a.dataset.empty()) ingest_args.insert(ingest_args.end(), {"--dataset", a.dataset});
-    if (!a.calibration.empty()) ingest_args.insert(ingest_args.end(), {"--calib", a.calibration});
-    children.push_back(std::make_unique<ChildProcess>("ingest", bin + "/stitch-ingest", ingest_args,
-                                                      (fs::path(out) / "logs" / "ingest.log").string()));
+    std::vector<std::string> merger_args = with(ground_common, {"--record", out});
+    if (a.journal) merger_args = with(merger_args, {"--state", (fs::path(out) / "merger").string()});
+    if (network) network->EnterGround();
+    if (linked) {
+      const std::string air = network ? SplitNetwork::kAircraftAddress : "127.0.0.1";
+      const std::string ground = network ? SplitNetwork::kGroundAddress : "127.0.0.1";
+      const std::string air_port = std::to_string(RandomPort()), ground_port = std::to_string(RandomPort());
+      merger = start("merger", "stitch-merger", merger_args);
+      std::vector<std::string> ground_link = with(ground_common, {"--forward", a.agent + "/" + bus::kSubmapRequest, "--listen",
+                                                           ground + ":" + ground_port, "--peer", air + ":" + air_port});
+      links.push_back(start("link-ground", "stitch-link", ground_link));
+      if (network) network->EnterAircraft();
+      links.push_back(start("link-aircraft", "stitch-link",
+                            with(common, {"--forward", a.agent + "/(SUBMAP|SEQUENCE|TRACKING_STATUS|SERVICE)", "--listen",
+                                          air + ":" + air_port, "--peer", ground + ":" + ground_port})));
+    } else {
+      merger = start("merger", "stitch-merger", merger_args);
+    }
+    mapper = start("mapper", "stitch-mapper", with(common, {"--record", out}));
+    tracker = start("tracker", "stitch-tracker",
+                    with(common, {"--record", (fs::path(out) / "frames.tsv").string(), "--state",
+                                  (fs::path(out) / "logs" / "tracker.state").string()}));
+    std::vector<std::string> ingest_args =
+        with(common, {"--failures", a.failures, "--max-frames", std::to_string(a.max_frames)});
+    if (!a.dataset.empty()) ingest_args = with(ingest_args, {"--dataset", a.dataset});
+    if (!a.calibration.empty()) ingest_args = with(ingest_args, {"--calib", a.calibration});
+    ingest = start("ingest", "stitch-ingest", ingest_args);
   } catch (const std::exception& e) {
     failure = e.what();
   }
-  ChildProcess* merger = children.size() > 0 ? children[0].get() : nullptr;
-  ChildProcess* mapper = children.size() > 1 ? children[1].get() : nullptr;
-  ChildProcess* tracker = children.size() > 2 ? children[2].get() : nullptr;
-  ChildProcess* ingest = children.size() > 3 ? children[3].get() : nullptr;
+
 
   // Progress until ingest has played everything and the tracker has caught up.
   const bool tty = isatty(STDOUT_FILENO) && !a.quiet;
@@ -259,7 +305,9 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
       info.interrupted = true;
       break;
     }
-    for (ChildProcess* service : {merger, mapper, tracker}) {
+    std::vector<ChildProcess*> services = links;
+    services.insert(services.end(), {merger, mapper, tracker});
+    for (ChildProcess* service : services) {
       if (service && service->Poll()) {
         failure = "the " + service->name() + " exited unexpectedly (status " + std::to_string(*service->Poll()) +
                   "); end of " + service->log_path() + ":\n" + service->LogTail(8);
@@ -285,9 +333,10 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
   if (tty) std::printf("\n");
 
   // Shut the services down, upstream first: each drains its queue and writes its files on SIGTERM
-  // (the mapper may still have keyframes to map, the merger submap updates to merge).
+  // (the mapper may still have keyframes to map, the aircraft's bridge submap states to deliver,
+  // the merger submap updates to merge).
   for (auto it = children.rbegin(); it != children.rend(); ++it) {
-    const bool slow = (*it)->name() == "mapper" || (*it)->name() == "merger";
+    const bool slow = (*it)->name() == "mapper" || (*it)->name() == "merger" || (*it)->name().rfind("link", 0) == 0;
     const int status = (*it)->Terminate(std::chrono::milliseconds(slow ? 120000 : 15000));
     if (status != 0 && status != 128 + SIGTERM && status != 130 && !info.interrupted && failure.empty()) {
       failure = (*it)->name() + " ended with status " + std::to_string(status) + "; see " + (*it)->log_path();
@@ -295,6 +344,13 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
   }
   dispatcher.Stop();
   info.wall_seconds = clock.ElapsedSeconds();
+  for (const ChildProcess* link : links) {
+    const std::string tail = link->LogTail(3);
+    const size_t said = tail.rfind("stopped: ");
+    if (said != std::string::npos) {
+      info.link_figures.push_back(link->name() + ": " + tail.substr(said + 9, tail.find('\n', said) - said - 9));
+    }
+  }
 
   if (!failure.empty()) {
     std::fprintf(stderr, "stitch run: %s\n", failure.c_str());
@@ -306,6 +362,7 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
     SaveRunInfo(info, out);
     std::printf("%s in %.1f s\n%s", info.interrupted ? "interrupted" : (exit_code ? "failed" : "done"), info.wall_seconds,
                 Summarize(evaluation).c_str());
+    for (const auto& figures : info.link_figures) std::printf("%s\n", figures.c_str());
     for (const auto& note : info.notes) std::printf("note: %s\n", note.c_str());
     std::printf("outputs: %s/{trajectory.tum, map.ply, report.json, trajectory.png, logs/}\n", out.c_str());
     outcome.evaluation = evaluation;
@@ -389,6 +446,16 @@ int RunCommand(int argc, char** argv) {
   args.AddFlag("--journal", &a.journal,
                "keep the merger's journal of submap updates in DIR/merger (about 73 MB for the default flight); "
                "`stitch map` rebuilds the merged map from it");
+  args.AddFlag("--link", &a.link,
+               "rehearse the radio link: the merger on a bus of its own, reached through a pair of link bridges "
+               "(stitch-link) with the config's link settings");
+  args.AddFlag("--netns", &a.netns,
+               "with --link: the aircraft's and the ground's services in two network namespaces joined by a veth "
+               "pair (needs root and iproute2)");
+  args.AddOption("--link-loss", &a.link_loss, "P", "with --link: drop each datagram with probability P (link.loss)");
+  args.AddOption("--link-delay-ms", &a.link_delay_ms, "MS", "with --link: delay each datagram (link.delay_ms)");
+  args.AddOption("--link-budget", &a.link_budget, "BYTES/S",
+                 "with --link: bandwidth budget of each side (link.budget_bytes_per_s; 0: none)");
   args.AddFlag("--compare", &a.compare,
                "run twice, --on-loss submap then relocalize, into DIR/submap and DIR/relocalize, and print both side by side");
   args.AddEpilog("Outputs: trajectory.tum, map.ply (the largest merged map), report.json, trajectory.png,\n"
@@ -398,6 +465,10 @@ int RunCommand(int argc, char** argv) {
                  "merger/submap_updates.lcmlog.");
   if (!args.Parse(argc, argv)) return args.exit_code();
 
+  if (!a.link && !a.netns && (a.link_loss >= 0 || a.link_delay_ms >= 0 || a.link_budget >= 0)) {
+    std::fprintf(stderr, "stitch run: --link-loss, --link-delay-ms and --link-budget need --link\n");
+    return 2;
+  }
   const std::string out = a.out.empty() ? NewRunFolder() : a.out;
   if (!a.compare) return RunOnce(a, out).exit_code;
   if (!a.on_loss.empty()) {

@@ -22,7 +22,7 @@ nlohmann::json RunInfo::ToJson() const {
           {"frames_unusable", frames_unusable}, {"failures", failures}, {"on_loss", on_loss},
           {"pacing", pacing},           {"lcm_url", lcm_url},           {"agent", agent},
           {"started_at", started_at},   {"wall_seconds", wall_seconds}, {"interrupted", interrupted},
-          {"notes", notes}};
+          {"link", link},               {"link_figures", link_figures}, {"notes", notes}};
 }
 
 RunInfo RunInfo::FromJson(const nlohmann::json& j) {
@@ -37,6 +37,8 @@ RunInfo RunInfo::FromJson(const nlohmann::json& j) {
     info.pacing = j.at("pacing");
     info.lcm_url = j.value("lcm_url", "");
     info.agent = j.value("agent", "");
+    info.link = j.value("link", "");
+    info.link_figures = j.value("link_figures", std::vector<std::string>{});
     info.started_at = j.value("started_at", "");
     info.wall_seconds = j.value("wall_seconds", 0.0);
     info.interrupted = j.value("interrupted", false);

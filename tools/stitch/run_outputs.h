@@ -24,6 +24,8 @@ struct RunInfo {
   std::string pacing;
   std::string lcm_url;
   std::string agent;
+  std::string link;                       // the link bridges between the sides; "" when one bus
+  std::vector<std::string> link_figures;  // each bridge's last word: what it sent, repaired, received
   std::string started_at;
   double wall_seconds = 0;
   bool interrupted = false;

@@ -1,0 +1,197 @@
+#pragma once
+// The link bridge: carries chosen LCM channels between two LCM networks (the aircraft's and the
+// ground station's) over plain UDP, which routed radio links carry where multicast does not.
+//
+// One bridge runs on each side; each sends its `forward` channels to the other and publishes
+// what the other sends on its own network, byte for byte. A message is split into numbered
+// datagrams; the receiver asks for the ones it lacks (REPAIR) and the sender keeps what it sent
+// for `retain_s` to answer, so a lossy link still delivers whole messages. Under a bandwidth
+// budget, messages wait in a queue (small ones first) and are dropped, oldest first, after
+// `max_queue_s`. A message this bridge published is never sent back (no echo between sides).
+//
+// Threads: LCM's dispatcher (the caller runs it) queues local messages; a sender thread paces
+// and transmits; a receiver thread reassembles, asks for repairs and publishes.
+
+#include <atomic>
+#include <condition_variable>
+#include <cstdint>
+#include <deque>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <queue>
+#include <set>
+#include <string>
+#include <thread>
+#include <unordered_map>
+#include <vector>
+
+#include <lcm/lcm-cpp.hpp>
+
+#include "services/link/link_options.h"
+#include "services/link/link_wire.h"
+#include "stitch/util/rng.h"
+#include "stitch/util/time.h"
+
+namespace stitch {
+
+struct LinkCounts {
+  int64_t messages_queued = 0;        // local messages taken for the other side
+  int64_t messages_sent = 0;          // every fragment sent at least once
+  int64_t messages_expired = 0;       // waited longer than max_queue_s under the budget; dropped
+  int64_t messages_refused = 0;       // too large to send
+  int64_t datagrams_sent = 0;         // including repairs, requests and statuses
+  int64_t bytes_sent = 0;             // with UDP/IP headers (what the budget counts)
+  int64_t datagrams_lost_injected = 0;
+  int64_t fragments_repaired = 0;     // sent again because the other side asked
+  int64_t repair_requests_sent = 0;
+  int64_t messages_delivered = 0;     // from the other side, published here
+  int64_t messages_given_up = 0;      // from the other side, never completed
+  int64_t datagrams_refused = 0;      // malformed or foreign
+  int64_t echoes_suppressed = 0;      // our own publications, not sent back
+  int64_t queued_bytes = 0;           // waiting now
+};
+
+class LinkBridge {
+ public:
+  // Binds options.listen and resolves options.peer; throws stitch::Error with what to fix.
+  LinkBridge(lcm::LCM* lcm, LinkOptions options);
+  ~LinkBridge();
+  LinkBridge(const LinkBridge&) = delete;
+  LinkBridge& operator=(const LinkBridge&) = delete;
+
+  void Start();
+  // Stops the threads (what is still queued is not sent).
+  void Stop();
+
+  LinkCounts counts() const;
+  // The UDP port bound (useful with port 0 in listen).
+  int local_port() const { return local_port_; }
+  // Waiting messages and datagrams not yet sent (0: everything queued has left this side).
+  size_t backlog() const;
+  // Nothing waits to be sent and the other side has asked for no repair for `quiet_s`: what
+  // was sent has arrived (a bridge about to stop waits for this).
+  bool Settled(double quiet_s) const;
+  // One line of figures for the log.
+  std::string Describe() const;
+
+ private:
+  struct Sending {  // a message whose fragments are going out
+    uint64_t message = 0;
+    int count = 0;
+    int next = 0;
+  };
+  struct Outgoing {
+    std::string channel;
+    std::string bytes;
+    double queued_at = 0;
+  };
+  struct Retained {
+    std::string channel;
+    std::string bytes;
+    bool sent = false;  // every fragment has gone out once
+    double sent_at = 0;
+  };
+  struct Delayed {
+    double due = 0;
+    uint64_t order = 0;
+    std::string bytes;
+    bool operator>(const Delayed& o) const { return due != o.due ? due > o.due : order > o.order; }
+  };
+  // A message of the other side, being reassembled (count 0: nothing of it seen yet).
+  struct Partial {
+    std::string channel;
+    std::string bytes;
+    std::vector<bool> have;
+    int received = 0;
+    size_t received_bytes = 0;
+    uint16_t count = 0;
+    double last_progress = 0;
+    int rounds = 0;
+  };
+
+  void OnLocalMessage(const lcm::ReceiveBuffer* buffer, const std::string& channel);
+  void SendLoop();
+  void ReceiveLoop();
+  // Sender side, with mutex_ held: the next datagram to send, if any.
+  std::optional<std::string> NextDatagramLocked(double now);
+  std::string NextFragmentLocked(std::optional<Sending>* sending, double now);
+  // Every message below this has been sent whole (what STATUS says).
+  uint64_t SentEndLocked() const;
+  void Transmit(std::string datagram, double now);
+  void SendDue(double now);
+  void ExpireLocked(double now);
+  // Receiver side (receiver thread only).
+  void Handle(const link::Datagram& datagram, double now);
+  bool AcceptSession(uint64_t session);
+  void OnStatus(const link::LinkStatus& status);
+  void OnData(const link::DataFragment& fragment, double now);
+  void OnRepair(const link::RepairRequest& request);
+  void Deliver(uint64_t message, Partial* partial);
+  void Finish(uint64_t message);
+  void RequestRepairs(double now);
+  void QueueControl(std::string datagram);
+  static uint64_t EchoKey(const std::string& channel, const uint8_t* data, size_t size);
+
+  lcm::LCM* lcm_;
+  const LinkOptions options_;
+  const uint64_t session_;
+  int socket_ = -1;
+  int local_port_ = 0;
+  std::vector<uint8_t> peer_address_;  // sockaddr bytes
+  lcm::Subscription* subscription_ = nullptr;
+
+  // Sender state.
+  mutable std::mutex mutex_;
+  std::condition_variable wake_;
+  std::deque<Outgoing> small_queue_, large_queue_;
+  size_t queued_bytes_ = 0;
+  std::deque<std::string> control_;                      // repair requests, statuses: first
+  std::deque<std::pair<uint64_t, uint16_t>> repairs_;    // (message, fragment) asked for again
+  std::set<std::pair<uint64_t, uint16_t>> repairs_waiting_;
+  std::optional<Sending> small_sending_, large_sending_;  // a small one goes between a large one's fragments
+  uint64_t next_message_ = 0;
+  std::map<uint64_t, Retained> retained_;
+  size_t retained_bytes_ = 0;
+  std::optional<std::string> pending_;                   // picked, waiting for budget
+  double tokens_ = 0;
+  double tokens_at_ = 0;
+  std::priority_queue<Delayed, std::vector<Delayed>, std::greater<>> delay_line_;
+  uint64_t delay_order_ = 0;
+  Rng impairment_rng_;
+
+  // Receiver state (receiver thread only, except the echo keys).
+  uint64_t peer_session_ = 0;
+  uint64_t floor_ = 0;                  // every message of the peer below this is finished
+  bool floor_known_ = false;            // set by the peer's first status
+  uint64_t peer_sent_end_ = 0;
+  std::map<uint64_t, Partial> incomplete_;
+  std::set<uint64_t> finished_;         // finished messages at or above floor_
+  size_t incomplete_bytes_ = 0;
+  std::mutex echo_mutex_;
+  std::unordered_map<uint64_t, double> echo_keys_;  // key -> expiry
+
+  // Warnings at most once per 5 s each.
+  class Throttle {
+   public:
+    bool Allow() {
+      const double now = MonotonicSeconds();
+      if (now - last_ < 5.0) return false;
+      last_ = now;
+      return true;
+    }
+
+   private:
+    double last_ = -1e9;
+  };
+  Throttle too_large_log_, expired_log_, send_failed_log_, given_up_log_, refused_log_;
+
+  mutable std::mutex counts_mutex_;
+  LinkCounts counts_;
+  std::atomic<double> last_repair_request_s_{0};
+  std::atomic<bool> running_{false};
+  std::thread sender_, receiver_;
+};
+
+}  // namespace stitch

@@ -1,0 +1,71 @@
+// stitch-link: carries chosen LCM channels to the other side of a radio link over plain UDP.
+
+#include <cstdio>
+#include <thread>
+
+#include "services/common/bus.h"
+#include "services/common/service.h"
+#include "services/config/stitch_config.h"
+#include "services/link/link_bridge.h"
+#include "stitch/util/options.h"
+
+int main(int argc, char** argv) {
+  using namespace stitch;
+  ServiceCommandLine common;
+  LinkOptions given;
+  ArgParser args("stitch-link",
+                 "Link bridge: sends the LCM channels matching --forward to the bridge at --peer over UDP and "
+                 "publishes what that bridge sends on this side's bus. Lost datagrams are asked for again; a "
+                 "budget paces what is sent. Run one on each side of the link. Runs until SIGINT or SIGTERM.");
+  common.Register(&args);
+  args.AddOption("--forward", &given.forward, "REGEX", "channels to send to the other side (overrides link.forward)");
+  args.AddOption("--listen", &given.listen, "ADDR:PORT", "UDP address to receive on (overrides link.listen)");
+  args.AddOption("--peer", &given.peer, "ADDR:PORT", "the other side's bridge (overrides link.peer)");
+  args.AddOption("--budget", &given.budget_bytes_per_s, "BYTES/S", "bandwidth budget, 0 for none (overrides link.budget_bytes_per_s)");
+  args.AddOption("--loss", &given.loss, "P", "inject: drop each datagram sent with probability P (tests, rehearsals)");
+  args.AddOption("--delay-ms", &given.delay_ms, "MS", "inject: delay every datagram sent by MS");
+  args.AddOption("--jitter-ms", &given.jitter_ms, "MS", "inject: extra uniform delay up to MS (reorders)");
+  args.AddOption("--seed", &given.seed, "N", "seed of the injected loss and jitter");
+  args.AddEpilog("Example, the aircraft (10.0.0.2) and the ground station (10.0.0.1):\n"
+                 "  aircraft$ stitch-link --forward 'uav0/(SUBMAP|SEQUENCE|TRACKING_STATUS|SERVICE)' \\\n"
+                 "              --listen 0.0.0.0:7720 --peer 10.0.0.1:7721 --budget 250000\n"
+                 "  ground$   stitch-link --forward 'uav0/SUBMAP_REQUEST' --listen 0.0.0.0:7721 --peer 10.0.0.2:7720\n"
+                 "Every 10 s the log says what was sent, repaired and received.\n");
+  if (!args.Parse(argc, argv)) return args.exit_code();
+  try {
+    common.Apply("link");
+    StitchConfig config = LoadStitchConfig(common.config_path);
+    LinkOptions& options = config.link;
+    if (args.Given("--forward")) options.forward = given.forward;
+    if (args.Given("--listen")) options.listen = given.listen;
+    if (args.Given("--peer")) options.peer = given.peer;
+    if (args.Given("--budget")) options.budget_bytes_per_s = given.budget_bytes_per_s;
+    if (args.Given("--loss")) options.loss = given.loss;
+    if (args.Given("--delay-ms")) options.delay_ms = given.delay_ms;
+    if (args.Given("--jitter-ms")) options.jitter_ms = given.jitter_ms;
+    if (args.Given("--seed")) options.seed = given.seed;
+    CheckOptions(options, "link");
+    const auto& stop = InstallStopSignals();
+    auto lcm = bus::OpenLcm(common.lcm_url);
+    LinkBridge bridge(lcm.get(), options);
+    bus::Dispatcher dispatcher(lcm.get());
+    dispatcher.Start();
+    bridge.Start();
+    STITCH_LOG(INFO) << "bridging " << common.lcm_url;
+    while (!stop.load()) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    // What is still queued (a submap's final state sent as the aircraft lands) goes out first,
+    // and its lost datagrams are repaired: until the other side has been quiet for a second
+    // (at most 20 s).
+    const double deadline = MonotonicSeconds() + 20.0;
+    while (!bridge.Settled(1.0) && MonotonicSeconds() < deadline) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+    dispatcher.Stop();
+    bridge.Stop();
+    STITCH_LOG(INFO) << "stopped: " << bridge.Describe();
+    return 0;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "stitch-link: %s\n", e.what());
+    return 1;
+  }
+}

@@ -1,0 +1,147 @@
+// The onboard / ground split over a lossy link: `stitch run --link` puts the merger on a bus of
+// its own behind two stitch-link bridges; with --netns the aircraft's services and the ground's
+// run in two network namespaces joined by a veth pair, as across a routed radio link. The merged
+// result must match the unsplit run's, with every keyframe the mapper kept in the merged map.
+
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <set>
+#include <sstream>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "stitch/testing/temp_dir.h"
+#include "tests/test_process.h"
+
+namespace fs = std::filesystem;
+
+namespace stitch {
+namespace {
+
+using testing::Bin;
+using testing::RunProgram;
+
+const std::string kShortFlight = std::string(STITCH_SOURCE_DIR) + "/tests/short_flight.yaml";
+
+nlohmann::json ReadJson(const std::string& path) {
+  std::ifstream in(path);
+  return nlohmann::json::parse(in);
+}
+
+// Keyframe ids in the first column of a .tsv, skipping comments; `kept_only`: column 5 is 0.
+std::set<int64_t> KeyframeIds(const std::string& path, bool kept_only) {
+  std::set<int64_t> ids;
+  std::ifstream in(path);
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.empty() || line[0] == '#') continue;
+    std::istringstream fields(line);
+    int64_t id, a, b, c;
+    int culled = 0;
+    fields >> id >> a >> b >> c >> culled;
+    if (!kept_only || culled == 0) ids.insert(id);
+  }
+  return ids;
+}
+
+struct RunResult {
+  nlohmann::json report, info;
+  std::set<int64_t> kept, merged;
+  std::string output;
+};
+
+RunResult RunStitch(const fs::path& out, const std::vector<std::string>& extra) {
+  std::vector<std::string> args = {Bin("stitch"), "run", "--config", kShortFlight, "--failures", "30:6", "--quiet",
+                                   "--out", out.string()};
+  args.insert(args.end(), extra.begin(), extra.end());
+  const auto result = RunProgram(args, 240);
+  EXPECT_EQ(result.exit_code, 0) << result.output;
+  RunResult run;
+  run.output = result.output;
+  if (result.exit_code != 0) return run;
+  run.report = ReadJson((out / "report.json").string());
+  run.info = ReadJson((out / "run.json").string());
+  run.kept = KeyframeIds((out / "keyframes.tsv").string(), true);
+  run.merged = KeyframeIds((out / "keyframes_merged.tsv").string(), false);
+  return run;
+}
+
+// The split run against the unsplit one: every submap merged, every kept keyframe in the
+// merged map, the trajectory as good within a few centimetres, and the link really lossy.
+void ExpectSameResult(const RunResult& plain, const RunResult& split, const std::string& what) {
+  ASSERT_FALSE(split.report.is_null()) << what;
+  EXPECT_EQ(split.report["submaps"], plain.report["submaps"]) << what;
+  EXPECT_EQ(split.report["submaps_merged"], split.report["submaps"]) << what << ": a submap is missing";
+  EXPECT_GT(split.kept.size(), 10u) << what;
+  EXPECT_EQ(split.merged, split.kept) << what << ": keyframes missing from the merged map";
+  EXPECT_NEAR(split.report["ate_rmse_m"].get<double>(), plain.report["ate_rmse_m"].get<double>(), 0.05) << what;
+  EXPECT_FALSE(split.info["link"].get<std::string>().empty()) << what;
+  const auto figures = split.info["link_figures"];
+  ASSERT_EQ(figures.size(), 2u) << what << "\n" << split.output;
+  for (const auto& line : figures) {
+    const std::string text = line.get<std::string>();
+    EXPECT_EQ(text.find("gave up"), std::string::npos) << what << ": " << text;
+    if (text.rfind("link-aircraft", 0) == 0) {
+      EXPECT_NE(text.find("dropped on purpose"), std::string::npos) << text;
+      EXPECT_EQ(text.find("repaired 0 fragments"), std::string::npos) << text;
+    }
+  }
+}
+
+class LinkSplit : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    plain_dir_ = new stitch::testing::TempDir();
+    plain_ = new RunResult(RunStitch(plain_dir_->path() / "plain", {}));
+  }
+  static void TearDownTestSuite() {
+    delete plain_;
+    delete plain_dir_;
+  }
+  static stitch::testing::TempDir* plain_dir_;
+  static RunResult* plain_;
+};
+stitch::testing::TempDir* LinkSplit::plain_dir_ = nullptr;
+RunResult* LinkSplit::plain_ = nullptr;
+
+TEST_F(LinkSplit, TheMergerBehindALossyLinkOnThisMachineGetsEverySubmap) {
+  ASSERT_FALSE(plain_->report.is_null());
+  testing::TempDir dir;
+  const RunResult split =
+      RunStitch(dir.path() / "link", {"--link", "--link-loss", "0.2", "--link-delay-ms", "100", "--link-budget", "2000000"});
+  ExpectSameResult(*plain_, split, "loopback link, 20% loss");
+}
+
+// Whether this machine lets us make network namespaces (root, iproute2, a kernel that allows it).
+std::string WhyNoNamespaces() {
+  if (geteuid() != 0) return "not root";
+  if (access("/usr/sbin/ip", X_OK) != 0 && access("/sbin/ip", X_OK) != 0) return "iproute2 (ip) is not installed";
+  const std::string name = "stitch-probe-" + std::to_string(getpid());
+  const std::string ip = access("/usr/sbin/ip", X_OK) == 0 ? "/usr/sbin/ip" : "/sbin/ip";
+  const auto add = RunProgram({ip, "netns", "add", name}, 20);
+  if (add.exit_code != 0) return "`ip netns add` failed: " + add.output;
+  RunProgram({ip, "netns", "delete", name}, 20);
+  return "";
+}
+
+TEST_F(LinkSplit, AircraftAndGroundInTwoNetworkNamespacesAt5And20PercentLoss) {
+  const std::string why = WhyNoNamespaces();
+  if (!why.empty()) GTEST_SKIP() << "network namespaces are not available here (" << why << "); the split test needs them";
+  ASSERT_FALSE(plain_->report.is_null());
+  for (const char* loss : {"0.05", "0.2"}) {
+    testing::TempDir dir;
+    const RunResult split = RunStitch(dir.path() / "netns", {"--netns", "--link-loss", loss, "--link-delay-ms", "100"});
+    ExpectSameResult(*plain_, split, std::string("two namespaces, loss ") + loss);
+    EXPECT_NE(split.output.find("two network namespaces"), std::string::npos);
+  }
+  // Nothing is left behind.
+  const auto list = RunProgram({access("/usr/sbin/ip", X_OK) == 0 ? "/usr/sbin/ip" : "/sbin/ip", "netns", "list"}, 20);
+  EXPECT_EQ(list.output.find("stitch-"), std::string::npos) << list.output;
+}
+
+}  // namespace
+}  // namespace stitch
