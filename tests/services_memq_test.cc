@@ -5,6 +5,7 @@
 #include <mutex>
 #include <optional>
 #include <sstream>
+#include <thread>
 
 #include <gtest/gtest.h>
 
@@ -15,6 +16,7 @@
 #include "services/tracker/tracker_service.h"
 #include "stitch/eval/evaluation.h"
 #include "stitch/eval/frame_record.h"
+#include "stitch/link_status_t.hpp"
 #include "stitch/source/source.h"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/tracking_status_t.hpp"
@@ -157,29 +159,52 @@ struct MergerSide {
   std::map<SubmapId, SubmapReplica> replicas;
 };
 
-TEST(ServicesInProcess, ThinnedSubmapUpdatesCostLessAndStillEndInTheMappersExactSubmap) {
-  const auto fly = [](bool thin) {
-    testing::TempDir dir;
-    InProcessStack stack(
-        [thin](StitchConfig* c) {
-          c->mapper.submap_point_resend_fraction = thin ? 0.01 : 0.0;
-          c->mapper.submap_window_associations = !thin;
-        },
-        /*with_mapper=*/true, dir.path().string());
-    MergerSide merger(stack.lcm.get(), ScalePyramid::From(stack.config.tracker.tracking.orb));
-    stack.Play("none");
-    EXPECT_EQ(merger.replicas.size(), 1u);
-    if (merger.replicas.size() == 1) {
-      EXPECT_TRUE(merger.replicas.begin()->second.closed);
-      // The final state brings the replica to the mapper's submap whatever was left out before.
-      ExpectReplicaIsTheMappersSubmap(merger.replicas.begin()->second, dir / "keyframes.tsv");
+// Flies the default short flight; returns the SUBMAP bytes the merger side received. `thin`:
+// the default thinning; `link_behind`: a link bridge reports a 10 s backlog all along.
+int64_t FlyAndCountSubmapBytes(bool thin, bool link_behind) {
+  testing::TempDir dir;
+  InProcessStack stack(
+      [thin](StitchConfig* c) {
+        c->mapper.submap_point_resend_fraction = thin ? 0.01 : 0.0;
+        c->mapper.submap_window_associations = !thin;
+      },
+      /*with_mapper=*/true, dir.path().string());
+  MergerSide merger(stack.lcm.get(), ScalePyramid::From(stack.config.tracker.tracking.orb));
+  std::atomic<bool> flying{true};
+  std::thread bridge([&] {
+    bus::Publisher publisher(stack.lcm.get(), "uav0");
+    while (link_behind && flying.load()) {
+      stitch::link_status_t status{};
+      status.budget_bytes_per_s = 100000;
+      status.backlog_s = 10;
+      publisher.Publish(bus::Channel("uav0", bus::kLinkStatus), &status);
+      std::this_thread::sleep_for(std::chrono::milliseconds(200));
     }
-    return merger.bytes;
-  };
-  const int64_t full_bytes = fly(false), thin_bytes = fly(true);
+  });
+  stack.Play("none");
+  flying = false;
+  bridge.join();
+  EXPECT_EQ(merger.replicas.size(), 1u);
+  if (merger.replicas.size() == 1) {
+    EXPECT_TRUE(merger.replicas.begin()->second.closed);
+    // The final state brings the replica to the mapper's submap whatever was left out before.
+    ExpectReplicaIsTheMappersSubmap(merger.replicas.begin()->second, dir / "keyframes.tsv");
+  }
+  return merger.bytes;
+}
+
+TEST(ServicesInProcess, ThinnedSubmapUpdatesCostLessAndStillEndInTheMappersExactSubmap) {
+  const int64_t full_bytes = FlyAndCountSubmapBytes(false, false), thin_bytes = FlyAndCountSubmapBytes(true, false);
   std::printf("SUBMAP bytes: %lld with every refinement, %lld thinned\n", static_cast<long long>(full_bytes),
               static_cast<long long>(thin_bytes));
   EXPECT_LT(thin_bytes, full_bytes * 6 / 10);
+}
+
+TEST(ServicesInProcess, WhileTheLinkIsBehindTheMapperHoldsRefinementsBackAndTheFinalStateCatchesUp) {
+  const int64_t thin_bytes = FlyAndCountSubmapBytes(true, false), behind_bytes = FlyAndCountSubmapBytes(true, true);
+  std::printf("SUBMAP bytes: %lld thinned, %lld with the link behind\n", static_cast<long long>(thin_bytes),
+              static_cast<long long>(behind_bytes));
+  EXPECT_LT(behind_bytes, thin_bytes * 95 / 100);
 }
 
 TEST(ServicesInProcess, TrackerWithoutAMapperKeepsTrackingAndSaysSo) {

@@ -118,6 +118,12 @@ LinkCounts LinkBridge::counts() const {
   LinkCounts counts = counts_;
   std::lock_guard<std::mutex> queue_lock(mutex_);
   counts.queued_bytes = static_cast<int64_t>(queued_bytes_);
+  const double now = MonotonicSeconds();
+  for (const auto* queue : {&small_queue_, &large_queue_}) {
+    if (!queue->empty()) counts.oldest_wait_s = std::max(counts.oldest_wait_s, now - queue->front().queued_at);
+  }
+  const double heard = last_heard_s_.load();
+  counts.seconds_since_peer = heard < 0 ? -1 : now - heard;
   return counts;
 }
 
@@ -129,6 +135,26 @@ size_t LinkBridge::backlog() const {
 
 bool LinkBridge::Settled(double quiet_s) const {
   return backlog() == 0 && MonotonicSeconds() - last_repair_request_s_.load() > quiet_s;
+}
+
+stitch::link_status_t LinkBridge::Status(double rate_bytes_per_s) const {
+  const LinkCounts c = counts();
+  stitch::link_status_t status{};
+  status.forward = options_.forward;
+  status.peer = options_.peer;
+  status.budget_bytes_per_s = options_.budget_bytes_per_s;
+  status.send_rate_bytes_per_s = rate_bytes_per_s;
+  status.queued_bytes = c.queued_bytes;
+  status.backlog_s = options_.budget_bytes_per_s > 0 ? c.queued_bytes / options_.budget_bytes_per_s : c.oldest_wait_s;
+  status.bytes_sent = c.bytes_sent;
+  status.messages_sent = c.messages_sent;
+  status.messages_expired = c.messages_expired;
+  status.fragments_repaired = c.fragments_repaired;
+  status.messages_received = c.messages_delivered;
+  status.messages_given_up = c.messages_given_up;
+  status.datagrams_refused = c.datagrams_refused;
+  status.seconds_since_peer = c.seconds_since_peer;
+  return status;
 }
 
 std::string LinkBridge::Describe() const {
@@ -399,6 +425,7 @@ void LinkBridge::ReceiveLoop() {
         ++counts_.datagrams_refused;
         continue;
       }
+      last_heard_s_ = MonotonicSeconds();
       Handle(datagram, MonotonicSeconds());
     }
     const double now = MonotonicSeconds();

@@ -31,6 +31,7 @@
 
 #include "services/link/link_options.h"
 #include "services/link/link_wire.h"
+#include "stitch/link_status_t.hpp"
 #include "stitch/util/rng.h"
 #include "stitch/util/time.h"
 
@@ -51,6 +52,8 @@ struct LinkCounts {
   int64_t datagrams_refused = 0;      // malformed or foreign
   int64_t echoes_suppressed = 0;      // our own publications, not sent back
   int64_t queued_bytes = 0;           // waiting now
+  double oldest_wait_s = 0;           // how long the oldest waiting message has waited
+  double seconds_since_peer = -1;     // since anything came from the other side; -1: never
 };
 
 class LinkBridge {
@@ -73,6 +76,9 @@ class LinkBridge {
   // Nothing waits to be sent and the other side has asked for no repair for `quiet_s`: what
   // was sent has arrived (a bridge about to stop waits for this).
   bool Settled(double quiet_s) const;
+  // The figures as published on <agent>/LINK_STATUS (header left to the publisher).
+  // `rate_bytes_per_s`: measured by the caller over its own interval.
+  stitch::link_status_t Status(double rate_bytes_per_s) const;
   // One line of figures for the log.
   std::string Describe() const;
 
@@ -190,6 +196,7 @@ class LinkBridge {
   mutable std::mutex counts_mutex_;
   LinkCounts counts_;
   std::atomic<double> last_repair_request_s_{0};
+  std::atomic<double> last_heard_s_{-1};
   std::atomic<bool> running_{false};
   std::thread sender_, receiver_;
 };

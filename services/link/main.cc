@@ -52,11 +52,26 @@ int main(int argc, char** argv) {
     dispatcher.Start();
     bridge.Start();
     STITCH_LOG(INFO) << "bridging " << common.lcm_url;
-    while (!stop.load()) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    // Once a second, the figures on this side's <agent>/LINK_STATUS.
+    bus::Publisher publisher(lcm.get(), common.agent);
+    const std::string status_channel = bus::Channel(common.agent, bus::kLinkStatus);
+    double last_status = MonotonicSeconds();
+    int64_t last_bytes = 0;
+    while (!stop.load()) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
+      const double now = MonotonicSeconds();
+      if (now - last_status < 1.0) continue;
+      const int64_t bytes = bridge.counts().bytes_sent;
+      stitch::link_status_t status = bridge.Status((bytes - last_bytes) / (now - last_status));
+      publisher.Publish(status_channel, &status);
+      last_status = now;
+      last_bytes = bytes;
+    }
     // What is still queued (a submap's final state sent as the aircraft lands) goes out first,
-    // and its lost datagrams are repaired: until the other side has been quiet for a second
-    // (at most 20 s).
-    const double deadline = MonotonicSeconds() + 20.0;
+    // and its lost datagrams are repaired: until the other side has been quiet for a second, at
+    // most as long as a message may wait (max_queue_s) and 5 s more.
+    const double deadline = MonotonicSeconds() + options.max_queue_s + 5.0;
+    if (!bridge.Settled(1.0)) STITCH_LOG(INFO) << "sending what waits before stopping: " << bridge.Describe();
     while (!bridge.Settled(1.0) && MonotonicSeconds() < deadline) {
       std::this_thread::sleep_for(std::chrono::milliseconds(20));
     }

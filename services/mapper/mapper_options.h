@@ -17,6 +17,10 @@ struct MapperOptions {
   // (about 4 kB each, re-sent as points are added); without them the merger learns them from the
   // final state at close (the new keyframe always carries its own).
   bool submap_window_associations = false;
+  // While the aircraft's link bridge reports more than this many seconds of backlog (its budget
+  // is exceeded), submap updates carry only new keyframes and new points; refined points wait
+  // for a later update or the final state at close. 0: never hold back.
+  double link_backlog_thin_s = 2.0;
   MappingOptions mapping;
 
   template <class Visitor>
@@ -27,6 +31,8 @@ struct MapperOptions {
       "its reference keyframe (0: always)");
     v("submap_window_associations", submap_window_associations,
       "send the window keyframes' changed associations with every submap update (else at close only)");
+    v("link_backlog_thin_s", link_backlog_thin_s,
+      "while the link bridge is more than this many seconds behind, send new keyframes and points only (0: never)");
     v("mapping", mapping, "the local mapping algorithm");
   }
   bool Check(std::string* why) const {
@@ -36,6 +42,10 @@ struct MapperOptions {
     }
     if (!(submap_point_resend_fraction >= 0)) {
       if (why) *why = "mapper.submap_point_resend_fraction must be >= 0";
+      return false;
+    }
+    if (!(link_backlog_thin_s >= 0)) {
+      if (why) *why = "mapper.link_backlog_thin_s must be >= 0";
       return false;
     }
     return mapping.Check(why);

@@ -9,6 +9,7 @@
 #include "stitch/io/ply.h"
 #include "stitch/io/trajectory.h"
 #include "stitch/util/log.h"
+#include "stitch/link_status_t.hpp"
 #include "stitch/submap_request_t.hpp"
 #include "stitch/tracking_status_t.hpp"
 #include "stitch/util/time.h"
@@ -54,6 +55,13 @@ MapperService::MapperService(lcm::LCM* lcm, bus::Publisher* publisher, MapperOpt
           close_requested_ = status->submap_id;
         }
       });
+  // The aircraft's link bridge says how far behind it is.
+  subscriber_.Subscribe<stitch::link_status_t>(
+      bus::Channel(publisher_->agent(), bus::kLinkStatus),
+      [this](std::unique_ptr<stitch::link_status_t> status, const std::string&) {
+        link_backlog_s_ = status->backlog_s;
+        link_status_at_ = MonotonicSeconds();
+      });
   // The merger asks again for what the link lost.
   subscriber_.Subscribe<stitch::submap_request_t>(
       bus::Channel(publisher_->agent(), bus::kSubmapRequest),
@@ -87,6 +95,9 @@ void MapperService::Stop() {
   if (points_thinned_ > 0) {
     STITCH_LOG(INFO) << "left " << points_thinned_ << " point refinements under "
                      << options_.submap_point_resend_fraction << " of their distance out of the submap updates";
+  }
+  if (points_held_back_ > 0) {
+    STITCH_LOG(INFO) << "held back " << points_held_back_ << " point refinements while the link had a backlog";
   }
   if (!record_dir_.empty()) {
     try {
@@ -188,11 +199,24 @@ void MapperService::ThinForTheLink(SubmapUpdate* update) {
   const Map* map = mapping_ ? mapping_->map() : nullptr;
   if (!map) return;
   std::vector<MapPoint>& points = update->changes.points;
+  // While the link is behind, refinements wait (for a later update or the final state at close).
+  const bool congested = LinkCongested();
+  if (congested != link_congested_) {
+    link_congested_ = congested;
+    STITCH_LOG(INFO) << (congested ? "the link bridge is " + std::to_string(link_backlog_s_.load()) +
+                                         " s behind: submap updates carry new keyframes and points only"
+                                   : std::string("the link has caught up: point refinements go again"));
+  }
   const size_t before = points.size();
   points.erase(std::remove_if(points.begin(), points.end(),
                               [&](const MapPoint& point) {
                                 const auto sent = sent_positions_.find(point.id);
-                                if (sent == sent_positions_.end() || !(fraction > 0)) return false;
+                                if (sent == sent_positions_.end()) return false;
+                                if (congested) {
+                                  ++points_held_back_;
+                                  return true;
+                                }
+                                if (!(fraction > 0)) return false;
                                 const Keyframe* reference = map->FindKeyframe(point.reference_keyframe);
                                 const double distance =
                                     reference ? (point.position - reference->Centre()).norm() : point.max_distance;
@@ -200,7 +224,7 @@ void MapperService::ThinForTheLink(SubmapUpdate* update) {
                               }),
                points.end());
   for (const MapPoint& point : points) sent_positions_[point.id] = point.position;
-  points_thinned_ += static_cast<int64_t>(before - points.size());
+  if (!congested) points_thinned_ += static_cast<int64_t>(before - points.size());
   // A keyframe's associations go again only when they changed, and only when asked for.
   auto& associations = update->changes.associations;
   associations.erase(std::remove_if(associations.begin(), associations.end(),
@@ -218,6 +242,12 @@ void MapperService::ThinForTheLink(SubmapUpdate* update) {
                                       return true;
                                     }),
                      associations.end());
+}
+
+bool MapperService::LinkCongested() const {
+  const double limit = options_.link_backlog_thin_s;
+  // A bridge that stopped reporting (gone, or never there) is not waited for.
+  return limit > 0 && MonotonicSeconds() - link_status_at_.load() < 3.0 && link_backlog_s_.load() > limit;
 }
 
 void MapperService::PublishSubmapUpdate(const SubmapUpdate& update) {
