@@ -25,12 +25,8 @@ namespace {
 using testing::Bin;
 using testing::RunProgram;
 
-const std::string kShortFlight = std::string(STITCH_SOURCE_DIR) + "/tests/short_flight.yaml";
-
-nlohmann::json ReadJson(const std::string& path) {
-  std::ifstream in(path);
-  return nlohmann::json::parse(in);
-}
+using testing::ReadJson;
+const std::string kShortFlight = testing::ShortFlightConfig();
 
 // Keyframe ids in the first column of a .tsv, skipping comments; `kept_only`: column 5 is 0.
 std::set<int64_t> KeyframeIds(const std::string& path, bool kept_only) {

@@ -20,12 +20,8 @@ namespace {
 using testing::Bin;
 using testing::RunProgram;
 
-const std::string kShortFlight = std::string(STITCH_SOURCE_DIR) + "/tests/short_flight.yaml";
-
-nlohmann::json ReadJson(const std::string& path) {
-  std::ifstream in(path);
-  return nlohmann::json::parse(in);
-}
+using testing::ReadJson;
+const std::string kShortFlight = testing::ShortFlightConfig();
 
 TEST(StitchRun, TracksAShortFlightWithTheServicesAsProcesses) {
   testing::TempDir dir;

@@ -1,6 +1,7 @@
 #include "tests/test_process.h"
 
 #include <chrono>
+#include <fstream>
 #include <cstdlib>
 #include <fcntl.h>
 #include <poll.h>
@@ -60,6 +61,13 @@ CommandResult RunProgram(const std::vector<std::string>& args, double timeout_s,
 }
 
 std::string Bin(const std::string& name) { return std::string(STITCH_BIN_DIR) + "/" + name; }
+
+std::string ShortFlightConfig() { return std::string(STITCH_SOURCE_DIR) + "/tests/short_flight.yaml"; }
+
+nlohmann::json ReadJson(const std::string& path) {
+  std::ifstream in(path);
+  return nlohmann::json::parse(in);
+}
 
 bool OnPath(const std::string& program) {
   return std::system(("command -v " + program + " > /dev/null 2>&1").c_str()) == 0;

@@ -5,6 +5,8 @@
 #include <string>
 #include <vector>
 
+#include <nlohmann/json.hpp>
+
 namespace stitch::testing {
 
 struct CommandResult {
@@ -18,6 +20,12 @@ CommandResult RunProgram(const std::vector<std::string>& args, double timeout_s 
 
 // Path of a built program: STITCH_BIN_DIR/name.
 std::string Bin(const std::string& name);
+
+// The short synthetic flight the integration tests fly (tests/short_flight.yaml).
+std::string ShortFlightConfig();
+
+// A JSON file (report.json, run.json); throws on a missing or malformed file.
+nlohmann::json ReadJson(const std::string& path);
 
 // Whether a program is on the PATH.
 bool OnPath(const std::string& program);

@@ -21,6 +21,9 @@ struct MapperOptions {
   // is exceeded), submap updates carry only new keyframes and new points; refined points wait
   // for a later update or the final state at close. 0: never hold back.
   double link_backlog_thin_s = 2.0;
+  // On stop, after the final state: answer the merger's requests for what the link lost until
+  // none has come for 2 s, at most this long (0: stop at once).
+  double stop_linger_s = 10.0;
   MappingOptions mapping;
 
   template <class Visitor>
@@ -33,6 +36,8 @@ struct MapperOptions {
       "send the window keyframes' changed associations with every submap update (else at close only)");
     v("link_backlog_thin_s", link_backlog_thin_s,
       "while the link bridge is more than this many seconds behind, send new keyframes and points only (0: never)");
+    v("stop_linger_s", stop_linger_s,
+      "on stop, keep answering the merger's requests for lost keyframes until none came for 2 s, at most this long");
     v("mapping", mapping, "the local mapping algorithm");
   }
   bool Check(std::string* why) const {
@@ -42,6 +47,10 @@ struct MapperOptions {
     }
     if (!(submap_point_resend_fraction >= 0)) {
       if (why) *why = "mapper.submap_point_resend_fraction must be >= 0";
+      return false;
+    }
+    if (!(stop_linger_s >= 0)) {
+      if (why) *why = "mapper.stop_linger_s must be >= 0";
       return false;
     }
     if (!(link_backlog_thin_s >= 0)) {

@@ -4,6 +4,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <thread>
 
 #include "services/common/map_convert.h"
 #include "stitch/io/ply.h"
@@ -66,6 +67,7 @@ MapperService::MapperService(lcm::LCM* lcm, bus::Publisher* publisher, MapperOpt
   subscriber_.Subscribe<stitch::submap_request_t>(
       bus::Channel(publisher_->agent(), bus::kSubmapRequest),
       [this](std::unique_ptr<stitch::submap_request_t> request, const std::string&) {
+        last_request_at_ = MonotonicSeconds();
         std::lock_guard<std::mutex> lock(requests_mutex_);
         Request& wanted = requests_[SubmapId(request->submap_id)];
         for (int64_t id : request->keyframe_ids) wanted.keyframes.insert(KeyframeId(id));
@@ -91,6 +93,16 @@ void MapperService::Stop() {
   if (worker_.joinable()) worker_.join();
   if (mapping_) {
     if (const auto closed = mapping_->CloseSubmap()) PublishSubmapUpdate(mapping_->MakeFinalSubmapUpdate(*closed));
+    // The merger may still lack the last keyframes (lost on the way): answer its requests a
+    // while longer, until none has come for 2 s (at least 2.5 s, at most stop_linger_s).
+    const double start = MonotonicSeconds();
+    while (true) {
+      const double now = MonotonicSeconds();
+      const bool quiet = now - start > 2.5 && now - last_request_at_.load() > 2.0;
+      if (quiet || now - start >= options_.stop_linger_s) break;
+      ResendIfRequested();
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
   }
   if (points_thinned_ > 0) {
     STITCH_LOG(INFO) << "left " << points_thinned_ << " point refinements under "

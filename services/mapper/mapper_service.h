@@ -78,6 +78,7 @@ class MapperService {
   std::map<SubmapId, Request> requests_;  // from the merger
   std::map<SubmapId, double> last_resend_;               // MonotonicSeconds()
   std::atomic<int64_t> resends_{0};
+  std::atomic<double> last_request_at_{-1e9};  // MonotonicSeconds() of the merger's last request
   double last_activity_ = 0;  // MonotonicSeconds() of the last keyframe or manifest sent (worker only)
   int64_t points_thinned_ = 0;
   // The aircraft's link bridge's backlog (from <agent>/LINK_STATUS) and when it last said so.
