@@ -31,8 +31,9 @@ int main(int argc, char** argv) {
     mapper.Start();
     STITCH_LOG(INFO) << "listening on " << common.lcm_url;
     while (!stop.load()) std::this_thread::sleep_for(std::chrono::milliseconds(50));
-    dispatcher.Stop();
+    // The bus stays up while the mapper stops: it answers the merger's last requests.
     mapper.Stop();
+    dispatcher.Stop();
     STITCH_LOG(INFO) << "stopped after " << mapper.keyframes_mapped() << " keyframes";
     return 0;
   } catch (const std::exception& e) {
