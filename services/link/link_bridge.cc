@@ -61,7 +61,7 @@ LinkBridge::LinkBridge(lcm::LCM* lcm, LinkOptions options)
   if (!options_.Check(&why)) throw Error(why);
   const sockaddr_in listen = ResolveIpv4(options_.listen, "link.listen");
   const sockaddr_in peer = ResolveIpv4(options_.peer, "link.peer");
-  peer_address_.assign(reinterpret_cast<const uint8_t*>(&peer), reinterpret_cast<const uint8_t*>(&peer) + sizeof(peer));
+  peer_address_ = peer;
   socket_ = socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0);
   if (socket_ < 0) throw Error(std::string("cannot open a UDP socket: ") + std::strerror(errno));
   const int buffer_bytes = 4 << 20;
@@ -77,9 +77,7 @@ LinkBridge::LinkBridge(lcm::LCM* lcm, LinkOptions options)
   socklen_t length = sizeof(bound);
   getsockname(socket_, reinterpret_cast<sockaddr*>(&bound), &length);
   local_port_ = ntohs(bound.sin_port);
-  const double burst = std::max(4.0 * (options_.max_datagram_bytes + link::kUdpIpHeaderBytes),
-                                0.05 * options_.budget_bytes_per_s);
-  tokens_ = burst;
+  tokens_ = burst_bytes_;
   tokens_at_ = MonotonicSeconds();
   subscription_ = lcm_->subscribe(options_.forward, &LinkBridge::OnLocalMessage, this);
   subscription_->setQueueCapacity(bus::kSubscriptionQueueCapacity);
@@ -321,11 +319,22 @@ void LinkBridge::Transmit(std::string datagram, double now) {
     delay_line_.push(Delayed{now + delay_s, delay_order_++, std::move(datagram)});
     return;
   }
-  const auto* peer = reinterpret_cast<const sockaddr*>(peer_address_.data());
+  SendNow(datagram);
+}
+
+void LinkBridge::SendDue(double now) {
+  while (!delay_line_.empty() && delay_line_.top().due <= now) {
+    SendNow(delay_line_.top().bytes);
+    delay_line_.pop();
+  }
+}
+
+void LinkBridge::SendNow(const std::string& datagram) {
+  const auto* peer = reinterpret_cast<const sockaddr*>(&peer_address_);
   for (int attempt = 0; attempt < 20; ++attempt) {
-    if (sendto(socket_, datagram.data(), datagram.size(), MSG_DONTWAIT, peer, peer_address_.size()) >= 0) return;
+    if (sendto(socket_, datagram.data(), datagram.size(), MSG_DONTWAIT, peer, sizeof(peer_address_)) >= 0) return;
     if (errno != EAGAIN && errno != EWOULDBLOCK && errno != ENOBUFS) break;
-    pollfd writable{socket_, POLLOUT, 0};
+    pollfd writable{socket_, POLLOUT, 0};  // the socket's buffer is full: wait a little
     poll(&writable, 1, 5);
   }
   if (send_failed_log_.Allow()) {
@@ -333,18 +342,7 @@ void LinkBridge::Transmit(std::string datagram, double now) {
   }
 }
 
-void LinkBridge::SendDue(double now) {
-  while (!delay_line_.empty() && delay_line_.top().due <= now) {
-    std::string datagram = delay_line_.top().bytes;
-    delay_line_.pop();
-    const auto* peer = reinterpret_cast<const sockaddr*>(peer_address_.data());
-    sendto(socket_, datagram.data(), datagram.size(), MSG_DONTWAIT, peer, peer_address_.size());
-  }
-}
-
 void LinkBridge::SendLoop() {
-  const double burst = std::max(4.0 * (options_.max_datagram_bytes + link::kUdpIpHeaderBytes),
-                                0.05 * options_.budget_bytes_per_s);
   double next_status = 0;
   double next_report = MonotonicSeconds() + options_.report_interval_s;
   while (running_.load()) {
@@ -367,7 +365,7 @@ void LinkBridge::SendLoop() {
         if (options_.budget_bytes_per_s <= 0) {
           datagram = std::move(pending_);
         } else {
-          tokens_ = std::min(burst, tokens_ + (now - tokens_at_) * options_.budget_bytes_per_s);
+          tokens_ = std::min(burst_bytes_, tokens_ + (now - tokens_at_) * options_.budget_bytes_per_s);
           tokens_at_ = now;
           if (tokens_ >= cost) {
             tokens_ -= cost;
@@ -398,8 +396,7 @@ void LinkBridge::SendLoop() {
 
 void LinkBridge::ReceiveLoop() {
   std::vector<uint8_t> buffer(65536);
-  sockaddr_in peer{};
-  std::memcpy(&peer, peer_address_.data(), sizeof(peer));
+  const sockaddr_in& peer = peer_address_;
   double next_repair_pass = 0, next_echo_sweep = 0;
   while (running_.load()) {
     pollfd readable{socket_, POLLIN, 0};

@@ -12,6 +12,9 @@
 // Threads: LCM's dispatcher (the caller runs it) queues local messages; a sender thread paces
 // and transmits; a receiver thread reassembles, asks for repairs and publishes.
 
+#include <netinet/in.h>
+
+#include <algorithm>
 #include <atomic>
 #include <condition_variable>
 #include <cstdint>
@@ -127,6 +130,8 @@ class LinkBridge {
   uint64_t SentEndLocked() const;
   void Transmit(std::string datagram, double now);
   void SendDue(double now);
+  // sendto the peer, waiting briefly while the socket's buffer is full.
+  void SendNow(const std::string& datagram);
   void ExpireLocked(double now);
   // Receiver side (receiver thread only).
   void Handle(const link::Datagram& datagram, double now);
@@ -145,7 +150,7 @@ class LinkBridge {
   const uint64_t session_;
   int socket_ = -1;
   int local_port_ = 0;
-  std::vector<uint8_t> peer_address_;  // sockaddr bytes
+  sockaddr_in peer_address_{};
   lcm::Subscription* subscription_ = nullptr;
 
   // Sender state.
@@ -161,6 +166,9 @@ class LinkBridge {
   std::map<uint64_t, Retained> retained_;
   size_t retained_bytes_ = 0;
   std::optional<std::string> pending_;                   // picked, waiting for budget
+  // Token bucket of the budget: a few datagrams, or 50 ms of budget, may go at once.
+  const double burst_bytes_ = std::max(4.0 * (options_.max_datagram_bytes + link::kUdpIpHeaderBytes),
+                                       0.05 * options_.budget_bytes_per_s);
   double tokens_ = 0;
   double tokens_at_ = 0;
   std::priority_queue<Delayed, std::vector<Delayed>, std::greater<>> delay_line_;

@@ -71,7 +71,9 @@ int main(int argc, char** argv) {
     // and its lost datagrams are repaired: until the other side has been quiet for a second, at
     // most as long as a message may wait (max_queue_s) and 5 s more.
     const double deadline = MonotonicSeconds() + options.max_queue_s + 5.0;
-    if (!bridge.Settled(1.0)) STITCH_LOG(INFO) << "sending what waits before stopping: " << bridge.Describe();
+    if (!bridge.Settled(1.0)) {
+      STITCH_LOG(INFO) << "sending what waits before stopping: " << bridge.Describe();
+    }
     while (!bridge.Settled(1.0) && MonotonicSeconds() < deadline) {
       std::this_thread::sleep_for(std::chrono::milliseconds(20));
     }
