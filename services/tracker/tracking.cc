@@ -596,14 +596,15 @@ bool Tracking::TrackLocalMap(Frame* frame, int min_inliers) {
   if (!ranked.empty()) reference_keyframe_ = ranked.front().second;
 
   // Local points not yet matched, predicted in view, searched by projection.
-  std::set<MapPointId> matched;
+  // Every id once, in the local keyframes' order (a std::set here took a third of the time).
+  seen_points_.Clear(4 * frame->size());
   for (size_t i = 0; i < frame->size(); ++i) {
-    if (frame->points[i].valid()) matched.insert(frame->points[i]);
+    if (frame->points[i].valid()) seen_points_.Insert(frame->points[i].value);
   }
-  std::set<MapPointId> candidates;
+  std::vector<MapPointId> candidates;
   for (KeyframeId id : local_keyframes_) {
     for (MapPointId p : map_->FindKeyframe(id)->points) {
-      if (p.valid() && !matched.count(p)) candidates.insert(p);
+      if (p.valid() && seen_points_.Insert(p.value)) candidates.push_back(p);
     }
   }
   std::vector<PointInView> in_view;

@@ -26,6 +26,7 @@
 #include "stitch/features/vocabulary.h"
 #include "stitch/map/local_map_update.h"
 #include "stitch/map/map.h"
+#include "stitch/util/flat_id_set.h"
 
 namespace stitch {
 
@@ -211,6 +212,7 @@ class Tracking {
   int consecutive_failures_ = 0;
   double typical_sharpness_ = 0;  // running average over tracked frames
   std::vector<KeyframeId> local_keyframes_;
+  FlatIdSet seen_points_;  // TrackLocalMap's scratch, kept to reuse its table
 
   KeyframeId last_keyframe_sent_;
   KeyframeId mapper_processed_;

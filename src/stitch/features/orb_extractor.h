@@ -3,8 +3,10 @@
 // kept per cell with an adaptive threshold (strong corners where there are some, weaker ones
 // elsewhere), distributed with a quadtree so each region of each level gets its share, oriented
 // by the intensity centroid, described with OpenCV's standard ORB descriptor (so vocabularies
-// trained for ORB-SLAM apply). Not thread-safe: one extractor per thread.
+// trained for ORB-SLAM apply). Not thread-safe: one extractor per thread (it may run helper
+// threads of its own, `threads`).
 
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -12,6 +14,8 @@
 #include <opencv2/features2d.hpp>
 
 namespace stitch {
+
+class ParallelRunner;
 
 struct OrbOptions {
   int num_features = 1000;
@@ -21,6 +25,7 @@ struct OrbOptions {
   int min_fast_threshold = 7;   // used in cells where no corner passes the preferred one
   int cell_size = 35;           // pixels; the adaptive threshold works per cell
   std::string detector = "stitch";  // stitch: spread as above; opencv: cv::ORB's own detection (for comparison)
+  int threads = 1;              // threads detecting pyramid levels (the caller's and helpers)
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
@@ -31,6 +36,7 @@ struct OrbOptions {
     v("min_fast_threshold", min_fast_threshold, "FAST threshold in cells without strong corners");
     v("cell_size", cell_size, "cell size of the adaptive threshold, pixels");
     v("detector", detector, "stitch (features spread over image and scales) or opencv (cv::ORB's strongest corners)");
+    v("threads", threads, "threads detecting features on the pyramid's levels (1: the frame loop's own thread only)");
   }
   bool Check(std::string* why) const;
 };
@@ -38,6 +44,8 @@ struct OrbOptions {
 class OrbExtractor {
  public:
   explicit OrbExtractor(const OrbOptions& options);
+  ~OrbExtractor();
+  OrbExtractor(OrbExtractor&&) noexcept;
 
   // Keypoints in level-0 pixel coordinates of `image` (CV_8UC1), with octave (level), angle
   // (degrees), size and response set; descriptors N x 32 CV_8U in the same order.
@@ -60,6 +68,7 @@ class OrbExtractor {
   std::vector<int> features_per_level_;
   std::vector<int> circle_extent_;  // half-width of the orientation patch per row
   std::vector<cv::Mat> pyramid_;
+  std::unique_ptr<ParallelRunner> runner_;
   cv::Ptr<cv::ORB> describer_;
 };
 

@@ -94,6 +94,57 @@ TEST(OrbExtractor, IsRepeatableAndDeterministic) {
   EXPECT_GT(matched, da.rows / 2);
 }
 
+TEST(OrbExtractor, HelperThreadsGiveTheSameFeatures) {
+  OrbOptions two_threads;
+  two_threads.threads = 2;
+  OrbExtractor one{OrbOptions{}}, two{two_threads};
+  for (int frame : {10, 30, 31}) {
+    const cv::Mat image = SyntheticImage(frame);
+    std::vector<cv::KeyPoint> a, b;
+    cv::Mat da, db;
+    one.Extract(image, &a, &da);
+    two.Extract(image, &b, &db);
+    ASSERT_EQ(a.size(), b.size());
+    for (size_t i = 0; i < a.size(); ++i) {
+      EXPECT_EQ(a[i].pt, b[i].pt);
+      EXPECT_EQ(a[i].octave, b[i].octave);
+      EXPECT_EQ(a[i].angle, b[i].angle);
+    }
+    EXPECT_EQ(cv::norm(da, db, cv::NORM_HAMMING), 0);
+  }
+}
+
+TEST(OrbExtractor, WeakCornersOnlyWhereNoStrongOnes) {
+  // Squares on a plain ground, their corners of high contrast on the left half, faint (below
+  // the preferred threshold) on the right. Both halves get features, the right ones all weak.
+  cv::Mat image(480, 640, CV_8U, cv::Scalar(100));
+  for (int y = 8; y + 10 < 480; y += 24) {
+    for (int x = 8; x + 10 < 640; x += 24) {
+      const int value = x < 320 ? 200 : 112;
+      image(cv::Rect(x, y, 10, 10)).setTo(value);
+    }
+  }
+  cv::GaussianBlur(image, image, cv::Size(3, 3), 0.8);  // a lens: one strongest pixel per corner
+  OrbExtractor extractor{OrbOptions{}};
+  std::vector<cv::KeyPoint> keypoints;
+  cv::Mat descriptors;
+  extractor.Extract(image, &keypoints, &descriptors);
+  int left = 0, right = 0;
+  for (const auto& k : keypoints) {
+    if (k.octave != 0) continue;
+    if (k.pt.x < 300) {
+      ++left;
+      EXPECT_GE(k.response, 20.0f);
+    } else if (k.pt.x > 340) {
+      ++right;
+      EXPECT_LT(k.response, 20.0f);
+      EXPECT_GE(k.response, 7.0f);
+    }
+  }
+  EXPECT_GT(left, 20);
+  EXPECT_GT(right, 20);
+}
+
 TEST(OrbExtractor, RejectsBadInput) {
   OrbExtractor extractor{OrbOptions{}};
   std::vector<cv::KeyPoint> k;

@@ -4,6 +4,8 @@
 
 #include <gtest/gtest.h>
 
+#include <opencv2/imgproc.hpp>
+
 #include "stitch/features/vocabulary.h"
 #include "stitch/synthetic/synthetic_sequence.h"
 
@@ -145,6 +147,29 @@ TEST(Matcher, TriangulationSearchRespectsTheEpipolarGeometry) {
     right += (Shared().k.Project(kf2.cam_from_world * world) - kf2.undistorted[j]).norm() < 3.0;
   }
   EXPECT_GT(static_cast<double>(right) / pairs.size(), 0.9);
+}
+
+}  // namespace
+}  // namespace stitch
+
+namespace stitch {
+namespace {
+
+TEST(ImageSharpness, IsTheMeanAbsoluteLaplacianOfTheHalfSizeImage) {
+  // The one-pass sum against OpenCV's Laplacian (ksize 1, reflected borders), odd sizes included.
+  for (const cv::Size size : {cv::Size(752, 480), cv::Size(641, 479), cv::Size(5, 7), cv::Size(3, 3)}) {
+    cv::Mat image(size, CV_8U);
+    cv::randu(image, 0, 256);
+    cv::Mat half, laplacian;
+    cv::resize(image, half, cv::Size(), 0.5, 0.5, cv::INTER_AREA);
+    cv::Laplacian(half, laplacian, CV_16S, 1);
+    EXPECT_NEAR(ImageSharpness(image), cv::mean(cv::abs(laplacian))[0], 1e-9) << size;
+  }
+  // Blur lowers it.
+  cv::Mat image(480, 640, CV_8U), blurred;
+  cv::randu(image, 0, 256);
+  cv::GaussianBlur(image, blurred, cv::Size(9, 9), 3);
+  EXPECT_LT(ImageSharpness(blurred), 0.3 * ImageSharpness(image));
 }
 
 }  // namespace
