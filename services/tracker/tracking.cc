@@ -7,6 +7,8 @@
 #include <map>
 #include <set>
 
+#include <opencv2/calib3d.hpp>
+
 #include "stitch/estimators/pnp.h"
 #include "stitch/estimators/pose_optimizer.h"
 #include "stitch/map/matcher.h"
@@ -20,6 +22,9 @@ namespace {
 
 constexpr int kMaxLocalKeyframes = 80;
 constexpr int kDirectIndexLevel = 2;
+// A motion model keeping under this fraction of the last frame's points is checked against the
+// homography (when homography tracking is on).
+constexpr double kWeakMotionModel = 0.2;
 
 }  // namespace
 
@@ -38,6 +43,11 @@ bool TrackingOptions::Check(std::string* why) const {
   if (relocalize_closed_after_frames < 0) return fail("tracker.relocalize_closed_after_frames must be >= 0");
   if (relocalization_candidates < 1) return fail("tracker.relocalization_candidates must be >= 1");
   if (relocalization_min_inliers < min_inliers) return fail("tracker.relocalization_min_inliers must be >= min_inliers");
+  if (reference_matching != "bow" && reference_matching != "lsh" && reference_matching != "brute_force") {
+    return fail("tracker.reference_matching must be bow, lsh or brute_force");
+  }
+  if (!(homography_threshold_px > 0 && homography_threshold_px <= 100)) return fail("tracker.homography_threshold_px must be in (0, 100]");
+  if (!(homography_search_px > 0 && homography_search_px <= 200)) return fail("tracker.homography_search_px must be in (0, 200]");
   if (agent_number < 0 || agent_number > 32767) return fail("tracker.agent_number must be in [0, 32767]");
   if (first_submap_number < 1 || first_submap_number > 65535) return fail("tracker.first_submap_number must be in [1, 65535]");
   return true;
@@ -210,27 +220,59 @@ Tracking::Output Tracking::TrackFrame(const cv::Mat& image, int frame_index, int
     why = text;
     result.reason = TrackingReason::kMotionBlur;
   } else {
+    // Place the frame (motion model, homography, reference keyframe: the first that finds enough
+    // matches), then confirm against the local map. With homography tracking, a placement the
+    // local map does not confirm gives way to the next method (a wrong constant-velocity guess
+    // under jitter can still find 20 chance matches).
     const int gap = last_frame_ ? frame_index - last_frame_->frame_index : 0;
+    // Right after untracked frames the pose comes from a weaker prediction: demand more support.
+    const int needed = consecutive_failures_ > 0 ? options_.min_inliers_after_failure : options_.min_inliers;
+    const bool retry = options_.homography_tracking;
+    bool placed = false;
+    const auto attempt = [&](const char* method, const std::function<bool()>& place) {
+      if (ok || (placed && !retry)) return;
+      const double t0 = step.ElapsedMs();
+      placed = place();
+      const double t1 = step.ElapsedMs();
+      result.timings.frame_to_frame += t1 - t0;
+      if (!placed) return;
+      ok = TrackLocalMap(&frame, needed);
+      result.timings.local_map += step.ElapsedMs() - t1;
+      if (ok) result.tracked_by = method;
+    };
+    int motion_inliers = 0;
     if (velocity_ && last_frame_ && gap >= 1) {
       Rigid3d predicted = *last_frame_->cam_from_world;
       for (int i = 0; i < gap; ++i) predicted = *velocity_ * predicted;
-      ok = TrackWithMotionModel(&frame, predicted);
+      attempt("motion model", [&] { return (motion_inliers = TrackWithMotionModel(&frame, predicted)) > 0; });
     }
-    if (!ok) ok = TrackReferenceKeyframe(&frame);
-    result.timings.frame_to_frame = step.ElapsedMs() - result.timings.extraction;
-    const double before_local_map = step.ElapsedMs();
-    // Right after untracked frames the pose comes from a weaker prediction: demand more support.
-    const int needed = consecutive_failures_ > 0 ? options_.min_inliers_after_failure : options_.min_inliers;
+    if (ok && retry && motion_inliers < kWeakMotionModel * last_frame_->CountTracked()) {
+      // The motion model kept few of the last frame's points: a wrong guess that chance matches
+      // confirmed, or a right one under a shaking camera. The homography decides: the placement
+      // the local map supports better stays.
+      const Frame motion_placed = frame;
+      const KeyframeId motion_reference = reference_keyframe_;
+      const int motion_tracked = frame.CountTracked();
+      ok = false;
+      attempt("homography", [&] { return TrackWithHomography(&frame); });
+      if (!ok || frame.CountTracked() <= motion_tracked) {
+        frame = motion_placed;
+        reference_keyframe_ = motion_reference;
+        ok = true;
+        result.tracked_by = "motion model";
+      }
+    }
+    if (options_.homography_tracking && last_frame_) attempt("homography", [&] { return TrackWithHomography(&frame); });
+    attempt("reference keyframe", [&] { return TrackReferenceKeyframe(&frame); });
     if (!ok) {
       result.reason = pose_diverged_ ? TrackingReason::kPoseDiverged : TrackingReason::kTooFewMatches;
-      why = pose_diverged_ ? "pose optimization diverged" : "too few matches with the last frame and the reference keyframe";
-    } else if (!TrackLocalMap(&frame, needed)) {
-      ok = false;
-      result.reason = pose_diverged_ ? TrackingReason::kPoseDiverged : TrackingReason::kTooFewMatches;
-      why = pose_diverged_ ? "pose optimization against the local map diverged"
-                           : std::to_string(frame.CountTracked()) + " local map points tracked, need " + std::to_string(needed);
+      if (!placed) {
+        why = pose_diverged_ ? "pose optimization diverged" : "too few matches with the last frame and the reference keyframe";
+      } else {
+        why = pose_diverged_ ? "pose optimization against the local map diverged"
+                             : std::to_string(frame.CountTracked()) + " local map points tracked, need " + std::to_string(needed);
+      }
     }
-    result.timings.local_map = step.ElapsedMs() - before_local_map;
   }
   const double before_keyframe = step.ElapsedMs();
   if (ok) {
@@ -339,22 +381,9 @@ bool Tracking::RelocalizeAgainst(Frame* frame, KeyframeId candidate) {
   if (!keyframe) return give_up();
   frame->points.assign(frame->size(), MapPointId());
   frame->outlier.assign(frame->size(), 0);
-  if (SearchByBow(*keyframe, frame, *map_, 0.75) < 15) return give_up();
-  std::vector<PnpMatch> matches;
-  std::vector<int> features;
-  for (size_t i = 0; i < frame->size(); ++i) {
-    const MapPoint* point = frame->points[i].valid() ? map_->FindPoint(frame->points[i]) : nullptr;
-    if (!point) continue;
-    matches.push_back({frame->undistorted[i], point->position, pyramid_.scale[frame->keypoints[i].octave]});
-    features.push_back(static_cast<int>(i));
-  }
-  const std::optional<PnpResult> pnp = EstimatePoseRansac(matches, intrinsics_);
-  if (!pnp) return give_up();
-  for (size_t m = 0; m < features.size(); ++m) {
-    if (!pnp->inlier[m]) frame->points[features[m]] = MapPointId();
-  }
-  frame->cam_from_world = pnp->cam_from_world;
-  if (OptimizeFramePose(frame, true) < 10) return give_up();
+  const int matches = options_.reference_matching == "bow" ? SearchByBow(*keyframe, frame, *map_, 0.75)
+                                                           : SearchByIndex(*keyframe, frame, *map_, FrameIndex(*frame), 0.75);
+  if (matches < 15 || !PoseFromMatches(frame)) return give_up();
   reference_keyframe_ = candidate;
   if (!TrackLocalMap(frame, options_.relocalization_min_inliers)) return give_up();
   return true;
@@ -535,7 +564,7 @@ int Tracking::OptimizeFramePose(Frame* frame, bool discard_outliers) {
   return inliers;
 }
 
-bool Tracking::TrackWithMotionModel(Frame* frame, const Rigid3d& predicted) {
+int Tracking::TrackWithMotionModel(Frame* frame, const Rigid3d& predicted) {
   frame->cam_from_world = predicted;
   std::fill(frame->points.begin(), frame->points.end(), MapPointId());
   int matches = SearchByProjection(frame, *last_frame_, *map_, intrinsics_, 15.0);
@@ -543,8 +572,67 @@ bool Tracking::TrackWithMotionModel(Frame* frame, const Rigid3d& predicted) {
     std::fill(frame->points.begin(), frame->points.end(), MapPointId());
     matches = SearchByProjection(frame, *last_frame_, *map_, intrinsics_, 30.0);
   }
-  if (matches < 20) return false;
+  if (matches < 20) return 0;
+  const int inliers = OptimizeFramePose(frame, true);
+  return inliers >= 10 ? inliers : 0;
+}
+
+const DescriptorIndex& Tracking::FrameIndex(const Frame& frame) {
+  if (!frame_index_ || frame_index_of_ != frame.frame_index || frame_index_->size() != static_cast<int>(frame.size())) {
+    const DescriptorSearch search = options_.reference_matching == "brute_force" ? DescriptorSearch::kBruteForce : DescriptorSearch::kLsh;
+    frame_index_.emplace(frame.descriptors, search);
+    frame_index_of_ = frame.frame_index;
+  }
+  return *frame_index_;
+}
+
+bool Tracking::PoseFromMatches(Frame* frame) {
+  std::vector<PnpMatch> matches;
+  std::vector<int> features;
+  for (size_t i = 0; i < frame->size(); ++i) {
+    const MapPoint* point = frame->points[i].valid() ? map_->FindPoint(frame->points[i]) : nullptr;
+    if (!point) continue;
+    matches.push_back({frame->undistorted[i], point->position, pyramid_.scale[frame->keypoints[i].octave]});
+    features.push_back(static_cast<int>(i));
+  }
+  const std::optional<PnpResult> pnp = EstimatePoseRansac(matches, intrinsics_);
+  if (!pnp) return false;
+  for (size_t m = 0; m < features.size(); ++m) {
+    if (!pnp->inlier[m]) frame->points[features[m]] = MapPointId();
+  }
+  frame->cam_from_world = pnp->cam_from_world;
   return OptimizeFramePose(frame, true) >= 10;
+}
+
+bool Tracking::TrackWithHomography(Frame* frame) {
+  // Where the last frame's tracked features went, from descriptors alone (no pose needed).
+  const Frame& last = *last_frame_;
+  std::fill(frame->points.begin(), frame->points.end(), MapPointId());
+  std::vector<char> tracked(last.size(), 0);
+  for (size_t i = 0; i < last.size(); ++i) tracked[i] = last.points[i].valid() && !last.outlier[i];
+  const auto matches = MatchByIndex(last.keypoints, last.descriptors, tracked, *frame, FrameIndex(*frame), 0.8);
+  if (matches.size() < 15) return false;
+  std::vector<cv::Point2f> from, to;
+  for (const auto& [i, j] : matches) {
+    from.emplace_back(static_cast<float>(last.undistorted[i].x()), static_cast<float>(last.undistorted[i].y()));
+    to.emplace_back(static_cast<float>(frame->undistorted[j].x()), static_cast<float>(frame->undistorted[j].y()));
+  }
+  std::vector<uchar> inlier;
+  const cv::Mat h = cv::findHomography(from, to, cv::RANSAC, options_.homography_threshold_px, inlier, 500, 0.995);
+  if (h.empty() || std::count(inlier.begin(), inlier.end(), 1) < 12) return false;
+  // Every tracked feature searched around where the homography puts it.
+  Eigen::Matrix3d hm;
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) hm(r, c) = h.at<double>(r, c);
+  }
+  std::vector<std::optional<Eigen::Vector2d>> predicted(last.size());
+  for (size_t i = 0; i < last.size(); ++i) {
+    if (!tracked[i]) continue;
+    const Eigen::Vector3d p = hm * last.undistorted[i].homogeneous();
+    if (p.z() > 1e-9) predicted[i] = p.hnormalized();
+  }
+  if (SearchAroundPredictions(frame, last, *map_, predicted, options_.homography_search_px) < 20) return false;
+  return PoseFromMatches(frame);
 }
 
 bool Tracking::TrackReferenceKeyframe(Frame* frame) {
@@ -557,9 +645,14 @@ bool Tracking::TrackReferenceKeyframe(Frame* frame) {
     reference = map_->FindKeyframe(newest);
     if (!reference) return false;
   }
-  ComputeBow(frame);
   std::fill(frame->points.begin(), frame->points.end(), MapPointId());
-  const int matches = SearchByBow(*reference, frame, *map_);
+  int matches = 0;
+  if (options_.reference_matching == "bow") {
+    ComputeBow(frame);
+    matches = SearchByBow(*reference, frame, *map_);
+  } else {
+    matches = SearchByIndex(*reference, frame, *map_, FrameIndex(*frame));
+  }
   if (matches < 15) return false;
   frame->cam_from_world = last_frame_ ? *last_frame_->cam_from_world : reference->cam_from_world;
   return OptimizeFramePose(frame, true) >= 10;

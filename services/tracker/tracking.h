@@ -21,6 +21,7 @@
 
 #include "stitch/estimators/bundle_adjustment.h"
 #include "stitch/estimators/two_view.h"
+#include "stitch/features/descriptor_index.h"
 #include "stitch/features/keyframe_database.h"
 #include "stitch/features/orb_extractor.h"
 #include "stitch/features/vocabulary.h"
@@ -45,6 +46,15 @@ struct TrackingOptions {
   int relocalization_candidates = 8;    // keyframes tried per frame when relocalizing
   int relocalize_closed_after_frames = 20;  // submap policy: frames a new map tries to initialize before closed submaps are tried
   int relocalization_min_inliers = 50;  // tracked points that accept a relocalized pose
+  // Matching against the reference keyframe and relocalization candidates, where no pose says
+  // where to look: bow (the vocabulary's direct index), lsh or brute_force (DescriptorIndex).
+  std::string reference_matching = "bow";
+  // When the motion model fails: match the last frame's tracked features to this frame (LSH, or
+  // brute force when reference_matching is brute_force), fit a homography, and search each point
+  // around where it predicts (fast rotation, jitter; exact for a planar scene or a pure rotation).
+  bool homography_tracking = true;
+  double homography_threshold_px = 8;  // RANSAC inlier threshold of the homography, pixels
+  double homography_search_px = 12;    // search radius around the homography's predictions, pixels at level 0
   int agent_number = 0;            // high bits of every id this tracker makes
   int first_submap_number = 1;
 
@@ -64,6 +74,10 @@ struct TrackingOptions {
     v("relocalize_closed_after_frames", relocalize_closed_after_frames, "submap policy: frames a new map tries to initialize alone before relocalization into closed submaps is tried too");
     v("relocalization_candidates", relocalization_candidates, "keyframes (by bag of words) tried per frame when relocalizing");
     v("relocalization_min_inliers", relocalization_min_inliers, "tracked points needed to accept a relocalized pose");
+    v("reference_matching", reference_matching, "matching against the reference keyframe and relocalization candidates: bow (vocabulary direct index), lsh or brute_force");
+    v("homography_tracking", homography_tracking, "when the motion model fails, track through a homography fitted to matches with the last frame (fast rotation, jitter)");
+    v("homography_threshold_px", homography_threshold_px, "RANSAC inlier threshold of that homography, pixels");
+    v("homography_search_px", homography_search_px, "search radius around the homography's predicted positions, pixels at level 0");
     v("agent_number", agent_number, "number of this aircraft in every id (0-32767)");
     v("first_submap_number", first_submap_number, "number of the first submap (1-65535)");
   }
@@ -97,7 +111,7 @@ const char* TrackingReasonName(TrackingReason reason);
 // Where a frame's time went, milliseconds.
 struct TrackTimings {
   double extraction = 0;   // ORB features and their undistortion
-  double frame_to_frame = 0;  // motion model or reference keyframe: matching and pose
+  double frame_to_frame = 0;  // motion model, homography or reference keyframe: matching and pose
   double local_map = 0;    // local map: selection, projection search, pose
   double keyframe = 0;     // keyframe decision and creation
   double total = 0;
@@ -115,6 +129,8 @@ struct TrackResult {
   int num_tracked_points = 0;
   bool is_keyframe = false;
   bool relocalized = false;  // the pose comes from relocalization (in a kept or reopened submap)
+  // How the frame was first placed: "motion model", "homography", "reference keyframe", ...
+  const char* tracked_by = "";
   int submap_keyframes = 0;
   TrackTimings timings;
 };
@@ -159,7 +175,13 @@ class Tracking {
   void AddToDatabase(const Keyframe& keyframe);
   bool CreateInitialMap(Frame* frame, const std::vector<int>& matches, const TwoViewResult& two_view,
                         Output* output, std::string* why);
-  bool TrackWithMotionModel(Frame* frame, const Rigid3d& predicted);
+  // Points kept after the pose optimization (0: failed).
+  int TrackWithMotionModel(Frame* frame, const Rigid3d& predicted);
+  bool TrackWithHomography(Frame* frame);
+  // The frame's descriptor index (built on first use in a frame).
+  const DescriptorIndex& FrameIndex(const Frame& frame);
+  // Pose from the frame's 2D-3D matches: PnP RANSAC, then optimization; outliers dropped.
+  bool PoseFromMatches(Frame* frame);
   bool TrackReferenceKeyframe(Frame* frame);
   bool TrackLocalMap(Frame* frame, int min_inliers);
   int OptimizeFramePose(Frame* frame, bool discard_outliers);
@@ -213,6 +235,8 @@ class Tracking {
   double typical_sharpness_ = 0;  // running average over tracked frames
   std::vector<KeyframeId> local_keyframes_;
   FlatIdSet seen_points_;  // TrackLocalMap's scratch, kept to reuse its table
+  std::optional<DescriptorIndex> frame_index_;  // of the frame being tracked
+  int frame_index_of_ = -1;                     // ...its frame number
 
   KeyframeId last_keyframe_sent_;
   KeyframeId mapper_processed_;

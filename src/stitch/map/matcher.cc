@@ -97,15 +97,26 @@ int SearchForInitialization(const Frame& reference, const Frame& current, std::v
 
 int SearchByProjection(Frame* current, const Frame& last, const Map& map, const PinholeIntrinsics& k, double radius) {
   const Rigid3d& pose = *current->cam_from_world;
-  RotationHistogram histogram;
-  int matched = 0;
+  std::vector<std::optional<Eigen::Vector2d>> predicted(last.size());
   for (size_t i = 0; i < last.size(); ++i) {
     if (!last.points[i].valid() || last.outlier[i]) continue;
     const MapPoint* point = map.FindPoint(last.points[i]);
     if (!point) continue;
     const Eigen::Vector3d in_cam = pose * point->position;
-    if (in_cam.z() <= 0) continue;
-    const Eigen::Vector2d pixel = k.Project(in_cam);
+    if (in_cam.z() > 0) predicted[i] = k.Project(in_cam);
+  }
+  return SearchAroundPredictions(current, last, map, predicted, radius);
+}
+
+int SearchAroundPredictions(Frame* current, const Frame& last, const Map& map,
+                            const std::vector<std::optional<Eigen::Vector2d>>& predicted, double radius) {
+  RotationHistogram histogram;
+  int matched = 0;
+  for (size_t i = 0; i < last.size(); ++i) {
+    if (!predicted[i] || !last.points[i].valid() || last.outlier[i]) continue;
+    const MapPoint* point = map.FindPoint(last.points[i]);
+    if (!point) continue;
+    const Eigen::Vector2d& pixel = *predicted[i];
     const int level = last.keypoints[i].octave;
     const double r = radius * map.pyramid().scale[level];
     const std::vector<int> nearby =
@@ -130,6 +141,48 @@ int SearchByProjection(Frame* current, const Frame& last, const Map& map, const 
     --matched;
   }
   return matched;
+}
+
+std::vector<std::pair<int, int>> MatchByIndex(const std::vector<cv::KeyPoint>& keypoints, const cv::Mat& descriptors,
+                                              const std::vector<char>& usable, const Frame& frame,
+                                              const DescriptorIndex& index, double ratio) {
+  RotationHistogram histogram;
+  std::vector<std::pair<int, int>> matches;
+  std::vector<int> match_of(frame.size(), -1);  // frame feature -> its match so far
+  std::vector<int> distance_of(frame.size(), 257);
+  const auto free = [&](int j) { return !frame.points[j].valid(); };
+  for (size_t i = 0; i < keypoints.size(); ++i) {
+    if (!usable[i]) continue;
+    const NearestDescriptors nearest = index.Nearest(descriptors.ptr<uint8_t>(static_cast<int>(i)), free);
+    if (nearest.best < 0 || nearest.best_distance > kDescriptorDistanceLow ||
+        nearest.best_distance >= ratio * nearest.second_distance) {
+      continue;
+    }
+    // A frame feature goes to the closest of the features that chose it.
+    const int j = nearest.best;
+    if (match_of[j] >= 0) {
+      if (distance_of[j] <= nearest.best_distance) continue;
+      matches[match_of[j]].first = -1;
+    }
+    match_of[j] = static_cast<int>(matches.size());
+    distance_of[j] = nearest.best_distance;
+    histogram.Add(keypoints[i].angle, frame.keypoints[j].angle, static_cast<int>(matches.size()));
+    matches.push_back({static_cast<int>(i), j});
+  }
+  for (int m : histogram.Rejected()) matches[m].first = -1;
+  matches.erase(std::remove_if(matches.begin(), matches.end(), [](const auto& m) { return m.first < 0; }), matches.end());
+  return matches;
+}
+
+int SearchByIndex(const Keyframe& keyframe, Frame* frame, const Map& map, const DescriptorIndex& index, double ratio) {
+  std::vector<char> usable(keyframe.points.size(), 0);
+  for (size_t i = 0; i < usable.size(); ++i) usable[i] = keyframe.points[i].valid() && map.FindPoint(keyframe.points[i]);
+  const auto matches = MatchByIndex(keyframe.keypoints, keyframe.descriptors, usable, *frame, index, ratio);
+  for (const auto& [i, j] : matches) {
+    frame->points[j] = keyframe.points[i];
+    frame->outlier[j] = 0;
+  }
+  return static_cast<int>(matches.size());
 }
 
 bool PredictInView(const MapPoint& point, const Rigid3d& cam_from_world, const PinholeIntrinsics& k, double min_x,

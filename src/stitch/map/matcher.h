@@ -5,11 +5,13 @@
 // orientation changes of all matches must agree: only the three most common 12-degree bins are
 // kept).
 
+#include <optional>
 #include <utility>
 #include <vector>
 
 #include <Eigen/Core>
 
+#include "stitch/features/descriptor_index.h"
 #include "stitch/geometry/camera.h"
 #include "stitch/map/map.h"
 
@@ -25,6 +27,23 @@ int SearchForInitialization(const Frame& reference, const Frame& current, std::v
 // set) and matched within `radius` x scale px, at levels around the one they were seen at.
 // Assigns current->points; returns the number of new matches.
 int SearchByProjection(Frame* current, const Frame& last, const Map& map, const PinholeIntrinsics& k, double radius);
+
+// The same with the positions predicted by other means (a homography): predicted[i] is where
+// feature i of `last` should appear in `current` (undistorted pixels), or none.
+int SearchAroundPredictions(Frame* current, const Frame& last, const Map& map,
+                            const std::vector<std::optional<Eigen::Vector2d>>& predicted, double radius);
+
+// Without a pose: each usable feature (keypoints/descriptors of a keyframe or frame) is looked
+// up in `index` (built on frame.descriptors) among the frame's features that have no point yet;
+// best under 50 bits, `ratio` to the second best, each frame feature to its closest, rotation-
+// consistent. Returns (feature, frame feature) pairs.
+std::vector<std::pair<int, int>> MatchByIndex(const std::vector<cv::KeyPoint>& keypoints, const cv::Mat& descriptors,
+                                              const std::vector<char>& usable, const Frame& frame,
+                                              const DescriptorIndex& index, double ratio = 0.8);
+
+// Reference keyframe without the vocabulary: the keyframe's points matched to the frame through
+// an index over the frame's descriptors (brute force or LSH). Assigns frame->points.
+int SearchByIndex(const Keyframe& keyframe, Frame* frame, const Map& map, const DescriptorIndex& index, double ratio = 0.7);
 
 // A local map point predicted in a frame.
 struct PointInView {

@@ -127,6 +127,33 @@ TEST(Matcher, BowSearchMatchesAKeyframeToAFrame) {
   EXPECT_GT(Consistency(current, map, 3.0, &count), 0.95);
 }
 
+TEST(Matcher, IndexSearchFindsAtLeastWhatTheBowSearchFinds) {
+  // The reference keyframe 8 frames (about 9 m) behind: brute force compares every pair, also
+  // those the vocabulary's direct index never puts side by side; LSH nearly all of them.
+  cv::Mat depth;
+  Frame reference = RenderFrame(77, &depth);
+  reference.bow = SharedVocabulary().Transform(reference.descriptors, &reference.bow_features, 2);
+  Keyframe keyframe;
+  const Map map = MapFromFrame(reference, depth, &keyframe);
+  int matched[3] = {0, 0, 0};
+  for (int method = 0; method < 3; ++method) {
+    Frame current = RenderFrame(85, nullptr);
+    if (method == 0) {
+      current.bow = SharedVocabulary().Transform(current.descriptors, &current.bow_features, 2);
+      matched[method] = SearchByBow(keyframe, &current, map);
+    } else {
+      const DescriptorIndex index(current.descriptors, method == 1 ? DescriptorSearch::kBruteForce : DescriptorSearch::kLsh);
+      matched[method] = SearchByIndex(keyframe, &current, map, index);
+    }
+    int count = 0;
+    EXPECT_GT(Consistency(current, map, 3.0, &count), 0.95) << "method " << method;
+    EXPECT_EQ(count, matched[method]);
+  }
+  EXPECT_GT(matched[0], 150);  // measured: bow 234, brute force 360, LSH 361
+  EXPECT_GE(matched[1], 1.3 * matched[0]);
+  EXPECT_GE(matched[2], 0.9 * matched[1]);
+}
+
 TEST(Matcher, TriangulationSearchRespectsTheEpipolarGeometry) {
   cv::Mat depth1;
   Frame f1 = RenderFrame(100, &depth1);
