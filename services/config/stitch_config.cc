@@ -2,6 +2,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <sstream>
 
 #include "stitch/util/child_process.h"
 #include "stitch/util/options.h"
@@ -27,6 +28,39 @@ std::string DefaultVocabularyPath() {
 
 Vocabulary LoadVocabulary(const StitchConfig& config) {
   return Vocabulary::Load(config.vocabulary.empty() ? DefaultVocabularyPath() : config.vocabulary);
+}
+
+StitchConfig ApplySettings(StitchConfig config, const std::string& settings) {
+  if (settings.empty()) return config;
+  YAML::Node root(YAML::NodeType::Map);
+  std::stringstream list(settings);
+  std::string setting;
+  while (std::getline(list, setting, ',')) {
+    const size_t equals = setting.find('=');
+    if (equals == std::string::npos || equals == 0) throw Error("setting '" + setting + "': expected key.path=value");
+    std::vector<std::string> path;
+    std::stringstream keys(setting.substr(0, equals));
+    for (std::string key; std::getline(keys, key, '.');) {
+      if (key.empty()) throw Error("setting '" + setting + "': empty key");
+      path.push_back(key);
+    }
+    // yaml-cpp's operator[] returns handles into the tree: walk by reassigning a copy.
+    std::vector<YAML::Node> chain{root};
+    for (size_t i = 0; i + 1 < path.size(); ++i) {
+      YAML::Node next = chain.back()[path[i]];
+      if (!next.IsDefined() || next.IsNull()) next = YAML::Node(YAML::NodeType::Map);
+      chain.back()[path[i]] = next;
+      chain.push_back(chain.back()[path[i]]);
+    }
+    YAML::Node value;
+    try {
+      value = YAML::Load(setting.substr(equals + 1));
+    } catch (const YAML::Exception& e) {
+      throw Error("setting '" + setting + "': " + e.what());
+    }
+    chain.back()[path.back()] = value;
+  }
+  return ReadOptions<StitchConfig>(root, "--set", std::move(config));
 }
 
 void SaveStitchConfig(const StitchConfig& config, const std::string& path) {

@@ -46,5 +46,8 @@ std::string DefaultVocabularyPath();
 // Defaults when `path` is empty. Throws stitch::Error naming the file and key on any problem.
 StitchConfig LoadStitchConfig(const std::string& path);
 void SaveStitchConfig(const StitchConfig& config, const std::string& path);
+// `config` with settings "key.path=value[,key.path=value...]" applied (e.g.
+// "tracker.tracking.homography_tracking=false"); checked like a file. Throws stitch::Error.
+StitchConfig ApplySettings(StitchConfig config, const std::string& settings);
 
 }  // namespace stitch

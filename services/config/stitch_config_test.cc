@@ -59,3 +59,25 @@ TEST(StitchConfig, CommittedDefaultFileMatchesTheCode) {
 
 }  // namespace
 }  // namespace stitch
+
+namespace stitch {
+namespace {
+
+TEST(StitchConfig, SettingsOverrideTheGivenConfigurationAndAreChecked) {
+  StitchConfig base;
+  base.tracker.tracking.relocalization_candidates = 5;
+  const StitchConfig set = ApplySettings(base, "tracker.tracking.homography_tracking=false,tracker.tracking.orb.threads=2,"
+                                               "tracker.tracking.reference_matching=lsh");
+  EXPECT_FALSE(set.tracker.tracking.homography_tracking);
+  EXPECT_EQ(set.tracker.tracking.orb.threads, 2);
+  EXPECT_EQ(set.tracker.tracking.reference_matching, "lsh");
+  EXPECT_EQ(set.tracker.tracking.relocalization_candidates, 5);  // untouched settings keep the given values
+  EXPECT_EQ(ApplySettings(base, "").tracker.tracking.relocalization_candidates, 5);
+  EXPECT_THROW(ApplySettings(base, "tracker.tracking.reference_matching=kd_tree"), Error);  // checked
+  EXPECT_THROW(ApplySettings(base, "tracker.no_such_key=1"), Error);
+  EXPECT_THROW(ApplySettings(base, "tracker.tracking.orb.threads"), Error);
+  EXPECT_THROW(ApplySettings(base, "tracker..orb=1"), Error);
+}
+
+}  // namespace
+}  // namespace stitch

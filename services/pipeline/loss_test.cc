@@ -98,7 +98,8 @@ void Play(std::vector<int>* script, int first, int last) {
 }
 void Repeat(std::vector<int>* script, int entry, int count) { script->insert(script->end(), count, entry); }
 
-InlineRun RunScript(const std::vector<int>& script, const std::string& on_loss, StitchConfig config = {}) {
+InlineRun RunScript(const std::vector<int>& script, const std::string& on_loss) {
+  StitchConfig config;
   config.tracker.on_loss = on_loss;
   ScriptedSequence sequence(script);
   return RunInline(sequence, config, DefaultVocabulary());

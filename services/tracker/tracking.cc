@@ -105,6 +105,31 @@ Tracking::Tracking(const TrackingOptions& options, const Camera& camera, const V
       next_submap_number_(options.first_submap_number) {
   CheckOptions(options_, "tracker");
   if (!vocabulary_ || vocabulary_->empty()) throw Error("Tracking needs a vocabulary");
+  if (options_.keyframe_worker) keyframe_worker_ = std::make_unique<WorkerThread>();
+}
+
+Tracking::~Tracking() {
+  keyframe_worker_.reset();  // finishes its queue while the members its tasks write to still exist
+}
+
+void Tracking::AdoptKeyframeBow(bool wait) {
+  if (!keyframe_worker_) return;
+  if (wait) keyframe_worker_->Drain();
+  std::vector<FinishedBow> finished;
+  {
+    std::lock_guard<std::mutex> lock(finished_mutex_);
+    finished.swap(finished_bow_);
+  }
+  for (FinishedBow& f : finished) {
+    Keyframe* keyframe = map_ ? map_->FindKeyframe(f.keyframe) : nullptr;
+    for (auto& closed : closed_maps_) {
+      if (!keyframe) keyframe = closed.map->FindKeyframe(f.keyframe);
+    }
+    if (!keyframe) continue;  // culled by the mapper meanwhile
+    keyframe->bow = std::move(f.bow);
+    keyframe->bow_features = std::move(f.features);
+    AddToDatabase(*keyframe);
+  }
 }
 
 void Tracking::ComputeBow(Frame* frame) const {
@@ -154,6 +179,7 @@ void Tracking::AddToDatabase(const Keyframe& keyframe) {
 
 Tracking::Output Tracking::Track(const cv::Mat& image, int frame_index, int64_t t_ns) {
   const Stopwatch total;
+  AdoptKeyframeBow(/*wait=*/false);
   Output output = TrackFrame(image, frame_index, t_ns);
   TrackResult& result = output.result;
   result.timings.total = total.ElapsedMs();
@@ -334,6 +360,7 @@ void Tracking::OnTracked(Frame* frame, Output* output, bool may_make_keyframe) {
 }
 
 bool Tracking::Relocalize(Frame* frame, Output* output) {
+  AdoptKeyframeBow(/*wait=*/true);  // every keyframe in the database
   ComputeBow(frame);
   // The kept map (relocalize policy), or every closed submap while a new one initializes.
   std::function<bool(int64_t)> accept;
@@ -648,6 +675,11 @@ bool Tracking::TrackReferenceKeyframe(Frame* frame) {
   std::fill(frame->points.begin(), frame->points.end(), MapPointId());
   int matches = 0;
   if (options_.reference_matching == "bow") {
+    if (reference->bow.empty()) {
+      AdoptKeyframeBow(/*wait=*/true);
+      reference = map_->FindKeyframe(reference_keyframe_);
+      if (!reference) return false;
+    }
     ComputeBow(frame);
     matches = SearchByBow(*reference, frame, *map_);
   } else {
@@ -730,16 +762,28 @@ bool Tracking::NeedKeyframe(const Frame& frame, int inliers) const {
 }
 
 Keyframe Tracking::CreateKeyframe(const Frame& frame) {
-  Frame copy = frame;
-  ComputeBow(&copy);
   const KeyframeId id = MakeKeyframeId(map_->id(), next_keyframe_index_++);
-  Keyframe& keyframe = map_->AddKeyframe(KeyframeFromFrame(copy, id));
+  Keyframe* keyframe = nullptr;
+  if (keyframe_worker_) {
+    // The bag of words serves relocalization only (the mapper computes its own): off the frame loop.
+    keyframe = &map_->AddKeyframe(KeyframeFromFrame(frame, id));
+    keyframe_worker_->Submit([this, id, descriptors = frame.descriptors] {
+      FinishedBow finished{id, {}, {}};
+      finished.bow = vocabulary_->Transform(descriptors, &finished.features, kDirectIndexLevel);
+      std::lock_guard<std::mutex> lock(finished_mutex_);
+      finished_bow_.push_back(std::move(finished));
+    });
+  } else {
+    Frame copy = frame;
+    ComputeBow(&copy);
+    keyframe = &map_->AddKeyframe(KeyframeFromFrame(copy, id));
+    AddToDatabase(*keyframe);
+  }
   map_->UpdateConnections(id);
-  AddToDatabase(keyframe);
   reference_keyframe_ = id;
   last_keyframe_frame_index_ = frame.frame_index;
   last_keyframe_sent_ = id;
-  return keyframe;
+  return *keyframe;
 }
 
 void Tracking::ApplyUpdate(const LocalMapUpdate& update) {

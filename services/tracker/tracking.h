@@ -3,7 +3,8 @@
 // Monocular keyframe tracking as in ORB-SLAM2: two-view initialization, tracking with a
 // constant-velocity model (falling back to the reference keyframe via bag of words), then
 // against the local map, and keyframe decisions. It keeps its own copy of the current submap,
-// which the mapper's updates refine. One owner thread; not thread-safe.
+// which the mapper's updates refine. One owner thread; not thread-safe (it may run a worker
+// thread of its own: keyframe_worker).
 //
 // Loss (docs/tracking-loss.md): `lost_after_frames` consecutive untracked frames make tracking
 // lost; fewer are skipped. Then, by policy: kNewSubmap closes the submap and initializes a new
@@ -13,6 +14,7 @@
 
 #include <cstdint>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <string>
 #include <vector>
@@ -28,6 +30,7 @@
 #include "stitch/map/local_map_update.h"
 #include "stitch/map/map.h"
 #include "stitch/util/flat_id_set.h"
+#include "stitch/util/worker_thread.h"
 
 namespace stitch {
 
@@ -55,6 +58,9 @@ struct TrackingOptions {
   bool homography_tracking = true;
   double homography_threshold_px = 8;  // RANSAC inlier threshold of the homography, pixels
   double homography_search_px = 12;    // search radius around the homography's predictions, pixels at level 0
+  // A new keyframe's bag of words (for relocalization; the mapper computes its own) on a
+  // background thread instead of in the frame loop.
+  bool keyframe_worker = true;
   int agent_number = 0;            // high bits of every id this tracker makes
   int first_submap_number = 1;
 
@@ -78,6 +84,7 @@ struct TrackingOptions {
     v("homography_tracking", homography_tracking, "when the motion model fails, track through a homography fitted to matches with the last frame (fast rotation, jitter)");
     v("homography_threshold_px", homography_threshold_px, "RANSAC inlier threshold of that homography, pixels");
     v("homography_search_px", homography_search_px, "search radius around the homography's predicted positions, pixels at level 0");
+    v("keyframe_worker", keyframe_worker, "compute new keyframes' bag of words (relocalization database) on a background thread, off the frame loop");
     v("agent_number", agent_number, "number of this aircraft in every id (0-32767)");
     v("first_submap_number", first_submap_number, "number of the first submap (1-65535)");
   }
@@ -148,6 +155,7 @@ class Tracking {
   // `vocabulary` must outlive the tracker.
   Tracking(const TrackingOptions& options, const Camera& camera, const Vocabulary* vocabulary, double fps,
            LossPolicy policy = LossPolicy::kNewSubmap);
+  ~Tracking();
 
   Output Track(const cv::Mat& image, int frame_index, int64_t t_ns);
   // Applies the mapper's changes to the tracker's copy of the submap (current or closed).
@@ -173,6 +181,9 @@ class Tracking {
   Output Initialize(Frame frame);
   void OnTracked(Frame* frame, Output* output, bool may_make_keyframe);
   void AddToDatabase(const Keyframe& keyframe);
+  // Keyframes whose bag of words the worker has finished get it, and enter the database;
+  // `wait`: first wait for the worker to finish all.
+  void AdoptKeyframeBow(bool wait);
   bool CreateInitialMap(Frame* frame, const std::vector<int>& matches, const TwoViewResult& two_view,
                         Output* output, std::string* why);
   // Points kept after the pose optimization (0: failed).
@@ -235,6 +246,14 @@ class Tracking {
   double typical_sharpness_ = 0;  // running average over tracked frames
   std::vector<KeyframeId> local_keyframes_;
   FlatIdSet seen_points_;  // TrackLocalMap's scratch, kept to reuse its table
+  struct FinishedBow {
+    KeyframeId keyframe;
+    BowVector bow;
+    FeatureVector features;
+  };
+  std::unique_ptr<WorkerThread> keyframe_worker_;  // with options_.keyframe_worker
+  std::mutex finished_mutex_;
+  std::vector<FinishedBow> finished_bow_;  // from the worker, not yet adopted
   std::optional<DescriptorIndex> frame_index_;  // of the frame being tracked
   int frame_index_of_ = -1;                     // ...its frame number
 

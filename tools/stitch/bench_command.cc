@@ -1,14 +1,20 @@
 // stitch bench: times the SLAM core on a sequence, without the bus: per-frame time of each
 // tracking step (median and 95th percentile over tracked frames), frames per second, mapping
-// time per keyframe, peak memory, and the accuracy of the run. Pin it to one core with
-// `taskset -c 0 build/bin/stitch bench` to measure what one core of a small onboard computer gets.
+// time per keyframe, peak memory, tracking losses and the accuracy of the run. With --options,
+// the same sequence once per speed option switched (each in a process of its own, so each
+// peak memory is its own), side by side. Pin it to one core with `taskset -c 0 build/bin/stitch
+// bench` to measure what one core of a small onboard computer gets.
 
 #include <sys/resource.h>
+#include <unistd.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <map>
+#include <thread>
 
 #include <nlohmann/json.hpp>
 
@@ -16,6 +22,7 @@
 #include "services/pipeline/inline_pipeline.h"
 #include "stitch/source/source.h"
 #include "stitch/util/args.h"
+#include "stitch/util/child_process.h"
 #include "stitch/util/error.h"
 #include "stitch/util/time.h"
 #include "tools/stitch/commands.h"
@@ -41,90 +48,198 @@ Stat Summarize(std::vector<double> values) {
   return s;
 }
 
+struct BenchArgs {
+  std::string dataset, calibration, config_path, settings, failures = "none", json_path;
+  int max_frames = -1;
+};
+
+// One run in this process: prints the figures and returns them as JSON.
+nlohmann::json BenchOnce(const BenchArgs& a) {
+  const StitchConfig config = ApplySettings(LoadStitchConfig(a.config_path), a.settings);
+  const Vocabulary vocabulary = LoadVocabulary(config);
+  SourceSpec spec;
+  spec.dataset_path = a.dataset;
+  spec.calibration_path = a.calibration;
+  spec.failures = a.failures;
+  spec.max_frames = a.max_frames;
+  spec.synthetic = config.synthetic;
+  FailureSchedule spoil;
+  auto sequence = OpenSource(spec, &spoil);
+  if (!spoil.empty()) throw Error("stitch bench applies failure schedules to the synthetic flight only");
+  std::printf("stitch bench: %s, %dx%d%s%s\n", sequence->description().c_str(), sequence->camera().width(),
+              sequence->camera().height(), a.settings.empty() ? "" : ", ", a.settings.c_str());
+  const Stopwatch clock;
+  int done = 0;
+  const InlineRun run = RunInline(*sequence, config, vocabulary, [&](const InlineFrame&) {
+    if (++done % 100 == 0) {
+      std::printf("\r  %d frames", done);
+      std::fflush(stdout);
+    }
+  });
+  std::printf("\r  %d frames in %.1f s\n", done, clock.ElapsedSeconds());
+  std::vector<double> extraction, frame_to_frame, local_map, keyframe, total, all_frames, mapping;
+  std::map<std::string, int> tracked_by;
+  int losses = 0;
+  for (const InlineFrame& f : run.frames) {
+    all_frames.push_back(f.result.timings.total);
+    if (f.mapping_ms > 0) mapping.push_back(f.mapping_ms);
+    losses += f.result.state == TrackingState::kLost && !f.result.detail.empty() && f.result.detail.rfind("lost after", 0) == 0;
+    if (f.result.state != TrackingState::kOk || f.result.timings.local_map == 0) continue;
+    ++tracked_by[*f.result.tracked_by ? f.result.tracked_by : "relocalization"];
+    extraction.push_back(f.result.timings.extraction);
+    frame_to_frame.push_back(f.result.timings.frame_to_frame);
+    local_map.push_back(f.result.timings.local_map);
+    keyframe.push_back(f.result.timings.keyframe);
+    total.push_back(f.result.timings.total);
+  }
+  EvaluationInput input;
+  input.frames_total = static_cast<int>(run.frames.size());
+  input.poses = run.poses;
+  input.ground_truth = sequence->ground_truth();
+  input.keyframes = run.keyframes;
+  input.submaps = run.submaps;
+  const Evaluation evaluation = Evaluate(input);
+  rusage usage{};
+  getrusage(RUSAGE_SELF, &usage);
+  const double peak_mb = usage.ru_maxrss / 1024.0;
+  nlohmann::json json;
+  json["sequence"] = sequence->description();
+  json["width"] = sequence->camera().width();
+  json["height"] = sequence->camera().height();
+  json["settings"] = a.settings;
+  std::printf("\n  per tracked frame (%zu frames)   median     p95    mean   [ms]\n", total.size());
+  const std::pair<const char*, const std::vector<double>*> rows[] = {
+      {"feature extraction", &extraction}, {"frame-to-frame tracking", &frame_to_frame},
+      {"local-map tracking", &local_map},  {"keyframe decision", &keyframe},
+      {"whole frame", &total},             {"every frame (any state)", &all_frames},
+      {"mapping, per keyframe", &mapping}};
+  for (const auto& [name, values] : rows) {
+    const Stat s = Summarize(*values);
+    std::printf("  %-32s %7.2f %7.2f %7.2f\n", name, s.median, s.p95, s.mean);
+    json["ms"][name] = {{"median", s.median}, {"p95", s.p95}, {"mean", s.mean}, {"count", s.count}};
+  }
+  const Stat frame_stat = Summarize(all_frames);
+  const double fps = frame_stat.mean > 0 ? 1000.0 / frame_stat.mean : 0;
+  std::printf("  tracking throughput %.1f frames/s (tracker alone), peak memory %.0f MB\n", fps, peak_mb);
+  std::string placed;
+  for (const auto& [method, count] : tracked_by) placed += (placed.empty() ? "" : ", ") + method + " " + std::to_string(count);
+  std::printf("  tracked frames placed by: %s; tracking lost %d time(s)\n", placed.c_str(), losses);
+  std::printf("%s", stitch::Summarize(evaluation).c_str());
+  json["tracking_fps"] = fps;
+  json["peak_memory_mb"] = peak_mb;
+  json["losses"] = losses;
+  json["tracked_by"] = tracked_by;
+  json["evaluation"] = ToJson(evaluation);
+  return json;
+}
+
+struct Variant {
+  std::string name, settings;
+};
+
+// The configuration as given, then each speed option switched the other way.
+std::vector<Variant> SpeedVariants(const StitchConfig& config) {
+  const TrackingOptions& t = config.tracker.tracking;
+  std::vector<Variant> variants{{"as configured", ""}};
+  variants.push_back({std::string("homography tracking ") + (t.homography_tracking ? "off" : "on"),
+                      std::string("tracker.tracking.homography_tracking=") + (t.homography_tracking ? "false" : "true")});
+  for (const char* matching : {"bow", "lsh", "brute_force"}) {
+    if (t.reference_matching == matching) continue;
+    variants.push_back({std::string("reference matching ") + matching, std::string("tracker.tracking.reference_matching=") + matching});
+  }
+  const int threads = t.orb.threads > 1 ? 1 : 2;
+  variants.push_back({"extraction threads " + std::to_string(threads), "tracker.tracking.orb.threads=" + std::to_string(threads)});
+  const bool worker = !t.keyframe_worker;
+  variants.push_back({std::string("keyframe worker ") + (worker ? "on" : "off"),
+                      std::string("tracker.tracking.keyframe_worker=") + (worker ? "true" : "false")});
+  return variants;
+}
+
+// Each variant in a child `stitch bench` (its own peak memory), then the table.
+nlohmann::json BenchOptions(const BenchArgs& a) {
+  const StitchConfig config = ApplySettings(LoadStitchConfig(a.config_path), a.settings);
+  const std::vector<Variant> variants = SpeedVariants(config);
+  const std::filesystem::path scratch =
+      std::filesystem::temp_directory_path() / ("stitch-bench-" + std::to_string(::getpid()));
+  std::filesystem::create_directories(scratch);
+  nlohmann::json all = nlohmann::json::array();
+  for (size_t i = 0; i < variants.size(); ++i) {
+    const Variant& v = variants[i];
+    std::printf("[%zu/%zu] %s ...", i + 1, variants.size(), v.name.c_str());
+    std::fflush(stdout);
+    const std::string json_path = (scratch / ("variant" + std::to_string(i) + ".json")).string();
+    std::string settings = a.settings;
+    if (!v.settings.empty()) settings += (settings.empty() ? "" : ",") + v.settings;
+    std::vector<std::string> args{"bench", "--failures", a.failures, "--json", json_path, "--max-frames", std::to_string(a.max_frames)};
+    const std::pair<const char*, const std::string*> passed[] = {
+        {"--dataset", &a.dataset}, {"--calib", &a.calibration}, {"--config", &a.config_path}, {"--set", &settings}};
+    for (const auto& [flag, value] : passed) {
+      if (value->empty()) continue;
+      args.push_back(flag);
+      args.push_back(*value);
+    }
+    const Stopwatch clock;
+    ChildProcess child("bench", ExecutableDir() + "/stitch", args, (scratch / ("variant" + std::to_string(i) + ".log")).string());
+    std::optional<int> status;
+    while (!(status = child.Poll())) std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    if (*status != 0) throw Error("variant '" + v.name + "' failed (exit " + std::to_string(*status) + "):\n" + child.LogTail(15));
+    std::ifstream in(json_path);
+    nlohmann::json result = nlohmann::json::parse(in);
+    result["variant"] = v.name;
+    std::printf(" %.0f s\n", clock.ElapsedSeconds());
+    all.push_back(result);
+  }
+  std::filesystem::remove_all(scratch);
+  std::printf("\n%-30s %9s %7s %6s %8s | %11s %11s %11s %13s %6s %6s\n", "variant", "localized", "submaps", "losses",
+              "ATE [m]", "extract", "frame2frame", "local map", "whole frame", "fps", "MB");
+  std::printf("%-30s %9s %7s %6s %8s | %11s %11s %11s %13s %6s %6s\n", "", "", "", "", "", "median ms", "median ms",
+              "median ms", "median/p95", "", "peak");
+  for (const auto& r : all) {
+    const auto& e = r["evaluation"];
+    const auto ms = [&](const char* what, const char* stat) { return r["ms"][what][stat].get<double>(); };
+    char ate[16] = "n/a";
+    if (!e["ate_rmse_m"].is_null()) std::snprintf(ate, sizeof(ate), "%.4f", e["ate_rmse_m"].get<double>());
+    std::printf("%-30s %4d/%-4d %7d %6d %8s | %11.2f %11.2f %11.2f %6.2f/%-6.2f %6.1f %6.0f\n",
+                r["variant"].get<std::string>().c_str(), e["frames_localized"].get<int>(), e["frames_total"].get<int>(),
+                e["submaps"].get<int>(), r["losses"].get<int>(),
+                ate,
+                ms("feature extraction", "median"), ms("frame-to-frame tracking", "median"), ms("local-map tracking", "median"),
+                ms("whole frame", "median"), ms("whole frame", "p95"), r["tracking_fps"].get<double>(), r["peak_memory_mb"].get<double>());
+  }
+  nlohmann::json out;
+  out["variants"] = all;
+  return out;
+}
+
 }  // namespace
 
 int BenchCommand(int argc, char** argv) {
-  std::string dataset, config_path, failures = "none", json_path, calibration;
-  int max_frames = -1;
+  BenchArgs a;
+  bool options = false;
   ArgParser args("stitch bench",
                  "Times tracking and mapping on a sequence in one process (no bus), lockstep as `stitch run`: "
-                 "per-frame time of feature extraction, frame-to-frame tracking (motion model or reference "
-                 "keyframe), local-map tracking, keyframe work, and the whole frame, over frames that were tracked. "
+                 "per-frame time of feature extraction, frame-to-frame tracking (motion model, homography or reference "
+                 "keyframe), local-map tracking, keyframe work, and the whole frame, over frames that were tracked; "
+                 "tracking losses and accuracy. With --options, once per speed option switched, side by side. "
                  "Without --dataset, the synthetic flight without gusts.");
-  args.AddOption("--dataset", &dataset, "PATH", "sequence to time (default: the synthetic flight)");
-  args.AddOption("--calib", &calibration, "FILE", "calibration overriding the dataset's own");
-  args.AddOption("--config", &config_path, "FILE", "YAML settings (e.g. synthetic.width: 752 for EuRoC-sized frames)");
-  args.AddOption("--failures", &failures, "SPEC", "induced failures");
-  args.AddOption("--max-frames", &max_frames, "N", "time at most N frames");
-  args.AddOption("--json", &json_path, "FILE", "also write the figures as JSON");
+  args.AddOption("--dataset", &a.dataset, "PATH", "sequence to time (default: the synthetic flight)");
+  args.AddOption("--calib", &a.calibration, "FILE", "calibration overriding the dataset's own");
+  args.AddOption("--config", &a.config_path, "FILE", "YAML settings (e.g. synthetic.width: 752 for EuRoC-sized frames)");
+  args.AddOption("--set", &a.settings, "K=V,...", "settings over the configuration, e.g. tracker.tracking.orb.threads=2");
+  args.AddOption("--failures", &a.failures, "SPEC", "induced failures (synthetic flight): none, default or FRAME:LENGTH,...");
+  args.AddOption("--max-frames", &a.max_frames, "N", "time at most N frames");
+  args.AddFlag("--options", &options,
+               "run once per speed option switched (homography tracking, reference matching, extraction threads, "
+               "keyframe worker) and print them side by side");
+  args.AddOption("--json", &a.json_path, "FILE", "also write the figures as JSON");
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {
-    const StitchConfig config = LoadStitchConfig(config_path);
-    const Vocabulary vocabulary = LoadVocabulary(config);
-    SourceSpec spec;
-    spec.dataset_path = dataset;
-    spec.calibration_path = calibration;
-    spec.failures = failures;
-    spec.max_frames = max_frames;
-    spec.synthetic = config.synthetic;
-    FailureSchedule spoil;
-    auto sequence = OpenSource(spec, &spoil);
-    if (!spoil.empty()) throw Error("stitch bench applies failure schedules to the synthetic flight only");
-    std::printf("stitch bench: %s, %dx%d\n", sequence->description().c_str(), sequence->camera().width(),
-                sequence->camera().height());
-    const Stopwatch clock;
-    int done = 0;
-    const InlineRun run = RunInline(*sequence, config, vocabulary, [&](const InlineFrame&) {
-      if (++done % 100 == 0) {
-        std::printf("\r  %d frames", done);
-        std::fflush(stdout);
-      }
-    });
-    std::printf("\r  %d frames in %.1f s\n", done, clock.ElapsedSeconds());
-    std::vector<double> extraction, frame_to_frame, local_map, keyframe, total, all_frames, mapping;
-    for (const InlineFrame& f : run.frames) {
-      all_frames.push_back(f.result.timings.total);
-      if (f.mapping_ms > 0) mapping.push_back(f.mapping_ms);
-      if (f.result.state != TrackingState::kOk || f.result.timings.local_map == 0) continue;
-      extraction.push_back(f.result.timings.extraction);
-      frame_to_frame.push_back(f.result.timings.frame_to_frame);
-      local_map.push_back(f.result.timings.local_map);
-      keyframe.push_back(f.result.timings.keyframe);
-      total.push_back(f.result.timings.total);
+    const nlohmann::json json = options ? BenchOptions(a) : BenchOnce(a);
+    if (!a.json_path.empty()) {
+      std::ofstream out(a.json_path);
+      out << json.dump(2) << "\n";
+      if (!out) throw Error(a.json_path + ": cannot write");
     }
-    EvaluationInput input;
-    input.frames_total = static_cast<int>(run.frames.size());
-    input.poses = run.poses;
-    input.ground_truth = sequence->ground_truth();
-    input.keyframes = run.keyframes;
-    input.submaps = run.submaps;
-    const Evaluation evaluation = Evaluate(input);
-    rusage usage{};
-    getrusage(RUSAGE_SELF, &usage);
-    const double peak_mb = usage.ru_maxrss / 1024.0;
-    nlohmann::json json;
-    json["sequence"] = sequence->description();
-    json["width"] = sequence->camera().width();
-    json["height"] = sequence->camera().height();
-    std::printf("\n  per tracked frame (%zu frames)   median     p95    mean   [ms]\n", total.size());
-    const std::pair<const char*, const std::vector<double>*> rows[] = {
-        {"feature extraction", &extraction}, {"frame-to-frame tracking", &frame_to_frame},
-        {"local-map tracking", &local_map},  {"keyframe decision", &keyframe},
-        {"whole frame", &total},             {"every frame (any state)", &all_frames},
-        {"mapping, per keyframe", &mapping}};
-    for (const auto& [name, values] : rows) {
-      const Stat s = Summarize(*values);
-      std::printf("  %-32s %7.2f %7.2f %7.2f\n", name, s.median, s.p95, s.mean);
-      json["ms"][name] = {{"median", s.median}, {"p95", s.p95}, {"mean", s.mean}, {"count", s.count}};
-    }
-    const Stat frame_stat = Summarize(all_frames);
-    const double fps = frame_stat.mean > 0 ? 1000.0 / frame_stat.mean : 0;
-    std::printf("  tracking throughput %.1f frames/s (tracker alone), peak memory %.0f MB\n", fps, peak_mb);
-    std::printf("%s", stitch::Summarize(evaluation).c_str());
-    json["tracking_fps"] = fps;
-    json["peak_memory_mb"] = peak_mb;
-    json["evaluation"] = ToJson(evaluation);
-    if (!json_path.empty()) std::ofstream(json_path) << json.dump(2) << "\n";
     return 0;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "stitch bench: %s\n", e.what());

@@ -150,12 +150,17 @@ class OptionsWriter {
 // Reads an options struct from a YAML map (missing keys keep defaults, unknown keys throw), then
 // checks it. `context` names the place for error messages, e.g. "run.yaml: tracker".
 template <class Options>
-Options ReadOptions(const YAML::Node& node, const std::string& context, Options options = {}) {
+Options ReadOptions(const YAML::Node& node, const std::string& context, Options options) {
   OptionsReader reader(node, context);
   options.VisitFields(reader);
   reader.Finish();
   CheckOptions(options, context);
   return options;
+}
+// ...over the defaults.
+template <class Options>
+Options ReadOptions(const YAML::Node& node, const std::string& context) {
+  return ReadOptions(node, context, Options());
 }
 
 // The options as a YAML document with each field's help as a comment.

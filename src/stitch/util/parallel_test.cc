@@ -37,3 +37,32 @@ TEST(ParallelRunner, UsesTheHelperThreads) {
 
 }  // namespace
 }  // namespace stitch
+
+#include "stitch/util/worker_thread.h"
+
+namespace stitch {
+namespace {
+
+TEST(WorkerThread, RunsTasksInOrderOffTheCallingThreadAndDrains) {
+  std::vector<int> order;
+  std::set<std::thread::id> threads;
+  {
+    WorkerThread worker;
+    for (int i = 0; i < 100; ++i) {
+      worker.Submit([&, i] {
+        order.push_back(i);
+        threads.insert(std::this_thread::get_id());
+      });
+    }
+    worker.Drain();
+    EXPECT_EQ(order.size(), 100u);
+    worker.Submit([&] { std::this_thread::sleep_for(std::chrono::milliseconds(20)); order.push_back(100); });
+  }  // the destructor runs what is queued
+  ASSERT_EQ(order.size(), 101u);
+  for (int i = 0; i <= 100; ++i) EXPECT_EQ(order[i], i);
+  EXPECT_EQ(threads.size(), 1u);
+  EXPECT_EQ(threads.count(std::this_thread::get_id()), 0u);
+}
+
+}  // namespace
+}  // namespace stitch
