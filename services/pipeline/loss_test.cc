@@ -98,9 +98,10 @@ void Play(std::vector<int>* script, int first, int last) {
 }
 void Repeat(std::vector<int>* script, int entry, int count) { script->insert(script->end(), count, entry); }
 
-InlineRun RunScript(const std::vector<int>& script, const std::string& on_loss) {
+InlineRun RunScript(const std::vector<int>& script, const std::string& on_loss, bool keyframe_worker = true) {
   StitchConfig config;
   config.tracker.on_loss = on_loss;
+  config.tracker.tracking.keyframe_worker = keyframe_worker;
   ScriptedSequence sequence(script);
   return RunInline(sequence, config, DefaultVocabulary());
 }
@@ -155,6 +156,29 @@ TEST(TrackingLoss, TheBaselineRelocalizesWhenTheCameraReturnsAfterABlackout) {
   EXPECT_LT(e.errors->ate_max_m, 0.8);
   std::printf("relocalized run: ATE %.3f m (max %.3f m) over %d frames\n", e.errors->ate_rmse_m, e.errors->ate_max_m,
               e.frames_localized);
+}
+
+TEST(KeyframeWorker, GivesTheSameRunAsTheFrameLoopComputingTheBagOfWordsItself) {
+  // A blackout and a return over mapped ground: relocalization queries the database the worker
+  // fills, so the runs agree only if every keyframe got there in time.
+  std::vector<int> script;
+  Play(&script, 0, 79);
+  Repeat(&script, ScriptedSequence::kBlack, 8);
+  Play(&script, 40, 79);
+  const InlineRun in_loop = RunScript(script, "relocalize", false);
+  const InlineRun worker = RunScript(script, "relocalize", true);
+  ASSERT_EQ(in_loop.frames.size(), worker.frames.size());
+  int relocalized = 0;
+  for (size_t i = 0; i < worker.frames.size(); ++i) {
+    EXPECT_EQ(worker.frames[i].result.state, in_loop.frames[i].result.state) << "frame " << i;
+    EXPECT_EQ(worker.frames[i].result.num_tracked_points, in_loop.frames[i].result.num_tracked_points) << "frame " << i;
+    relocalized += worker.frames[i].result.relocalized;
+  }
+  EXPECT_EQ(relocalized, 1);
+  ASSERT_EQ(worker.poses.size(), in_loop.poses.size());
+  for (size_t i = 0; i < worker.poses.size(); ++i) {
+    EXPECT_LT((worker.poses[i].world_from_cam.translation - in_loop.poses[i].world_from_cam.translation).norm(), 1e-9);
+  }
 }
 
 TEST(TrackingLoss, ANewMapThatCannotInitializeGivesWayToAClosedSubmapTheCameraIsBackIn) {

@@ -100,6 +100,7 @@ TrackerService::~TrackerService() { Stop(); }
 
 void TrackerService::Start() {
   if (running_.exchange(true)) return;
+  if (options_.tracking.keyframe_worker) publisher_thread_ = std::make_unique<WorkerThread>();
   worker_ = std::thread([this] { Work(); });
   heartbeat_->Start();
   heartbeat_->SetState(stitch::service_status_t::STATE_RUNNING);
@@ -109,6 +110,7 @@ void TrackerService::Stop() {
   if (!running_.exchange(false)) return;
   frames_.Close();
   if (worker_.joinable()) worker_.join();
+  publisher_thread_.reset();  // sends what is queued
   updates_.Close();
   heartbeat_->SetState(stitch::service_status_t::STATE_FINISHED);
   heartbeat_->Stop();
@@ -183,6 +185,8 @@ void TrackerService::WaitForMapper() {
     }
     if (!tracking_->MapperCaughtUp() && attempt == 0) {
       // The keyframe (or the mapper's answer) may have been lost: send it again, once.
+      if (publisher_thread_) publisher_thread_->Drain();
+      std::lock_guard<std::mutex> lock(unacknowledged_mutex_);
       for (auto& keyframe : unacknowledged_keyframes_) publisher_->Publish(bus::Channel(publisher_->agent(), bus::kKeyframe), &keyframe);
     }
   }
@@ -197,7 +201,10 @@ void TrackerService::Work() {
   while (true) {
     ApplyUpdates(std::chrono::milliseconds(0));
     WaitForMapper();
-    if (tracking_ && tracking_->MapperCaughtUp()) unacknowledged_keyframes_.clear();
+    if (tracking_ && tracking_->MapperCaughtUp()) {
+      std::lock_guard<std::mutex> lock(unacknowledged_mutex_);
+      unacknowledged_keyframes_.clear();
+    }
     auto frame = frames_.Pop(std::chrono::milliseconds(20));
     if (!frame) {
       if (frames_.closed()) return;
@@ -227,11 +234,14 @@ void TrackerService::Process(const stitch::frame_t& frame) {
   }
   const float ms = static_cast<float>(watch.ElapsedMs());
   for (size_t k = 0; k < output.new_keyframes.size(); ++k) {
-    stitch::keyframe_t message = ToMessage(output.new_keyframes[k], tracking_->camera(),
-                                           k == 0 ? output.new_points : std::vector<MapPoint>());
-    publisher_->Publish(bus::Channel(publisher_->agent(), bus::kKeyframe), &message);
-    unacknowledged_keyframes_.push_back(std::move(message));
-    ++keyframes_;
+    std::vector<MapPoint> points = k == 0 ? std::move(output.new_points) : std::vector<MapPoint>();
+    if (publisher_thread_) {
+      publisher_thread_->Submit([this, keyframe = std::move(output.new_keyframes[k]), points = std::move(points)] {
+        PublishKeyframe(keyframe, points);
+      });
+    } else {
+      PublishKeyframe(output.new_keyframes[k], points);
+    }
   }
   if (output.closed_submap) {
     STITCH_LOG(INFO) << "submap " << SubmapName(*output.closed_submap) << " closed";
@@ -244,6 +254,14 @@ void TrackerService::Process(const stitch::frame_t& frame) {
   ++tracked_;
   Report(frame, output.result, ms);
   Ack(frame);
+}
+
+void TrackerService::PublishKeyframe(const Keyframe& keyframe, const std::vector<MapPoint>& new_points) {
+  stitch::keyframe_t message = ToMessage(keyframe, tracking_->camera(), new_points);
+  publisher_->Publish(bus::Channel(publisher_->agent(), bus::kKeyframe), &message);
+  std::lock_guard<std::mutex> lock(unacknowledged_mutex_);
+  unacknowledged_keyframes_.push_back(std::move(message));
+  ++keyframes_;
 }
 
 void TrackerService::Report(const stitch::frame_t& frame, const TrackResult& result, float tracking_ms) {

@@ -2,7 +2,8 @@
 // The tracker service: receives frames on <agent>/FRAME and the mapper's updates on
 // <agent>/LOCAL_MAP; tracks each frame with Tracking in its own worker thread; publishes a
 // tracking_status_t per frame, a frame_ack_t (lockstep pacing) and new keyframes on
-// <agent>/KEYFRAME. Frames that arrive twice are acknowledged again but tracked once; frames
+// <agent>/KEYFRAME (made and sent on a thread of their own with tracker.tracking.keyframe_worker).
+// Frames that arrive twice are acknowledged again but tracked once; frames
 // that arrive after a newer one, or that wait while the queue is full (real-time), are reported
 // as dropped. Writes one line per frame to `record_path` (frames.tsv) when given, appending to
 // what an earlier run of the tracker wrote there. With a state file, submap numbers continue
@@ -24,6 +25,7 @@
 #include "stitch/keyframe_t.hpp"
 #include "stitch/local_map_update_t.hpp"
 #include "stitch/util/bounded_queue.h"
+#include "stitch/util/worker_thread.h"
 
 namespace stitch {
 
@@ -51,6 +53,8 @@ class TrackerService {
   void Report(const stitch::frame_t& frame, const TrackResult& result, float tracking_ms);
   void Ack(const stitch::frame_t& frame);
   void SaveState();
+  // Makes the keyframe's message, sends it, keeps it until the mapper covers it.
+  void PublishKeyframe(const Keyframe& keyframe, const std::vector<MapPoint>& new_points);
 
   bus::Publisher* publisher_;
   TrackerOptions options_;
@@ -61,6 +65,10 @@ class TrackerService {
   BoundedQueue<std::unique_ptr<stitch::local_map_update_t>> updates_;
   std::unique_ptr<Heartbeat> heartbeat_;
   std::unique_ptr<Tracking> tracking_;  // created from the first frame's camera
+  // New keyframes' messages are made and sent here with tracker.tracking.keyframe_worker (off
+  // the frame loop); Drain() before reading unacknowledged_keyframes_ in the worker thread.
+  std::unique_ptr<WorkerThread> publisher_thread_;
+  std::mutex unacknowledged_mutex_;
   std::vector<stitch::keyframe_t> unacknowledged_keyframes_;  // sent, not yet covered by an update
   std::mutex record_mutex_;  // Report() runs in the worker and the dispatcher thread
   std::ofstream record_;

@@ -764,7 +764,7 @@ bool Tracking::NeedKeyframe(const Frame& frame, int inliers) const {
 Keyframe Tracking::CreateKeyframe(const Frame& frame) {
   const KeyframeId id = MakeKeyframeId(map_->id(), next_keyframe_index_++);
   Keyframe* keyframe = nullptr;
-  if (keyframe_worker_) {
+  if (keyframe_worker_ && frame.bow.empty()) {
     // The bag of words serves relocalization only (the mapper computes its own): off the frame loop.
     keyframe = &map_->AddKeyframe(KeyframeFromFrame(frame, id));
     keyframe_worker_->Submit([this, id, descriptors = frame.descriptors] {

@@ -61,28 +61,4 @@ uint32_t DescriptorIndex::Key(const uint8_t* descriptor, int table) const {
   return key;
 }
 
-const std::vector<int>& DescriptorIndex::Candidates(const uint8_t* query) const {
-  candidates_.clear();
-  if (++query_number_ == 0) {
-    std::fill(seen_.begin(), seen_.end(), 0);
-    query_number_ = 1;
-  }
-  for (int t = 0; t < lsh_.tables; ++t) {
-    const uint32_t key = Key(query, t);
-    const std::vector<int>& start = bucket_start_[t];
-    const std::vector<int>& rows = bucket_rows_[t];
-    // The query's bucket, then the buckets one bit away.
-    for (int flip = -1; flip < lsh_.key_bits; ++flip) {
-      const uint32_t probe = flip < 0 ? key : key ^ (1u << flip);
-      for (int i = start[probe]; i < start[probe + 1]; ++i) {
-        const int row = rows[i];
-        if (seen_[row] == query_number_) continue;
-        seen_[row] = query_number_;
-        candidates_.push_back(row);
-      }
-    }
-  }
-  return candidates_;
-}
-
 }  // namespace stitch

@@ -7,29 +7,13 @@
 #include <opencv2/imgproc.hpp>
 
 #include "stitch/features/vocabulary.h"
-#include "stitch/synthetic/synthetic_sequence.h"
+#include "stitch/testing/rendered_views.h"
 
 namespace stitch {
 namespace {
 
-struct Views {
-  SyntheticSequence* sequence;
-  Undistorter undistorter;
-  OrbExtractor extractor{OrbOptions{}};
-  PinholeIntrinsics k;
-};
-
-Views& Shared() {
-  static Views* views = [] {
-    SyntheticOptions options;
-    options.flight.num_frames = 200;
-    options.flight.num_strips = 1;
-    options.flight.strip_length_m = 200;
-    auto* v = new Views{new SyntheticSequence(options, FailureSchedule()), Undistorter(), OrbExtractor{OrbOptions{}}, {}};
-    v->undistorter = Undistorter(v->sequence->camera());
-    v->k = v->sequence->camera().Intrinsics();
-    return v;
-  }();
+testing::RenderedViews& Shared() {
+  static testing::RenderedViews* views = new testing::RenderedViews();
   return *views;
 }
 
@@ -38,48 +22,10 @@ const Vocabulary& SharedVocabulary() {
   return *v;
 }
 
-Frame RenderFrame(int index, cv::Mat* depth) {
-  Views& v = Shared();
-  const cv::Mat image = v.sequence->RenderFrame(index, depth);
-  Frame frame = MakeFrame(image, index, v.sequence->flight().TimestampNs(index), &v.extractor, v.undistorter);
-  frame.cam_from_world = v.sequence->flight().WorldFromCam(index).Inverse();
-  return frame;
-}
-
-// A map with one keyframe (frame `index`) whose features at known depth become points.
-Map MapFromFrame(const Frame& frame, const cv::Mat& depth, Keyframe* out) {
-  Views& v = Shared();
-  Map map(MakeSubmapId(0, 1), ScalePyramid::From(OrbOptions()));
-  Keyframe keyframe = KeyframeFromFrame(frame, MakeKeyframeId(map.id(), 0));
-  const Rigid3d world_from_cam = frame.cam_from_world->Inverse();
-  for (size_t i = 0; i < frame.size(); ++i) {
-    const float z = depth.at<float>(cvRound(frame.keypoints[i].pt.y), cvRound(frame.keypoints[i].pt.x));
-    if (z <= 0) continue;
-    MapPoint point;
-    point.id = map.NewPointId();
-    const Eigen::Vector2d n = v.k.Normalize(frame.undistorted[i]);
-    point.position = world_from_cam * Eigen::Vector3d(n.x() * z, n.y() * z, z);
-    point.descriptor = ToDescriptor(frame.descriptors.ptr<uint8_t>(static_cast<int>(i)));
-    keyframe.points[i] = point.id;
-    map.AddPoint(point);
-  }
-  *out = keyframe;
-  map.AddKeyframe(keyframe);
-  for (const auto& [id, p] : map.points()) map.UpdatePointGeometry(id);
-  return map;
-}
-
-// Fraction of a frame's matches whose point projects within `tolerance` px of the feature.
+Frame RenderFrame(int index, cv::Mat* depth) { return Shared().Render(index, depth); }
+Map MapFromFrame(const Frame& frame, const cv::Mat& depth, Keyframe* out) { return Shared().MapFromFrame(frame, depth, out); }
 double Consistency(const Frame& frame, const Map& map, double tolerance, int* count) {
-  int good = 0;
-  *count = 0;
-  for (size_t i = 0; i < frame.size(); ++i) {
-    if (!frame.points[i].valid()) continue;
-    ++*count;
-    const Eigen::Vector2d pixel = Shared().k.Project(*frame.cam_from_world * map.FindPoint(frame.points[i])->position);
-    good += (pixel - frame.undistorted[i]).norm() < tolerance;
-  }
-  return *count ? static_cast<double>(good) / *count : 0;
+  return Shared().Consistency(frame, map, tolerance, count);
 }
 
 TEST(Matcher, ProjectionSearchFindsTheRightFeatures) {
@@ -91,7 +37,7 @@ TEST(Matcher, ProjectionSearchFindsTheRightFeatures) {
   std::vector<PointInView> in_view;
   for (const auto& [id, point] : map.points()) {
     PointInView view;
-    if (PredictInView(point, *current.cam_from_world, Shared().k, 0, 0, 639, 479, map.pyramid(), &view)) in_view.push_back(view);
+    if (PredictInView(point, *current.cam_from_world, Shared().k(), 0, 0, 639, 479, map.pyramid(), &view)) in_view.push_back(view);
   }
   const int matched = SearchByProjection(&current, in_view, map, 1.0);
   int count = 0;
@@ -106,7 +52,7 @@ TEST(Matcher, MotionModelSearchFollowsTheLastFrame) {
   const Map map = MapFromFrame(last, depth, &keyframe);
   last.points = keyframe.points;
   Frame current = RenderFrame(61, nullptr);
-  const int matched = SearchByProjection(&current, last, map, Shared().k, 15.0);
+  const int matched = SearchByProjection(&current, last, map, Shared().k(), 15.0);
   int count = 0;
   // No ratio test here (as in ORB-SLAM): pose optimization sorts out the wrong ones.
   EXPECT_GT(matched, 300);
@@ -162,16 +108,16 @@ TEST(Matcher, TriangulationSearchRespectsTheEpipolarGeometry) {
   Map map(MakeSubmapId(0, 1), ScalePyramid::From(OrbOptions()));
   Keyframe kf1 = KeyframeFromFrame(f1, MakeKeyframeId(map.id(), 0));
   Keyframe kf2 = KeyframeFromFrame(f2, MakeKeyframeId(map.id(), 1));
-  const Eigen::Matrix3d f21 = FundamentalMatrix(kf1.cam_from_world, kf2.cam_from_world, Shared().k);
-  const auto pairs = SearchForTriangulation(kf1, kf2, f21, Shared().k, map.pyramid());
+  const Eigen::Matrix3d f21 = FundamentalMatrix(kf1.cam_from_world, kf2.cam_from_world, Shared().k());
+  const auto pairs = SearchForTriangulation(kf1, kf2, f21, Shared().k(), map.pyramid());
   EXPECT_GT(pairs.size(), 150u);
   // True correspondences: feature 1 back-projected with its true depth lands on feature 2.
   int right = 0;
   for (const auto& [i, j] : pairs) {
     const float z = depth1.at<float>(cvRound(kf1.keypoints[i].pt.y), cvRound(kf1.keypoints[i].pt.x));
-    const Eigen::Vector2d n = Shared().k.Normalize(kf1.undistorted[i]);
+    const Eigen::Vector2d n = Shared().k().Normalize(kf1.undistorted[i]);
     const Eigen::Vector3d world = kf1.cam_from_world.Inverse() * Eigen::Vector3d(n.x() * z, n.y() * z, z);
-    right += (Shared().k.Project(kf2.cam_from_world * world) - kf2.undistorted[j]).norm() < 3.0;
+    right += (Shared().k().Project(kf2.cam_from_world * world) - kf2.undistorted[j]).norm() < 3.0;
   }
   EXPECT_GT(static_cast<double>(right) / pairs.size(), 0.9);
 }
