@@ -79,11 +79,13 @@ nlohmann::json BenchOnce(const BenchArgs& a) {
   std::printf("\r  %d frames in %.1f s\n", done, clock.ElapsedSeconds());
   std::vector<double> extraction, frame_to_frame, local_map, keyframe, total, all_frames, mapping;
   std::map<std::string, int> tracked_by;
-  int losses = 0;
+  int losses = 0;  // changes into the LOST state
+  TrackingState previous = TrackingState::kNotTracked;
   for (const InlineFrame& f : run.frames) {
     all_frames.push_back(f.result.timings.total);
     if (f.mapping_ms > 0) mapping.push_back(f.mapping_ms);
-    losses += f.result.state == TrackingState::kLost && !f.result.detail.empty() && f.result.detail.rfind("lost after", 0) == 0;
+    losses += f.result.state == TrackingState::kLost && previous != TrackingState::kLost;
+    previous = f.result.state;
     if (f.result.state != TrackingState::kOk || f.result.timings.local_map == 0) continue;
     ++tracked_by[*f.result.tracked_by ? f.result.tracked_by : "relocalization"];
     extraction.push_back(f.result.timings.extraction);
