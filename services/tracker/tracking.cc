@@ -26,6 +26,42 @@ constexpr int kDirectIndexLevel = 2;
 // homography (when homography tracking is on).
 constexpr double kWeakMotionModel = 0.2;
 
+// Region of interest: of the features marked in `use`, those in the feature-rich cells of an
+// 8x6 grid over the image (at least half the mean count of the occupied cells), at most
+// `per_cell` of the strongest in each. Cells with a few features carry the least texture and
+// the most ambiguous matches; the cap keeps the homography's support spread over the image.
+std::vector<char> FeatureRichCells(const Frame& frame, const std::vector<char>& use, int per_cell) {
+  constexpr int kCellsX = 8, kCellsY = 6;
+  double min_x = 1e18, min_y = 1e18, max_x = -1e18, max_y = -1e18;
+  for (const auto& p : frame.undistorted) {
+    min_x = std::min(min_x, p.x());
+    min_y = std::min(min_y, p.y());
+    max_x = std::max(max_x, p.x());
+    max_y = std::max(max_y, p.y());
+  }
+  std::vector<std::vector<int>> cells(kCellsX * kCellsY);
+  for (size_t i = 0; i < frame.size(); ++i) {
+    if (!use[i]) continue;
+    const int cx = std::clamp(static_cast<int>(kCellsX * (frame.undistorted[i].x() - min_x) / (max_x - min_x + 1e-9)), 0, kCellsX - 1);
+    const int cy = std::clamp(static_cast<int>(kCellsY * (frame.undistorted[i].y() - min_y) / (max_y - min_y + 1e-9)), 0, kCellsY - 1);
+    cells[cy * kCellsX + cx].push_back(static_cast<int>(i));
+  }
+  int occupied = 0, total = 0;
+  for (const auto& cell : cells) {
+    occupied += !cell.empty();
+    total += static_cast<int>(cell.size());
+  }
+  std::vector<char> chosen(frame.size(), 0);
+  if (occupied == 0) return chosen;
+  const double rich = 0.5 * total / occupied;
+  for (auto& cell : cells) {
+    if (cell.empty() || cell.size() < rich) continue;
+    std::sort(cell.begin(), cell.end(), [&](int a, int b) { return frame.keypoints[a].response > frame.keypoints[b].response; });
+    for (size_t k = 0; k < cell.size() && static_cast<int>(k) < per_cell; ++k) chosen[cell[k]] = 1;
+  }
+  return chosen;
+}
+
 }  // namespace
 
 bool TrackingOptions::Check(std::string* why) const {
@@ -48,6 +84,7 @@ bool TrackingOptions::Check(std::string* why) const {
   }
   if (!(homography_threshold_px > 0 && homography_threshold_px <= 100)) return fail("tracker.homography_threshold_px must be in (0, 100]");
   if (!(homography_search_px > 0 && homography_search_px <= 200)) return fail("tracker.homography_search_px must be in (0, 200]");
+  if (homography_roi_per_cell < 0 || homography_roi_per_cell > 1000) return fail("tracker.homography_roi_per_cell must be in [0, 1000]");
   if (agent_number < 0 || agent_number > 32767) return fail("tracker.agent_number must be in [0, 32767]");
   if (first_submap_number < 1 || first_submap_number > 65535) return fail("tracker.first_submap_number must be in [1, 65535]");
   return true;
@@ -637,7 +674,9 @@ bool Tracking::TrackWithHomography(Frame* frame) {
   std::fill(frame->points.begin(), frame->points.end(), MapPointId());
   std::vector<char> tracked(last.size(), 0);
   for (size_t i = 0; i < last.size(); ++i) tracked[i] = last.points[i].valid() && !last.outlier[i];
-  const auto matches = MatchByIndex(last.keypoints, last.descriptors, tracked, *frame, FrameIndex(*frame), 0.8);
+  const std::vector<char> queried =
+      options_.homography_roi_per_cell > 0 ? FeatureRichCells(last, tracked, options_.homography_roi_per_cell) : tracked;
+  const auto matches = MatchByIndex(last.keypoints, last.descriptors, queried, *frame, FrameIndex(*frame), 0.8);
   if (matches.size() < 15) return false;
   std::vector<cv::Point2f> from, to;
   for (const auto& [i, j] : matches) {

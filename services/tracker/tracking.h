@@ -58,6 +58,11 @@ struct TrackingOptions {
   bool homography_tracking = true;
   double homography_threshold_px = 8;  // RANSAC inlier threshold of the homography, pixels
   double homography_search_px = 12;    // search radius around the homography's predictions, pixels at level 0
+  // Region of interest for the homography's descriptor matching: the last frame is cut into 8x6
+  // cells; only cells holding at least half the mean number of tracked features take part, each
+  // with at most this many of its strongest (0: every tracked feature is matched). Off by
+  // default: the same poses, and no measurable gain (docs/speed.md).
+  int homography_roi_per_cell = 0;
   // A new keyframe's bag of words (for relocalization; the mapper computes its own) on a
   // background thread instead of in the frame loop.
   bool keyframe_worker = true;
@@ -84,6 +89,7 @@ struct TrackingOptions {
     v("homography_tracking", homography_tracking, "when the motion model fails, track through a homography fitted to matches with the last frame (fast rotation, jitter)");
     v("homography_threshold_px", homography_threshold_px, "RANSAC inlier threshold of that homography, pixels");
     v("homography_search_px", homography_search_px, "search radius around the homography's predicted positions, pixels at level 0");
+    v("homography_roi_per_cell", homography_roi_per_cell, "homography matching only from feature-rich cells of the last frame (8x6), at most this many strongest features each (0: all tracked features)");
     v("keyframe_worker", keyframe_worker, "compute new keyframes' bag of words (relocalization database) on a background thread, off the frame loop");
     v("agent_number", agent_number, "number of this aircraft in every id (0-32767)");
     v("first_submap_number", first_submap_number, "number of the first submap (1-65535)");

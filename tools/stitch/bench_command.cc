@@ -145,6 +145,9 @@ std::vector<Variant> SpeedVariants(const StitchConfig& config) {
   std::vector<Variant> variants{{"as configured", ""}};
   variants.push_back({std::string("homography tracking ") + (t.homography_tracking ? "off" : "on"),
                       std::string("tracker.tracking.homography_tracking=") + (t.homography_tracking ? "false" : "true")});
+  const int roi = t.homography_roi_per_cell > 0 ? 0 : 6;
+  variants.push_back({std::string("homography region of interest ") + (roi > 0 ? "on" : "off"),
+                      "tracker.tracking.homography_roi_per_cell=" + std::to_string(roi)});
   for (const char* matching : {"bow", "lsh", "brute_force"}) {
     if (t.reference_matching == matching) continue;
     variants.push_back({std::string("reference matching ") + matching, std::string("tracker.tracking.reference_matching=") + matching});
@@ -231,8 +234,8 @@ int BenchCommand(int argc, char** argv) {
   args.AddOption("--failures", &a.failures, "SPEC", "induced failures (synthetic flight): none, default or FRAME:LENGTH,...");
   args.AddOption("--max-frames", &a.max_frames, "N", "time at most N frames");
   args.AddFlag("--options", &options,
-               "run once per speed option switched (homography tracking, reference matching, extraction threads, "
-               "keyframe worker) and print them side by side");
+               "run once per speed option switched (homography tracking and its region of interest, reference "
+               "matching, extraction threads, keyframe worker) and print them side by side");
   args.AddOption("--json", &a.json_path, "FILE", "also write the figures as JSON");
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {
