@@ -16,12 +16,11 @@ constexpr int kDirectIndexLevel = 2;
 // A submap's own relative poses come from bundle adjustment over many points; a connected
 // frame's Sim3 from a few dozen: the pose graph trusts the former more.
 constexpr double kIntraSubmapWeight = 10.0;
-// Connected frames that disagree with the tree's placement by more than this stay out of the
-// pose graph. Measured on the default gust flight, correct connections disagree by at most
-// 3 degrees, 12% of their translation and 0.016 in log scale (90%: 0.7 degrees, 2.4%, 0.006).
-constexpr double kMaxConnectionRotationRad = 5.0 * M_PI / 180.0;
+// Connected frames that disagree with the tree's placement by more than this (and by more than
+// kAgreeingRotationRad or kAgreeingLogScale) stay out of the pose graph. Measured on the default
+// gust flight, correct connections disagree by at most 3 degrees, 12% of their translation and
+// 0.016 in log scale (90%: 0.7 degrees, 2.4%, 0.006).
 constexpr double kMaxConnectionRelativeTranslation = 0.25;
-constexpr double kMaxConnectionLogScale = 0.05;
 
 double Median(std::vector<double> values) {
   if (values.empty()) return 0;
@@ -372,11 +371,9 @@ std::map<KeyframeId, Sim3d> Merger::RefineKeyframePoses(const std::map<SubmapId,
     // A connection that disagrees with the placement along the tree is left out: a wrong one
     // would bend the submaps it joins (see merger.md for the thresholds' origin).
     const Sim3d placed = poses[c.keyframe_a].Inverse() * poses[c.keyframe_b];
-    const Sim3d error = measured.Inverse() * placed;
     const double relative_translation =
         (placed.translation - measured.translation).norm() / std::max(measured.translation.norm(), 1e-3);
-    if (RotationAngle(error.rotation) > kMaxConnectionRotationRad || relative_translation > kMaxConnectionRelativeTranslation ||
-        std::abs(std::log(error.scale)) > kMaxConnectionLogScale) {
+    if (!SimilaritiesAgree(measured, placed) || relative_translation > kMaxConnectionRelativeTranslation) {
       continue;
     }
     edges.push_back({c.keyframe_a, c.keyframe_b, measured, 1.0, /*robust=*/true});

@@ -415,8 +415,8 @@ void MergerService::WriteRecords(const Merger::Graph& graph, const MergedMap* me
       bool in_tree = false;
       for (const SubmapEdge& t : graph.tree) in_tree |= t.a == e.a && t.b == e.b;
       char label[128];
-      std::snprintf(label, sizeof(label), "C=%.1f (F=%d M=%d %.0f deg)", e.strength, e.connected_frames, e.map_points,
-                    e.median_angle_deg);
+      std::snprintf(label, sizeof(label), "C=%.1f (F=%d M=%d %.0f deg%s)", e.strength, e.connected_frames, e.map_points,
+                    e.median_angle_deg, e.disagreeing_frames > 0 ? (", " + std::to_string(e.disagreeing_frames) + " outvoted").c_str() : "");
       out << "  \"" << SubmapName(e.a) << "\" -- \"" << SubmapName(e.b) << "\" [label=\"" << label << "\""
           << (in_tree ? ", style=bold" : ", style=dashed") << "];\n";
     }
@@ -479,8 +479,11 @@ void MergerService::WriteRecords(const Merger::Graph& graph, const MergedMap* me
           << (r.skipped.empty() ? "-" : r.skipped) << "\n";
     }
   }
+  int outvoted = 0;
+  for (const SubmapEdge& e : graph.edges) outvoted += e.disagreeing_frames;
   STITCH_LOG(INFO) << "wrote the submap graph (" << graph.placement.size() << " submaps, " << graph.edges.size()
-                   << " edges, " << graph.tree.size() << " merges) to " << record_dir_;
+                   << " edges, " << graph.tree.size() << " merges, " << outvoted
+                   << " connected frames outvoted by their pair's others) to " << record_dir_;
 }
 
 }  // namespace stitch

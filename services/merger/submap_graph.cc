@@ -1,6 +1,7 @@
 #include "services/merger/submap_graph.h"
 
 #include <algorithm>
+#include <cmath>
 #include <deque>
 #include <numeric>
 
@@ -41,13 +42,18 @@ double ConnectionStrength(int connected_frames, int map_points, double median_an
   return connected_frames + 0.1 * map_points + 0.1 * theta * theta;
 }
 
+bool SimilaritiesAgree(const Sim3d& x, const Sim3d& y) {
+  const Sim3d difference = x.Inverse() * y;
+  return RotationAngle(difference.rotation) <= kAgreeingRotationRad && std::abs(std::log(difference.scale)) <= kAgreeingLogScale;
+}
+
 std::vector<SubmapEdge> SummarizeConnections(const std::vector<ConnectedFrame>& connections) {
-  struct Pair {
-    SubmapEdge edge;
-    std::vector<double> angles;
-    int best_points = -1;
+  struct Measurement {
+    Sim3d b_from_a;
+    int map_points;
+    double median_angle_deg;
   };
-  std::map<std::pair<SubmapId, SubmapId>, Pair> pairs;
+  std::map<std::pair<SubmapId, SubmapId>, std::vector<Measurement>> pairs;
   for (const ConnectedFrame& c : connections) {
     SubmapId a = SubmapOf(c.keyframe_a), b = SubmapOf(c.keyframe_b);
     Sim3d b_from_a = c.b_from_a;
@@ -55,22 +61,42 @@ std::vector<SubmapEdge> SummarizeConnections(const std::vector<ConnectedFrame>& 
       std::swap(a, b);
       b_from_a = b_from_a.Inverse();
     }
-    Pair& p = pairs[{a, b}];
-    p.edge.a = a;
-    p.edge.b = b;
-    ++p.edge.connected_frames;
-    p.edge.map_points += c.map_points;
-    p.angles.push_back(c.median_angle_deg);
-    if (c.map_points > p.best_points) {
-      p.best_points = c.map_points;
-      p.edge.b_from_a = b_from_a;
-    }
+    pairs[{a, b}].push_back({b_from_a, c.map_points, c.median_angle_deg});
   }
   std::vector<SubmapEdge> edges;
-  for (auto& [key, p] : pairs) {
-    p.edge.median_angle_deg = Median(p.angles);
-    p.edge.strength = ConnectionStrength(p.edge.connected_frames, p.edge.map_points, p.edge.median_angle_deg);
-    edges.push_back(p.edge);
+  for (const auto& [key, measurements] : pairs) {
+    // The measurement the most map points agree with; among equals, the one with the most
+    // points of its own, then the first found.
+    size_t best = 0;
+    int best_support = -1;
+    for (size_t i = 0; i < measurements.size(); ++i) {
+      int support = 0;
+      for (const Measurement& other : measurements) {
+        if (SimilaritiesAgree(measurements[i].b_from_a, other.b_from_a)) support += other.map_points;
+      }
+      if (support > best_support ||
+          (support == best_support && measurements[i].map_points > measurements[best].map_points)) {
+        best = i;
+        best_support = support;
+      }
+    }
+    SubmapEdge edge;
+    edge.a = key.first;
+    edge.b = key.second;
+    edge.b_from_a = measurements[best].b_from_a;
+    std::vector<double> angles;
+    for (const Measurement& m : measurements) {
+      if (!SimilaritiesAgree(edge.b_from_a, m.b_from_a)) {
+        ++edge.disagreeing_frames;
+        continue;
+      }
+      ++edge.connected_frames;
+      edge.map_points += m.map_points;
+      angles.push_back(m.median_angle_deg);
+    }
+    edge.median_angle_deg = Median(angles);
+    edge.strength = ConnectionStrength(edge.connected_frames, edge.map_points, edge.median_angle_deg);
+    edges.push_back(edge);
   }
   return edges;
 }

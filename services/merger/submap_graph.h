@@ -23,6 +23,14 @@ struct ConnectedFrame {
   std::vector<std::pair<MapPointId, MapPointId>> point_pairs;  // those points: (in a, in b)
 };
 
+// Two measurements of one Sim3 agree when they differ by at most this much rotation and log
+// scale. On the default gust flight correct connected frames of a pair differ by at most 3
+// degrees and 0.016 (docs/merger.md); a wrong one (points close to a line, whose rotation about
+// it nothing constrains) by tens of degrees.
+constexpr double kAgreeingRotationRad = 5.0 * 3.14159265358979323846 / 180.0;
+constexpr double kAgreeingLogScale = 0.05;
+bool SimilaritiesAgree(const Sim3d& x, const Sim3d& y);
+
 // F + 0.1 M + 0.1 theta^2, theta capped at 45 degrees.
 double ConnectionStrength(int connected_frames, int map_points, double median_angle_deg);
 
@@ -32,10 +40,15 @@ struct SubmapEdge {
   int map_points = 0;          // M
   double median_angle_deg = 0; // theta_m, over the connected frames
   double strength = 0;         // C
-  Sim3d b_from_a;              // from the connected frame with the most map points
+  Sim3d b_from_a;              // from the connected frame with the most map points among the agreeing ones
+  int disagreeing_frames = 0;  // connected frames left out because they disagree with b_from_a
 };
 
-// One edge per pair of submaps with connected frames between them (either direction).
+// One edge per pair of submaps with connected frames between them (either direction). The
+// pair's connected frames vote: the Sim3 that the most map points agree with (SimilaritiesAgree,
+// summed over the connected frames that agree with it) wins, and F, M and theta_m count only
+// the connected frames that agree with it, so one wrong connected frame with many points can
+// neither place a submap nor strengthen its edge.
 std::vector<SubmapEdge> SummarizeConnections(const std::vector<ConnectedFrame>& connections);
 
 // Kruskal on weights -strength over the edges with strength >= `min_strength`: the tree edges

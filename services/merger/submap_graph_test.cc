@@ -48,6 +48,45 @@ TEST(SubmapGraph, ConnectionsOfAPairInEitherDirectionMakeOneEdge) {
   EXPECT_NEAR(edges[0].b_from_a.scale, 2.0, 1e-12);  // expressed as B from A whichever way it was found
 }
 
+// Points close to a line leave the Sim3's rotation about that line free: such a connected frame
+// can pass verification with many points and still be tens of degrees off. The pair's other
+// connected frames outvote it, and it neither places the submap nor counts in the strength.
+TEST(SubmapGraph, ConnectedFramesThatDisagreeWithTheOthersAreOutvoted) {
+  const Sim3d b_from_a(0.77, Eigen::Quaterniond(Eigen::AngleAxisd(0.87, Eigen::Vector3d::UnitZ())), Eigen::Vector3d(-0.3, -0.6, 0.2));
+  const auto nudged = [&](double degrees) {
+    Sim3d s = b_from_a;
+    s.rotation = Eigen::Quaterniond(Eigen::AngleAxisd(degrees * M_PI / 180.0, Eigen::Vector3d::UnitX())) * s.rotation;
+    return s;
+  };
+  const Sim3d wrong = nudged(35.0);
+  std::vector<ConnectedFrame> connections = {
+      {MakeKeyframeId(S('B'), 4), MakeKeyframeId(S('A'), 1), b_from_a, 25, 43.0, {}},
+      {MakeKeyframeId(S('B'), 3), MakeKeyframeId(S('A'), 1), wrong, 40, 4.7, {}},  // the most points
+      {MakeKeyframeId(S('B'), 6), MakeKeyframeId(S('A'), 1), nudged(1.0), 27, 45.0, {}},
+      {MakeKeyframeId(S('B'), 5), MakeKeyframeId(S('A'), 9), nudged(-2.0), 23, 28.0, {}},
+  };
+  // Found from B's keyframes: each measures A's frame from B's; the edge is B from A.
+  for (auto& c : connections) c.b_from_a = c.b_from_a.Inverse();
+  auto edges = SummarizeConnections(connections);
+  ASSERT_EQ(edges.size(), 1u);
+  const SubmapEdge& edge = edges[0];
+  EXPECT_EQ(edge.a, S('A'));
+  EXPECT_TRUE(SimilaritiesAgree(edge.b_from_a, b_from_a));
+  EXPECT_FALSE(SimilaritiesAgree(edge.b_from_a, wrong));
+  EXPECT_EQ(edge.connected_frames, 3);
+  EXPECT_EQ(edge.disagreeing_frames, 1);
+  EXPECT_EQ(edge.map_points, 25 + 27 + 23);
+  EXPECT_DOUBLE_EQ(edge.median_angle_deg, 43.0);
+  // The agreeing one with the most points of its own gives the Sim3 (27 points, 1 degree off).
+  EXPECT_NEAR(RotationAngle(edge.b_from_a.rotation * nudged(1.0).rotation.inverse()), 0.0, 1e-9);
+
+  // Alone, the wrong one is all there is: it still makes the edge (nothing can outvote it).
+  edges = SummarizeConnections({connections[1]});
+  ASSERT_EQ(edges.size(), 1u);
+  EXPECT_EQ(edges[0].connected_frames, 1);
+  EXPECT_EQ(edges[0].disagreeing_frames, 0);
+}
+
 // Our example of nine submaps: a cycle, ties, an edge under the threshold and two components.
 TEST(SubmapGraph, KruskalTakesTheStrongestConnectionsInOrder) {
   std::vector<SubmapId> nodes;

@@ -127,6 +127,9 @@ BundleAdjustmentReport BundleAdjust(Map* map, const std::vector<KeyframeId>& fre
   report.observations = static_cast<int>(records.size());
   report.initial_rms_px = std::sqrt(initial_sq / std::max<size_t>(1, records.size()));
   for (auto& [id, block] : poses) {
+    // A keyframe none of whose points take part (all of them lost, or not yet received by a
+    // replica) is not in the problem: it keeps its pose.
+    if (!problem.HasParameterBlock(block.rotation)) continue;
     problem.SetManifold(block.rotation, quaternion_manifold);
     if (fixed.count(id)) {
       problem.SetParameterBlockConstant(block.rotation);

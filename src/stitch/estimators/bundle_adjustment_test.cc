@@ -97,6 +97,27 @@ TEST(BundleAdjustment, RemovesOutlierObservations) {
   for (int i = 0; i < 10; ++i) EXPECT_FALSE(kf->points[i * 7].valid());
 }
 
+// A keyframe whose points all went missing (a replica behind a lossy link, points culled) can
+// be asked to be free or fixed: it keeps its pose and the others are adjusted.
+TEST(BundleAdjustment, KeyframesWithoutPointsKeepTheirPoses) {
+  Scene scene = MakeScene();
+  for (int k : {0, 4}) {
+    Keyframe* kf = scene.map.FindKeyframe(MakeKeyframeId(scene.map.id(), k));
+    for (size_t i = 0; i < kf->points.size(); ++i) scene.map.EraseObservation(kf->id, kf->points[i]);
+    ASSERT_EQ(kf->CountPoints(), 0);
+  }
+  Keyframe* moved = scene.map.FindKeyframe(MakeKeyframeId(scene.map.id(), 3));
+  moved->cam_from_world.translation += Eigen::Vector3d(0.05, 0, 0);
+  const Rigid3d empty_free = scene.map.FindKeyframe(MakeKeyframeId(scene.map.id(), 4))->cam_from_world;
+  const BundleAdjustmentReport report =
+      BundleAdjust(&scene.map, {MakeKeyframeId(scene.map.id(), 3), MakeKeyframeId(scene.map.id(), 4)},
+                   {MakeKeyframeId(scene.map.id(), 0), MakeKeyframeId(scene.map.id(), 1), MakeKeyframeId(scene.map.id(), 2)},
+                   kCamera, BundleAdjustmentOptions());
+  ASSERT_TRUE(report.converged);
+  EXPECT_LT((moved->cam_from_world.CentreInWorld() - scene.true_poses[3].CentreInWorld()).norm(), 0.01);
+  EXPECT_EQ(scene.map.FindKeyframe(MakeKeyframeId(scene.map.id(), 4))->cam_from_world.translation, empty_free.translation);
+}
+
 TEST(BundleAdjustment, ReprojectionJacobiansMatchNumericDifferentiation) {
   std::unique_ptr<ceres::CostFunction> cost(ReprojectionError::Create({300.5, 200.25}, 0.8, 450, 440, 319.5, 239.5));
   ceres::EigenQuaternionManifold quaternion;

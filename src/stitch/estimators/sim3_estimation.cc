@@ -71,6 +71,7 @@ Sim3d Refine(const std::vector<Sim3Correspondence>& pairs, const std::vector<cha
                                  new TransferError(c.point_b, cam_a_from_a, c.pixel_a, std::sqrt(c.sigma2_a), k, true)),
                              huber, rotation, translation, &log_scale);
   }
+  if (problem.NumResidualBlocks() == 0) return initial;
   problem.SetManifold(rotation, new ceres::EigenQuaternionManifold);
   ceres::Solver::Options solver;
   solver.max_num_iterations = options.refine_iterations;
