@@ -643,7 +643,9 @@ int Tracking::TrackWithMotionModel(Frame* frame, const Rigid3d& predicted) {
 
 const DescriptorIndex& Tracking::FrameIndex(const Frame& frame) {
   if (!frame_index_ || frame_index_of_ != frame.frame_index || frame_index_->size() != static_cast<int>(frame.size())) {
-    const DescriptorSearch search = options_.reference_matching == "brute_force" ? DescriptorSearch::kBruteForce : DescriptorSearch::kLsh;
+    // LSH for the homography's matching when the reference keyframe goes by bag of words.
+    const DescriptorSearch search =
+        options_.reference_matching == "bow" ? DescriptorSearch::kLsh : ParseDescriptorSearch(options_.reference_matching);
     frame_index_.emplace(frame.descriptors, search);
     frame_index_of_ = frame.frame_index;
   }
@@ -714,11 +716,8 @@ bool Tracking::TrackReferenceKeyframe(Frame* frame) {
   std::fill(frame->points.begin(), frame->points.end(), MapPointId());
   int matches = 0;
   if (options_.reference_matching == "bow") {
-    if (reference->bow.empty()) {
-      AdoptKeyframeBow(/*wait=*/true);
-      reference = map_->FindKeyframe(reference_keyframe_);
-      if (!reference) return false;
-    }
+    // Its bag of words may still be on the worker (adopting it adds or removes no keyframe).
+    if (reference->bow.empty()) AdoptKeyframeBow(/*wait=*/true);
     ComputeBow(frame);
     matches = SearchByBow(*reference, frame, *map_);
   } else {

@@ -167,6 +167,13 @@ nlohmann::json BenchOptions(const BenchArgs& a) {
   const std::filesystem::path scratch =
       std::filesystem::temp_directory_path() / ("stitch-bench-" + std::to_string(::getpid()));
   std::filesystem::create_directories(scratch);
+  struct RemoveScratch {
+    std::filesystem::path path;
+    ~RemoveScratch() {
+      std::error_code ignored;
+      std::filesystem::remove_all(path, ignored);
+    }
+  } remove_scratch{scratch};  // on failure too
   nlohmann::json all = nlohmann::json::array();
   for (size_t i = 0; i < variants.size(); ++i) {
     const Variant& v = variants[i];
@@ -194,17 +201,16 @@ nlohmann::json BenchOptions(const BenchArgs& a) {
     std::printf(" %.0f s\n", clock.ElapsedSeconds());
     all.push_back(result);
   }
-  std::filesystem::remove_all(scratch);
-  std::printf("\n%-30s %9s %7s %6s %8s | %9s %11s %9s %8s %13s %6s %6s\n", "variant", "localized", "submaps", "losses",
+  std::printf("\n%-34s %9s %7s %6s %8s | %9s %11s %9s %8s %13s %6s %6s\n", "variant", "localized", "submaps", "losses",
               "ATE [m]", "extract", "frame2frame", "local map", "keyframe", "whole frame", "fps", "MB");
-  std::printf("%-30s %9s %7s %6s %8s | %9s %11s %9s %8s %13s %6s %6s\n", "", "", "", "", "", "median ms", "median ms",
+  std::printf("%-34s %9s %7s %6s %8s | %9s %11s %9s %8s %13s %6s %6s\n", "", "", "", "", "", "median ms", "median ms",
               "median ms", "p95 ms", "median/p95", "", "peak");
   for (const auto& r : all) {
     const auto& e = r["evaluation"];
     const auto ms = [&](const char* what, const char* stat) { return r["ms"][what][stat].get<double>(); };
     char ate[16] = "n/a";
     if (!e["ate_rmse_m"].is_null()) std::snprintf(ate, sizeof(ate), "%.4f", e["ate_rmse_m"].get<double>());
-    std::printf("%-30s %4d/%-4d %7d %6d %8s | %9.2f %11.2f %9.2f %8.2f %6.2f/%-6.2f %6.1f %6.0f\n",
+    std::printf("%-34s %4d/%-4d %7d %6d %8s | %9.2f %11.2f %9.2f %8.2f %6.2f/%-6.2f %6.1f %6.0f\n",
                 r["variant"].get<std::string>().c_str(), e["frames_localized"].get<int>(), e["frames_total"].get<int>(),
                 e["submaps"].get<int>(), r["losses"].get<int>(),
                 ate,

@@ -14,10 +14,6 @@ DescriptorSearch ParseDescriptorSearch(const std::string& name) {
   throw Error("descriptor search must be brute_force or lsh, not '" + name + "'");
 }
 
-const char* DescriptorSearchName(DescriptorSearch search) {
-  return search == DescriptorSearch::kLsh ? "lsh" : "brute_force";
-}
-
 DescriptorIndex::DescriptorIndex(const cv::Mat& descriptors, DescriptorSearch search, const LshOptions& lsh)
     : descriptors_(descriptors), search_(search), lsh_(lsh) {
   if (!descriptors_.empty() && (descriptors_.type() != CV_8U || descriptors_.cols != kDescriptorBytes)) {

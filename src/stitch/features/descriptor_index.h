@@ -20,7 +20,6 @@ namespace stitch {
 enum class DescriptorSearch { kBruteForce, kLsh };
 // "brute_force" or "lsh"; throws stitch::Error for anything else.
 DescriptorSearch ParseDescriptorSearch(const std::string& name);
-const char* DescriptorSearchName(DescriptorSearch search);
 
 // Defaults from build/bin/matching_benchmark: 12 tables of 10 bits find the same matches as
 // brute force between a keyframe and a frame, 5x faster; probing the buckets one bit away as

@@ -78,7 +78,8 @@ TEST(DescriptorIndex, OnlyUsableRowsAreConsidered) {
   EXPECT_EQ(empty.Nearest(d.ptr<uint8_t>(0)).best, -1);
   EXPECT_THROW(DescriptorIndex(cv::Mat(5, 16, CV_8U), DescriptorSearch::kLsh), Error);
   EXPECT_THROW(ParseDescriptorSearch("kd_tree"), Error);
-  EXPECT_EQ(ParseDescriptorSearch(DescriptorSearchName(DescriptorSearch::kLsh)), DescriptorSearch::kLsh);
+  EXPECT_EQ(ParseDescriptorSearch("lsh"), DescriptorSearch::kLsh);
+  EXPECT_EQ(ParseDescriptorSearch("brute_force"), DescriptorSearch::kBruteForce);
 }
 
 TEST(DescriptorIndex, LshFindsNearlyAllOfBruteForcesMatchesBetweenConsecutiveFrames) {
