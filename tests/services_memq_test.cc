@@ -4,6 +4,7 @@
 #include <map>
 #include <mutex>
 #include <optional>
+#include <set>
 #include <sstream>
 #include <thread>
 
@@ -16,6 +17,8 @@
 #include "services/tracker/tracker_service.h"
 #include "stitch/eval/evaluation.h"
 #include "stitch/eval/frame_record.h"
+#include "stitch/frame_ack_t.hpp"
+#include "stitch/keyframe_t.hpp"
 #include "stitch/link_status_t.hpp"
 #include "stitch/source/source.h"
 #include "stitch/testing/temp_dir.h"
@@ -140,6 +143,39 @@ TEST(ServicesInProcess, IngestTrackerAndMapperTrackAShortFlightOverMemq) {
   EXPECT_GE(e.frames_localized, 56);
   ASSERT_TRUE(e.errors);
   EXPECT_LT(e.errors->ate_rmse_m, 0.3);
+}
+
+// Keyframes are sent from a thread of their own; a frame's ack waits behind them, so a tracker
+// killed between the two gets the frame again rather than losing a keyframe. memq:// delivers
+// in the order messages were sent.
+TEST(ServicesInProcess, AFramesAckComesAfterTheKeyframesItMade) {
+  InProcessStack stack(nullptr, /*with_mapper=*/true, "");
+  ASSERT_TRUE(stack.config.tracker.tracking.keyframe_worker);
+  std::mutex mutex;
+  std::set<int> acked;
+  std::vector<int> acked_before_their_keyframe;
+  std::set<int64_t> sent;
+  bus::Subscriber observer(stack.lcm.get());
+  observer.Subscribe<stitch::frame_ack_t>(
+      bus::Channel("uav0", bus::kFrameAck), [&](std::unique_ptr<stitch::frame_ack_t> ack, const std::string&) {
+        std::lock_guard<std::mutex> lock(mutex);
+        acked.insert(ack->frame_index);
+      });
+  observer.Subscribe<stitch::keyframe_t>(
+      bus::Channel("uav0", bus::kKeyframe), [&](std::unique_ptr<stitch::keyframe_t> keyframe, const std::string&) {
+        std::lock_guard<std::mutex> lock(mutex);
+        if (!sent.insert(keyframe->keyframe_id).second) return;  // sent again (no answer from the mapper)
+        // The first is the initialization's reference frame, made when a later frame initialized;
+        // every other keyframe is the frame that made it.
+        if (sent.size() > 1 && acked.count(keyframe->frame_index)) {
+          acked_before_their_keyframe.push_back(keyframe->frame_index);
+        }
+      });
+  stack.Play("none", 30);
+  EXPECT_GE(sent.size(), 5u);
+  EXPECT_EQ(acked.size(), 30u);
+  EXPECT_TRUE(acked_before_their_keyframe.empty())
+      << "frames acknowledged before their keyframe: " << ::testing::PrintToString(acked_before_their_keyframe);
 }
 
 // What the merger receives from a flight: the bytes on SUBMAP, and every submap rebuilt.

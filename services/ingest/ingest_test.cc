@@ -152,6 +152,28 @@ TEST(Ingest, LockstepWithTheTrackerDeliversEveryFrameOnceInProcess) {
   EXPECT_EQ(lines, 15);
 }
 
+// Ingest never sends an acknowledged frame again, so a tracker killed right after an ack must
+// already have that frame's line on disk: the record is read at each ack, as a crash would leave it.
+TEST(Ingest, EveryAcknowledgedFrameIsAlreadyInTheTrackersRecord) {
+  testing::TempDir dir;
+  const std::string path = dir / "frames.tsv";
+  InProcessRun run(Lockstep(), path);
+  std::mutex mutex;
+  std::vector<std::pair<int, int>> acked_and_on_disk;
+  run.subscriber.Subscribe<stitch::frame_ack_t>(
+      bus::Channel("uav0", bus::kFrameAck), [&](std::unique_ptr<stitch::frame_ack_t> ack, const std::string&) {
+        std::ifstream record(path);
+        std::string line;
+        int lines = 0;
+        while (std::getline(record, line)) lines += !line.empty() && line[0] != '#';
+        std::lock_guard<std::mutex> lock(mutex);
+        acked_and_on_disk.emplace_back(ack->frame_index, lines);
+      });
+  run.Play(ShortFlight(8));
+  ASSERT_EQ(acked_and_on_disk.size(), 8u);
+  for (const auto& [frame, lines] : acked_and_on_disk) EXPECT_GE(lines, frame + 1) << "frame " << frame;
+}
+
 TEST(Ingest, RealtimeOverUdpMulticastPublishesAtTheCameraRate) {
   const std::string url = bus::LocalUdpUrl(7950 + getpid() % 40);
   auto lcm = bus::OpenLcm(url);

@@ -25,6 +25,14 @@ int8_t ToMessageState(TrackingState state) {
   return stitch::tracking_status_t::STATE_NOT_TRACKED;
 }
 
+stitch::frame_ack_t AckOf(const stitch::frame_t& frame) {
+  stitch::frame_ack_t ack{};
+  ack.frame_index = frame.frame_index;
+  ack.t_ns = frame.t_ns;
+  ack.frame_session = frame.header.sender_session;
+  return ack;
+}
+
 }  // namespace
 
 TrackerService::TrackerService(lcm::LCM* lcm, bus::Publisher* publisher, TrackerOptions options,
@@ -50,12 +58,7 @@ TrackerService::TrackerService(lcm::LCM* lcm, bus::Publisher* publisher, Tracker
   heartbeat_ = std::make_unique<Heartbeat>(publisher_, "tracker", [this] {
     return Heartbeat::Counts{received_.load(), tracked_.load(), subscriber_.rejected() + dropped_.load()};
   });
-  if (!record_path_.empty()) {
-    const bool resumed = std::filesystem::exists(record_path_) && std::filesystem::file_size(record_path_) > 0;
-    record_.open(record_path_, std::ios::app);
-    if (!record_) throw Error(record_path_ + ": cannot write the tracker's frame record");
-    if (!resumed) record_ << FrameRecordHeader();
-  }
+  if (!record_path_.empty()) record_ = AppendToFrameRecord(record_path_);
   if (!options_.state_file.empty()) {
     const int next = ReadNextSubmapNumber(options_.state_file);
     if (next > options_.tracking.first_submap_number) {
@@ -253,7 +256,13 @@ void TrackerService::Process(const stitch::frame_t& frame) {
   if (frame.header.sender_session == ingest_session_.load()) highest_processed_ = frame.frame_index;
   ++tracked_;
   Report(frame, output.result, ms);
-  Ack(frame);
+  if (publisher_thread_) {
+    // Behind the frame's keyframes: a frame is acknowledged once all it made is out, so a
+    // tracker killed in between gets the frame again instead of losing its keyframe.
+    publisher_thread_->Submit([this, ack = AckOf(frame)] { PublishAck(ack); });
+  } else {
+    Ack(frame);
+  }
 }
 
 void TrackerService::PublishKeyframe(const Keyframe& keyframe, const std::vector<MapPoint>& new_points) {
@@ -296,16 +305,19 @@ void TrackerService::Report(const stitch::frame_t& frame, const TrackResult& res
       record.reference_keyframe = result.reference_keyframe.value;
       record.cam_from_reference = *result.cam_from_reference;
     }
+    // On disk before the frame is acknowledged: ingest never sends an acknowledged frame again,
+    // so a line still in a buffer when the tracker is killed would be a frame lost.
     std::lock_guard<std::mutex> lock(record_mutex_);
-    record_ << FormatFrameRecord(record);
+    if (!(record_ << FormatFrameRecord(record) << std::flush) && !record_failed_) {
+      record_failed_ = true;
+      STITCH_LOG(ERROR) << record_path_ << ": cannot write the frame record (disk full?); tracking goes on";
+    }
   }
 }
 
-void TrackerService::Ack(const stitch::frame_t& frame) {
-  stitch::frame_ack_t ack{};
-  ack.frame_index = frame.frame_index;
-  ack.t_ns = frame.t_ns;
-  ack.frame_session = frame.header.sender_session;
+void TrackerService::Ack(const stitch::frame_t& frame) { PublishAck(AckOf(frame)); }
+
+void TrackerService::PublishAck(stitch::frame_ack_t ack) {
   publisher_->Publish(bus::Channel(publisher_->agent(), bus::kFrameAck), &ack);
 }
 

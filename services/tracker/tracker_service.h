@@ -2,12 +2,12 @@
 // The tracker service: receives frames on <agent>/FRAME and the mapper's updates on
 // <agent>/LOCAL_MAP; tracks each frame with Tracking in its own worker thread; publishes a
 // tracking_status_t per frame, a frame_ack_t (lockstep pacing) and new keyframes on
-// <agent>/KEYFRAME (made and sent on a thread of their own with tracker.tracking.keyframe_worker).
-// Frames that arrive twice are acknowledged again but tracked once; frames
-// that arrive after a newer one, or that wait while the queue is full (real-time), are reported
-// as dropped. Writes one line per frame to `record_path` (frames.tsv) when given, appending to
-// what an earlier run of the tracker wrote there. With a state file, submap numbers continue
-// where the last run of the tracker left them.
+// <agent>/KEYFRAME (made and sent on a thread of their own with tracker.tracking.keyframe_worker,
+// the frame's ack behind them). Frames that arrive twice are acknowledged again but tracked
+// once; frames that arrive after a newer one, or that wait while the queue is full (real-time),
+// are reported as dropped. Writes one line per frame to `record_path` (frames.tsv) when given,
+// on disk before the frame's ack, appending to what an earlier run of the tracker wrote there.
+// With a state file, submap numbers continue where the last run of the tracker left them.
 
 #include <atomic>
 #include <fstream>
@@ -21,6 +21,7 @@
 #include "services/common/service.h"
 #include "services/tracker/tracker_options.h"
 #include "services/tracker/tracking.h"
+#include "stitch/frame_ack_t.hpp"
 #include "stitch/frame_t.hpp"
 #include "stitch/keyframe_t.hpp"
 #include "stitch/local_map_update_t.hpp"
@@ -52,6 +53,7 @@ class TrackerService {
   void Process(const stitch::frame_t& frame);
   void Report(const stitch::frame_t& frame, const TrackResult& result, float tracking_ms);
   void Ack(const stitch::frame_t& frame);
+  void PublishAck(stitch::frame_ack_t ack);
   void SaveState();
   // Makes the keyframe's message, sends it, keeps it until the mapper covers it.
   void PublishKeyframe(const Keyframe& keyframe, const std::vector<MapPoint>& new_points);
@@ -72,6 +74,7 @@ class TrackerService {
   std::vector<stitch::keyframe_t> unacknowledged_keyframes_;  // sent, not yet covered by an update
   std::mutex record_mutex_;  // Report() runs in the worker and the dispatcher thread
   std::ofstream record_;
+  bool record_failed_ = false;  // said once
   std::thread worker_;
   std::atomic<bool> running_{false};
   std::atomic<int64_t> received_{0}, tracked_{0}, dropped_{0}, keyframes_{0};

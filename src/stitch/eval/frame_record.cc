@@ -1,10 +1,13 @@
 #include "stitch/eval/frame_record.h"
 
+#include <algorithm>
 #include <cstdio>
+#include <filesystem>
 #include <sstream>
 
 #include "stitch/io/trajectory.h"
 #include "stitch/util/error.h"
+#include "stitch/util/log.h"
 #include "stitch/util/text_file.h"
 
 namespace stitch {
@@ -46,6 +49,33 @@ std::vector<FrameRecord> ReadFrameRecords(const std::string& path) {
     records.push_back(r);
   });
   return records;
+}
+
+std::ofstream AppendToFrameRecord(const std::string& path) {
+  std::error_code error;
+  const uintmax_t size = std::filesystem::exists(path, error) ? std::filesystem::file_size(path, error) : 0;
+  if (error) throw Error(path + ": cannot read the frame record: " + error.message());
+  if (size > 0) {
+    // Only the tail matters: a record line is a few hundred bytes.
+    const uintmax_t tail_size = std::min<uintmax_t>(size, 1 << 16);
+    std::string tail(tail_size, '\0');
+    std::ifstream in(path, std::ios::binary);
+    in.seekg(static_cast<std::streamoff>(size - tail_size));
+    if (!in.read(tail.data(), static_cast<std::streamsize>(tail_size))) throw Error(path + ": cannot read the frame record");
+    if (tail.back() != '\n') {
+      const size_t newline = tail.rfind('\n');
+      if (newline == std::string::npos && tail_size < size) throw Error(path + ": not a frame record (no line ends in its last 64 KiB)");
+      const uintmax_t kept = size - tail_size + (newline == std::string::npos ? 0 : newline + 1);
+      std::filesystem::resize_file(path, kept, error);
+      if (error) throw Error(path + ": cannot drop the frame record's unfinished last line: " + error.message());
+      STITCH_LOG(WARNING) << path << ": dropped an unfinished last line (" << size - kept
+                          << " bytes; the tracker writing it was stopped mid-line)";
+    }
+  }
+  std::ofstream out(path, std::ios::app);
+  if (!out) throw Error(path + ": cannot write the frame record");
+  if (std::filesystem::file_size(path, error) == 0) out << FrameRecordHeader() << std::flush;
+  return out;
 }
 
 }  // namespace stitch

@@ -3,6 +3,7 @@
 // the tracker service as it goes, read by `stitch run` / `stitch eval` to build the outputs.
 
 #include <cstdint>
+#include <fstream>
 #include <string>
 #include <vector>
 
@@ -29,5 +30,10 @@ std::string FrameRecordHeader();  // "# ..." line, with newline
 std::string FormatFrameRecord(const FrameRecord& record);  // one line, with newline
 // Throws stitch::Error naming the line for a malformed record.
 std::vector<FrameRecord> ReadFrameRecords(const std::string& path);
+// Opens a record to add lines to (a restarted tracker goes on with the same file): a new or empty
+// file gets the header; an existing one keeps its records, less a last line cut short by a writer
+// killed mid-line (that frame was never acknowledged, so it is tracked and recorded again).
+// Throws stitch::Error when the file cannot be read or written.
+std::ofstream AppendToFrameRecord(const std::string& path);
 
 }  // namespace stitch
