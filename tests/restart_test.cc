@@ -9,6 +9,7 @@
 #include <fstream>
 #include <memory>
 #include <set>
+#include <sstream>
 #include <thread>
 
 #include <gtest/gtest.h>
@@ -86,6 +87,27 @@ TEST(TrackerRestart, SubmapIdsStayUniqueAndNoFrameIsLost) {
   EXPECT_EQ(before, std::set<int>{1});
   EXPECT_EQ(after, std::set<int>{2});
   EXPECT_GE(posed_after, static_cast<int>(records.size() - before_restart) - 6);
+  // Every keyframe the trackers made reached the mapper, but for the one of the frame being
+  // tracked at the crash: that frame was not acknowledged and was tracked again.
+  std::set<std::pair<int64_t, int>> mapped;  // submap, frame index
+  std::ifstream keyframes(dir / "keyframes.tsv");
+  std::string line;
+  while (std::getline(keyframes, line)) {
+    if (line.empty() || line[0] == '#') continue;
+    std::istringstream fields(line);
+    int64_t id = 0, submap = 0;
+    int frame_index = -1;
+    fields >> id >> submap >> frame_index;
+    mapped.emplace(submap, frame_index);
+  }
+  int made = 0;
+  for (size_t i = 0; i < records.size(); ++i) {
+    if (!records[i].is_keyframe || i + 1 == before_restart) continue;
+    ++made;
+    EXPECT_TRUE(mapped.count({records[i].submap_id, records[i].frame_index}))
+        << "keyframe of frame " << records[i].frame_index << " in submap " << records[i].submap_id << " not mapped";
+  }
+  EXPECT_GE(made, 6);
   std::ifstream saved(state);
   std::string key;
   int next = 0;
