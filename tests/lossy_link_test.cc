@@ -4,8 +4,6 @@
 // with every keyframe the mapper kept; without the requests it does not.
 
 #include <chrono>
-#include <fstream>
-#include <sstream>
 #include <thread>
 
 #include <gtest/gtest.h>
@@ -15,6 +13,7 @@
 #include "services/mapper/mapper_service.h"
 #include "services/merger/merger_service.h"
 #include "services/tracker/tracker_service.h"
+#include "stitch/eval/keyframe_record.h"
 #include "stitch/source/source.h"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/util/rng.h"
@@ -110,18 +109,11 @@ Outcome FlyOverALossyLink(bool request_resends) {
   outcome.requests = merger.requests_sent();
   const auto first = merger.merger().submaps().find(MakeSubmapId(0, 1));
   outcome.first_closed = first != merger.merger().submaps().end() && first->second.closed;
-  std::ifstream keyframes(dir / "keyframes.tsv");
-  std::string line;
-  while (std::getline(keyframes, line)) {
-    if (line.empty() || line[0] == '#') continue;
-    std::istringstream fields(line);
-    int64_t id, submap, frame_index, t_ns;
-    int culled;
-    fields >> id >> submap >> frame_index >> t_ns >> culled;
-    if (culled) continue;
+  for (const KeyframeRecord& k : ReadKeyframeRecords(dir / "keyframes.tsv")) {
+    if (k.culled) continue;
     ++outcome.kept;
-    const auto replica = merger.merger().submaps().find(SubmapId(submap));
-    if (replica != merger.merger().submaps().end() && replica->second.map.FindKeyframe(KeyframeId(id))) {
+    const auto replica = merger.merger().submaps().find(SubmapId(k.submap_id));
+    if (replica != merger.merger().submaps().end() && replica->second.map.FindKeyframe(KeyframeId(k.keyframe_id))) {
       ++outcome.received;
     }
   }

@@ -9,13 +9,13 @@
 #include <fstream>
 #include <memory>
 #include <set>
-#include <sstream>
 #include <thread>
 
 #include <gtest/gtest.h>
 
 #include "services/common/bus.h"
 #include "stitch/eval/frame_record.h"
+#include "stitch/eval/keyframe_record.h"
 #include "stitch/map/ids.h"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/util/child_process.h"
@@ -90,16 +90,7 @@ TEST(TrackerRestart, SubmapIdsStayUniqueAndNoFrameIsLost) {
   // Every keyframe the trackers made reached the mapper, but for the one of the frame being
   // tracked at the crash: that frame was not acknowledged and was tracked again.
   std::set<std::pair<int64_t, int>> mapped;  // submap, frame index
-  std::ifstream keyframes(dir / "keyframes.tsv");
-  std::string line;
-  while (std::getline(keyframes, line)) {
-    if (line.empty() || line[0] == '#') continue;
-    std::istringstream fields(line);
-    int64_t id = 0, submap = 0;
-    int frame_index = -1;
-    fields >> id >> submap >> frame_index;
-    mapped.emplace(submap, frame_index);
-  }
+  for (const KeyframeRecord& k : ReadKeyframeRecords(dir / "keyframes.tsv")) mapped.emplace(k.submap_id, k.frame_index);
   int made = 0;
   for (size_t i = 0; i < records.size(); ++i) {
     if (!records[i].is_keyframe || i + 1 == before_restart) continue;

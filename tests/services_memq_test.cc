@@ -1,11 +1,9 @@
 // Ingest, tracker and mapper services on one in-process bus (memq://), as in a single process.
 
-#include <fstream>
 #include <map>
 #include <mutex>
 #include <optional>
 #include <set>
-#include <sstream>
 #include <thread>
 
 #include <gtest/gtest.h>
@@ -17,6 +15,7 @@
 #include "services/tracker/tracker_service.h"
 #include "stitch/eval/evaluation.h"
 #include "stitch/eval/frame_record.h"
+#include "stitch/eval/keyframe_record.h"
 #include "stitch/frame_ack_t.hpp"
 #include "stitch/keyframe_t.hpp"
 #include "stitch/link_status_t.hpp"
@@ -79,21 +78,13 @@ struct InProcessStack {
 
 // Every keyframe the mapper kept (its keyframes.tsv) is in the replica at the same pose.
 void ExpectReplicaIsTheMappersSubmap(const SubmapReplica& replica, const std::string& keyframes_tsv) {
-  std::ifstream keyframes(keyframes_tsv);
-  std::string line;
   int kept = 0;
-  while (std::getline(keyframes, line)) {
-    if (line.empty() || line[0] == '#') continue;
-    std::istringstream fields(line);
-    int64_t id, submap, frame_index, t_ns;
-    int culled;
-    double tx, ty, tz;
-    fields >> id >> submap >> frame_index >> t_ns >> culled >> tx >> ty >> tz;
-    if (culled) continue;
+  for (const KeyframeRecord& k : ReadKeyframeRecords(keyframes_tsv)) {
+    if (k.culled) continue;
     ++kept;
-    const Keyframe* keyframe = replica.map.FindKeyframe(KeyframeId(id));
-    ASSERT_NE(keyframe, nullptr) << id;
-    EXPECT_LT((keyframe->Centre() - Eigen::Vector3d(tx, ty, tz)).norm(), 1e-4);
+    const Keyframe* keyframe = replica.map.FindKeyframe(KeyframeId(k.keyframe_id));
+    ASSERT_NE(keyframe, nullptr) << k.keyframe_id;
+    EXPECT_LT((keyframe->Centre() - k.world_from_cam.translation).norm(), 1e-4);
   }
   EXPECT_EQ(static_cast<size_t>(kept), replica.map.num_keyframes());
 }

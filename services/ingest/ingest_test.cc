@@ -14,6 +14,7 @@
 
 #include "services/common/convert.h"
 #include "services/tracker/tracker_service.h"
+#include "stitch/eval/frame_record.h"
 #include "stitch/source/source.h"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/frame_ack_t.hpp"
@@ -162,16 +163,13 @@ TEST(Ingest, EveryAcknowledgedFrameIsAlreadyInTheTrackersRecord) {
   std::vector<std::pair<int, int>> acked_and_on_disk;
   run.subscriber.Subscribe<stitch::frame_ack_t>(
       bus::Channel("uav0", bus::kFrameAck), [&](std::unique_ptr<stitch::frame_ack_t> ack, const std::string&) {
-        std::ifstream record(path);
-        std::string line;
-        int lines = 0;
-        while (std::getline(record, line)) lines += !line.empty() && line[0] != '#';
+        const int on_disk = static_cast<int>(ReadFrameRecords(path).size());
         std::lock_guard<std::mutex> lock(mutex);
-        acked_and_on_disk.emplace_back(ack->frame_index, lines);
+        acked_and_on_disk.emplace_back(ack->frame_index, on_disk);
       });
   run.Play(ShortFlight(8));
   ASSERT_EQ(acked_and_on_disk.size(), 8u);
-  for (const auto& [frame, lines] : acked_and_on_disk) EXPECT_GE(lines, frame + 1) << "frame " << frame;
+  for (const auto& [frame, on_disk] : acked_and_on_disk) EXPECT_GE(on_disk, frame + 1) << "frame " << frame;
 }
 
 TEST(Ingest, RealtimeOverUdpMulticastPublishesAtTheCameraRate) {

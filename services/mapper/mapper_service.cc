@@ -7,8 +7,8 @@
 #include <thread>
 
 #include "services/common/map_convert.h"
+#include "stitch/eval/keyframe_record.h"
 #include "stitch/io/ply.h"
-#include "stitch/io/trajectory.h"
 #include "stitch/util/log.h"
 #include "stitch/link_status_t.hpp"
 #include "stitch/submap_request_t.hpp"
@@ -282,7 +282,7 @@ void MapperService::WriteRecords() const {
                                         {0, 140, 140}, {160, 60, 90}, {200, 110, 0}, {100, 100, 100}, {180, 180, 60}};
   std::vector<ColouredPoint> cloud;
   std::ofstream keyframes(std::filesystem::path(record_dir_) / "keyframes.tsv");
-  keyframes << "# keyframe_id submap_id frame_index t_ns culled tx ty tz qx qy qz qw (world_from_cam in the submap's frame)\n";
+  keyframes << KeyframeRecordHeader();
   for (size_t m = 0; m < maps.size(); ++m) {
     for (const auto& [id, point] : maps[m]->points()) {
       ColouredPoint p;
@@ -293,13 +293,13 @@ void MapperService::WriteRecords() const {
       cloud.push_back(p);
     }
     for (const auto& [id, keyframe] : maps[m]->keyframes()) {
-      keyframes << id.value << " " << maps[m]->id().value << " " << keyframe.frame_index << " " << keyframe.t_ns << " 0 "
-                << FormatTumPose(keyframe.cam_from_world.Inverse()) << "\n";
+      keyframes << FormatKeyframeRecord({id.value, maps[m]->id().value, keyframe.frame_index, keyframe.t_ns,
+                                         /*culled=*/false, keyframe.cam_from_world.Inverse()});
     }
   }
   for (const auto& culled : mapping_ ? mapping_->CulledKeyframePoses() : std::vector<CulledKeyframe>()) {
-    keyframes << culled.id.value << " " << SubmapOf(culled.id).value << " " << culled.frame_index << " " << culled.t_ns
-              << " 1 " << FormatTumPose(culled.cam_from_world.Inverse()) << "\n";
+    keyframes << FormatKeyframeRecord({culled.id.value, SubmapOf(culled.id).value, culled.frame_index, culled.t_ns,
+                                       /*culled=*/true, culled.cam_from_world.Inverse()});
   }
   WritePly((std::filesystem::path(record_dir_) / "submaps.ply").string(), cloud);
   STITCH_LOG(INFO) << "wrote " << cloud.size() << " map points of " << maps.size() << " submaps to " << record_dir_;

@@ -5,6 +5,7 @@
 // strongest connections) decides which submaps merge, and in which order. Each merged map is
 // then expressed in the frame of its largest submap by composing the edges' Sim3 along the tree.
 
+#include <cmath>
 #include <map>
 #include <vector>
 #include <utility>
@@ -27,7 +28,7 @@ struct ConnectedFrame {
 // scale. On the default gust flight correct connected frames of a pair differ by at most 3
 // degrees and 0.016 (docs/merger.md); a wrong one (points close to a line, whose rotation about
 // it nothing constrains) by tens of degrees.
-constexpr double kAgreeingRotationRad = 5.0 * 3.14159265358979323846 / 180.0;
+constexpr double kAgreeingRotationRad = 5.0 * M_PI / 180.0;
 constexpr double kAgreeingLogScale = 0.05;
 bool SimilaritiesAgree(const Sim3d& x, const Sim3d& y);
 

@@ -117,8 +117,6 @@ void TrackerService::Stop() {
   updates_.Close();
   heartbeat_->SetState(stitch::service_status_t::STATE_FINISHED);
   heartbeat_->Stop();
-  std::lock_guard<std::mutex> lock(record_mutex_);
-  if (record_.is_open()) record_.flush();
 }
 
 void TrackerService::OnFrame(std::unique_ptr<stitch::frame_t> frame) {

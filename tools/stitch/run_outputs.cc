@@ -7,6 +7,7 @@
 #include <sstream>
 
 #include "stitch/eval/frame_record.h"
+#include "stitch/eval/keyframe_record.h"
 #include "stitch/map/ids.h"
 #include "stitch/io/ply.h"
 #include "stitch/io/trajectory.h"
@@ -79,19 +80,11 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
   std::map<int64_t, int> keyframe_frame_index;
   int keyframes_retained = 0;
   if (fs::exists(dir / "keyframes.tsv")) {
-    ForEachDataLine((dir / "keyframes.tsv").string(), [&](const std::string& line, int line_number) {
-      std::istringstream fields(line);
-      int64_t id, submap, t_ns;
-      int frame_index, culled;
-      Rigid3d world_from_cam;
-      fields >> id >> submap >> frame_index >> t_ns >> culled;
-      if (!fields || !ReadTumPose(fields, &world_from_cam)) {
-        throw Error(Str() << run_dir << "/keyframes.tsv:" << line_number << ": malformed keyframe");
-      }
-      keyframe_cam_from_world[id] = world_from_cam.Inverse();
-      keyframe_frame_index[id] = frame_index;
-      keyframes_retained += culled == 0;
-    });
+    for (const KeyframeRecord& k : ReadKeyframeRecords((dir / "keyframes.tsv").string())) {
+      keyframe_cam_from_world[k.keyframe_id] = k.world_from_cam.Inverse();
+      keyframe_frame_index[k.keyframe_id] = k.frame_index;
+      keyframes_retained += !k.culled;
+    }
   }
   std::set<int64_t> submaps;
   int no_core = 0, keyframes_made = 0;

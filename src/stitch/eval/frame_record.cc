@@ -55,6 +55,7 @@ std::ofstream AppendToFrameRecord(const std::string& path) {
   std::error_code error;
   const uintmax_t size = std::filesystem::exists(path, error) ? std::filesystem::file_size(path, error) : 0;
   if (error) throw Error(path + ": cannot read the frame record: " + error.message());
+  uintmax_t kept = size;
   if (size > 0) {
     // Only the tail matters: a record line is a few hundred bytes.
     const uintmax_t tail_size = std::min<uintmax_t>(size, 1 << 16);
@@ -65,7 +66,7 @@ std::ofstream AppendToFrameRecord(const std::string& path) {
     if (tail.back() != '\n') {
       const size_t newline = tail.rfind('\n');
       if (newline == std::string::npos && tail_size < size) throw Error(path + ": not a frame record (no line ends in its last 64 KiB)");
-      const uintmax_t kept = size - tail_size + (newline == std::string::npos ? 0 : newline + 1);
+      kept = size - tail_size + (newline == std::string::npos ? 0 : newline + 1);
       std::filesystem::resize_file(path, kept, error);
       if (error) throw Error(path + ": cannot drop the frame record's unfinished last line: " + error.message());
       STITCH_LOG(WARNING) << path << ": dropped an unfinished last line (" << size - kept
@@ -74,7 +75,7 @@ std::ofstream AppendToFrameRecord(const std::string& path) {
   }
   std::ofstream out(path, std::ios::app);
   if (!out) throw Error(path + ": cannot write the frame record");
-  if (std::filesystem::file_size(path, error) == 0) out << FrameRecordHeader() << std::flush;
+  if (kept == 0) out << FrameRecordHeader() << std::flush;
   return out;
 }
 
