@@ -11,7 +11,7 @@
 
 #include "services/common/bus.h"
 #include "stitch/frame_t.hpp"
-#include "stitch/map/ids.h"
+#include "stitch/util/ids.h"
 #include "stitch/submap_update_t.hpp"
 #include "stitch/testing/temp_dir.h"
 #include "tests/test_process.h"

@@ -9,11 +9,11 @@
 #include <gtest/gtest.h>
 
 #include "services/config/stitch_config.h"
-#include "services/ingest/ingest.h"
+#include "services/ingest/ingest_service.h"
 #include "services/mapper/mapper_service.h"
 #include "services/merger/merger_service.h"
 #include "services/tracker/tracker_service.h"
-#include "stitch/eval/keyframe_record.h"
+#include "stitch/records/keyframe_record.h"
 #include "stitch/source/source.h"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/util/rng.h"

@@ -18,7 +18,7 @@
 #include "services/common/bus.h"
 #include "services/common/map_convert.h"
 #include "services/config/stitch_config.h"
-#include "services/pipeline/inline_pipeline.h"
+#include "stitch/pipeline/inline_pipeline.h"
 #include "stitch/source/source.h"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/util/child_process.h"
@@ -42,7 +42,7 @@ std::vector<stitch::submap_update_t> GustStripUpdates() {
   FailureSchedule unused;
   auto sequence = OpenSource(spec, &unused);
   const Vocabulary vocabulary = LoadVocabulary(config);
-  return ToMessages(RunInline(*sequence, config, vocabulary, nullptr, /*keep_submap_updates=*/true).submap_updates);
+  return ToMessages(RunInline(*sequence, config.pipeline(), vocabulary, nullptr, /*keep_submap_updates=*/true).submap_updates);
 }
 
 int64_t JournalRecords(const std::string& path) {

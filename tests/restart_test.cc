@@ -14,9 +14,9 @@
 #include <gtest/gtest.h>
 
 #include "services/common/bus.h"
-#include "stitch/eval/frame_record.h"
-#include "stitch/eval/keyframe_record.h"
-#include "stitch/map/ids.h"
+#include "stitch/records/frame_record.h"
+#include "stitch/records/keyframe_record.h"
+#include "stitch/util/ids.h"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/util/child_process.h"
 #include "tests/test_process.h"

@@ -10,7 +10,7 @@
 #include "services/common/map_convert.h"
 #include "services/config/stitch_config.h"
 #include "services/merger/merger_service.h"
-#include "services/pipeline/inline_pipeline.h"
+#include "stitch/pipeline/inline_pipeline.h"
 #include "stitch/source/source.h"
 
 namespace stitch {
@@ -29,7 +29,7 @@ std::vector<stitch::submap_update_t> Fly(int agent_number, int first, int count,
   FailureSchedule unused;
   auto sequence = OpenSource(spec, &unused);
   const Vocabulary vocabulary = LoadVocabulary(config);
-  return ToMessages(RunInline(*sequence, config, vocabulary, nullptr, /*keep_submap_updates=*/true).submap_updates);
+  return ToMessages(RunInline(*sequence, config.pipeline(), vocabulary, nullptr, /*keep_submap_updates=*/true).submap_updates);
 }
 
 TEST(SeveralAircraft, TwoAircraftFlyingHalvesOfTheSurveyEndInOneMergedMap) {

@@ -8,9 +8,11 @@
 #include "services/ingest/ingest_options.h"
 #include "services/link/link_options.h"
 #include "services/mapper/mapper_options.h"
-#include "services/merger/merger.h"
+#include "stitch/merging/merger_options.h"
+#include "stitch/pipeline/pipeline_options.h"
 #include "services/tracker/tracker_options.h"
 #include "stitch/synthetic/synthetic_sequence.h"
+#include "stitch/features/vocabulary.h"
 
 namespace stitch {
 
@@ -37,6 +39,8 @@ struct StitchConfig {
     return synthetic.Check(why) && ingest.Check(why) && tracker.Check(why) && mapper.Check(why) && merger.Check(why) &&
            link.Check(why);
   }
+  // The algorithms' settings, for running them inline (no bus).
+  PipelineOptions pipeline() const { return {tracker.tracking, tracker.on_loss, mapper.mapping, merger}; }
 };
 
 // The vocabulary the configuration names (or the shipped default); throws stitch::Error.

@@ -1,7 +1,7 @@
 // The ingest service against a real tracker service and plain subscribers, in-process over
 // memq:// and over UDP multicast.
 
-#include "services/ingest/ingest.h"
+#include "services/ingest/ingest_service.h"
 
 #include <unistd.h>
 
@@ -14,7 +14,7 @@
 
 #include "services/common/convert.h"
 #include "services/tracker/tracker_service.h"
-#include "stitch/eval/frame_record.h"
+#include "stitch/records/frame_record.h"
 #include "stitch/source/source.h"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/frame_ack_t.hpp"

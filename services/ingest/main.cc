@@ -5,7 +5,7 @@
 #include "services/common/bus.h"
 #include "services/common/service.h"
 #include "services/config/stitch_config.h"
-#include "services/ingest/ingest.h"
+#include "services/ingest/ingest_service.h"
 #include "stitch/source/source.h"
 #include "stitch/util/options.h"
 

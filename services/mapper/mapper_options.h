@@ -3,7 +3,7 @@
 
 #include <string>
 
-#include "services/mapper/local_mapping.h"
+#include "stitch/mapping/mapping_options.h"
 
 namespace stitch {
 

@@ -7,7 +7,7 @@
 #include <thread>
 
 #include "services/common/map_convert.h"
-#include "stitch/eval/keyframe_record.h"
+#include "stitch/records/keyframe_record.h"
 #include "stitch/io/ply.h"
 #include "stitch/util/log.h"
 #include "stitch/link_status_t.hpp"
@@ -189,17 +189,19 @@ void MapperService::Process(const stitch::keyframe_t& message) {
     STITCH_LOG(INFO) << "camera " << received.camera.Describe();
   }
   const KeyframeId id = received.keyframe.id;
-  const MappingReport report = mapping_->ProcessKeyframe(std::move(received.keyframe), received.new_points);
+  MappedKeyframe mapped = mapping_->MapKeyframe(std::move(received.keyframe), received.new_points);
+  const MappingReport& report = mapped.report;
   ++mapped_;
-  if (report.closed_submap) PublishSubmapUpdate(mapping_->MakeFinalSubmapUpdate(*report.closed_submap));
+  if (mapped.closed_final) PublishSubmapUpdate(*mapped.closed_final);
   if (report.reopened_submap) {
     STITCH_LOG(INFO) << "submap " << SubmapName(*report.reopened_submap) << " reopened (the tracker relocalized in it)";
   }
-  const LocalMapUpdate update = mapping_->MakeUpdate(id, static_cast<int>(queue_.size()));
-  for (auto& part : ToMessages(update)) publisher_->Publish(bus::Channel(publisher_->agent(), bus::kLocalMap), &part);
-  SubmapUpdate to_merger = mapping_->MakeSubmapUpdate(id, update);
-  ThinForTheLink(&to_merger);
-  PublishSubmapUpdate(to_merger);
+  mapped.for_tracker.queued_keyframes = static_cast<int>(queue_.size());
+  for (auto& part : ToMessages(mapped.for_tracker)) {
+    publisher_->Publish(bus::Channel(publisher_->agent(), bus::kLocalMap), &part);
+  }
+  ThinForTheLink(&mapped.for_merger);
+  PublishSubmapUpdate(mapped.for_merger);
   STITCH_LOG(DEBUG) << "keyframe " << id << ": " << report.new_points << " new points, " << report.fused << " fused, "
                     << report.culled_points << " points and " << report.culled_keyframes.size()
                     << " keyframes culled, BA " << report.bundle_adjustment.initial_rms_px << " -> "

@@ -19,6 +19,7 @@
 #include "services/common/bus.h"
 #include "services/common/service.h"
 #include "services/mapper/mapper_options.h"
+#include "stitch/mapping/local_mapping.h"
 #include "stitch/keyframe_t.hpp"
 #include "stitch/util/bounded_queue.h"
 

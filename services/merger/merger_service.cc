@@ -45,7 +45,6 @@ MergerService::MergerService(lcm::LCM* lcm, bus::Publisher* publisher, const Mer
   heartbeat_ = std::make_unique<Heartbeat>(publisher_, "merger", [this] {
     return Heartbeat::Counts{received_.load(), processed_.load(), subscriber_.rejected() + rejected_.load()};
   });
-  merge_log_.push_back("# event\tcurrent_map\tunconnected_submaps (stack, newest last)\tmerged_maps");
   if (!state_dir.empty()) journal_ = std::make_unique<UpdateJournal>(state_dir, submap_channels_);
 }
 
@@ -265,7 +264,7 @@ void MergerService::OnGraphChange(const std::string& event) {
   const std::string row = current_map + "\t" + stack + "\t" + maps;
   if (row == last_stack_) return;
   last_stack_ = row;
-  merge_log_.push_back(event + "\t" + row);
+  merge_log_.push_back({event, current_map, stack, maps});
   STITCH_LOG(INFO) << event << ": current map " << current_map << "; unconnected " << (stack.empty() ? "-" : stack);
   PublishGlobalMap(graph);
 }
@@ -321,21 +320,13 @@ void MergerService::PublishGlobalMap(const Merger::Graph& graph) {
 void MergerService::WriteRecords(const Merger::Graph& graph, const MergedMap* merged) const {
   const std::filesystem::path dir(record_dir_);
   std::filesystem::create_directories(dir);
-  {
-    std::ofstream out(dir / "submaps.tsv");
-    out << "# submap_id component root keyframes points closed scale qx qy qz qw tx ty tz (world_from_submap)\n";
-    for (const auto& [id, placement] : graph.placement) {
-      const SubmapReplica& replica = merger_.submaps().at(id);
-      const Sim3d& s = placement.world_from_submap;
-      char line[400];
-      std::snprintf(line, sizeof(line), "%lld %d %lld %zu %zu %d %.9g %.9g %.9g %.9g %.9g %.9g %.9g %.9g\n",
-                    static_cast<long long>(id.value), placement.component, static_cast<long long>(placement.root.value),
-                    replica.map.num_keyframes(), replica.map.num_points(), replica.closed ? 1 : 0, s.scale,
-                    s.rotation.x(), s.rotation.y(), s.rotation.z(), s.rotation.w(), s.translation.x(),
-                    s.translation.y(), s.translation.z());
-      out << line;
-    }
+  std::vector<SubmapRecord> submaps;
+  for (const auto& [id, placement] : graph.placement) {
+    const SubmapReplica& replica = merger_.submaps().at(id);
+    submaps.push_back({id, placement.component, placement.root, replica.map.num_keyframes(), replica.map.num_points(),
+                       replica.closed, placement.world_from_submap});
   }
+  WriteSubmapRecords((dir / "submaps.tsv").string(), submaps);
   {
     // map.ply: the largest merged map's points in its frame, one colour per submap.
     static const uint8_t kPalette[][3] = {{30, 90, 200}, {220, 40, 40}, {40, 160, 40}, {180, 40, 180}, {220, 150, 20},
@@ -376,34 +367,18 @@ void MergerService::WriteRecords(const Merger::Graph& graph, const MergedMap* me
     }
     WritePly((dir / "map.ply").string(), cloud);
   }
-  {
-    std::ofstream out(dir / "keyframes_merged.tsv");
-    out << "# keyframe_id submap_id component scale qx qy qz qw tx ty tz (world_from_cam, refined by the pose graph)\n";
-    for (const auto& [id, pose] : graph.keyframe_poses) {
-      char line[300];
-      std::snprintf(line, sizeof(line), "%lld %lld %d %.9g %.9g %.9g %.9g %.9g %.9g %.9g %.9g\n",
-                    static_cast<long long>(id.value), static_cast<long long>(SubmapOf(id).value),
-                    graph.placement.at(SubmapOf(id)).component, pose.scale, pose.rotation.x(), pose.rotation.y(),
-                    pose.rotation.z(), pose.rotation.w(), pose.translation.x(), pose.translation.y(), pose.translation.z());
-      out << line;
+  std::vector<MergedKeyframeRecord> merged_keyframes;
+  for (const auto& [id, pose] : graph.keyframe_poses) {
+    merged_keyframes.push_back({id, graph.placement.at(SubmapOf(id)).component, pose});
+  }
+  WriteMergedKeyframeRecords((dir / "keyframes_merged.tsv").string(), merged_keyframes);
+  std::vector<ConnectionRecord> connections;
+  for (const auto* list : {&merger_.connections(), &merger_.loops()}) {
+    for (const ConnectedFrame& c : *list) {
+      connections.push_back({c.keyframe_a, c.keyframe_b, c.map_points, c.median_angle_deg, c.b_from_a});
     }
   }
-  {
-    std::ofstream out(dir / "connections.tsv");
-    out << "# keyframe_a keyframe_b map_points median_angle_deg scale qx qy qz qw tx ty tz (b_from_a: submap b's frame from "
-           "a's; loops within one submap last)\n";
-    std::vector<ConnectedFrame> all = merger_.connections();
-    all.insert(all.end(), merger_.loops().begin(), merger_.loops().end());
-    for (const ConnectedFrame& c : all) {
-      const Sim3d& s = c.b_from_a;
-      char line[300];
-      std::snprintf(line, sizeof(line), "%lld %lld %d %.3f %.9g %.9g %.9g %.9g %.9g %.9g %.9g %.9g\n",
-                    static_cast<long long>(c.keyframe_a.value), static_cast<long long>(c.keyframe_b.value), c.map_points,
-                    c.median_angle_deg, s.scale, s.rotation.x(), s.rotation.y(), s.rotation.z(), s.rotation.w(),
-                    s.translation.x(), s.translation.y(), s.translation.z());
-      out << line;
-    }
-  }
+  WriteConnectionRecords((dir / "connections.tsv").string(), connections);
   {
     std::ofstream out(dir / "graph.dot");
     out << "graph submaps {\n  // edge weight -C; bold: Kruskal's spanning tree\n";
@@ -452,33 +427,8 @@ void MergerService::WriteRecords(const Merger::Graph& graph, const MergedMap* me
                 cv::Point(10, 20), cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
     cv::imwrite((dir / "graph.png").string(), image);
   }
-  {
-    std::ofstream out(dir / "merge_log.tsv");
-    for (const std::string& line : merge_log_) out << line << "\n";
-  }
-  {
-    std::ofstream out(dir / "retrieval.tsv");
-    out << "# keyframe previous nearby N0 N1 S0 S1 k l shared_word_candidates candidates connected "
-           "verification(matches/inliers per candidate) loop_candidates loops skipped\n";
-    const auto list = [](const std::vector<KeyframeId>& ids) {
-      std::string text;
-      for (KeyframeId id : ids) text += (text.empty() ? "" : ",") + std::to_string(id.value);
-      return text.empty() ? std::string("-") : text;
-    };
-    for (const RetrievalRecord& r : merger_.retrievals()) {
-      char numbers[200];
-      std::snprintf(numbers, sizeof(numbers), "%d\t%d\t%.4f\t%.4f\t%.3f\t%.3f\t%d", r.n0, r.n1, r.s0, r.s1, r.k, r.l,
-                    r.shared_word_candidates);
-      out << r.keyframe.value << "\t" << r.previous.value << "\t" << r.nearby.value << "\t" << numbers << "\t"
-          << list(r.candidates) << "\t" << list(r.connected) << "\t";
-      std::string verification;
-      for (const auto& [matches, inliers] : r.verification) {
-        verification += (verification.empty() ? "" : ",") + std::to_string(matches) + "/" + std::to_string(inliers);
-      }
-      out << (verification.empty() ? "-" : verification) << "\t" << list(r.loop_candidates) << "\t" << list(r.loops) << "\t"
-          << (r.skipped.empty() ? "-" : r.skipped) << "\n";
-    }
-  }
+  WriteMergeLog((dir / "merge_log.tsv").string(), merge_log_);
+  WriteRetrievalRecords((dir / "retrieval.tsv").string(), merger_.retrievals());
   int outvoted = 0;
   for (const SubmapEdge& e : graph.edges) outvoted += e.disagreeing_frames;
   STITCH_LOG(INFO) << "wrote the submap graph (" << graph.placement.size() << " submaps, " << graph.edges.size()

@@ -17,8 +17,8 @@
 
 #include "services/common/bus.h"
 #include "services/common/service.h"
-#include "services/merger/merger.h"
-#include "services/merger/update_journal.h"
+#include "stitch/merging/merger.h"
+#include "services/common/update_journal.h"
 #include "stitch/submap_update_t.hpp"
 #include "stitch/util/bounded_queue.h"
 
@@ -89,7 +89,7 @@ class MergerService {
   std::set<std::string> submap_channels_;                  // their <agent>/SUBMAP
   std::map<SubmapId, std::string> agent_of_;               // each submap's aircraft (from its updates)
   std::atomic<int64_t> requests_{0}, keyframes_missing_{0};
-  std::vector<std::string> merge_log_;  // lines of merge_log.tsv
+  std::vector<MergeLogRecord> merge_log_;  // merge_log.tsv
   std::string last_stack_;
   int revision_ = 0;
   struct Refined {

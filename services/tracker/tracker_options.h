@@ -3,7 +3,7 @@
 
 #include <string>
 
-#include "services/tracker/tracking.h"
+#include "stitch/tracking/tracking_options.h"
 
 namespace stitch {
 

@@ -4,7 +4,8 @@
 
 #include "services/common/convert.h"
 #include "services/common/map_convert.h"
-#include "stitch/eval/frame_record.h"
+#include "stitch/records/frame_record.h"
+#include "stitch/records/tracker_state.h"
 #include "stitch/frame_ack_t.hpp"
 #include "stitch/tracking_status_t.hpp"
 #include "stitch/util/log.h"
@@ -66,27 +67,6 @@ TrackerService::TrackerService(lcm::LCM* lcm, bus::Publisher* publisher, Tracker
       options_.tracking.first_submap_number = next;
     }
   }
-}
-
-int ReadNextSubmapNumber(const std::string& path) {
-  if (!std::filesystem::exists(path)) return 0;
-  std::ifstream in(path);
-  std::string key;
-  int number = 0;
-  if (!(in >> key >> number) || key != "next_submap_number" || number < 1 || number > 65535) {
-    throw Error(path + ": not a tracker state file (expected 'next_submap_number N' with N in 1..65535)");
-  }
-  return number;
-}
-
-void WriteNextSubmapNumber(const std::string& path, int number) {
-  const std::string temporary = path + ".tmp";
-  {
-    std::ofstream out(temporary, std::ios::trunc);
-    out << "next_submap_number " << number << "\n";
-    if (!out.flush()) throw Error(temporary + ": cannot write the tracker state");
-  }
-  std::filesystem::rename(temporary, path);
 }
 
 void TrackerService::SaveState() {

@@ -20,7 +20,7 @@
 #include "services/common/bus.h"
 #include "services/common/service.h"
 #include "services/tracker/tracker_options.h"
-#include "services/tracker/tracking.h"
+#include "stitch/tracking/tracking.h"
 #include "stitch/frame_ack_t.hpp"
 #include "stitch/frame_t.hpp"
 #include "stitch/keyframe_t.hpp"
@@ -82,11 +82,5 @@ class TrackerService {
   std::atomic<int64_t> ingest_session_{0};                           // ...this ingest's frames
   int saved_submap_number_ = -1;
 };
-
-// The next submap number kept in a tracker state file (docs/ids.md); 0 when the file does not
-// exist. Throws stitch::Error for a file that exists but does not parse.
-int ReadNextSubmapNumber(const std::string& path);
-// Writes it atomically (a new file renamed over the old).
-void WriteNextSubmapNumber(const std::string& path, int number);
 
 }  // namespace stitch

@@ -19,7 +19,7 @@
 #include <nlohmann/json.hpp>
 
 #include "services/config/stitch_config.h"
-#include "services/pipeline/inline_pipeline.h"
+#include "stitch/pipeline/inline_pipeline.h"
 #include "stitch/source/source.h"
 #include "stitch/util/args.h"
 #include "stitch/util/child_process.h"
@@ -70,7 +70,7 @@ nlohmann::json BenchOnce(const BenchArgs& a) {
               sequence->camera().height(), a.settings.empty() ? "" : ", ", a.settings.c_str());
   const Stopwatch clock;
   int done = 0;
-  const InlineRun run = RunInline(*sequence, config, vocabulary, [&](const InlineFrame&) {
+  const InlineRun run = RunInline(*sequence, config.pipeline(), vocabulary, [&](const InlineFrame&) {
     if (++done % 100 == 0) {
       std::printf("\r  %d frames", done);
       std::fflush(stdout);

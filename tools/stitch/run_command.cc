@@ -17,7 +17,7 @@
 #include "services/common/bus.h"
 #include "services/common/service.h"
 #include "services/config/stitch_config.h"
-#include "stitch/map/ids.h"
+#include "stitch/util/ids.h"
 #include "stitch/sequence_info_t.hpp"
 #include "stitch/source/source.h"
 #include "stitch/tracking_status_t.hpp"

@@ -6,9 +6,10 @@
 #include <set>
 #include <sstream>
 
-#include "stitch/eval/frame_record.h"
-#include "stitch/eval/keyframe_record.h"
-#include "stitch/map/ids.h"
+#include "stitch/records/frame_record.h"
+#include "stitch/records/keyframe_record.h"
+#include "stitch/records/merger_records.h"
+#include "stitch/util/ids.h"
 #include "stitch/io/ply.h"
 #include "stitch/io/trajectory.h"
 #include "stitch/util/error.h"
@@ -17,55 +18,6 @@
 namespace fs = std::filesystem;
 
 namespace stitch {
-
-nlohmann::json RunInfo::ToJson() const {
-  return {{"source", source},           {"dataset", dataset},           {"frames_total", frames_total},
-          {"frames_unusable", frames_unusable}, {"failures", failures}, {"on_loss", on_loss},
-          {"pacing", pacing},           {"lcm_url", lcm_url},           {"agent", agent},
-          {"started_at", started_at},   {"wall_seconds", wall_seconds}, {"interrupted", interrupted},
-          {"link", link},               {"link_figures", link_figures}, {"notes", notes}};
-}
-
-RunInfo RunInfo::FromJson(const nlohmann::json& j) {
-  try {
-    RunInfo info;
-    info.source = j.at("source");
-    info.dataset = j.at("dataset");
-    info.frames_total = j.at("frames_total");
-    info.frames_unusable = j.at("frames_unusable");
-    info.failures = j.at("failures");
-    info.on_loss = j.at("on_loss");
-    info.pacing = j.at("pacing");
-    info.lcm_url = j.value("lcm_url", "");
-    info.agent = j.value("agent", "");
-    info.link = j.value("link", "");
-    info.link_figures = j.value("link_figures", std::vector<std::string>{});
-    info.started_at = j.value("started_at", "");
-    info.wall_seconds = j.value("wall_seconds", 0.0);
-    info.interrupted = j.value("interrupted", false);
-    info.notes = j.value("notes", std::vector<std::string>{});
-    return info;
-  } catch (const nlohmann::json::exception& e) {
-    throw Error(std::string("run.json: ") + e.what());
-  }
-}
-
-void SaveRunInfo(const RunInfo& info, const std::string& run_dir) {
-  std::ofstream out(fs::path(run_dir) / "run.json");
-  if (!out) throw Error(run_dir + "/run.json: cannot write");
-  out << info.ToJson().dump(2) << "\n";
-}
-
-RunInfo LoadRunInfo(const std::string& run_dir) {
-  const fs::path path = fs::path(run_dir) / "run.json";
-  std::ifstream in(path);
-  if (!in) throw Error(path.string() + ": not found (is " + run_dir + " a stitch run folder?)");
-  try {
-    return RunInfo::FromJson(nlohmann::json::parse(in));
-  } catch (const nlohmann::json::parse_error& e) {
-    throw Error(path.string() + ": not valid JSON (" + e.what() + ")");
-  }
-}
 
 Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
   const fs::path dir(run_dir);
@@ -98,12 +50,9 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
   input.keyframes = fs::exists(dir / "keyframes.tsv") ? keyframes_retained : keyframes_made;
   input.submaps = static_cast<int>(submaps.size());
 
-  // The final poses: the merger's when it wrote them; otherwise the tracker's, each re-composed
-  // with the mapper's final pose of the keyframe it was tracked against, each submap a map of
-  // its own (nothing merged them).
-  if (fs::exists(dir / "merged_poses.tsv")) {
-    input.poses = ReadPoseRecords((dir / "merged_poses.tsv").string());
-  } else {
+  // The tracker's poses, each re-composed with the mapper's final pose of the keyframe it was
+  // tracked against, each submap a map of its own until the merger's placements below.
+  {
     std::map<int64_t, int> component_of;
     for (const auto& r : records) {
       if (r.state != "OK") continue;
@@ -128,28 +77,15 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
   // The merger's placements: each submap's merged map and its Sim3 into that map's frame.
   if (fs::exists(dir / "submaps.tsv")) {
     std::map<int64_t, std::pair<int, Sim3d>> placement;
-    ForEachDataLine((dir / "submaps.tsv").string(), [&](const std::string& line, int line_number) {
-      std::istringstream fields(line);
-      int64_t id, root;
-      int component, closed;
-      size_t keyframes, points;
-      double s, qx, qy, qz, qw, tx, ty, tz;
-      fields >> id >> component >> root >> keyframes >> points >> closed >> s >> qx >> qy >> qz >> qw >> tx >> ty >> tz;
-      if (!fields) throw Error(Str() << run_dir << "/submaps.tsv:" << line_number << ": malformed placement");
-      placement[id] = {component, Sim3d(s, Eigen::Quaterniond(qw, qx, qy, qz).normalized(), Eigen::Vector3d(tx, ty, tz))};
-    });
+    for (const SubmapRecord& r : ReadSubmapRecords((dir / "submaps.tsv").string())) {
+      placement[r.submap.value] = {r.component, r.world_from_submap};
+    }
     // Refined keyframe poses: a frame follows the keyframe it was tracked against.
     std::map<int64_t, Sim3d> keyframe_world_from_cam;
     if (fs::exists(dir / "keyframes_merged.tsv")) {
-      ForEachDataLine((dir / "keyframes_merged.tsv").string(), [&](const std::string& line, int line_number) {
-        std::istringstream fields(line);
-        int64_t id, submap;
-        int component;
-        double s, qx, qy, qz, qw, tx, ty, tz;
-        fields >> id >> submap >> component >> s >> qx >> qy >> qz >> qw >> tx >> ty >> tz;
-        if (!fields) throw Error(Str() << run_dir << "/keyframes_merged.tsv:" << line_number << ": malformed pose");
-        keyframe_world_from_cam[id] = Sim3d(s, Eigen::Quaterniond(qw, qx, qy, qz).normalized(), Eigen::Vector3d(tx, ty, tz));
-      });
+      for (const MergedKeyframeRecord& r : ReadMergedKeyframeRecords((dir / "keyframes_merged.tsv").string())) {
+        keyframe_world_from_cam[r.keyframe.value] = r.world_from_cam;
+      }
     }
     // The pose graph's correction of each merged keyframe (refined against placed), by submap
     // and frame; every frame takes the correction of the nearest keyframe of its submap, so

@@ -12,7 +12,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "stitch/geometry/similarity.h"
-#include "stitch/map/ids.h"
+#include "stitch/util/ids.h"
 #include "stitch/util/error.h"
 #include "stitch/util/text_file.h"
 
@@ -40,33 +40,6 @@ std::vector<StampedPose> ToStamped(const std::vector<PoseRecord>& poses) {
 }
 
 }  // namespace
-
-std::vector<PoseRecord> ReadPoseRecords(const std::string& path) {
-  std::vector<PoseRecord> poses;
-  ForEachDataLine(path, [&](const std::string& line, int line_number) {
-    std::istringstream fields(line);
-    PoseRecord p;
-    int keyframe = 0;
-    fields >> p.frame_index >> p.t_ns >> p.submap_id >> p.component >> keyframe;
-    if (!fields || !ReadTumPose(fields, &p.world_from_cam)) {
-      throw Error(Str() << path << ":" << line_number << ": malformed pose record");
-    }
-    p.is_keyframe = keyframe != 0;
-    poses.push_back(p);
-  });
-  return poses;
-}
-
-void WritePoseRecords(const std::string& path, const std::vector<PoseRecord>& poses) {
-  std::ofstream out(path);
-  if (!out) throw Error(path + ": cannot write");
-  out << "# frame_index t_ns submap_id component keyframe tx ty tz qx qy qz qw (world_from_cam)\n";
-  for (const auto& p : poses) {
-    out << p.frame_index << " " << p.t_ns << " " << p.submap_id << " " << p.component << " " << (p.is_keyframe ? 1 : 0)
-        << " " << FormatTumPose(p.world_from_cam) << "\n";
-  }
-  if (!out) throw Error(path + ": write failed");
-}
 
 std::optional<TrajectoryErrors> CompareTrajectories(const std::vector<StampedPose>& estimated,
                                                     const Trajectory& ground_truth,

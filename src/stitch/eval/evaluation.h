@@ -14,22 +14,9 @@
 
 #include "stitch/geometry/rigid3.h"
 #include "stitch/io/trajectory.h"
+#include "stitch/records/pose_record.h"
 
 namespace stitch {
-
-// One frame's final pose: where the run placed it, in which submap and merged map.
-struct PoseRecord {
-  int frame_index = -1;
-  int64_t t_ns = 0;
-  int64_t submap_id = -1;
-  int component = -1;   // merged map; equal values share one frame
-  bool is_keyframe = false;
-  Rigid3d world_from_cam;  // in the component's frame (its scale is arbitrary)
-};
-
-// Reads / writes poses.tsv: "frame_index t_ns submap_id component keyframe tx ty tz qx qy qz qw".
-std::vector<PoseRecord> ReadPoseRecords(const std::string& path);
-void WritePoseRecords(const std::string& path, const std::vector<PoseRecord>& poses);
 
 struct EvaluationInput {
   int frames_total = 0;               // frames in the sequence

@@ -228,6 +228,7 @@ WordId Vocabulary::Lookup(const uint8_t* descriptor, int level, NodeId* node_at_
 }
 
 BowVector Vocabulary::Transform(const cv::Mat& descriptors, FeatureVector* features, int direct_index_level) const {
+  if (direct_index_level < 0) direct_index_level = this->direct_index_level();
   BowVector bow;
   if (empty() || descriptors.empty()) return bow;
   if (descriptors.cols != kDescriptorBytes || descriptors.type() != CV_8U) {

@@ -8,6 +8,7 @@
 // Files: our compact binary format (.stitchvoc: magic, version, shape, nodes, checksum; loads
 // in milliseconds), and DBoW2's text format (ORBvoc.txt), read only.
 
+#include <algorithm>
 #include <functional>
 #include <string>
 #include <vector>
@@ -71,10 +72,16 @@ class Vocabulary {
   WordId Lookup(const uint8_t* descriptor, int level, NodeId* node_at_level = nullptr) const;
 
   // TF-IDF vector of a set of descriptors (N x 32 CV_8U); when `features` is given, also the
-  // direct index at `direct_index_level` (0 = root; ORB-SLAM's choice is L - 4).
-  BowVector Transform(const cv::Mat& descriptors, FeatureVector* features = nullptr, int direct_index_level = 2) const;
+  // direct index at `direct_index_level` (0 = root; ORB-SLAM's choice is L - 4; -1: this
+  // vocabulary's direct_index_level()).
+  BowVector Transform(const cv::Mat& descriptors, FeatureVector* features = nullptr, int direct_index_level = -1) const;
+  // The level whose nodes group features for matching by bag of words (the direct index): every
+  // user of a vocabulary (tracker, mapper, merger) must group at the same level, so it is the
+  // vocabulary's: level 2 below the root (at most the depth).
+  int direct_index_level() const { return std::min(kDirectIndexLevel, depth_); }
 
  private:
+  static constexpr int kDirectIndexLevel = 2;
   int branching_ = 0;
   int depth_ = 0;
   std::vector<Node> nodes_;     // node 0 is the root

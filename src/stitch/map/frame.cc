@@ -160,4 +160,8 @@ Frame MakeFrame(const cv::Mat& image, int frame_index, int64_t t_ns, OrbExtracto
   return frame;
 }
 
+void ComputeBow(const Vocabulary& vocabulary, Frame* frame) {
+  if (frame->bow.empty()) frame->bow = vocabulary.Transform(frame->descriptors, &frame->bow_features);
+}
+
 }  // namespace stitch

@@ -11,9 +11,10 @@
 
 #include "stitch/features/bow.h"
 #include "stitch/features/orb_extractor.h"
+#include "stitch/features/vocabulary.h"
 #include "stitch/geometry/camera.h"
 #include "stitch/geometry/rigid3.h"
-#include "stitch/map/ids.h"
+#include "stitch/util/ids.h"
 
 namespace stitch {
 
@@ -92,6 +93,9 @@ double ImageSharpness(const cv::Mat& image);
 
 // Orientation rounded to 1/256 turn, in [0, 360).
 float QuantizeAngle(float degrees);
+
+// The frame's bag of words and direct index (at the vocabulary's level), unless it has them.
+void ComputeBow(const Vocabulary& vocabulary, Frame* frame);
 
 // Extracts features from `image` and makes them searchable.
 Frame MakeFrame(const cv::Mat& image, int frame_index, int64_t t_ns, OrbExtractor* extractor,

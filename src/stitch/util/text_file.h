@@ -12,4 +12,9 @@ namespace stitch {
 void ForEachDataLine(const std::string& path, const std::function<void(const std::string&, int)>& on_line,
                      const std::string& open_hint = "");
 
+// Replaces the file at `path` with `text` as one act: written to a temporary file beside it,
+// flushed, then renamed over it, so a reader (or a crash) never sees half a file. Throws
+// stitch::Error naming the file on any failure (a full disk among them); the old file stays.
+void WriteFileAtomically(const std::string& path, const std::string& text);
+
 }  // namespace stitch

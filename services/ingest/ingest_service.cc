@@ -1,0 +1,169 @@
+#include "services/ingest/ingest_service.h"
+
+#include <fstream>
+#include <thread>
+
+#include "services/common/convert.h"
+#include "stitch/frame_t.hpp"
+#include "stitch/sequence_info_t.hpp"
+#include "stitch/util/log.h"
+#include "stitch/util/options.h"
+#include "stitch/util/time.h"
+
+namespace stitch {
+
+std::string ChooseFrameEncoding(const std::string& setting, const std::string& lcm_url) {
+  if (setting != "auto") return setting;
+  if (lcm_url.rfind("udpm://", 0) != 0) return "gray8";
+  std::ifstream limit("/proc/sys/net/core/rmem_max");
+  long bytes = 0;
+  if (limit >> bytes && bytes >= (1 << 20)) return "gray8";
+  STITCH_LOG(INFO) << "net.core.rmem_max is " << bytes
+                   << " bytes: too small for raw frames over UDP, sending JPEG (raise it to 2097152 for raw frames)";
+  return "jpeg";
+}
+
+IngestService::IngestService(lcm::LCM* lcm, const std::string& lcm_url, bus::Publisher* publisher,
+                             IngestOptions options)
+    : publisher_(publisher), options_(std::move(options)), subscriber_(lcm) {
+  CheckOptions(options_, "ingest");
+  options_.encoding = ChooseFrameEncoding(options_.encoding, lcm_url);
+  const std::string agent = publisher_->agent();
+  subscriber_.Subscribe<stitch::frame_ack_t>(
+      bus::Channel(agent, bus::kFrameAck), [this](std::unique_ptr<stitch::frame_ack_t> ack, const std::string&) {
+        if (ack->frame_session != publisher_->session()) return;  // another ingest's (or an earlier run's) frame
+        std::lock_guard<std::mutex> lock(mutex_);
+        highest_acked_ = std::max(highest_acked_, ack->frame_index);
+        changed_.notify_all();
+      });
+  subscriber_.Subscribe<stitch::service_status_t>(
+      bus::Channel(agent, bus::kService), [this](std::unique_ptr<stitch::service_status_t> status, const std::string&) {
+        if (status->service != "tracker") return;
+        std::lock_guard<std::mutex> lock(mutex_);
+        tracker_running_ = status->state == stitch::service_status_t::STATE_RUNNING;
+        changed_.notify_all();
+      });
+}
+
+bool IngestService::WaitForTracker(const std::atomic<bool>& stop) {
+  const double deadline = MonotonicSeconds() + options_.wait_for_tracker_s;
+  std::unique_lock<std::mutex> lock(mutex_);
+  while (!tracker_running_ && !stop.load() && MonotonicSeconds() < deadline) {
+    changed_.wait_for(lock, std::chrono::milliseconds(100));
+  }
+  return tracker_running_;
+}
+
+bool IngestService::WaitForAck(int frame_index, const std::atomic<bool>& stop) {
+  const double deadline = MonotonicSeconds() + options_.ack_timeout_s;
+  std::unique_lock<std::mutex> lock(mutex_);
+  while (highest_acked_ < frame_index && !stop.load() && MonotonicSeconds() < deadline) {
+    changed_.wait_for(lock, std::chrono::milliseconds(20));
+  }
+  return highest_acked_ >= frame_index;
+}
+
+void IngestService::PublishSequenceInfo(const ImageSequence& sequence, const IngestSummary& summary, bool finished) {
+  stitch::sequence_info_t info{};
+  info.source = sequence.description();
+  info.frames_total = sequence.size();
+  info.frames_published = summary.frames_published;
+  info.frames_replaced = summary.frames_replaced;
+  info.frames_unacked = summary.frames_unacked;
+  info.nominal_fps = sequence.nominal_fps();
+  info.finished = finished;
+  publisher_->Publish(bus::Channel(publisher_->agent(), bus::kSequence), &info);
+}
+
+IngestSummary IngestService::Play(ImageSequence& sequence, const FailureSchedule& spoil, const std::atomic<bool>& stop) {
+  const bool lockstep = options_.pacing == "lockstep";
+  const ImageEncoding encoding = ParseImageEncoding(options_.encoding);
+  const FailureStyle failure_style = ParseFailureStyle(options_.failure_style);
+  const std::string frame_channel = bus::Channel(publisher_->agent(), bus::kFrame);
+  IngestSummary summary;
+  STITCH_LOG(INFO) << "playing " << sequence.description() << ", " << options_.pacing << " pacing, "
+                   << options_.encoding << " frames"
+                   << (spoil.empty() ? std::string() : ", spoiling frames " + spoil.ToString());
+  if (lockstep && !WaitForTracker(stop)) {
+    if (stop.load()) {
+      summary.stopped = true;
+      return summary;
+    }
+    throw Error("lockstep pacing: no tracker answered within " + std::to_string(options_.wait_for_tracker_s) +
+                " s on this bus; start a tracker with the same --lcm-url and --agent, or use --pacing realtime");
+  }
+
+  const Stopwatch clock;
+  double last_info = -1;
+  int64_t first_t_ns = 0;
+  bool first = true;
+  SequenceFrame frame;
+  stitch::frame_t message{};
+  message.camera = ToMessage(sequence.camera());
+  message.camera_id = 0;
+  while (!stop.load() && sequence.Next(&frame)) {
+    if (first) {
+      first_t_ns = frame.t_ns;
+      first = false;
+    }
+    if (!lockstep) {
+      // The camera does not wait: each frame goes out at its time, whatever the consumers do.
+      const double due = (frame.t_ns - first_t_ns) * 1e-9 / options_.speed;
+      const double wait = due - clock.ElapsedSeconds();
+      if (wait > 0) std::this_thread::sleep_for(std::chrono::duration<double>(wait));
+    }
+    message.t_ns = frame.t_ns;
+    message.frame_index = frame.index;
+    message.frames_total = sequence.size();
+    if (frame.image.empty()) {
+      // Sent empty so the tracker can count it and say why.
+      STITCH_LOG(WARNING) << "frame " << frame.index << " unreadable: " << frame.error;
+      ++summary.frames_unreadable;
+      message.encoding = stitch::frame_t::ENCODING_GRAY8;
+      message.width = sequence.camera().width();
+      message.height = sequence.camera().height();
+      message.data.clear();
+      message.num_bytes = 0;
+    } else {
+      if (spoil.Contains(frame.index)) {
+        SpoilImage(&frame.image, failure_style, frame.index, static_cast<uint64_t>(options_.failure_seed));
+        ++summary.frames_replaced;
+      }
+      EncodeImage(frame.image, encoding, options_.jpeg_quality, &message);
+    }
+    publisher_->Publish(frame_channel, &message);
+    ++summary.frames_published;
+    ++published_;
+    if (lockstep) {
+      int resends = 0;
+      while (!WaitForAck(frame.index, stop) && !stop.load()) {
+        if (resends == options_.max_resends) {
+          STITCH_LOG(WARNING) << "frame " << frame.index << ": no ack after " << resends
+                              << " re-sends; going on without it";
+          ++summary.frames_unacked;
+          break;
+        }
+        ++resends;
+        ++summary.resends;
+        publisher_->Publish(frame_channel, &message);
+      }
+    }
+    if (clock.ElapsedSeconds() - last_info >= 1.0) {
+      last_info = clock.ElapsedSeconds();
+      PublishSequenceInfo(sequence, summary, false);
+    }
+  }
+  summary.stopped = stop.load();
+  summary.seconds = clock.ElapsedSeconds();
+  // The end of the sequence is state that matters: say it a few times (UDP may lose one).
+  for (int i = 0; i < 3; ++i) {
+    PublishSequenceInfo(sequence, summary, true);
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  STITCH_LOG(INFO) << "published " << summary.frames_published << " frames in " << summary.seconds << " s ("
+                   << summary.frames_replaced << " spoiled, " << summary.frames_unreadable << " unreadable, "
+                   << summary.frames_unacked << " unacknowledged, " << summary.resends << " re-sends)";
+  return summary;
+}
+
+}  // namespace stitch

@@ -1,0 +1,240 @@
+#include "stitch/mapping/local_mapping.h"
+
+#include <algorithm>
+#include <set>
+#include <unordered_map>
+
+#include "stitch/mapping/new_points.h"
+#include "stitch/util/error.h"
+#include "stitch/util/options.h"
+#include "stitch/util/time.h"
+
+namespace stitch {
+namespace {
+
+// First pyramid-level point index the mapper gives out; the tracker's initial map uses lower ones.
+constexpr uint32_t kMapperPointIndexBase = 1u << 24;
+
+}  // namespace
+
+LocalMapping::LocalMapping(const MappingOptions& options, const Camera& camera, const OrbOptions& orb,
+                           const Vocabulary* vocabulary)
+    : options_(options),
+      geometry_(camera, ScalePyramid::From(orb)),
+      vocabulary_(vocabulary) {
+  CheckOptions(options_, "mapper");
+  if (!vocabulary_ || vocabulary_->empty()) throw Error("LocalMapping needs a vocabulary");
+}
+
+std::optional<SubmapId> LocalMapping::CloseSubmap() {
+  if (!map_) return std::nullopt;
+  const SubmapId id = map_->id();
+  closed_maps_.push_back(std::move(map_));
+  recent_points_.Clear();
+  first_keyframe_ = KeyframeId();
+  return id;
+}
+
+MappedKeyframe LocalMapping::MapKeyframe(Keyframe keyframe, const std::vector<MapPoint>& new_points) {
+  MappedKeyframe mapped;
+  mapped.report = ProcessKeyframe(std::move(keyframe), new_points);
+  if (mapped.report.closed_submap) mapped.closed_final = MakeFinalSubmapUpdate(*mapped.report.closed_submap);
+  mapped.for_tracker = MakeUpdate(mapped.report.keyframe, 0);
+  mapped.for_merger = MakeSubmapUpdate(mapped.report.keyframe, mapped.for_tracker);
+  return mapped;
+}
+
+MappingReport LocalMapping::ProcessKeyframe(Keyframe keyframe, const std::vector<MapPoint>& new_points) {
+  const Stopwatch clock;
+  MappingReport report;
+  report.keyframe = keyframe.id;
+  const SubmapId submap = SubmapOf(keyframe.id);
+  if (!map_ || map_->id() != submap) {
+    // A new keyframe of a closed submap reopens it (the tracker relocalized there); a copy of
+    // one it already holds is dropped.
+    const auto find_closed = [&]() {
+      return std::find_if(closed_maps_.begin(), closed_maps_.end(), [&](const auto& m) { return m->id() == submap; });
+    };
+    const bool was_closed = find_closed() != closed_maps_.end();
+    if (was_closed && (*find_closed())->FindKeyframe(keyframe.id)) return report;
+    if (map_) report.closed_submap = CloseSubmap();
+    if (was_closed) {
+      const auto closed = find_closed();
+      map_ = std::move(*closed);
+      closed_maps_.erase(closed);
+      report.reopened_submap = submap;
+      first_keyframe_ = KeyframeId();
+      for (const auto& [id, k] : map_->keyframes()) {
+        if (!first_keyframe_.valid() || id < first_keyframe_) first_keyframe_ = id;
+      }
+    }
+  }
+  if (!map_) {
+    map_ = std::make_unique<Map>(submap, geometry_.pyramid, kMapperPointIndexBase);
+    map_->EnableRemovalJournal();
+    first_keyframe_ = keyframe.id;
+  }
+  if (map_->FindKeyframe(keyframe.id)) return report;  // a re-sent keyframe
+  const KeyframeId id = keyframe.id;
+  InsertKeyframe(std::move(keyframe), new_points);
+  report.culled_points = recent_points_.Cull(map_.get(), id, keyframes_processed_, geometry_,
+                                             options_.point_min_found_ratio, options_.point_min_observations);
+  const std::vector<MapPointId> created =
+      TriangulateNewPoints(map_.get(), id, geometry_, options_.triangulation_neighbours, options_.min_baseline_ratio);
+  for (MapPointId point : created) recent_points_.Add(point, keyframes_processed_);
+  report.new_points = static_cast<int>(created.size());
+  report.fused = FuseWithNeighbours(map_.get(), id, geometry_, options_.fuse_neighbours);
+  if (map_->num_keyframes() > 2) {
+    report.bundle_adjustment = LocalBundleAdjustment(map_.get(), id, geometry_.intrinsics, options_.local_bundle_adjustment);
+  }
+  if (options_.cull_keyframes) {
+    for (const CulledKeyframe& culled : CullRedundantKeyframes(map_.get(), id, first_keyframe_, options_.keyframe_redundancy)) {
+      culled_.push_back(culled);
+      report.culled_keyframes.push_back(culled.id);
+    }
+  }
+  ++keyframes_processed_;
+  report.milliseconds = clock.ElapsedMs();
+  return report;
+}
+
+void LocalMapping::InsertKeyframe(Keyframe keyframe, const std::vector<MapPoint>& new_points) {
+  // Keypoint geometry is recomputed here: a keyframe from the bus carries only raw keypoints.
+  if (keyframe.undistorted.size() != keyframe.keypoints.size()) {
+    keyframe.undistorted.clear();
+    for (const auto& k : keyframe.keypoints) keyframe.undistorted.push_back(geometry_.undistorter.Undistort(k.pt.x, k.pt.y));
+  }
+  keyframe.grid = FeatureGrid(keyframe.undistorted, geometry_.undistorter);
+  if (keyframe.bow.empty()) keyframe.bow = vocabulary_->Transform(keyframe.descriptors, &keyframe.bow_features);
+  for (const MapPoint& point : new_points) {
+    if (!map_->FindPoint(point.id)) map_->AddPoint(point);
+  }
+  const KeyframeId id = keyframe.id;
+  map_->AddKeyframe(std::move(keyframe));
+  Keyframe* inserted = map_->FindKeyframe(id);
+  // Observations from the tracker's associations; update the points' appearance and geometry.
+  for (MapPointId p : inserted->points) {
+    if (!p.valid()) continue;
+    map_->UpdatePointAppearance(p);
+    map_->UpdatePointGeometry(p);
+  }
+  for (const MapPoint& point : new_points) recent_points_.Add(point.id, keyframes_processed_);
+  map_->UpdateConnections(id);
+}
+
+std::vector<CulledKeyframe> LocalMapping::CulledKeyframePoses() const {
+  std::unordered_map<KeyframeId, const CulledKeyframe*> by_id;
+  for (const auto& record : culled_) by_id[record.id] = &record;
+  const auto living = [&](KeyframeId id) -> const Keyframe* {
+    if (map_) {
+      if (const Keyframe* kf = map_->FindKeyframe(id)) return kf;
+    }
+    for (const auto& closed : closed_maps_) {
+      if (const Keyframe* kf = closed->FindKeyframe(id)) return kf;
+    }
+    return nullptr;
+  };
+  std::vector<CulledKeyframe> result;
+  for (const auto& record : culled_) {
+    // Walk up through culled parents to a living keyframe, composing the relative poses.
+    Rigid3d cam_from_ancestor = record.cam_from_parent;
+    KeyframeId ancestor = record.parent;
+    Rigid3d cam_from_world = record.cam_from_world;
+    for (int depth = 0; depth < 1000 && ancestor.valid(); ++depth) {
+      if (const Keyframe* kf = living(ancestor)) {
+        cam_from_world = cam_from_ancestor * kf->cam_from_world;
+        break;
+      }
+      const auto it = by_id.find(ancestor);
+      if (it == by_id.end()) break;
+      if (!it->second->parent.valid()) {
+        cam_from_world = cam_from_ancestor * it->second->cam_from_parent;
+        break;
+      }
+      cam_from_ancestor = cam_from_ancestor * it->second->cam_from_parent;
+      ancestor = it->second->parent;
+    }
+    CulledKeyframe k = record;
+    k.cam_from_world = cam_from_world;
+    result.push_back(k);
+  }
+  return result;
+}
+
+LocalMapUpdate LocalMapping::MakeUpdate(KeyframeId keyframe, int queued_keyframes) {
+  if (!map_) return {};
+  return MakeLocalMapUpdate(map_.get(), keyframe, ++revision_, queued_keyframes);
+}
+
+SubmapUpdate LocalMapping::MakeSubmapUpdate(KeyframeId keyframe, const LocalMapUpdate& changes) const {
+  if (!map_) return {};
+  return MakeKeyframeSubmapUpdate(*map_, keyframe, geometry_.camera, changes);
+}
+
+SubmapUpdate LocalMapping::MakeFinalSubmapUpdate(SubmapId submap) {
+  for (const auto& closed : closed_maps_) {
+    if (closed->id() == submap) return MakeFullSubmapUpdate(closed.get(), ++revision_, /*closed=*/true);
+  }
+  return {};
+}
+
+SubmapUpdate LocalMapping::MakeResendUpdate(SubmapId submap, const std::vector<KeyframeId>& keyframes,
+                                            bool full_state) {
+  Map* found = map_ && map_->id() == submap ? map_.get() : nullptr;
+  for (const auto& closed : closed_maps_) {
+    if (closed->id() == submap) found = closed.get();
+  }
+  if (!found) return {};
+  const bool closed = found != map_.get();
+  // A closed submap goes in full: its final state is what settles it at the receiver, and a
+  // partial update marked closed would let the receiver think it had it.
+  full_state = full_state || closed;
+  LocalMapUpdate changes;
+  SubmapUpdate update;
+  if (full_state) {
+    update = MakeFullSubmapUpdate(found, ++revision_, closed);
+  } else {
+    changes.revision = ++revision_;
+    std::set<MapPointId> points;
+    for (KeyframeId id : keyframes) {
+      const Keyframe* keyframe = found->FindKeyframe(id);
+      if (!keyframe) continue;
+      changes.associations.push_back({id, keyframe->points});
+      for (MapPointId p : keyframe->points) {
+        if (p.valid() && found->FindPoint(p)) points.insert(p);
+      }
+    }
+    for (MapPointId p : points) {
+      MapPoint copy = *found->FindPoint(p);
+      copy.observations.clear();
+      changes.points.push_back(std::move(copy));
+    }
+  }
+  for (KeyframeId id : keyframes) {
+    if (!found->FindKeyframe(id)) continue;  // culled since: the manifest no longer lists it
+    SubmapUpdate one = MakeKeyframeSubmapUpdate(*found, id, geometry_.camera, changes);
+    if (!full_state && update.new_keyframes.empty()) {
+      update = one;  // carries `changes` and the manifest
+      update.closed = closed;
+      continue;
+    }
+    for (Keyframe& keyframe : one.new_keyframes) update.new_keyframes.push_back(std::move(keyframe));
+  }
+  update.camera = geometry_.camera;
+  return update;
+}
+
+SubmapUpdate LocalMapping::MakeManifestUpdate() {
+  SubmapUpdate update;
+  if (!map_ || map_->num_keyframes() == 0) return update;
+  update.submap = map_->id();
+  update.revision = ++revision_;
+  update.camera = geometry_.camera;
+  update.changes.submap = map_->id();
+  update.changes.revision = update.revision;
+  for (const auto& [id, keyframe] : map_->keyframes()) update.manifest.push_back(id);
+  std::sort(update.manifest.begin(), update.manifest.end());
+  return update;
+}
+
+}  // namespace stitch

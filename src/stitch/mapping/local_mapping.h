@@ -1,0 +1,100 @@
+#pragma once
+// The mapper's per-keyframe algorithm (no LCM here; MapperService carries it over the bus), as
+// ORB-SLAM2's local mapping, one stage after another (each its own unit):
+//   1. insert the keyframe and update the covisibility graph;
+//   2. cull recently created points that are rarely found (RecentPoints, culling.h);
+//   3. triangulate new points with the best covisible keyframes (new_points.h);
+//   4. fuse duplicates with the neighbourhood (new_points.h);
+//   5. local bundle adjustment (estimators/bundle_adjustment.h);
+//   6. cull redundant keyframes (culling.h).
+// It holds the authoritative copy of the current submap (and the closed ones), and makes what
+// the tracker and the merger are told after each keyframe (MapKeyframe). One owner thread.
+
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "stitch/estimators/bundle_adjustment.h"
+#include "stitch/features/vocabulary.h"
+#include "stitch/map/local_map_update.h"
+#include "stitch/map/map.h"
+#include "stitch/map/submap_update.h"
+#include "stitch/map/view_geometry.h"
+#include "stitch/mapping/culling.h"
+#include "stitch/mapping/mapping_options.h"
+
+namespace stitch {
+
+struct MappingReport {
+  KeyframeId keyframe;
+  std::optional<SubmapId> closed_submap;    // the keyframe began a new submap and closed this one
+  std::optional<SubmapId> reopened_submap;  // the keyframe belongs to this closed submap, current again
+  int new_points = 0;
+  int fused = 0;
+  int culled_points = 0;
+  std::vector<KeyframeId> culled_keyframes;
+  BundleAdjustmentReport bundle_adjustment;
+  double milliseconds = 0;
+};
+
+// What one keyframe gives the mapper's receivers, in the order they are to be sent.
+struct MappedKeyframe {
+  MappingReport report;
+  std::optional<SubmapUpdate> closed_final;  // the final state of the submap the keyframe closed
+  LocalMapUpdate for_tracker;                // the window's changes (queued_keyframes left to the caller)
+  SubmapUpdate for_merger;                   // the keyframe in full and the same changes
+};
+
+class LocalMapping {
+ public:
+  // `vocabulary` must outlive the mapper.
+  LocalMapping(const MappingOptions& options, const Camera& camera, const OrbOptions& orb, const Vocabulary* vocabulary);
+
+  // The per-keyframe protocol, the same over the bus and inline: processes the keyframe
+  // (ProcessKeyframe), then makes the closed submap's final state, the tracker's update and the
+  // merger's update, in the order they are to be sent.
+  MappedKeyframe MapKeyframe(Keyframe keyframe, const std::vector<MapPoint>& new_points);
+
+  // Processes one keyframe from the tracker, with the points it created (the initial map).
+  // A keyframe of another submap than the current one closes the current submap first; one of
+  // a closed submap reopens that submap.
+  MappingReport ProcessKeyframe(Keyframe keyframe, const std::vector<MapPoint>& new_points);
+  // What the tracker needs to know after the last keyframe.
+  LocalMapUpdate MakeUpdate(KeyframeId keyframe, int queued_keyframes);
+  // What the merger needs to know after the last keyframe: the keyframe in full and `changes`
+  // (the update just made for the tracker).
+  SubmapUpdate MakeSubmapUpdate(KeyframeId keyframe, const LocalMapUpdate& changes) const;
+  // The final state of a closed submap (empty update for one it does not know).
+  SubmapUpdate MakeFinalSubmapUpdate(SubmapId submap);
+  // Part of a submap again, open or closed, for a receiver that lost it: those of `keyframes` it
+  // still holds, in full with the points they observe, and with `full_state` (always, for a
+  // closed submap) every pose, association and point. Empty for a submap it does not know.
+  SubmapUpdate MakeResendUpdate(SubmapId submap, const std::vector<KeyframeId>& keyframes, bool full_state);
+  // The current submap's manifest alone (a few bytes per keyframe): lets a receiver that lost
+  // the newest keyframe's update notice it while the aircraft makes no new keyframe.
+  SubmapUpdate MakeManifestUpdate();
+
+  const Map* map() const { return map_.get(); }
+  // Submaps closed so far (the current one is not among them).
+  const std::vector<std::unique_ptr<Map>>& closed_maps() const { return closed_maps_; }
+  std::optional<SubmapId> CloseSubmap();
+  // Culled keyframes with their poses as the final map places them (through their parents).
+  std::vector<CulledKeyframe> CulledKeyframePoses() const;
+
+ private:
+  void InsertKeyframe(Keyframe keyframe, const std::vector<MapPoint>& new_points);
+
+  MappingOptions options_;
+  ViewGeometry geometry_;
+  const Vocabulary* vocabulary_;
+  std::unique_ptr<Map> map_;
+  std::vector<std::unique_ptr<Map>> closed_maps_;
+  RecentPoints recent_points_;
+  std::vector<CulledKeyframe> culled_;
+  int keyframes_processed_ = 0;
+  int revision_ = 0;
+  KeyframeId first_keyframe_;
+};
+
+}  // namespace stitch

@@ -1,0 +1,186 @@
+#include "stitch/merging/merged_map.h"
+
+#include <set>
+
+#include "stitch/map/matcher.h"
+#include "stitch/util/options.h"
+
+namespace stitch {
+namespace {
+
+// A merged point's id after earlier fusions (ReplacePoint removes the duplicate's id).
+MapPointId Resolve(const std::map<MapPointId, MapPointId>& replaced, MapPointId id) {
+  for (auto it = replaced.find(id); it != replaced.end(); it = replaced.find(id)) id = it->second;
+  return id;
+}
+
+// Makes points `a` and `b` one (the one with fewer observations goes) and records which went.
+void FusePair(Map* map, MapPointId a, MapPointId b, std::map<MapPointId, MapPointId>* replaced) {
+  const MapPoint* point_a = map->FindPoint(a);
+  const MapPoint* point_b = map->FindPoint(b);
+  const bool keep_a = point_a->observations.size() >= point_b->observations.size();
+  const MapPointId keep = keep_a ? a : b, duplicate = keep_a ? b : a;
+  map->ReplacePoint(duplicate, keep);
+  (*replaced)[duplicate] = keep;
+}
+
+void RefreshGeometry(Map* map) {
+  std::vector<MapPointId> ids;
+  ids.reserve(map->num_points());
+  for (const auto& [id, point] : map->points()) ids.push_back(id);
+  for (MapPointId id : ids) map->UpdatePointGeometry(id);
+}
+
+// The submap's keyframe `id` and its best covisible keyframes.
+std::vector<KeyframeId> Window(const Map& submap, KeyframeId id, int size) {
+  std::vector<KeyframeId> window = submap.BestCovisible(id, size);
+  window.push_back(id);
+  return window;
+}
+
+}  // namespace
+
+MergedMap AssembleMergedMap(const std::map<SubmapId, SubmapReplica>& submaps,
+                            const std::map<SubmapId, SubmapPlacement>& placement,
+                            const std::map<KeyframeId, Sim3d>& keyframe_poses,
+                            const std::vector<ConnectedFrame>& connections, int component, const ScalePyramid& pyramid,
+                            const PinholeIntrinsics& intrinsics, const MergedMapOptions& options) {
+  CheckOptions(options, "merged_map");
+  MergedMap merged(pyramid);
+  merged.component = component;
+  KeyframeId anchor;  // the root submap's first keyframe holds the frame during adjustment
+  for (const auto& [submap_id, place] : placement) {
+    if (place.component != component) continue;
+    const auto found = submaps.find(submap_id);
+    if (found == submaps.end()) continue;
+    const Map& submap = found->second.map;
+    std::map<KeyframeId, Sim3d> world_from_cam;
+    for (const auto& [id, keyframe] : submap.keyframes()) {
+      const auto refined = keyframe_poses.find(id);
+      const Rigid3d submap_from_cam = keyframe.cam_from_world.Inverse();
+      world_from_cam[id] = refined != keyframe_poses.end()
+                               ? refined->second
+                               : place.world_from_submap * Sim3d(1.0, submap_from_cam.rotation, submap_from_cam.translation);
+      if (submap_id == place.root && (!anchor.valid() || id < anchor)) anchor = id;
+    }
+    // Points move with their reference keyframe (the pose graph moved each keyframe on its own).
+    for (const auto& [id, point] : submap.points()) {
+      KeyframeId reference = point.reference_keyframe;
+      if (!world_from_cam.count(reference)) {
+        reference = KeyframeId();
+        for (const auto& [kf, feature] : point.observations) {
+          if (world_from_cam.count(kf)) {
+            reference = kf;
+            break;
+          }
+        }
+      }
+      if (!reference.valid()) continue;
+      MapPoint copy = point;
+      copy.observations.clear();
+      copy.reference_keyframe = reference;
+      copy.position = world_from_cam.at(reference) * (submap.FindKeyframe(reference)->cam_from_world * point.position);
+      merged.map.AddPoint(std::move(copy));
+    }
+    for (const auto& [id, keyframe] : submap.keyframes()) {
+      Keyframe copy = keyframe;
+      copy.covisibility.clear();
+      copy.ordered.clear();
+      copy.parent = KeyframeId();
+      copy.children.clear();
+      const Sim3d& pose = world_from_cam.at(id);
+      copy.cam_from_world = Rigid3d(pose.rotation, pose.translation).Inverse();
+      merged.map.AddKeyframe(std::move(copy));
+      merged.keyframe_poses[id] = pose;
+    }
+  }
+  if (merged.map.num_keyframes() == 0) return merged;
+  RefreshGeometry(&merged.map);
+
+  const auto adjust = [&] {
+    if (!options.bundle_adjustment || !anchor.valid()) return;
+    std::vector<KeyframeId> free;
+    for (const auto& [id, keyframe] : merged.map.keyframes()) {
+      if (id != anchor) free.push_back(id);
+    }
+    BundleAdjustmentOptions ba;
+    ba.iterations = options.bundle_adjustment_iterations;
+    ba.refine_iterations = options.bundle_adjustment_iterations;
+    const BundleAdjustmentReport report = BundleAdjust(&merged.map, free, {anchor}, intrinsics, ba);
+    if (merged.bundle_adjustment.keyframes_free == 0) {
+      merged.bundle_adjustment = report;
+    } else {  // the second pass: keep the first pass's initial error for the report
+      const double initial = merged.bundle_adjustment.initial_rms_px;
+      const int removed = merged.bundle_adjustment.outliers_removed;
+      merged.bundle_adjustment = report;
+      merged.bundle_adjustment.initial_rms_px = initial;
+      merged.bundle_adjustment.outliers_removed += removed;
+    }
+    RefreshGeometry(&merged.map);
+  };
+
+  std::vector<const ConnectedFrame*> inside;  // connections within this merged map
+  for (const ConnectedFrame& c : connections) {
+    const auto a = placement.find(SubmapOf(c.keyframe_a)), b = placement.find(SubmapOf(c.keyframe_b));
+    if (a != placement.end() && b != placement.end() && a->second.component == component &&
+        b->second.component == component) {
+      inside.push_back(&c);
+    }
+  }
+  std::map<MapPointId, MapPointId> replaced;
+  if (options.fuse_points) {
+    for (const ConnectedFrame* connection : inside) {
+      const ConnectedFrame& c = *connection;
+      for (const auto& [a, b] : c.point_pairs) {
+        const MapPointId pa = Resolve(replaced, a), pb = Resolve(replaced, b);
+        if (pa == pb || !merged.map.FindPoint(pa) || !merged.map.FindPoint(pb)) continue;
+        FusePair(&merged.map, pa, pb, &replaced);
+        ++merged.points_fused_by_connection;
+      }
+    }
+  }
+  adjust();
+  if (options.fuse_points) {
+    // Around each connection, each side's points are searched in the other side's keyframes.
+    std::map<std::pair<SubmapId, SubmapId>, std::pair<std::set<KeyframeId>, std::set<KeyframeId>>> windows;
+    for (const ConnectedFrame* connection : inside) {
+      const ConnectedFrame& c = *connection;
+      const SubmapId a = SubmapOf(c.keyframe_a), b = SubmapOf(c.keyframe_b);
+      auto& [side_a, side_b] = windows[{a, b}];
+      for (KeyframeId id : Window(submaps.at(a).map, c.keyframe_a, options.fuse_window)) side_a.insert(id);
+      for (KeyframeId id : Window(submaps.at(b).map, c.keyframe_b, options.fuse_window)) side_b.insert(id);
+    }
+    const auto points_of = [&](const std::set<KeyframeId>& keyframes) {
+      std::set<MapPointId> points;
+      for (KeyframeId id : keyframes) {
+        const Keyframe* keyframe = merged.map.FindKeyframe(id);
+        if (!keyframe) continue;
+        for (MapPointId p : keyframe->points) {
+          if (p.valid() && merged.map.FindPoint(p)) points.insert(p);
+        }
+      }
+      return std::vector<MapPointId>(points.begin(), points.end());
+    };
+    for (const auto& [pair, sides] : windows) {
+      const auto& [side_a, side_b] = sides;
+      for (const auto& [into, from] : {std::make_pair(&side_a, &side_b), std::make_pair(&side_b, &side_a)}) {
+        const std::vector<MapPointId> candidates = points_of(*from);
+        for (KeyframeId id : *into) {
+          merged.points_fused_by_projection += Fuse(&merged.map, id, candidates, intrinsics, options.fuse_radius_px);
+        }
+      }
+    }
+    adjust();
+  }
+  // Keyframes keep their submap's scale (frames between keyframes follow it); rotation and
+  // position come from the adjustment.
+  for (auto& [id, pose] : merged.keyframe_poses) {
+    const Keyframe* keyframe = merged.map.FindKeyframe(id);
+    if (!keyframe) continue;
+    const Rigid3d world_from_cam = keyframe->cam_from_world.Inverse();
+    pose = Sim3d(pose.scale, world_from_cam.rotation, world_from_cam.translation);
+  }
+  return merged;
+}
+
+}  // namespace stitch

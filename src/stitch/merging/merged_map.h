@@ -1,0 +1,41 @@
+#pragma once
+// One merged map as a single Map (DESIGN.md, step 4, after the pose graph): every keyframe of
+// the merged submaps at its refined pose in the merged map's frame, their points carried with
+// their reference keyframes, the same physical point seen from two submaps fused into one (first
+// the verified matches of the connected frames, then by projection between the keyframes around
+// each connection), and a global bundle adjustment over all of it. Fusing is what lets the
+// adjustment re-triangulate the junction between two submaps from both sides, where the edge's
+// Sim3 alone rests on a few dozen points.
+
+#include <map>
+#include <vector>
+
+#include "stitch/merging/merger_options.h"
+#include "stitch/merging/submap_graph.h"
+#include "stitch/estimators/bundle_adjustment.h"
+#include "stitch/map/map.h"
+#include "stitch/map/submap_update.h"
+
+namespace stitch {
+
+struct MergedMap {
+  int component = -1;
+  Map map;                                    // in the merged map's frame; ids as in the submaps
+  std::map<KeyframeId, Sim3d> keyframe_poses; // world_from_cam, the scale being the keyframe's submap's
+  int points_fused_by_connection = 0;         // verified matches of connected frames made one point
+  int points_fused_by_projection = 0;
+  BundleAdjustmentReport bundle_adjustment;
+
+  explicit MergedMap(const ScalePyramid& pyramid) : map(SubmapId(), pyramid) {}
+};
+
+// Builds merged map `component`: `placement` and `keyframe_poses` as Merger::Solve gives them
+// (keyframe_poses may be empty: then the tree's placement); `connections` the verified connected
+// frames that agree with that placement.
+MergedMap AssembleMergedMap(const std::map<SubmapId, SubmapReplica>& submaps,
+                            const std::map<SubmapId, SubmapPlacement>& placement,
+                            const std::map<KeyframeId, Sim3d>& keyframe_poses,
+                            const std::vector<ConnectedFrame>& connections, int component, const ScalePyramid& pyramid,
+                            const PinholeIntrinsics& intrinsics, const MergedMapOptions& options);
+
+}  // namespace stitch

@@ -1,0 +1,149 @@
+#include "stitch/merging/merged_map.h"
+
+#include <gtest/gtest.h>
+
+#include "stitch/geometry/similarity.h"
+#include "stitch/util/rng.h"
+
+namespace stitch {
+namespace {
+
+const Camera kCamera = Camera::Pinhole(640, 480, 450, 450, 319.5, 239.5);
+const SubmapId kA = MakeSubmapId(0, 1), kB = MakeSubmapId(0, 2);
+constexpr int kKeyframesPerSubmap = 6;
+constexpr int kPoints = 300;
+
+// One scene seen by two submaps: A flies x = 0..2.5 in the world frame, B flies x = 3..5.5 in a
+// frame of its own (scale 0.5, rotated, shifted), both seeing every point, each through map
+// points of its own. Observations are exact, so the merged map can be checked to the truth.
+struct TwoSubmaps {
+  std::map<SubmapId, SubmapReplica> submaps;
+  Sim3d b_from_world{0.5, Eigen::Quaterniond(Eigen::AngleAxisd(0.35, Eigen::Vector3d(0.2, 1, 0.3).normalized())),
+                     Eigen::Vector3d(1, -2, 3)};
+  std::vector<Eigen::Vector3d> points;              // world
+  std::map<KeyframeId, Eigen::Vector3d> centres;    // world
+  std::vector<std::pair<MapPointId, MapPointId>> same_points;  // (in A, in B)
+};
+
+TwoSubmaps MakeTwoSubmaps() {
+  TwoSubmaps scene;
+  Rng rng(11);
+  const ScalePyramid pyramid = ScalePyramid::From(OrbOptions());
+  const Undistorter undistorter(kCamera);
+  std::vector<cv::Mat> descriptors;
+  for (int p = 0; p < kPoints; ++p) {
+    scene.points.emplace_back(rng.Uniform(0.5, 5), rng.Uniform(-3, 3), rng.Uniform(9, 12));
+    cv::Mat d(1, 32, CV_8U);
+    for (int b = 0; b < 32; ++b) d.at<uint8_t>(0, b) = static_cast<uint8_t>(rng.UniformInt(0, 255));
+    descriptors.push_back(d);
+  }
+  for (const SubmapId submap : {kA, kB}) {
+    const Sim3d frame_from_world = submap == kA ? Sim3d() : scene.b_from_world;
+    SubmapReplica replica(submap, pyramid);
+    replica.camera = kCamera;
+    for (int p = 0; p < kPoints; ++p) {
+      MapPoint point;
+      point.id = MakeMapPointId(submap, static_cast<uint32_t>(p));
+      point.position = frame_from_world * scene.points[p];
+      descriptors[p].row(0).copyTo(cv::Mat(1, 32, CV_8U, point.descriptor.data()));
+      replica.map.AddPoint(point);
+    }
+    for (int k = 0; k < kKeyframesPerSubmap; ++k) {
+      const double x = (submap == kA ? 0.0 : 3.0) + 0.5 * k;
+      const Rigid3d world_from_cam(Eigen::Quaterniond(Eigen::AngleAxisd(0.03 * k - 0.05, Eigen::Vector3d::UnitY())),
+                                   Eigen::Vector3d(x, 0.1 * k, 0));
+      Keyframe keyframe;
+      keyframe.id = MakeKeyframeId(submap, k);
+      scene.centres[keyframe.id] = world_from_cam.translation;
+      const Sim3d frame_from_cam = frame_from_world * Sim3d(1, world_from_cam.rotation, world_from_cam.translation);
+      keyframe.cam_from_world = Rigid3d(frame_from_cam.rotation, frame_from_cam.translation).Inverse();
+      keyframe.descriptors = cv::Mat(kPoints, 32, CV_8U);
+      for (int p = 0; p < kPoints; ++p) {
+        const Eigen::Vector2d pixel = kCamera.Intrinsics().Project(world_from_cam.Inverse() * scene.points[p]);
+        cv::KeyPoint keypoint(static_cast<float>(pixel.x()), static_cast<float>(pixel.y()), 31);
+        keypoint.octave = 2;
+        keyframe.keypoints.push_back(keypoint);
+        keyframe.undistorted.push_back(pixel);
+        keyframe.points.push_back(MakeMapPointId(submap, static_cast<uint32_t>(p)));
+        descriptors[p].copyTo(keyframe.descriptors.row(p));
+      }
+      keyframe.grid = FeatureGrid(keyframe.undistorted, undistorter);
+      replica.map.AddKeyframe(keyframe);
+    }
+    for (int p = 0; p < kPoints; ++p) replica.map.UpdatePointGeometry(MakeMapPointId(submap, static_cast<uint32_t>(p)));
+    for (int k = 0; k < kKeyframesPerSubmap; ++k) replica.map.UpdateConnections(MakeKeyframeId(submap, k));
+    scene.submaps.emplace(submap, std::move(replica));
+  }
+  for (int p = 0; p < kPoints; ++p) {
+    scene.same_points.push_back({MakeMapPointId(kA, static_cast<uint32_t>(p)), MakeMapPointId(kB, static_cast<uint32_t>(p))});
+  }
+  return scene;
+}
+
+// A in its own frame; B placed by the true similarity made slightly wrong.
+std::map<SubmapId, SubmapPlacement> Placement(const TwoSubmaps& scene, const Sim3d& error) {
+  std::map<SubmapId, SubmapPlacement> placement;
+  placement[kA] = {0, kA, Sim3d()};
+  placement[kB] = {0, kA, error * scene.b_from_world.Inverse()};
+  return placement;
+}
+
+// The worst distance between a merged keyframe centre and the truth, after a similarity
+// alignment of all of them (monocular bundle adjustment keeps its scale gauge free).
+double WorstCentreError(const MergedMap& merged, const TwoSubmaps& scene) {
+  std::vector<Eigen::Vector3d> estimated, truth;
+  for (const auto& [id, pose] : merged.keyframe_poses) {
+    estimated.push_back(pose.translation);
+    truth.push_back(scene.centres.at(id));
+  }
+  const Sim3d truth_from_estimated = AlignPoints(estimated, truth);
+  double worst = 0;
+  for (size_t i = 0; i < estimated.size(); ++i) worst = std::max(worst, (truth_from_estimated * estimated[i] - truth[i]).norm());
+  return worst;
+}
+
+TEST(MergedMap, FusedPointsLetTheBundleAdjustmentPutAMisplacedSubmapBack) {
+  const TwoSubmaps scene = MakeTwoSubmaps();
+  // B placed 1.5 degrees and 10 cm off, as an edge Sim3 from a few points can be.
+  const Sim3d error(1.0, Eigen::Quaterniond(Eigen::AngleAxisd(1.5 * M_PI / 180, Eigen::Vector3d::UnitX())),
+                    Eigen::Vector3d(0.1, 0, 0));
+  ConnectedFrame connection;
+  connection.keyframe_a = MakeKeyframeId(kA, 5);
+  connection.keyframe_b = MakeKeyframeId(kB, 0);
+  // Only 40 verified matches; the rest of the overlap must be found by projection.
+  connection.point_pairs.assign(scene.same_points.begin(), scene.same_points.begin() + 40);
+
+  MergedMapOptions unadjusted;
+  unadjusted.fuse_points = false;
+  unadjusted.bundle_adjustment = false;
+  const MergedMap placed = AssembleMergedMap(scene.submaps, Placement(scene, error), {}, {connection}, 0,
+                                             ScalePyramid::From(OrbOptions()), kCamera.Intrinsics(), unadjusted);
+  EXPECT_EQ(placed.map.num_points(), 2u * kPoints);
+  EXPECT_EQ(placed.map.num_keyframes(), 2u * kKeyframesPerSubmap);
+  EXPECT_GT(WorstCentreError(placed, scene), 0.03);
+
+  const MergedMap merged = AssembleMergedMap(scene.submaps, Placement(scene, error), {}, {connection}, 0,
+                                             ScalePyramid::From(OrbOptions()), kCamera.Intrinsics(), MergedMapOptions());
+  EXPECT_EQ(merged.points_fused_by_connection, 40);
+  EXPECT_GT(merged.points_fused_by_projection, 200);
+  EXPECT_LT(merged.map.num_points(), 2u * kPoints - 240);
+  EXPECT_GT(merged.bundle_adjustment.initial_rms_px, 1.0);
+  EXPECT_LT(merged.bundle_adjustment.final_rms_px, 0.01);
+  EXPECT_LT(WorstCentreError(merged, scene), 1e-3);
+  // Keyframes keep their submap's scale: B's are twice A's (B's frame has scale 0.5).
+  EXPECT_NEAR(merged.keyframe_poses.at(MakeKeyframeId(kB, 3)).scale, 2.0, 1e-9);
+  EXPECT_NEAR(merged.keyframe_poses.at(MakeKeyframeId(kA, 3)).scale, 1.0, 1e-9);
+}
+
+TEST(MergedMap, OnlyTheChosenMergedMapIsAssembled) {
+  const TwoSubmaps scene = MakeTwoSubmaps();
+  std::map<SubmapId, SubmapPlacement> placement = Placement(scene, Sim3d());
+  placement[kB] = {1, kB, Sim3d()};  // B is a merged map of its own
+  const MergedMap merged = AssembleMergedMap(scene.submaps, placement, {}, {}, 0, ScalePyramid::From(OrbOptions()),
+                                             kCamera.Intrinsics(), MergedMapOptions());
+  EXPECT_EQ(merged.map.num_keyframes(), static_cast<size_t>(kKeyframesPerSubmap));
+  for (const auto& [id, pose] : merged.keyframe_poses) EXPECT_EQ(SubmapOf(id), kA);
+}
+
+}  // namespace
+}  // namespace stitch

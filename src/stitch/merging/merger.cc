@@ -1,0 +1,422 @@
+#include "stitch/merging/merger.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "stitch/merging/pose_graph.h"
+#include "stitch/features/descriptor.h"
+#include "stitch/map/matcher.h"
+#include "stitch/util/error.h"
+#include "stitch/util/options.h"
+
+namespace stitch {
+namespace {
+
+// A submap's own relative poses come from bundle adjustment over many points; a connected
+// frame's Sim3 from a few dozen: the pose graph trusts the former more.
+constexpr double kIntraSubmapWeight = 10.0;
+// Connected frames that disagree with the tree's placement by more than this (and by more than
+// kAgreeingRotationRad or kAgreeingLogScale) stay out of the pose graph. Measured on the default
+// gust flight, correct connections disagree by at most 3 degrees, 12% of their translation and
+// 0.016 in log scale (90%: 0.7 degrees, 2.4%, 0.006).
+constexpr double kMaxConnectionRelativeTranslation = 0.25;
+
+double Median(std::vector<double> values) {
+  if (values.empty()) return 0;
+  const size_t middle = values.size() / 2;
+  std::nth_element(values.begin(), values.begin() + middle, values.end());
+  return values[middle];
+}
+
+// The adaptive thresholds of DESIGN.md on database candidates: at least k x the best
+// shared-word count, then at least l x the best score; the `keep` best by score remain. Returns
+// how many passed k.
+int ApplyAdaptiveThresholds(std::vector<KeyframeDatabase::Candidate>* candidates, double k, double l, int keep) {
+  int most_words = 0;
+  for (const auto& c : *candidates) most_words = std::max(most_words, c.common_words);
+  candidates->erase(std::remove_if(candidates->begin(), candidates->end(),
+                                   [&](const auto& c) { return c.common_words < k * most_words; }),
+                    candidates->end());
+  const int passed_k = static_cast<int>(candidates->size());
+  double best_score = 0;
+  for (const auto& c : *candidates) best_score = std::max(best_score, c.score);
+  candidates->erase(
+      std::remove_if(candidates->begin(), candidates->end(), [&](const auto& c) { return c.score < l * best_score; }),
+      candidates->end());
+  std::sort(candidates->begin(), candidates->end(), [](const auto& a, const auto& b) {
+    return a.score > b.score || (a.score == b.score && a.keyframe_id < b.keyframe_id);
+  });
+  if (static_cast<int>(candidates->size()) > keep) candidates->resize(keep);
+  return passed_k;
+}
+
+}  // namespace
+
+Merger::Merger(const MergerOptions& options, const Vocabulary* vocabulary, const ScalePyramid& pyramid)
+    : options_(options), vocabulary_(vocabulary), pyramid_(pyramid) {
+  CheckOptions(options_, "merger");
+  if (!vocabulary_ || vocabulary_->empty()) throw Error("the merger needs a vocabulary");
+}
+
+const Undistorter& Merger::UndistorterFor(const Camera& camera) {
+  const std::string key = camera.Describe();
+  auto it = undistorters_.find(key);
+  if (it == undistorters_.end()) it = undistorters_.emplace(key, Undistorter(camera)).first;
+  return it->second;
+}
+
+std::vector<KeyframeId> Merger::Apply(const SubmapUpdate& update) {
+  if (!update.submap.valid()) return {};
+  SubmapReplica& replica = submaps_.try_emplace(update.submap, update.submap, pyramid_).first->second;
+  const std::vector<KeyframeId> missing = ApplySubmapUpdate(update, &replica);
+  // Keyframes the mapper culled leave the database too.
+  const auto first = prepared_.lower_bound(MakeKeyframeId(update.submap, 0));
+  std::vector<KeyframeId> gone;
+  for (auto it = first; it != prepared_.end() && SubmapOf(*it) == update.submap; ++it) {
+    if (!replica.map.FindKeyframe(*it)) gone.push_back(*it);
+  }
+  for (KeyframeId id : gone) {
+    database_.Remove(id.value);
+    prepared_.erase(id);
+  }
+  if (!replica.camera) return missing;
+  std::vector<KeyframeId> fresh;
+  for (const auto& [id, keyframe] : replica.map.keyframes()) {
+    if (!prepared_.count(id)) fresh.push_back(id);
+  }
+  std::sort(fresh.begin(), fresh.end());
+  for (KeyframeId id : fresh) Prepare(&replica, replica.map.FindKeyframe(id));
+  for (KeyframeId id : fresh) retrievals_.push_back(Retrieve(replica, *replica.map.FindKeyframe(id)));
+  return missing;
+}
+
+void Merger::Prepare(SubmapReplica* replica, Keyframe* keyframe) {
+  const Undistorter& undistorter = UndistorterFor(*replica->camera);
+  keyframe->undistorted.clear();
+  for (const auto& k : keyframe->keypoints) keyframe->undistorted.push_back(undistorter.Undistort(k.pt.x, k.pt.y));
+  keyframe->grid = FeatureGrid(keyframe->undistorted, undistorter);
+  keyframe->bow = vocabulary_->Transform(keyframe->descriptors, &keyframe->bow_features);
+  database_.Add(keyframe->id.value, replica->map.id().value, keyframe->bow);
+  prepared_.insert(keyframe->id);
+}
+
+RetrievalRecord Merger::Retrieve(const SubmapReplica& replica, const Keyframe& keyframe) {
+  RetrievalRecord r;
+  r.keyframe = keyframe.id;
+  const Map& map = replica.map;
+  for (const auto& [id, other] : map.keyframes()) {
+    if (id < keyframe.id && (!r.previous.valid() || r.previous < id) && prepared_.count(id)) r.previous = id;
+  }
+  if (!r.previous.valid()) {
+    r.skipped = "first keyframe of its submap";
+    return r;
+  }
+  // The nearby keyframe: the covisible one whose shared points are closest to half of ours.
+  const double own = std::max(1, keyframe.CountPoints());
+  double closest = 2;
+  for (const auto& [id, shared] : keyframe.covisibility) {
+    const double distance = std::abs(shared / own - 0.5);
+    if (prepared_.count(id) && distance < closest) {
+      closest = distance;
+      r.nearby = id;
+    }
+  }
+  if (!r.nearby.valid()) {
+    r.skipped = "no covisible keyframe";
+    return r;
+  }
+  const Keyframe& previous = *map.FindKeyframe(r.previous);
+  const Keyframe& nearby = *map.FindKeyframe(r.nearby);
+  r.n0 = CommonWords(keyframe.bow, previous.bow);
+  r.s0 = ScoreL1(keyframe.bow, previous.bow);
+  r.n1 = CommonWords(keyframe.bow, nearby.bow);
+  r.s1 = ScoreL1(keyframe.bow, nearby.bow);
+  if (r.n0 == 0 || !(r.s0 > 0)) {
+    r.skipped = "no word shared with the previous keyframe";
+    return r;
+  }
+  r.k = std::min(1.0, static_cast<double>(r.n1) / r.n0);
+  r.l = std::min(1.0, r.s1 / r.s0);
+  const int64_t own_submap = map.id().value;
+  std::vector<KeyframeDatabase::Candidate> candidates =
+      database_.Query(keyframe.bow, [own_submap](int64_t submap) { return submap != own_submap; });
+  if (candidates.empty()) r.skipped = "no other submap shares a word";
+  r.shared_word_candidates = ApplyAdaptiveThresholds(&candidates, r.k, r.l, options_.max_candidates);
+  for (const auto& c : candidates) {
+    const KeyframeId id(c.keyframe_id);
+    r.candidates.push_back(id);
+    const auto other = submaps_.find(SubmapId(c.submap_id));
+    if (other == submaps_.end() || !other->second.camera) continue;
+    const Keyframe* candidate = other->second.map.FindKeyframe(id);
+    if (!candidate) continue;
+    int matches = 0, inliers = 0;
+    if (auto connection = Verify(replica, keyframe, other->second, *candidate, &matches, &inliers)) {
+      connections_.push_back(*connection);
+      r.connected.push_back(id);
+    }
+    r.verification.push_back({matches, inliers});
+  }
+  if (options_.loop_closure) RetrieveLoops(replica, keyframe, &r);
+  return r;
+}
+
+void Merger::RetrieveLoops(const SubmapReplica& replica, const Keyframe& keyframe, RetrievalRecord* r) {
+  const int64_t own_submap = replica.map.id().value;
+  std::vector<KeyframeDatabase::Candidate> candidates =
+      database_.Query(keyframe.bow, [own_submap](int64_t submap) { return submap == own_submap; });
+  // Away from the covisible window: no shared point, and far back in the submap.
+  candidates.erase(std::remove_if(candidates.begin(), candidates.end(),
+                                  [&](const auto& c) {
+                                    const KeyframeId id(c.keyframe_id);
+                                    return keyframe.covisibility.count(id) ||
+                                           static_cast<int64_t>(IndexOf(id)) + options_.loop_min_separation >
+                                               static_cast<int64_t>(IndexOf(keyframe.id));
+                                  }),
+                   candidates.end());
+  ApplyAdaptiveThresholds(&candidates, r->k, r->l, options_.max_candidates);
+  for (const auto& c : candidates) {
+    const KeyframeId id(c.keyframe_id);
+    r->loop_candidates.push_back(id);
+    const Keyframe* candidate = replica.map.FindKeyframe(id);
+    if (!candidate) continue;
+    int matches = 0, inliers = 0;
+    if (auto loop = Verify(replica, keyframe, replica, *candidate, &matches, &inliers)) {
+      loops_.push_back(*loop);
+      r->loops.push_back(id);
+    }
+    r->verification.push_back({matches, inliers});
+  }
+}
+
+std::optional<ConnectedFrame> Merger::Verify(const SubmapReplica& a, const Keyframe& keyframe_a, const SubmapReplica& b,
+                                             const Keyframe& keyframe_b, int* match_count, int* inlier_count) const {
+  const auto matches = MatchKeyframesByBow(keyframe_a, a.map, keyframe_b, b.map, options_.match_ratio);
+  *match_count = static_cast<int>(matches.size());
+  if (static_cast<int>(matches.size()) < options_.min_matches) return std::nullopt;
+  std::vector<Sim3Correspondence> pairs;
+  std::vector<std::pair<MapPointId, MapPointId>> point_ids;
+  for (const auto& [i, j] : matches) {
+    point_ids.push_back({keyframe_a.points[i], keyframe_b.points[j]});
+    Sim3Correspondence c;
+    c.point_a = a.map.FindPoint(keyframe_a.points[i])->position;
+    c.point_b = b.map.FindPoint(keyframe_b.points[j])->position;
+    c.pixel_a = keyframe_a.undistorted[i];
+    c.pixel_b = keyframe_b.undistorted[j];
+    c.sigma2_a = pyramid_.sigma2[keyframe_a.keypoints[i].octave];
+    c.sigma2_b = pyramid_.sigma2[keyframe_b.keypoints[j].octave];
+    pairs.push_back(c);
+  }
+  const PinholeIntrinsics k = a.camera->Intrinsics();
+  Sim3Options sim3;
+  sim3.min_inliers = options_.sim3_min_inliers;
+  sim3.seed = static_cast<uint64_t>(keyframe_a.id.value ^ (keyframe_b.id.value << 1));
+  std::optional<Sim3Estimate> estimate;
+  if (static_cast<int>(pairs.size()) >= options_.sim3_min_inliers) {
+    estimate = EstimateSim3(pairs, keyframe_a.cam_from_world, keyframe_b.cam_from_world, k, sim3, inlier_count);
+  }
+  if (!estimate && options_.match_by_projection) {
+    estimate = VerifyByProjection(a, keyframe_a, b, keyframe_b, matches, &pairs, &point_ids, inlier_count);
+  }
+  if (!estimate) return std::nullopt;
+  ConnectedFrame connection;
+  connection.keyframe_a = keyframe_a.id;
+  connection.keyframe_b = keyframe_b.id;
+  connection.b_from_a = estimate->b_from_a;
+  connection.map_points = estimate->num_inliers;
+  // Intersection angles in a's frame: rays from the two camera centres to each agreeing point.
+  const Eigen::Vector3d centre_a = keyframe_a.Centre();
+  const Eigen::Vector3d centre_b = estimate->b_from_a.Inverse() * keyframe_b.Centre();
+  std::vector<double> angles;
+  for (size_t m = 0; m < pairs.size(); ++m) {
+    if (!estimate->inlier[m]) continue;
+    connection.point_pairs.push_back(point_ids[m]);
+    const Eigen::Vector3d ray_a = (pairs[m].point_a - centre_a).normalized();
+    const Eigen::Vector3d ray_b = (pairs[m].point_a - centre_b).normalized();
+    angles.push_back(std::acos(std::clamp(ray_a.dot(ray_b), -1.0, 1.0)) * 180.0 / M_PI);
+  }
+  connection.median_angle_deg = Median(angles);
+  return connection;
+}
+
+// Too few descriptor matches agree: a first similarity from fewer, then more matches by
+// projecting the candidate's points with it (as ORB-SLAM's SearchBySim3), then the similarity
+// from all of them, which must reach the full inlier count.
+std::optional<Sim3Estimate> Merger::VerifyByProjection(const SubmapReplica& a, const Keyframe& keyframe_a,
+                                                       const SubmapReplica& b, const Keyframe& keyframe_b,
+                                                       const std::vector<std::pair<int, int>>& matches,
+                                                       std::vector<Sim3Correspondence>* correspondences,
+                                                       std::vector<std::pair<MapPointId, MapPointId>>* point_ids,
+                                                       int* inlier_count) const {
+  std::vector<Sim3Correspondence>& pairs = *correspondences;
+  const PinholeIntrinsics k = a.camera->Intrinsics();
+  Sim3Options first_guess;
+  first_guess.min_inliers = std::max(6, options_.sim3_min_inliers / 2);
+  first_guess.seed = static_cast<uint64_t>(keyframe_a.id.value ^ (keyframe_b.id.value << 1));
+  const auto guess = EstimateSim3(pairs, keyframe_a.cam_from_world, keyframe_b.cam_from_world, k, first_guess, inlier_count);
+  if (!guess) return std::nullopt;
+  std::vector<char> used_a(keyframe_a.keypoints.size(), 0), used_b(keyframe_b.keypoints.size(), 0);
+  for (const auto& [i, j] : matches) {
+    used_a[i] = 1;
+    used_b[j] = 1;
+  }
+  const Sim3d a_from_b = guess->b_from_a.Inverse();
+  for (size_t j = 0; j < keyframe_b.keypoints.size(); ++j) {
+    const MapPoint* point_b = keyframe_b.points[j].valid() ? b.map.FindPoint(keyframe_b.points[j]) : nullptr;
+    if (used_b[j] || !point_b) continue;
+    const Eigen::Vector3d in_cam_a = keyframe_a.cam_from_world * (a_from_b * point_b->position);
+    if (in_cam_a.z() <= 0) continue;
+    const Eigen::Vector2d pixel = k.Project(in_cam_a);
+    const double radius = 7.5 * pyramid_.scale[keyframe_b.keypoints[j].octave];
+    int best = 101, best_index = -1;
+    for (int i : keyframe_a.grid.InArea(pixel.x(), pixel.y(), radius, keyframe_a.keypoints, keyframe_a.undistorted)) {
+      const MapPoint* point_a = keyframe_a.points[i].valid() ? a.map.FindPoint(keyframe_a.points[i]) : nullptr;
+      if (used_a[i] || !point_a) continue;
+      const int d = HammingDistance(point_b->descriptor.data(), keyframe_a.descriptors.ptr<uint8_t>(i));
+      if (d < best) {
+        best = d;
+        best_index = i;
+      }
+    }
+    if (best_index < 0 || best > 100) continue;
+    used_a[best_index] = 1;
+    Sim3Correspondence c;
+    c.point_a = a.map.FindPoint(keyframe_a.points[best_index])->position;
+    c.point_b = point_b->position;
+    c.pixel_a = keyframe_a.undistorted[best_index];
+    c.pixel_b = keyframe_b.undistorted[j];
+    c.sigma2_a = pyramid_.sigma2[keyframe_a.keypoints[best_index].octave];
+    c.sigma2_b = pyramid_.sigma2[keyframe_b.keypoints[j].octave];
+    pairs.push_back(c);
+    point_ids->push_back({keyframe_a.points[best_index], keyframe_b.points[j]});
+  }
+  Sim3Options sim3;
+  sim3.min_inliers = options_.sim3_min_inliers;
+  sim3.seed = first_guess.seed;
+  return EstimateSim3(pairs, keyframe_a.cam_from_world, keyframe_b.cam_from_world, k, sim3, inlier_count);
+}
+
+Merger::Graph Merger::Solve(bool refine) const {
+  Graph graph;
+  graph.edges = SummarizeConnections(connections_, options_.connection_weights);
+  std::vector<SubmapId> ids;
+  std::map<SubmapId, int> keyframes;
+  for (const auto& [id, replica] : submaps_) {
+    ids.push_back(id);
+    keyframes[id] = static_cast<int>(replica.map.num_keyframes());
+  }
+  graph.tree = MinimumSpanningForest(ids, graph.edges, options_.min_connection_strength);
+  graph.placement = PlaceSubmaps(keyframes, graph.tree);
+  if (refine) graph.keyframe_poses = RefineKeyframePoses(graph.placement, &graph);
+  return graph;
+}
+
+std::map<KeyframeId, Sim3d> Merger::RefineKeyframePoses(const std::map<SubmapId, SubmapPlacement>& placement,
+                                                        Graph* graph) const {
+  const auto as_sim3 = [](const Rigid3d& r) { return Sim3d(1.0, r.rotation, r.translation); };
+  std::map<KeyframeId, Sim3d> poses;
+  std::vector<KeyframeId> fixed;
+  std::vector<PoseGraphEdge> edges;
+  for (const auto& [id, replica] : submaps_) {
+    const SubmapPlacement& place = placement.at(id);
+    const Map& map = replica.map;
+    KeyframeId first;
+    for (const auto& [kf_id, keyframe] : map.keyframes()) {
+      poses[kf_id] = place.world_from_submap * as_sim3(keyframe.cam_from_world.Inverse());
+      if (!first.valid() || kf_id < first) first = kf_id;
+    }
+    if (id == place.root && first.valid()) fixed.push_back(first);
+    // Within the submap: its strongest covisibility links and consecutive keyframes, as measured
+    // by its own poses.
+    KeyframeId previous;
+    std::vector<KeyframeId> ordered_ids;
+    for (const auto& [kf_id, keyframe] : map.keyframes()) ordered_ids.push_back(kf_id);
+    std::sort(ordered_ids.begin(), ordered_ids.end());
+    for (KeyframeId kf_id : ordered_ids) {
+      const Keyframe& keyframe = *map.FindKeyframe(kf_id);
+      const auto link = [&](KeyframeId other_id) {
+        const Keyframe* other = map.FindKeyframe(other_id);
+        if (!other) return;
+        edges.push_back({kf_id, other_id, as_sim3(keyframe.cam_from_world * other->cam_from_world.Inverse()),
+                         kIntraSubmapWeight});
+      };
+      if (previous.valid()) link(previous);
+      for (size_t n = 0; n < keyframe.ordered.size(); ++n) {
+        const auto& [weight, other] = keyframe.ordered[n];
+        if (other < kf_id && (weight >= 100 || n == 0) && other != previous) link(other);
+      }
+      previous = kf_id;
+    }
+  }
+  // Between submaps of one merged map: every verified connected frame.
+  for (const ConnectedFrame& c : connections_) {
+    const SubmapId a = SubmapOf(c.keyframe_a), b = SubmapOf(c.keyframe_b);
+    const auto pa = placement.find(a), pb = placement.find(b);
+    if (pa == placement.end() || pb == placement.end() || pa->second.component != pb->second.component) continue;
+    const Keyframe* ka = submaps_.at(a).map.FindKeyframe(c.keyframe_a);
+    const Keyframe* kb = submaps_.at(b).map.FindKeyframe(c.keyframe_b);
+    if (!ka || !kb) continue;
+    const Sim3d measured = as_sim3(ka->cam_from_world) * c.b_from_a.Inverse() * as_sim3(kb->cam_from_world.Inverse());
+    // A connection that disagrees with the placement along the tree is left out: a wrong one
+    // would bend the submaps it joins (see merger.md for the thresholds' origin).
+    const Sim3d placed = poses[c.keyframe_a].Inverse() * poses[c.keyframe_b];
+    const double relative_translation =
+        (placed.translation - measured.translation).norm() / std::max(measured.translation.norm(), 1e-3);
+    if (!SimilaritiesAgree(measured, placed) || relative_translation > kMaxConnectionRelativeTranslation) {
+      continue;
+    }
+    edges.push_back({c.keyframe_a, c.keyframe_b, measured, 1.0, /*robust=*/true});
+    graph->agreeing.push_back(c);
+  }
+  // Within a submap: confirmed loops (they measure the drift, so no check against the placement).
+  for (const ConnectedFrame& c : ConfirmedLoops()) {
+    const Map& map = submaps_.at(SubmapOf(c.keyframe_a)).map;
+    const Keyframe* ka = map.FindKeyframe(c.keyframe_a);
+    const Keyframe* kb = map.FindKeyframe(c.keyframe_b);
+    if (!ka || !kb) continue;
+    const Sim3d measured = as_sim3(ka->cam_from_world) * c.b_from_a.Inverse() * as_sim3(kb->cam_from_world.Inverse());
+    // Confirmed, so weighted as the submap's own edges, without the robust cost that would
+    // shrug off the large error a loop is there to correct.
+    edges.push_back({c.keyframe_a, c.keyframe_b, measured, kIntraSubmapWeight, /*robust=*/false});
+    graph->agreeing.push_back(c);
+    ++graph->loops_used;
+  }
+  OptimizePoseGraph(&poses, edges, fixed);
+  return poses;
+}
+
+std::vector<ConnectedFrame> Merger::ConfirmedLoops() const {
+  // A loop is confirmed by another whose ends are near its own (in the keyframes' numbering) and
+  // whose correction agrees: a wrong loop rarely repeats itself.
+  constexpr uint32_t kNearKeyframes = 8;
+  constexpr double kMaxRotationRad = 2.0 * M_PI / 180.0;
+  constexpr double kMaxLogScale = 0.05;
+  constexpr double kMaxShiftOfDepth = 0.1;  // of the keyframe's median depth
+  const auto near = [](KeyframeId a, KeyframeId b) {
+    return SubmapOf(a) == SubmapOf(b) && std::max(IndexOf(a), IndexOf(b)) - std::min(IndexOf(a), IndexOf(b)) <= kNearKeyframes;
+  };
+  std::vector<ConnectedFrame> confirmed;
+  for (size_t i = 0; i < loops_.size(); ++i) {
+    const ConnectedFrame& loop = loops_[i];
+    const Map& map = submaps_.at(SubmapOf(loop.keyframe_a)).map;
+    const Keyframe* keyframe = map.FindKeyframe(loop.keyframe_a);
+    if (!keyframe || !map.FindKeyframe(loop.keyframe_b)) continue;
+    const Eigen::Vector3d centre = keyframe->Centre();
+    const double depth = map.MedianDepth(loop.keyframe_a);
+    for (size_t j = 0; j < loops_.size(); ++j) {
+      const ConnectedFrame& other = loops_[j];
+      if (i == j || other.keyframe_a == loop.keyframe_a || !near(other.keyframe_a, loop.keyframe_a) ||
+          !near(other.keyframe_b, loop.keyframe_b)) {
+        continue;
+      }
+      const Sim3d difference = loop.b_from_a.Inverse() * other.b_from_a;
+      if (RotationAngle(difference.rotation) < kMaxRotationRad && std::abs(std::log(difference.scale)) < kMaxLogScale &&
+          (loop.b_from_a * centre - other.b_from_a * centre).norm() < kMaxShiftOfDepth * depth) {
+        confirmed.push_back(loop);
+        break;
+      }
+    }
+  }
+  return confirmed;
+}
+
+}  // namespace stitch

@@ -1,0 +1,83 @@
+#pragma once
+// The merger's algorithm (no LCM here; MergerService carries it over the bus), DESIGN.md steps
+// 2-4: it keeps a copy of every submap from the mappers' updates; for each new keyframe of a
+// submap it retrieves connected frames in the other submaps with the adaptive thresholds
+// k = N1/N0 and l = S1/S0, verifies each by matching map points and a Sim3, and from the
+// verified connections builds the submap graph, whose minimum spanning tree decides the merges.
+// One owner thread; not thread-safe.
+
+#include <map>
+#include <optional>
+#include <set>
+#include <string>
+#include <vector>
+
+#include "stitch/merging/merged_map.h"
+#include "stitch/merging/merger_options.h"
+#include "stitch/merging/submap_graph.h"
+#include "stitch/estimators/sim3_estimation.h"
+#include "stitch/features/keyframe_database.h"
+#include "stitch/features/vocabulary.h"
+#include "stitch/map/frame.h"
+#include "stitch/map/submap_update.h"
+#include "stitch/records/merger_records.h"
+
+namespace stitch {
+
+class Merger {
+ public:
+  // `vocabulary` must outlive the merger.
+  Merger(const MergerOptions& options, const Vocabulary* vocabulary, const ScalePyramid& pyramid);
+
+  // Applies one update (or part) from a mapper; its new keyframes are queried and verified.
+  // Returns the keyframes the submap's manifest lists but this copy lacks.
+  std::vector<KeyframeId> Apply(const SubmapUpdate& update);
+
+  struct Graph {
+    std::vector<SubmapEdge> edges;  // every pair of submaps with verified connections
+    std::vector<SubmapEdge> tree;   // Kruskal's choice, in merging order
+    std::map<SubmapId, SubmapPlacement> placement;
+    // With `refine`: every keyframe's world_from_cam in its merged map after the Sim3 pose-graph
+    // optimization over all verified connections (not only the tree's).
+    std::map<KeyframeId, Sim3d> keyframe_poses;
+    std::vector<ConnectedFrame> agreeing;  // with `refine`: the connections and loops the pose graph used
+    int loops_used = 0;                    // of those, loops (both ends in one submap)
+  };
+  Graph Solve(bool refine = false) const;
+
+  const std::map<SubmapId, SubmapReplica>& submaps() const { return submaps_; }
+  const std::vector<ConnectedFrame>& connections() const { return connections_; }
+  const std::vector<ConnectedFrame>& loops() const { return loops_; }  // both ends in one submap
+  const std::vector<RetrievalRecord>& retrievals() const { return retrievals_; }
+  const MergerOptions& options() const { return options_; }
+
+ private:
+  void Prepare(SubmapReplica* replica, Keyframe* keyframe);
+  RetrievalRecord Retrieve(const SubmapReplica& replica, const Keyframe& keyframe);
+  void RetrieveLoops(const SubmapReplica& replica, const Keyframe& keyframe, RetrievalRecord* record);
+  // `matches` / `inliers` (optional) receive the counts whatever the outcome.
+  std::optional<ConnectedFrame> Verify(const SubmapReplica& a, const Keyframe& keyframe_a, const SubmapReplica& b,
+                                       const Keyframe& keyframe_b, int* matches, int* inliers) const;
+  std::optional<Sim3Estimate> VerifyByProjection(const SubmapReplica& a, const Keyframe& keyframe_a, const SubmapReplica& b,
+                                                 const Keyframe& keyframe_b, const std::vector<std::pair<int, int>>& matches,
+                                                 std::vector<Sim3Correspondence>* pairs,
+                                                 std::vector<std::pair<MapPointId, MapPointId>>* point_ids,
+                                                 int* inlier_count) const;
+  const Undistorter& UndistorterFor(const Camera& camera);
+  std::map<KeyframeId, Sim3d> RefineKeyframePoses(const std::map<SubmapId, SubmapPlacement>& placement, Graph* graph) const;
+  // Loops confirmed by another loop between the same places with the same correction.
+  std::vector<ConnectedFrame> ConfirmedLoops() const;
+
+  MergerOptions options_;
+  const Vocabulary* vocabulary_;
+  ScalePyramid pyramid_;
+  std::map<SubmapId, SubmapReplica> submaps_;
+  std::map<std::string, Undistorter> undistorters_;  // by camera description
+  KeyframeDatabase database_;
+  std::set<KeyframeId> prepared_;                    // keyframes with undistorted points and BoW
+  std::vector<ConnectedFrame> connections_;
+  std::vector<ConnectedFrame> loops_;
+  std::vector<RetrievalRecord> retrievals_;
+};
+
+}  // namespace stitch

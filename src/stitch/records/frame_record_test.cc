@@ -1,0 +1,71 @@
+#include "stitch/records/frame_record.h"
+
+#include <gtest/gtest.h>
+
+#include "stitch/testing/temp_dir.h"
+#include "stitch/util/error.h"
+
+namespace stitch {
+namespace {
+
+FrameRecord Record(int frame_index) {
+  FrameRecord r;
+  r.frame_index = frame_index;
+  r.t_ns = 50'000'000LL * frame_index;
+  r.state = "OK";
+  r.submap_id = 4294967296;
+  r.world_from_cam = Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0.5 * frame_index, 0, 10));
+  r.num_features = 1000;
+  r.tracked_points = 300 + frame_index;
+  return r;
+}
+
+std::string Contents(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+}
+
+TEST(FrameRecord, AppendingStartsANewFileWithTheHeaderAndGoesOnWithAnOldOne) {
+  testing::TempDir dir;
+  const std::string path = dir / "frames.tsv";
+  AppendToFrameRecord(path) << FormatFrameRecord(Record(0));
+  AppendToFrameRecord(path) << FormatFrameRecord(Record(1));
+  EXPECT_EQ(Contents(path), FrameRecordHeader() + FormatFrameRecord(Record(0)) + FormatFrameRecord(Record(1)));
+  const std::vector<FrameRecord> records = ReadFrameRecords(path);
+  ASSERT_EQ(records.size(), 2u);
+  EXPECT_EQ(records[1].frame_index, 1);
+  EXPECT_EQ(records[1].tracked_points, 301);
+}
+
+// A tracker killed while writing a line leaves it cut short; the next tracker must not glue its
+// first line onto it (that line would read as the cut one's frame, or make the file unreadable).
+TEST(FrameRecord, AppendingDropsALastLineCutShortAndKeepsEveryWholeOne) {
+  testing::TempDir dir;
+  const std::string path = dir / "frames.tsv";
+  const std::string whole = FrameRecordHeader() + FormatFrameRecord(Record(0)) + FormatFrameRecord(Record(1));
+  for (const size_t cut : {size_t{1}, size_t{20}, FormatFrameRecord(Record(2)).size() - 1}) {
+    std::ofstream(path, std::ios::trunc) << whole << FormatFrameRecord(Record(2)).substr(0, cut);
+    AppendToFrameRecord(path) << FormatFrameRecord(Record(2));
+    EXPECT_EQ(Contents(path), whole + FormatFrameRecord(Record(2))) << "cut after " << cut << " bytes";
+    const std::vector<FrameRecord> records = ReadFrameRecords(path);
+    ASSERT_EQ(records.size(), 3u);
+    EXPECT_EQ(records[2].frame_index, 2);
+    EXPECT_EQ(records[2].tracked_points, 302);
+  }
+  // Killed before even the header was whole.
+  std::ofstream(path, std::ios::trunc) << FrameRecordHeader().substr(0, 10);
+  AppendToFrameRecord(path) << FormatFrameRecord(Record(0));
+  EXPECT_EQ(Contents(path), FrameRecordHeader() + FormatFrameRecord(Record(0)));
+}
+
+TEST(FrameRecord, AppendingWhereNothingCanBeWrittenSaysWhy) {
+  try {
+    AppendToFrameRecord("/nonexistent-folder/frames.tsv");
+    FAIL() << "no error";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("/nonexistent-folder/frames.tsv"), std::string::npos) << e.what();
+  }
+}
+
+}  // namespace
+}  // namespace stitch

@@ -1,0 +1,200 @@
+#include "stitch/records/merger_records.h"
+
+#include <cinttypes>
+#include <cstdio>
+#include <sstream>
+
+#include "stitch/util/error.h"
+#include "stitch/util/text_file.h"
+
+namespace stitch {
+namespace {
+
+// A Sim3 as "scale qx qy qz qw tx ty tz", 9 significant digits.
+std::string FormatSim3(const Sim3d& s) {
+  char text[200];
+  std::snprintf(text, sizeof(text), "%.9g %.9g %.9g %.9g %.9g %.9g %.9g %.9g", s.scale, s.rotation.x(), s.rotation.y(),
+                s.rotation.z(), s.rotation.w(), s.translation.x(), s.translation.y(), s.translation.z());
+  return text;
+}
+
+bool ReadSim3(std::istream& fields, Sim3d* s) {
+  double scale, qx, qy, qz, qw, tx, ty, tz;
+  fields >> scale >> qx >> qy >> qz >> qw >> tx >> ty >> tz;
+  if (!fields) return false;
+  *s = Sim3d(scale, Eigen::Quaterniond(qw, qx, qy, qz).normalized(), Eigen::Vector3d(tx, ty, tz));
+  return true;
+}
+
+// Reads every data line of `path` with `parse`, which returns false for a malformed line.
+template <class Record, class Parse>
+std::vector<Record> ReadLines(const std::string& path, const char* what, Parse parse) {
+  std::vector<Record> records;
+  ForEachDataLine(path, [&](const std::string& line, int line_number) {
+    Record record;
+    if (!parse(line, &record)) throw Error(Str() << path << ":" << line_number << ": malformed " << what);
+    records.push_back(std::move(record));
+  });
+  return records;
+}
+
+std::vector<std::string> SplitTabs(const std::string& line) {
+  std::vector<std::string> fields;
+  size_t start = 0;
+  while (true) {
+    const size_t tab = line.find('\t', start);
+    fields.push_back(line.substr(start, tab == std::string::npos ? std::string::npos : tab - start));
+    if (tab == std::string::npos) return fields;
+    start = tab + 1;
+  }
+}
+
+std::string FormatIds(const std::vector<KeyframeId>& ids) {
+  std::string text;
+  for (KeyframeId id : ids) text += (text.empty() ? "" : ",") + std::to_string(id.value);
+  return text.empty() ? std::string("-") : text;
+}
+
+bool ParseIds(const std::string& text, std::vector<KeyframeId>* ids) {
+  ids->clear();
+  if (text == "-") return true;
+  std::istringstream list(text);
+  for (std::string item; std::getline(list, item, ',');) {
+    char* end = nullptr;
+    const long long value = std::strtoll(item.c_str(), &end, 10);
+    if (item.empty() || *end != '\0') return false;
+    ids->push_back(KeyframeId(value));
+  }
+  return true;
+}
+
+}  // namespace
+
+void WriteSubmapRecords(const std::string& path, const std::vector<SubmapRecord>& records) {
+  std::string text = "# submap_id component root keyframes points closed scale qx qy qz qw tx ty tz (world_from_submap)\n";
+  for (const SubmapRecord& r : records) {
+    char head[160];
+    std::snprintf(head, sizeof(head), "%" PRId64 " %d %" PRId64 " %zu %zu %d ", r.submap.value, r.component, r.root.value,
+                  r.keyframes, r.points, r.closed ? 1 : 0);
+    text += head + FormatSim3(r.world_from_submap) + "\n";
+  }
+  WriteFileAtomically(path, text);
+}
+
+std::vector<SubmapRecord> ReadSubmapRecords(const std::string& path) {
+  return ReadLines<SubmapRecord>(path, "submap record", [](const std::string& line, SubmapRecord* r) {
+    std::istringstream fields(line);
+    int closed = 0;
+    fields >> r->submap.value >> r->component >> r->root.value >> r->keyframes >> r->points >> closed;
+    r->closed = closed != 0;
+    return fields && ReadSim3(fields, &r->world_from_submap);
+  });
+}
+
+void WriteMergedKeyframeRecords(const std::string& path, const std::vector<MergedKeyframeRecord>& records) {
+  std::string text =
+      "# keyframe_id submap_id component scale qx qy qz qw tx ty tz (world_from_cam, refined by the pose graph)\n";
+  for (const MergedKeyframeRecord& r : records) {
+    char head[100];
+    std::snprintf(head, sizeof(head), "%" PRId64 " %" PRId64 " %d ", r.keyframe.value, SubmapOf(r.keyframe).value,
+                  r.component);
+    text += head + FormatSim3(r.world_from_cam) + "\n";
+  }
+  WriteFileAtomically(path, text);
+}
+
+std::vector<MergedKeyframeRecord> ReadMergedKeyframeRecords(const std::string& path) {
+  return ReadLines<MergedKeyframeRecord>(path, "merged keyframe", [](const std::string& line, MergedKeyframeRecord* r) {
+    std::istringstream fields(line);
+    int64_t submap = -1;
+    fields >> r->keyframe.value >> submap >> r->component;
+    return fields && submap == SubmapOf(r->keyframe).value && ReadSim3(fields, &r->world_from_cam);
+  });
+}
+
+void WriteConnectionRecords(const std::string& path, const std::vector<ConnectionRecord>& records) {
+  std::string text =
+      "# keyframe_a keyframe_b map_points median_angle_deg scale qx qy qz qw tx ty tz (b_from_a: submap b's frame from "
+      "a's; loops within one submap last)\n";
+  for (const ConnectionRecord& r : records) {
+    char head[120];
+    std::snprintf(head, sizeof(head), "%" PRId64 " %" PRId64 " %d %.3f ", r.keyframe_a.value, r.keyframe_b.value,
+                  r.map_points, r.median_angle_deg);
+    text += head + FormatSim3(r.b_from_a) + "\n";
+  }
+  WriteFileAtomically(path, text);
+}
+
+std::vector<ConnectionRecord> ReadConnectionRecords(const std::string& path) {
+  return ReadLines<ConnectionRecord>(path, "connection", [](const std::string& line, ConnectionRecord* r) {
+    std::istringstream fields(line);
+    fields >> r->keyframe_a.value >> r->keyframe_b.value >> r->map_points >> r->median_angle_deg;
+    return fields && ReadSim3(fields, &r->b_from_a);
+  });
+}
+
+void WriteRetrievalRecords(const std::string& path, const std::vector<RetrievalRecord>& records) {
+  std::string text =
+      "# keyframe previous nearby N0 N1 S0 S1 k l shared_word_candidates candidates connected "
+      "verification(matches/inliers per candidate) loop_candidates loops skipped\n";
+  for (const RetrievalRecord& r : records) {
+    char numbers[200];
+    std::snprintf(numbers, sizeof(numbers), "%d\t%d\t%.4f\t%.4f\t%.3f\t%.3f\t%d", r.n0, r.n1, r.s0, r.s1, r.k, r.l,
+                  r.shared_word_candidates);
+    std::string verification;
+    for (const auto& [matches, inliers] : r.verification) {
+      verification += (verification.empty() ? "" : ",") + std::to_string(matches) + "/" + std::to_string(inliers);
+    }
+    text += std::to_string(r.keyframe.value) + "\t" + std::to_string(r.previous.value) + "\t" +
+            std::to_string(r.nearby.value) + "\t" + numbers + "\t" + FormatIds(r.candidates) + "\t" +
+            FormatIds(r.connected) + "\t" + (verification.empty() ? "-" : verification) + "\t" +
+            FormatIds(r.loop_candidates) + "\t" + FormatIds(r.loops) + "\t" + (r.skipped.empty() ? "-" : r.skipped) +
+            "\n";
+  }
+  WriteFileAtomically(path, text);
+}
+
+std::vector<RetrievalRecord> ReadRetrievalRecords(const std::string& path) {
+  return ReadLines<RetrievalRecord>(path, "retrieval record", [](const std::string& line, RetrievalRecord* r) {
+    const std::vector<std::string> f = SplitTabs(line);
+    if (f.size() != 16) return false;
+    std::istringstream numbers(f[0] + " " + f[1] + " " + f[2] + " " + f[3] + " " + f[4] + " " + f[5] + " " + f[6] + " " +
+                               f[7] + " " + f[8] + " " + f[9]);
+    numbers >> r->keyframe.value >> r->previous.value >> r->nearby.value >> r->n0 >> r->n1 >> r->s0 >> r->s1 >> r->k >>
+        r->l >> r->shared_word_candidates;
+    if (!numbers || !ParseIds(f[10], &r->candidates) || !ParseIds(f[11], &r->connected) ||
+        !ParseIds(f[13], &r->loop_candidates) || !ParseIds(f[14], &r->loops)) {
+      return false;
+    }
+    r->verification.clear();
+    if (f[12] != "-") {
+      std::istringstream list(f[12]);
+      for (std::string item; std::getline(list, item, ',');) {
+        int matches = 0, inliers = 0;
+        if (std::sscanf(item.c_str(), "%d/%d", &matches, &inliers) != 2) return false;
+        r->verification.push_back({matches, inliers});
+      }
+    }
+    r->skipped = f[15] == "-" ? "" : f[15];
+    return true;
+  });
+}
+
+void WriteMergeLog(const std::string& path, const std::vector<MergeLogRecord>& records) {
+  std::string text = "# event\tcurrent_map\tunconnected_submaps (stack, newest last)\tmerged_maps\n";
+  for (const MergeLogRecord& r : records) {
+    text += r.event + "\t" + r.current_map + "\t" + r.unconnected + "\t" + r.merged_maps + "\n";
+  }
+  WriteFileAtomically(path, text);
+}
+
+std::vector<MergeLogRecord> ReadMergeLog(const std::string& path) {
+  return ReadLines<MergeLogRecord>(path, "merge log line", [](const std::string& line, MergeLogRecord* r) {
+    const std::vector<std::string> f = SplitTabs(line);
+    if (f.size() != 4) return false;
+    *r = {f[0], f[1], f[2], f[3]};
+    return true;
+  });
+}
+
+}  // namespace stitch

@@ -1,0 +1,80 @@
+#pragma once
+// The merger's record files, written by the merger service (and `stitch map`) into its record
+// folder, read by `stitch run` / `stitch eval` and by the tests:
+//   submaps.tsv           each submap's merged map and Sim3 (SubmapRecord)
+//   keyframes_merged.tsv  each merged keyframe's refined pose (MergedKeyframeRecord)
+//   connections.tsv       each verified connected frame and in-map loop (ConnectionRecord)
+//   retrieval.tsv         each connected-frame query with the method's N0, N1, S0, S1, k, l
+//                         (RetrievalRecord)
+//   merge_log.tsv         the stack of unconnected submaps at each event (MergeLogRecord)
+// Each file has one writer and one reader here; writers replace the file as one act
+// (WriteFileAtomically). Readers throw stitch::Error naming the file and line.
+
+#include <cstdint>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "stitch/geometry/rigid3.h"
+#include "stitch/util/ids.h"
+
+namespace stitch {
+
+struct SubmapRecord {
+  SubmapId submap;
+  int component = -1;  // merged map; 0 is the largest
+  SubmapId root;       // the merged map's frame is this submap's
+  size_t keyframes = 0, points = 0;
+  bool closed = false;
+  Sim3d world_from_submap;  // into the merged map's frame
+};
+void WriteSubmapRecords(const std::string& path, const std::vector<SubmapRecord>& records);
+std::vector<SubmapRecord> ReadSubmapRecords(const std::string& path);
+
+struct MergedKeyframeRecord {
+  KeyframeId keyframe;
+  int component = -1;
+  Sim3d world_from_cam;  // refined by the pose graph; the scale is the keyframe's submap's
+};
+void WriteMergedKeyframeRecords(const std::string& path, const std::vector<MergedKeyframeRecord>& records);
+std::vector<MergedKeyframeRecord> ReadMergedKeyframeRecords(const std::string& path);
+
+struct ConnectionRecord {
+  KeyframeId keyframe_a, keyframe_b;
+  int map_points = 0;
+  double median_angle_deg = 0;
+  Sim3d b_from_a;  // submap b's frame from a's
+};
+void WriteConnectionRecords(const std::string& path, const std::vector<ConnectionRecord>& records);
+std::vector<ConnectionRecord> ReadConnectionRecords(const std::string& path);
+
+// One connected-frame query, as the method's thresholds need to be studied.
+struct RetrievalRecord {
+  KeyframeId keyframe, previous, nearby;
+  int n0 = 0, n1 = 0;     // words shared with the previous / the ~50%-overlap keyframe
+  double s0 = 0, s1 = 0;  // BoW scores with them
+  double k = 0, l = 0;    // N1/N0 and S1/S0
+  int shared_word_candidates = 0;      // frames in other submaps passing k
+  std::vector<KeyframeId> candidates;  // ...then passing l (verified in this order, at most max_candidates)
+  std::vector<KeyframeId> connected;   // verified
+  // Per candidate, then per loop candidate: descriptor matches, Sim3 inliers (0 if not tried).
+  std::vector<std::pair<int, int>> verification;
+  std::vector<KeyframeId> loop_candidates;  // in the same submap, outside the covisible window
+  std::vector<KeyframeId> loops;            // verified
+  std::string skipped;                      // why there was no query (first keyframe, no other submap...)
+};
+void WriteRetrievalRecords(const std::string& path, const std::vector<RetrievalRecord>& records);
+std::vector<RetrievalRecord> ReadRetrievalRecords(const std::string& path);
+
+// The merging process as the method's table shows it: at each event, the current map, the
+// stack of unconnected submaps (newest last) and the merged maps (each "a+b+c").
+struct MergeLogRecord {
+  std::string event;
+  std::string current_map;
+  std::string unconnected;  // submap names separated by spaces; "" when none
+  std::string merged_maps;  // merged maps separated by spaces
+};
+void WriteMergeLog(const std::string& path, const std::vector<MergeLogRecord>& records);
+std::vector<MergeLogRecord> ReadMergeLog(const std::string& path);
+
+}  // namespace stitch

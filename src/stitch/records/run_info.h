@@ -1,0 +1,37 @@
+#pragma once
+// run.json: what a run was (source, failures, policy, pacing, bus, link, timing, notes). Written
+// by `stitch run` when it starts and when it ends, read by `stitch eval` to rebuild the outputs.
+
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+namespace stitch {
+
+struct RunInfo {
+  std::string source;        // what was played
+  std::string dataset;       // its path; empty for the synthetic flight
+  int frames_total = 0;
+  int frames_unusable = 0;
+  std::string failures;      // the failure schedule, "none" when empty
+  std::string on_loss;
+  std::string pacing;
+  std::string lcm_url;
+  std::string agent;
+  std::string link;                       // the link bridges between the sides; "" when one bus
+  std::vector<std::string> link_figures;  // each bridge's last word: what it sent, repaired, received
+  std::string started_at;
+  double wall_seconds = 0;
+  bool interrupted = false;
+  std::vector<std::string> notes;  // what the user should know about this run
+
+  nlohmann::json ToJson() const;
+  static RunInfo FromJson(const nlohmann::json& json);  // throws stitch::Error on missing keys
+};
+
+// Writes RUN_DIR/run.json (as one act). Throws stitch::Error on I/O failure.
+void SaveRunInfo(const RunInfo& info, const std::string& run_dir);
+RunInfo LoadRunInfo(const std::string& run_dir);
+
+}  // namespace stitch

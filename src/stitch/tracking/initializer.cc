@@ -1,0 +1,130 @@
+#include "stitch/tracking/initializer.h"
+
+#include "stitch/estimators/bundle_adjustment.h"
+#include "stitch/estimators/two_view.h"
+#include "stitch/map/matcher.h"
+
+namespace stitch {
+
+Initializer::Initializer(const TrackingOptions& options, const ViewGeometry* geometry, const Vocabulary* vocabulary)
+    : options_(options), geometry_(geometry), vocabulary_(vocabulary) {}
+
+void Initializer::Reset() {
+  reference_.reset();
+  previous_.clear();
+}
+
+Initializer::Result Initializer::Add(Frame frame, SubmapId submap) {
+  Result result;
+  if (static_cast<int>(frame.size()) <= options_.init_min_features) {
+    Reset();
+    result.reason = TrackingReason::kTooFewFeatures;
+    result.detail =
+        std::to_string(frame.size()) + " features, initialization needs " + std::to_string(options_.init_min_features);
+    return result;
+  }
+  if (!reference_) {
+    previous_ = frame.undistorted;
+    reference_ = std::move(frame);
+    result.detail = "reference frame set, waiting for parallax";
+    return result;
+  }
+  std::vector<int> matches;
+  const int count = SearchForInitialization(*reference_, frame, &previous_, &matches, options_.init_window_px);
+  if (count < options_.init_min_matches) {
+    result.reason = TrackingReason::kTooFewMatches;
+    result.detail = std::to_string(count) + " matches with the reference frame; it is replaced by this frame";
+    previous_ = frame.undistorted;
+    reference_ = std::move(frame);
+    return result;
+  }
+  std::vector<Eigen::Vector2d> p1, p2;
+  std::vector<int> index_of;
+  for (size_t i = 0; i < matches.size(); ++i) {
+    if (matches[i] < 0) continue;
+    p1.push_back(reference_->undistorted[i]);
+    p2.push_back(frame.undistorted[matches[i]]);
+    index_of.push_back(static_cast<int>(i));
+  }
+  std::string why;
+  const auto two_view = InitializeTwoView(p1, p2, geometry_->intrinsics, options_.initialization, &why);
+  if (!two_view) {
+    result.detail = why;
+    return result;
+  }
+  // Expand the per-match result back to reference feature indices.
+  TwoViewResult expanded = *two_view;
+  expanded.points_in_cam1.assign(reference_->size(), Eigen::Vector3d::Zero());
+  expanded.triangulated.assign(reference_->size(), 0);
+  for (size_t m = 0; m < index_of.size(); ++m) {
+    expanded.points_in_cam1[index_of[m]] = two_view->points_in_cam1[m];
+    expanded.triangulated[index_of[m]] = two_view->triangulated[m];
+  }
+  result.map = BuildMap(&frame, matches, expanded, submap, &why);
+  Reset();
+  if (!result.map) {
+    result.detail = why;
+    return result;
+  }
+  result.reason = TrackingReason::kNone;
+  result.detail = std::string("initialized from ") + (two_view->used_homography ? "a homography" : "an essential matrix") +
+                  " with " + std::to_string(two_view->num_triangulated) + " points";
+  result.frame = std::move(frame);
+  return result;
+}
+
+std::unique_ptr<Map> Initializer::BuildMap(Frame* frame, const std::vector<int>& matches, const TwoViewResult& two_view,
+                                           SubmapId submap, std::string* why) {
+  auto map = std::make_unique<Map>(submap, geometry_->pyramid, 0);
+  Frame& reference = *reference_;
+  ComputeBow(*vocabulary_, &reference);
+  ComputeBow(*vocabulary_, frame);
+  reference.cam_from_world = Rigid3d();
+  frame->cam_from_world = two_view.cam2_from_cam1;
+  reference.points.assign(reference.size(), MapPointId());
+  frame->points.assign(frame->size(), MapPointId());
+  for (size_t i = 0; i < matches.size(); ++i) {
+    if (matches[i] < 0 || !two_view.triangulated[i]) continue;
+    MapPoint point;
+    point.id = map->NewPointId();
+    point.position = two_view.points_in_cam1[i];
+    reference.points[i] = point.id;
+    frame->points[matches[i]] = point.id;
+    map->AddPoint(point);
+  }
+  const KeyframeId id0 = MakeKeyframeId(submap, 0), id1 = MakeKeyframeId(submap, 1);
+  map->AddKeyframe(KeyframeFromFrame(reference, id0));
+  map->AddKeyframe(KeyframeFromFrame(*frame, id1));
+  for (const auto& [id, point] : map->points()) {
+    map->UpdatePointAppearance(id);
+    map->UpdatePointGeometry(id);
+  }
+  map->UpdateConnections(id0);
+  map->UpdateConnections(id1);
+  BundleAdjustmentOptions ba;
+  ba.iterations = 20;
+  ba.refine_iterations = 0;
+  BundleAdjust(map.get(), {id1}, {id0}, geometry_->intrinsics, ba);
+  const double median_depth = map->MedianDepth(id0);
+  const int tracked = map->FindKeyframe(id1)->CountPoints();
+  if (median_depth <= 0 || tracked < options_.init_min_matches) {
+    *why = "initial map rejected: median depth " + std::to_string(median_depth) + ", " + std::to_string(tracked) + " points";
+    return nullptr;
+  }
+  // Unit median depth: the submap's scale (monocular scale is arbitrary).
+  const double scale = 1.0 / median_depth;
+  Keyframe* kf1 = map->FindKeyframe(id1);
+  kf1->cam_from_world.translation *= scale;
+  std::vector<MapPointId> ids;
+  for (const auto& [id, point] : map->points()) ids.push_back(id);
+  for (MapPointId id : ids) {
+    map->FindPoint(id)->position *= scale;
+    map->UpdatePointGeometry(id);
+  }
+  frame->cam_from_world = kf1->cam_from_world;
+  frame->points = kf1->points;
+  frame->outlier.assign(frame->size(), 0);
+  return map;
+}
+
+}  // namespace stitch

@@ -1,0 +1,56 @@
+#pragma once
+// Monocular map initialization, as ORB-SLAM2: the first usable frame becomes the reference; each
+// later one is matched to it (each feature searched near where it was last seen), and when
+// enough matches agree with a homography or an essential matrix (scored side by side,
+// two_view.h) the two frames become keyframes 0 and 1 of a new submap, with the triangulated
+// points, bundle adjusted and scaled to unit median depth. A reference without enough matches
+// is replaced by the current frame; a camera that does not move never initializes (no
+// parallax). One owner thread; not thread-safe.
+
+#include <memory>
+#include <string>
+
+#include "stitch/features/vocabulary.h"
+#include "stitch/map/map.h"
+#include "stitch/map/view_geometry.h"
+#include "stitch/tracking/tracking_options.h"
+#include "stitch/tracking/tracking_result.h"
+
+namespace stitch {
+
+class Initializer {
+ public:
+  struct Result {
+    // Without a map: why not yet (kTooFewFeatures, kTooFewMatches or kInitFailed) and the detail.
+    TrackingReason reason = TrackingReason::kInitFailed;
+    std::string detail;
+    // The initial map: keyframes 0 (the reference) and 1 (this frame) and their points, and this
+    // frame placed in it (pose, points, no outliers).
+    std::unique_ptr<Map> map;
+    Frame frame;
+  };
+
+  // `geometry` and `vocabulary` must outlive the initializer.
+  Initializer(const TrackingOptions& options, const ViewGeometry* geometry, const Vocabulary* vocabulary);
+
+  // Takes the next frame (extracted with twice the tracker's features, as ORB-SLAM); a map with
+  // id `submap` when it initializes.
+  Result Add(Frame frame, SubmapId submap);
+  // Forgets the reference frame.
+  void Reset();
+  bool has_reference() const { return reference_.has_value(); }
+
+ private:
+  // The map from the reference and `frame` given their matches and two-view geometry; null with
+  // `why` when the bundle-adjusted map is too thin.
+  std::unique_ptr<Map> BuildMap(Frame* frame, const std::vector<int>& matches, const TwoViewResult& two_view,
+                                SubmapId submap, std::string* why);
+
+  TrackingOptions options_;
+  const ViewGeometry* geometry_;
+  const Vocabulary* vocabulary_;
+  std::optional<Frame> reference_;
+  std::vector<Eigen::Vector2d> previous_;  // where each reference feature was last matched
+};
+
+}  // namespace stitch

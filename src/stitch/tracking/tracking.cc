@@ -1,0 +1,326 @@
+#include "stitch/tracking/tracking.h"
+
+#include <cstdio>
+
+#include "stitch/tracking/keyframe_decision.h"
+#include "stitch/util/error.h"
+#include "stitch/util/log.h"
+#include "stitch/util/options.h"
+#include "stitch/util/time.h"
+
+namespace stitch {
+namespace {
+
+OrbOptions TwiceTheFeatures(OrbOptions options) {
+  options.num_features *= 2;
+  return options;
+}
+
+}  // namespace
+
+Tracking::Tracking(const TrackingOptions& options, const Camera& camera, const Vocabulary* vocabulary, double fps,
+                   LossPolicy policy)
+    : options_(options),
+      geometry_(camera, ScalePyramid::From(options.orb)),
+      vocabulary_(vocabulary),
+      fps_(fps > 0 ? fps : 30.0),
+      extractor_(options.orb),
+      init_extractor_(TwiceTheFeatures(options.orb)),
+      policy_(policy),
+      initializer_(options, &geometry_, vocabulary),
+      placer_(options, &geometry_, vocabulary, [this] { AdoptKeyframeBow(/*wait=*/true); }),
+      relocalizer_(options, &placer_, vocabulary, [this] { AdoptKeyframeBow(/*wait=*/true); }),
+      next_submap_number_(options.first_submap_number) {
+  CheckOptions(options_, "tracker");
+  if (!vocabulary_ || vocabulary_->empty()) throw Error("Tracking needs a vocabulary");
+  if (options_.keyframe_worker) keyframe_bow_ = std::make_unique<KeyframeBowWorker>(vocabulary_);
+}
+
+void Tracking::AdoptKeyframeBow(bool wait) {
+  if (!keyframe_bow_) return;
+  for (KeyframeBowWorker::Finished& finished : keyframe_bow_->Take(wait)) {
+    Keyframe* keyframe = store_.FindKeyframe(finished.keyframe);
+    if (!keyframe) continue;  // culled by the mapper meanwhile
+    keyframe->bow = std::move(finished.bow);
+    keyframe->bow_features = std::move(finished.features);
+    store_.AddToDatabase(*keyframe);
+  }
+}
+
+void Tracking::ForgetMotion() {
+  last_frame_.reset();
+  velocity_.reset();
+}
+
+std::optional<SubmapId> Tracking::CloseSubmap() {
+  const std::optional<SubmapId> id = store_.CloseCurrent();
+  if (!id) return std::nullopt;
+  ++submaps_closed_;
+  ForgetMotion();
+  reference_keyframe_ = KeyframeId();
+  consecutive_failures_ = 0;
+  typical_sharpness_ = 0;
+  lost_ = false;
+  frames_initializing_ = 0;
+  initializer_.Reset();
+  return id;
+}
+
+Tracking::Output Tracking::Track(const cv::Mat& image, int frame_index, int64_t t_ns) {
+  const Stopwatch total;
+  AdoptKeyframeBow(/*wait=*/false);
+  Output output = TrackFrame(image, frame_index, t_ns);
+  TrackResult& result = output.result;
+  result.timings.total = total.ElapsedMs();
+  // Every change of state is logged with its frame and reason.
+  if (result.state != last_state_ || result.relocalized || output.closed_submap) {
+    std::string text = "frame " + std::to_string(frame_index) + ": " + TrackingStateName(last_state_) + " -> " +
+                       TrackingStateName(result.state);
+    if (result.state == TrackingState::kOk) {
+      text += " in submap " + SubmapName(result.submap);
+    } else if (result.reason != TrackingReason::kNone) {
+      text += std::string(" (") + TrackingReasonName(result.reason) + ")";
+    }
+    if (!result.detail.empty()) text += ": " + result.detail;
+    STITCH_LOG(INFO) << text;
+    last_state_ = result.state;
+  }
+  return output;
+}
+
+Tracking::Output Tracking::TrackFrame(const cv::Mat& image, int frame_index, int64_t t_ns) {
+  if (!store_.current()) {
+    return Initialize(MakeFrame(image, frame_index, t_ns, &init_extractor_, geometry_.undistorter));
+  }
+  const Stopwatch clock;
+  Frame frame = MakeFrame(image, frame_index, t_ns, &extractor_, geometry_.undistorter);
+  Output output;
+  TrackResult& result = output.result;
+  result.timings.extraction = clock.ElapsedMs();
+  result.submap = store_.current()->id();
+  result.num_features = static_cast<int>(frame.size());
+  if (lost_) return Relocalize(std::move(frame), std::move(output));
+  TrackInSubmap(std::move(frame), &output);
+  return output;
+}
+
+Tracking::Output Tracking::Initialize(Frame frame) {
+  // The method re-initializes at once. When the new map cannot initialize (no parallax: hover,
+  // pure rotation), the camera may be back over a closed submap and relocalize there.
+  ++frames_initializing_;
+  const bool may_relocalize = store_.has_closed() && frames_initializing_ > options_.relocalize_closed_after_frames &&
+                              static_cast<int>(frame.size()) > options_.init_min_features;
+  std::optional<Frame> copy;
+  if (may_relocalize) copy = frame;
+
+  Output output;
+  TrackResult& result = output.result;
+  result.state = TrackingState::kInitializing;
+  result.num_features = static_cast<int>(frame.size());
+  Initializer::Result initialized = initializer_.Add(std::move(frame), MakeSubmapId(options_.agent_number, next_submap_number_));
+  result.reason = initialized.reason;
+  result.detail = initialized.detail;
+  if (!initialized.map) {
+    if (may_relocalize) {
+      Output relocalized;
+      if (TryRelocalize(&*copy, &relocalized)) return relocalized;
+    }
+    return output;
+  }
+  const SubmapId submap = initialized.map->id();
+  const KeyframeId id0 = MakeKeyframeId(submap, 0), id1 = MakeKeyframeId(submap, 1);
+  store_.StartCurrent(std::move(initialized.map), 2);
+  ++next_submap_number_;
+  Frame& placed = initialized.frame;
+  const Map& map = *store_.current();
+  reference_keyframe_ = id1;
+  last_keyframe_frame_index_ = placed.frame_index;
+  velocity_.reset();
+  consecutive_failures_ = 0;
+  output.new_keyframes = {*map.FindKeyframe(id0), *map.FindKeyframe(id1)};
+  store_.AddToDatabase(*map.FindKeyframe(id0));
+  store_.AddToDatabase(*map.FindKeyframe(id1));
+  for (const auto& [id, point] : map.points()) {
+    MapPoint copy_without_observations = point;
+    copy_without_observations.observations.clear();
+    output.new_points.push_back(copy_without_observations);
+  }
+  last_keyframe_sent_ = id1;
+
+  result.state = TrackingState::kOk;
+  result.submap = submap;
+  result.cam_from_submap = placed.cam_from_world;
+  result.num_tracked_points = placed.CountTracked();
+  result.is_keyframe = true;
+  typical_sharpness_ = placed.sharpness;
+  result.reference_keyframe = reference_keyframe_;
+  result.cam_from_reference = Rigid3d();
+  result.submap_keyframes = static_cast<int>(map.num_keyframes());
+  last_frame_ = std::move(placed);
+  return output;
+}
+
+Tracking::Output Tracking::Relocalize(Frame frame, Output output) {
+  // Relocalize policy: every frame is tried against the kept map, or discarded.
+  if (frame.size() >= 20 && TryRelocalize(&frame, &output)) return output;
+  TrackResult& result = output.result;
+  result.state = TrackingState::kLost;
+  result.reason = TrackingReason::kNotRelocalized;
+  result.detail = "not relocalized in submap " + SubmapName(store_.current()->id()) + "; frame discarded";
+  result.submap_keyframes = static_cast<int>(store_.current()->num_keyframes());
+  return output;
+}
+
+void Tracking::TrackInSubmap(Frame frame, Output* output) {
+  const Stopwatch clock;
+  TrackResult& result = output->result;
+  bool ok = false;
+  std::string why;
+  const bool blurred =
+      typical_sharpness_ > 0 && frame.sharpness < options_.min_relative_sharpness * typical_sharpness_;
+  if (frame.size() < 20) {
+    why = std::to_string(frame.size()) + " features";
+    result.reason = TrackingReason::kTooFewFeatures;
+  } else if (blurred) {
+    // A gust smears the image: matches on a blurred frame give wrong poses that look right.
+    char text[96];
+    std::snprintf(text, sizeof(text), "motion blur (sharpness %.1f, recent frames %.1f)", frame.sharpness,
+                  typical_sharpness_);
+    why = text;
+    result.reason = TrackingReason::kMotionBlur;
+  } else {
+    // Right after untracked frames the pose comes from a weaker prediction: demand more support.
+    const int needed = consecutive_failures_ > 0 ? options_.min_inliers_after_failure : options_.min_inliers;
+    const FramePlacer::Placement placement = placer_.Place(&frame, *store_.current(), last_frame_ ? &*last_frame_ : nullptr,
+                                                           velocity_, needed, &reference_keyframe_);
+    result.timings.frame_to_frame = placement.frame_to_frame_ms;
+    result.timings.local_map = placement.local_map_ms;
+    ok = placement.tracked;
+    if (ok) {
+      result.tracked_by = placement.tracked_by;
+    } else {
+      result.reason = placement.pose_diverged ? TrackingReason::kPoseDiverged : TrackingReason::kTooFewMatches;
+      if (!placement.placed) {
+        why = placement.pose_diverged ? "pose optimization diverged"
+                                      : "too few matches with the last frame and the reference keyframe";
+      } else {
+        why = placement.pose_diverged
+                  ? "pose optimization against the local map diverged"
+                  : std::to_string(frame.CountTracked()) + " local map points tracked, need " + std::to_string(needed);
+      }
+    }
+  }
+  const double before_keyframe = clock.ElapsedMs();
+  if (ok) {
+    // A frame right after untracked ones does not become a keyframe: its pose is the least sure.
+    OnTracked(&frame, output, /*may_make_keyframe=*/consecutive_failures_ == 0);
+  } else {
+    ++consecutive_failures_;
+    result.detail = why;
+    if (consecutive_failures_ >= options_.lost_after_frames) {
+      result.state = TrackingState::kLost;
+      result.detail = "lost after " + std::to_string(consecutive_failures_) + " untracked frames (" + why + ")";
+      if (policy_ == LossPolicy::kNewSubmap) {
+        result.detail += "; submap closed, a new one starts";
+        output->closed_submap = CloseSubmap();
+      } else {
+        result.detail += "; relocalizing in the kept map";
+        lost_ = true;
+        ForgetMotion();
+      }
+    } else {
+      result.state = TrackingState::kSkipped;
+    }
+  }
+  result.submap_keyframes = store_.current() ? static_cast<int>(store_.current()->num_keyframes()) : 0;
+  result.timings.keyframe = clock.ElapsedMs() - before_keyframe;
+}
+
+void Tracking::OnTracked(Frame* frame, Output* output, bool may_make_keyframe) {
+  TrackResult& result = output->result;
+  Map& map = *store_.current();
+  const int gap = last_frame_ ? frame->frame_index - last_frame_->frame_index : 0;
+  if (last_frame_ && gap == 1) {
+    velocity_ = *frame->cam_from_world * last_frame_->cam_from_world->Inverse();
+  } else {
+    velocity_.reset();  // after a skipped frame the motion model is not trusted
+  }
+  const int inliers = frame->CountTracked();
+  typical_sharpness_ = typical_sharpness_ > 0 ? 0.9 * typical_sharpness_ + 0.1 * frame->sharpness : frame->sharpness;
+  consecutive_failures_ = 0;
+  if (may_make_keyframe) {
+    KeyframeDecisionInput decision;
+    decision.tracked_points = inliers;
+    const Keyframe* reference = map.FindKeyframe(reference_keyframe_);
+    decision.has_reference = reference != nullptr;
+    decision.reference_points = reference ? ReferencePoints(map, *reference) : 0;
+    decision.frames_since_keyframe = frame->frame_index - last_keyframe_frame_index_;
+    decision.mapper_ready = MapperCaughtUp() || !mapper_connected_;
+    if (NeedKeyframe(decision, options_, fps_)) {
+      output->new_keyframes.push_back(CreateKeyframe(*frame));
+      result.is_keyframe = true;
+    }
+  }
+  for (size_t i = 0; i < frame->size(); ++i) {
+    if (frame->outlier[i]) frame->points[i] = MapPointId();
+  }
+  result.state = TrackingState::kOk;
+  result.reason = TrackingReason::kNone;
+  result.submap = map.id();
+  result.cam_from_submap = frame->cam_from_world;
+  result.num_tracked_points = inliers;
+  result.reference_keyframe = reference_keyframe_;
+  if (const Keyframe* reference = map.FindKeyframe(reference_keyframe_)) {
+    result.cam_from_reference = *frame->cam_from_world * reference->cam_from_world.Inverse();
+  }
+  result.submap_keyframes = static_cast<int>(map.num_keyframes());
+  last_frame_ = std::move(*frame);
+}
+
+bool Tracking::TryRelocalize(Frame* frame, Output* output) {
+  const bool reopening = !store_.current();
+  const std::optional<KeyframeId> at = relocalizer_.Relocalize(frame, &store_, &reference_keyframe_);
+  if (!at) return false;
+  if (reopening) store_.Reopen(SubmapOf(*at));
+  ++relocalizations_;
+  lost_ = false;
+  ForgetMotion();
+  initializer_.Reset();
+  OnTracked(frame, output, /*may_make_keyframe=*/false);
+  TrackResult& result = output->result;
+  result.relocalized = true;
+  result.detail = std::string(reopening ? "relocalized into closed submap " : "relocalized in submap ") +
+                  SubmapName(result.submap) + " at keyframe " + std::to_string(IndexOf(*at)) + " with " +
+                  std::to_string(result.num_tracked_points) + " points";
+  if (reopening) output->reopened_submap = result.submap;
+  return true;
+}
+
+Keyframe Tracking::CreateKeyframe(const Frame& frame) {
+  Map& map = *store_.current();
+  const KeyframeId id = store_.NewKeyframeId();
+  Keyframe* keyframe = nullptr;
+  if (keyframe_bow_ && frame.bow.empty()) {
+    // The bag of words serves relocalization only (the mapper computes its own): off the frame loop.
+    keyframe = &map.AddKeyframe(KeyframeFromFrame(frame, id));
+    keyframe_bow_->Submit(id, frame.descriptors);
+  } else {
+    Frame copy = frame;
+    ComputeBow(*vocabulary_, &copy);
+    keyframe = &map.AddKeyframe(KeyframeFromFrame(copy, id));
+    store_.AddToDatabase(*keyframe);
+  }
+  map.UpdateConnections(id);
+  reference_keyframe_ = id;
+  last_keyframe_frame_index_ = frame.frame_index;
+  last_keyframe_sent_ = id;
+  return *keyframe;
+}
+
+void Tracking::ApplyUpdate(const LocalMapUpdate& update) {
+  if (!store_.Apply(update)) return;
+  if (update.last_keyframe.value > mapper_processed_.value) mapper_processed_ = update.last_keyframe;
+  mapper_connected_ = true;
+}
+
+}  // namespace stitch

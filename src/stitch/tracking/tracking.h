@@ -1,0 +1,135 @@
+#pragma once
+// The tracker's per-frame algorithm (no LCM here; TrackerService carries it over the bus):
+// monocular keyframe tracking as in ORB-SLAM2, as a small state machine over parts with one job
+// each:
+//   - Initializer: two-view initialization of a new submap (initializer.h);
+//   - FramePlacer: motion model, homography, reference keyframe, then the local map
+//     (frame_placer.h);
+//   - Relocalizer: a frame placed from scratch through the keyframe database (relocalizer.h);
+//   - the keyframe decision (keyframe_decision.h);
+//   - SubmapStore: the current and closed submaps and the keyframe database (submap_store.h);
+//   - KeyframeBowWorker: new keyframes' bags of words off the frame loop (keyframe_bow.h).
+// It keeps its own copy of the current submap, which the mapper's updates refine, and knows
+// whether the mapper has taken the keyframes sent so far. One owner thread; not thread-safe
+// (it may run a worker thread of its own: keyframe_worker).
+//
+// States: no current submap -> initializing (and, after relocalize_closed_after_frames frames,
+// also relocalizing into the closed submaps, reopening the one it lands in); tracking; lost.
+// `lost_after_frames` consecutive untracked frames make tracking lost; fewer are skipped. Then,
+// by policy: kNewSubmap closes the submap and initializes a new one on the next usable frames;
+// kRelocalize (ORB-SLAM2's behaviour, the baseline) keeps the map and discards frames until one
+// relocalizes in it (docs/tracking-loss.md).
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "stitch/features/orb_extractor.h"
+#include "stitch/features/vocabulary.h"
+#include "stitch/map/local_map_update.h"
+#include "stitch/map/map.h"
+#include "stitch/map/view_geometry.h"
+#include "stitch/tracking/frame_placer.h"
+#include "stitch/tracking/initializer.h"
+#include "stitch/tracking/keyframe_bow.h"
+#include "stitch/tracking/relocalizer.h"
+#include "stitch/tracking/submap_store.h"
+#include "stitch/tracking/tracking_options.h"
+#include "stitch/tracking/tracking_result.h"
+
+namespace stitch {
+
+class Tracking {
+ public:
+  struct Output {
+    TrackResult result;
+    std::vector<Keyframe> new_keyframes;  // to send to the mapper, in order
+    std::vector<MapPoint> new_points;     // created with new_keyframes.front() (the initial map)
+    std::optional<SubmapId> closed_submap;
+    std::optional<SubmapId> reopened_submap;  // relocalized into this closed submap, now current again
+  };
+
+  // `vocabulary` must outlive the tracker.
+  Tracking(const TrackingOptions& options, const Camera& camera, const Vocabulary* vocabulary, double fps,
+           LossPolicy policy = LossPolicy::kNewSubmap);
+
+  Output Track(const cv::Mat& image, int frame_index, int64_t t_ns);
+  // Applies the mapper's changes to the tracker's copy of the submap (current or closed).
+  void ApplyUpdate(const LocalMapUpdate& update);
+  // Ends the current submap now (e.g. at shutdown); returns its id if there was one.
+  std::optional<SubmapId> CloseSubmap();
+
+  // The mapper has processed every keyframe sent so far.
+  bool MapperCaughtUp() const {
+    return !last_keyframe_sent_.valid() || mapper_processed_.value >= last_keyframe_sent_.value;
+  }
+  KeyframeId last_keyframe_sent() const { return last_keyframe_sent_; }
+  void SetMapperConnected(bool connected) { mapper_connected_ = connected; }
+  bool mapper_connected() const { return mapper_connected_; }
+  int submaps_closed() const { return submaps_closed_; }
+  int relocalizations() const { return relocalizations_; }
+  // Number the next new submap gets (persisted by the service so ids stay unique across restarts).
+  int next_submap_number() const { return next_submap_number_; }
+  bool lost() const { return lost_; }
+  const Map* map() const { return store_.current(); }
+  const Camera& camera() const { return geometry_.camera; }
+
+ private:
+  Output TrackFrame(const cv::Mat& image, int frame_index, int64_t t_ns);
+  // No current submap: initialize a new one, or relocalize into a closed one.
+  Output Initialize(Frame frame);
+  // Lost (relocalize policy): relocalize in the kept submap or discard the frame.
+  Output Relocalize(Frame frame, Output output);
+  // Tracks against the current submap; handles failure and loss.
+  void TrackInSubmap(Frame frame, Output* output);
+  // A frame placed in the current submap: velocity, keyframe decision, result.
+  void OnTracked(Frame* frame, Output* output, bool may_make_keyframe);
+  // Relocalizes `frame` (in the current submap, or in a closed one which is reopened); on
+  // success the frame is tracked and `output` says so.
+  bool TryRelocalize(Frame* frame, Output* output);
+  // Keyframes whose bag of words the worker has finished get it, and enter the database;
+  // `wait`: first wait for the worker to finish all.
+  void AdoptKeyframeBow(bool wait);
+  Keyframe CreateKeyframe(const Frame& frame);
+  // Forget the camera's motion (a new or reopened submap, or a lost camera).
+  void ForgetMotion();
+
+  TrackingOptions options_;
+  ViewGeometry geometry_;
+  const Vocabulary* vocabulary_;
+  double fps_;
+  OrbExtractor extractor_;
+  OrbExtractor init_extractor_;  // twice the features, for initialization (as ORB-SLAM)
+  LossPolicy policy_;
+
+  SubmapStore store_;
+  std::unique_ptr<KeyframeBowWorker> keyframe_bow_;  // with options_.keyframe_worker
+  Initializer initializer_;
+  FramePlacer placer_;
+  Relocalizer relocalizer_;
+
+  int next_submap_number_;
+  int submaps_closed_ = 0;
+  int relocalizations_ = 0;
+  bool lost_ = false;            // relocalize policy: the map is kept but the camera is not in it
+  int frames_initializing_ = 0;  // frames since the last submap closed (submap policy)
+  TrackingState last_state_ = TrackingState::kNotTracked;
+
+  std::optional<Frame> last_frame_;  // last tracked frame
+  std::optional<Rigid3d> velocity_;  // cam_from_world(k) * world_from_cam(k - 1)
+  KeyframeId reference_keyframe_;
+  int last_keyframe_frame_index_ = -1;
+  int consecutive_failures_ = 0;
+  double typical_sharpness_ = 0;  // running average over tracked frames
+
+  // What the mapper has taken.
+  KeyframeId last_keyframe_sent_;
+  KeyframeId mapper_processed_;
+  bool mapper_connected_ = true;
+};
+
+}  // namespace stitch
