@@ -14,6 +14,8 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
+#include "stitch/records/keyframe_record.h"
+#include "stitch/records/merger_records.h"
 #include "stitch/testing/temp_dir.h"
 #include "tests/test_process.h"
 
@@ -28,19 +30,17 @@ using testing::RunProgram;
 using testing::ReadJson;
 const std::string kShortFlight = testing::ShortFlightConfig();
 
-// Keyframe ids in the first column of a .tsv, skipping comments; `kept_only`: column 5 is 0.
-std::set<int64_t> KeyframeIds(const std::string& path, bool kept_only) {
+// The mapper's kept keyframes (keyframes.tsv) and the merged ones (keyframes_merged.tsv).
+std::set<int64_t> KeptKeyframes(const std::string& path) {
   std::set<int64_t> ids;
-  std::ifstream in(path);
-  std::string line;
-  while (std::getline(in, line)) {
-    if (line.empty() || line[0] == '#') continue;
-    std::istringstream fields(line);
-    int64_t id, a, b, c;
-    int culled = 0;
-    fields >> id >> a >> b >> c >> culled;
-    if (!kept_only || culled == 0) ids.insert(id);
+  for (const KeyframeRecord& r : ReadKeyframeRecords(path)) {
+    if (!r.culled) ids.insert(r.keyframe_id);
   }
+  return ids;
+}
+std::set<int64_t> MergedKeyframes(const std::string& path) {
+  std::set<int64_t> ids;
+  for (const MergedKeyframeRecord& r : ReadMergedKeyframeRecords(path)) ids.insert(r.keyframe.value);
   return ids;
 }
 
@@ -61,8 +61,8 @@ RunResult RunStitch(const fs::path& out, const std::vector<std::string>& extra) 
   if (result.exit_code != 0) return run;
   run.report = ReadJson((out / "report.json").string());
   run.info = ReadJson((out / "run.json").string());
-  run.kept = KeyframeIds((out / "keyframes.tsv").string(), true);
-  run.merged = KeyframeIds((out / "keyframes_merged.tsv").string(), false);
+  run.kept = KeptKeyframes((out / "keyframes.tsv").string());
+  run.merged = MergedKeyframes((out / "keyframes_merged.tsv").string());
   return run;
 }
 

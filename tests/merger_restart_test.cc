@@ -18,6 +18,7 @@
 #include "services/common/bus.h"
 #include "services/common/map_convert.h"
 #include "services/config/stitch_config.h"
+#include "stitch/records/merger_records.h"
 #include "stitch/pipeline/inline_pipeline.h"
 #include "stitch/source/source.h"
 #include "stitch/testing/temp_dir.h"
@@ -53,17 +54,13 @@ int64_t JournalRecords(const std::string& path) {
   return count;
 }
 
-// keyframes_merged.tsv: keyframe id -> the rest of its line.
-std::map<std::string, std::string> MergedKeyframes(const std::string& path) {
-  std::map<std::string, std::string> rows;
-  std::ifstream in(path);
-  std::string line;
-  while (std::getline(in, line)) {
-    if (line.empty() || line[0] == '#') continue;
-    std::istringstream fields(line);
-    std::string id;
-    fields >> id;
-    rows[id] = line;
+// keyframes_merged.tsv: keyframe id -> its merged map and pose (scale, rotation, translation).
+std::map<int64_t, std::vector<double>> MergedKeyframes(const std::string& path) {
+  std::map<int64_t, std::vector<double>> rows;
+  for (const MergedKeyframeRecord& r : ReadMergedKeyframeRecords(path)) {
+    const Sim3d& s = r.world_from_cam;
+    rows[r.keyframe.value] = {static_cast<double>(r.component), s.scale, s.rotation.x(), s.rotation.y(), s.rotation.z(),
+                              s.rotation.w(), s.translation.x(), s.translation.y(), s.translation.z()};
   }
   return rows;
 }
@@ -142,17 +139,8 @@ TEST(MergerRestart, AMergerKilledHalfwayResumesFromItsJournalAndLosesNothing) {
   ASSERT_EQ(rebuilt.exit_code, 0) << rebuilt.output;
   EXPECT_EQ(MergedKeyframes(dir / "rebuilt/keyframes_merged.tsv"), through);
 
-  std::ifstream submaps(dir / "resumed/submaps.tsv");
   int merged = 0;
-  std::string line;
-  while (std::getline(submaps, line)) {
-    if (line.empty() || line[0] == '#') continue;
-    std::istringstream fields(line);
-    int64_t id = -1;
-    int component = -1;
-    fields >> id >> component;
-    merged += component == 0;
-  }
+  for (const SubmapRecord& r : ReadSubmapRecords(dir / "resumed/submaps.tsv")) merged += r.component == 0;
   EXPECT_EQ(merged, 2) << "both submaps in merged map 0";
 }
 

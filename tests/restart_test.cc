@@ -15,6 +15,7 @@
 
 #include "services/common/bus.h"
 #include "stitch/records/frame_record.h"
+#include "stitch/records/tracker_state.h"
 #include "stitch/records/keyframe_record.h"
 #include "stitch/util/ids.h"
 #include "stitch/testing/temp_dir.h"
@@ -27,12 +28,9 @@ namespace {
 using namespace std::chrono_literals;
 using testing::Bin;
 
-// Complete lines after the header (the file is being written).
+// Whole records so far (the file is being written: its last line may be cut short).
 size_t CountRecords(const std::string& path) {
-  std::ifstream in(path);
-  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  const size_t lines = static_cast<size_t>(std::count(text.begin(), text.end(), '\n'));
-  return lines > 0 ? lines - 1 : 0;
+  return std::filesystem::exists(path) ? ReadFrameRecords(path).size() : 0;
 }
 
 TEST(TrackerRestart, SubmapIdsStayUniqueAndNoFrameIsLost) {
@@ -99,12 +97,7 @@ TEST(TrackerRestart, SubmapIdsStayUniqueAndNoFrameIsLost) {
         << "keyframe of frame " << records[i].frame_index << " in submap " << records[i].submap_id << " not mapped";
   }
   EXPECT_GE(made, 6);
-  std::ifstream saved(state);
-  std::string key;
-  int next = 0;
-  saved >> key >> next;
-  EXPECT_EQ(key, "next_submap_number");
-  EXPECT_EQ(next, 3);
+  EXPECT_EQ(ReadNextSubmapNumber(state), 3);
   std::ifstream log(dir / "tracker2.log");
   const std::string text((std::istreambuf_iterator<char>(log)), std::istreambuf_iterator<char>());
   EXPECT_NE(text.find("resuming: submaps continue from number 2"), std::string::npos) << text;

@@ -24,6 +24,7 @@ void ServiceCommandLine::Register(ArgParser* args) {
   args->AddOption("--lcm-url", &lcm_url, "URL", "LCM bus (udpm://group:port?ttl=0, or memq:// in one process)");
   args->AddOption("--agent", &agent, "NAME", "agent (aircraft) name; prefixes every channel");
   args->AddOption("--config", &config_path, "FILE", "YAML settings (see config/default.yaml)");
+  args->AddOption("--set", &settings, "KEY=VALUE", "a setting over the file, e.g. tracker.tracking.orb.num_features=1500");
   args->AddOption("--log-level", &log_level, "LEVEL", "debug, info, warning or error");
 }
 

@@ -7,6 +7,7 @@
 #include <memory>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include "services/common/bus.h"
 #include "stitch/service_status_t.hpp"
@@ -21,6 +22,7 @@ struct ServiceCommandLine {
   std::string lcm_url = bus::DefaultLcmUrl();
   std::string agent = "uav0";
   std::string config_path;   // YAML with one section per service; empty: defaults
+  std::vector<std::string> settings;  // --set KEY=VALUE, over the file (and a program's own flags)
   std::string log_level = "info";
 
   void Register(ArgParser* args);

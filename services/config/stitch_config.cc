@@ -1,5 +1,6 @@
 #include "services/config/stitch_config.h"
 
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -30,12 +31,14 @@ Vocabulary LoadVocabulary(const StitchConfig& config) {
   return Vocabulary::Load(config.vocabulary.empty() ? DefaultVocabularyPath() : config.vocabulary);
 }
 
-StitchConfig ApplySettings(StitchConfig config, const std::string& settings) {
+StitchConfig LoadStitchConfig(const std::string& path, const std::vector<std::string>& settings) {
+  return ApplySettings(LoadStitchConfig(path), settings);
+}
+
+StitchConfig ApplySettings(StitchConfig config, const std::vector<std::string>& settings) {
   if (settings.empty()) return config;
   YAML::Node root(YAML::NodeType::Map);
-  std::stringstream list(settings);
-  std::string setting;
-  while (std::getline(list, setting, ',')) {
+  for (const std::string& setting : settings) {
     const size_t equals = setting.find('=');
     if (equals == std::string::npos || equals == 0) throw Error("setting '" + setting + "': expected key.path=value");
     std::vector<std::string> path;
@@ -61,6 +64,25 @@ StitchConfig ApplySettings(StitchConfig config, const std::string& settings) {
     chain.back()[path.back()] = value;
   }
   return ReadOptions<StitchConfig>(root, "--set", std::move(config));
+}
+
+StitchConfig ApplySettings(StitchConfig config, const std::string& settings) {
+  std::vector<std::string> list;
+  std::stringstream items(settings);
+  for (std::string setting; std::getline(items, setting, ',');) list.push_back(setting);
+  return ApplySettings(std::move(config), list);
+}
+
+std::string TextSetting(const std::string& key, const std::string& value) {
+  std::string quoted = "'";
+  for (char c : value) quoted += c == '\'' ? std::string("''") : std::string(1, c);
+  return key + "=" + quoted + "'";
+}
+
+std::string NumberSetting(const std::string& key, double value) {
+  char text[32];
+  std::snprintf(text, sizeof(text), "%.17g", value);
+  return key + "=" + text;
 }
 
 void SaveStitchConfig(const StitchConfig& config, const std::string& path) {

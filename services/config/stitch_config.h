@@ -4,6 +4,7 @@
 // to each run's folder (config.yaml). `stitch config` prints the defaults with their help.
 
 #include <string>
+#include <vector>
 
 #include "services/ingest/ingest_options.h"
 #include "services/link/link_options.h"
@@ -49,9 +50,19 @@ std::string DefaultVocabularyPath();
 
 // Defaults when `path` is empty. Throws stitch::Error naming the file and key on any problem.
 StitchConfig LoadStitchConfig(const std::string& path);
+// The file (or the defaults), then `settings` ("key.path=value" each) over it: the one way every
+// program turns its command line into settings (--config FILE, --set KEY=VALUE, and its own
+// flags, each a setting). Throws stitch::Error naming the file, setting and key.
+StitchConfig LoadStitchConfig(const std::string& path, const std::vector<std::string>& settings);
 void SaveStitchConfig(const StitchConfig& config, const std::string& path);
-// `config` with settings "key.path=value[,key.path=value...]" applied (e.g.
-// "tracker.tracking.homography_tracking=false"); checked like a file. Throws stitch::Error.
+// `config` with settings applied, each "key.path=value" (e.g.
+// "tracker.tracking.homography_tracking=false"; the value is YAML); checked like a file. Throws
+// stitch::Error.
+StitchConfig ApplySettings(StitchConfig config, const std::vector<std::string>& settings);
+// The same from "key=value[,key=value...]" (values without commas).
 StitchConfig ApplySettings(StitchConfig config, const std::string& settings);
+// A setting giving `key` the text `value` as it is (quoted for YAML), or a number.
+std::string TextSetting(const std::string& key, const std::string& value);
+std::string NumberSetting(const std::string& key, double value);
 
 }  // namespace stitch

@@ -79,5 +79,23 @@ TEST(StitchConfig, SettingsOverrideTheGivenConfigurationAndAreChecked) {
   EXPECT_THROW(ApplySettings(base, "tracker..orb=1"), Error);
 }
 
+TEST(StitchConfig, FlagsBecomeSettingsOverTheFileAndTextStaysAsGiven) {
+  testing::TempDir dir;
+  const std::string file = dir / "settings.yaml";
+  std::ofstream(file) << "tracker:\n  on_loss: relocalize\nlink:\n  budget_bytes_per_s: 3000\n";
+  // A program's own flags are settings after --set's: the last word wins.
+  const std::string regex = "uav0/(SUBMAP|SEQUENCE): 'x'";
+  const StitchConfig config =
+      LoadStitchConfig(file, {"link.budget_bytes_per_s=4000", TextSetting("tracker.on_loss", "submap"),
+                              TextSetting("link.forward", regex), NumberSetting("link.loss", 0.05)});
+  EXPECT_EQ(config.tracker.on_loss, "submap");
+  EXPECT_EQ(config.link.budget_bytes_per_s, 4000);
+  EXPECT_EQ(config.link.forward, regex) << "quotes, colons and bars survive";
+  EXPECT_DOUBLE_EQ(config.link.loss, 0.05);
+  // A value with commas is one setting when given as one.
+  EXPECT_EQ(ApplySettings(StitchConfig(), std::vector<std::string>{TextSetting("link.forward", "a,b")}).link.forward, "a,b");
+  EXPECT_THROW(LoadStitchConfig(file, {TextSetting("tracker.on_loss", "hover")}), Error);
+}
+
 }  // namespace
 }  // namespace stitch

@@ -29,10 +29,10 @@ int main(int argc, char** argv) {
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {
     common.Apply("ingest");
-    StitchConfig config = LoadStitchConfig(common.config_path);
-    if (!pacing.empty()) config.ingest.pacing = pacing;
-    if (!encoding.empty()) config.ingest.encoding = encoding;
-    CheckOptions(config.ingest, "ingest");
+    std::vector<std::string> settings = common.settings;
+    if (args.Given("--pacing")) settings.push_back(TextSetting("ingest.pacing", pacing));
+    if (args.Given("--encoding")) settings.push_back(TextSetting("ingest.encoding", encoding));
+    const StitchConfig config = LoadStitchConfig(common.config_path, settings);
     source.synthetic = config.synthetic;
     FailureSchedule spoil;
     auto sequence = OpenSource(source, &spoil);

@@ -34,17 +34,17 @@ int main(int argc, char** argv) {
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {
     common.Apply("link");
-    StitchConfig config = LoadStitchConfig(common.config_path);
-    LinkOptions& options = config.link;
-    if (args.Given("--forward")) options.forward = given.forward;
-    if (args.Given("--listen")) options.listen = given.listen;
-    if (args.Given("--peer")) options.peer = given.peer;
-    if (args.Given("--budget")) options.budget_bytes_per_s = given.budget_bytes_per_s;
-    if (args.Given("--loss")) options.loss = given.loss;
-    if (args.Given("--delay-ms")) options.delay_ms = given.delay_ms;
-    if (args.Given("--jitter-ms")) options.jitter_ms = given.jitter_ms;
-    if (args.Given("--seed")) options.seed = given.seed;
-    CheckOptions(options, "link");
+    std::vector<std::string> settings = common.settings;
+    if (args.Given("--forward")) settings.push_back(TextSetting("link.forward", given.forward));
+    if (args.Given("--listen")) settings.push_back(TextSetting("link.listen", given.listen));
+    if (args.Given("--peer")) settings.push_back(TextSetting("link.peer", given.peer));
+    if (args.Given("--budget")) settings.push_back(NumberSetting("link.budget_bytes_per_s", given.budget_bytes_per_s));
+    if (args.Given("--loss")) settings.push_back(NumberSetting("link.loss", given.loss));
+    if (args.Given("--delay-ms")) settings.push_back(NumberSetting("link.delay_ms", given.delay_ms));
+    if (args.Given("--jitter-ms")) settings.push_back(NumberSetting("link.jitter_ms", given.jitter_ms));
+    if (args.Given("--seed")) settings.push_back("link.seed=" + std::to_string(given.seed));
+    const StitchConfig config = LoadStitchConfig(common.config_path, settings);
+    const LinkOptions& options = config.link;
     const auto& stop = InstallStopSignals();
     auto lcm = bus::OpenLcm(common.lcm_url);
     LinkBridge bridge(lcm.get(), options);

@@ -20,7 +20,7 @@ int main(int argc, char** argv) {
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {
     common.Apply("mapper");
-    const StitchConfig config = LoadStitchConfig(common.config_path);
+    const StitchConfig config = LoadStitchConfig(common.config_path, common.settings);
     const Vocabulary vocabulary = LoadVocabulary(config);
     const auto& stop = InstallStopSignals();
     auto lcm = bus::OpenLcm(common.lcm_url);

@@ -25,11 +25,11 @@ int main(int argc, char** argv) {
                  "restarted with the same DIR resumes where the last one stopped or was killed");
   args.AddOption("--agents", &agents_list, "A,B,...",
                  "merge the submaps of these aircraft (their <agent>/SUBMAP), e.g. uav0,uav1 (default: --agent); each "
-                 "aircraft needs its own tracker.agent_number");
+                 "aircraft needs its own tracker.tracking.agent_number");
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {
     common.Apply("merger");
-    const StitchConfig config = LoadStitchConfig(common.config_path);
+    const StitchConfig config = LoadStitchConfig(common.config_path, common.settings);
     const Vocabulary vocabulary = LoadVocabulary(config);
     const auto& stop = InstallStopSignals();
     auto lcm = bus::OpenLcm(common.lcm_url);

@@ -23,10 +23,10 @@ int main(int argc, char** argv) {
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {
     common.Apply("tracker");
-    StitchConfig config = LoadStitchConfig(common.config_path);
-    if (!on_loss.empty()) config.tracker.on_loss = on_loss;
-    if (!state_file.empty()) config.tracker.state_file = state_file;
-    CheckOptions(config.tracker, "tracker");
+    std::vector<std::string> settings = common.settings;
+    if (args.Given("--on-loss")) settings.push_back(TextSetting("tracker.on_loss", on_loss));
+    if (args.Given("--state")) settings.push_back(TextSetting("tracker.state_file", state_file));
+    const StitchConfig config = LoadStitchConfig(common.config_path, settings);
     const Vocabulary vocabulary = LoadVocabulary(config);
     const auto& stop = InstallStopSignals();
     auto lcm = bus::OpenLcm(common.lcm_url);

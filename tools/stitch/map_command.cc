@@ -18,6 +18,7 @@ namespace stitch {
 int MapCommand(int argc, char** argv) {
   std::vector<std::string> logs;
   std::string out, config_path, agents = "uav0";
+  std::vector<std::string> settings;
   ArgParser args("stitch map",
                  "Rebuilds the merged map from recorded submap updates: the merger's journal "
                  "(RUN/merger/submap_updates.lcmlog, kept by `stitch run --journal` and by `stitch-merger --state`) or an "
@@ -27,6 +28,7 @@ int MapCommand(int argc, char** argv) {
   args.AddPositional(&logs, "LOG", "an LCM log with submap updates");
   args.AddOption("--out", &out, "DIR", "where to write the merged map (created; must not hold one already)");
   args.AddOption("--config", &config_path, "FILE", "YAML settings (default: built-in; a run's config.yaml reproduces it)");
+  args.AddOption("--set", &settings, "KEY=VALUE", "a setting over the file, e.g. merger.min_connection_strength=15");
   args.AddOption("--agents", &agents, "A,B,...", "whose updates to take (channels <agent>/SUBMAP)");
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {
@@ -36,7 +38,7 @@ int MapCommand(int argc, char** argv) {
     if (fs::exists(fs::path(out) / "submaps.tsv")) throw Error(out + " already holds a merged map; give a new folder");
     const std::vector<std::string> agent_list = bus::SplitAgents(agents);
     if (agent_list.empty()) throw Error("--agents: name at least one aircraft");
-    const StitchConfig config = LoadStitchConfig(config_path);
+    const StitchConfig config = LoadStitchConfig(config_path, settings);
     const Vocabulary vocabulary = LoadVocabulary(config);
     auto lcm = bus::OpenLcm("memq://");
     bus::Publisher publisher(lcm.get(), agent_list.front());

@@ -21,19 +21,21 @@ namespace stitch {
 
 int RenderCommand(int argc, char** argv) {
   std::string out_dir, config_path, failures = "default";
+  std::vector<std::string> settings;
   int max_frames = -1;
   ArgParser args("stitch render",
                  "Renders the synthetic UAV survey flight to an image folder: frames as PNG named by timestamp, "
                  "camera.yaml and groundtruth.txt (TUM).");
   args.AddOption("--out", &out_dir, "DIR", "output folder (required)");
   args.AddOption("--config", &config_path, "FILE", "YAML settings; its synthetic: section shapes the flight");
+  args.AddOption("--set", &settings, "KEY=VALUE", "a setting over the file, e.g. synthetic.flight.altitude_m=40");
   args.AddOption("--failures", &failures, "SPEC", "gusts: default (3), none, or FRAME:LENGTH,...");
   args.AddOption("--max-frames", &max_frames, "N", "render at most N frames");
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {
     if (out_dir.empty()) throw Error("--out DIR is required");
     SourceSpec spec;
-    spec.synthetic = LoadStitchConfig(config_path).synthetic;
+    spec.synthetic = LoadStitchConfig(config_path, settings).synthetic;
     spec.failures = failures;
     spec.max_frames = max_frames;
     FailureSchedule unused;
@@ -65,13 +67,15 @@ int RenderCommand(int argc, char** argv) {
 
 int ConfigCommand(int argc, char** argv) {
   std::string config_path;
+  std::vector<std::string> settings;
   ArgParser args("stitch config",
                  "Prints the configuration with every setting and its meaning: the defaults, or a file's settings "
                  "merged over them (which also checks the file).");
   args.AddOption("--config", &config_path, "FILE", "a settings file to check and show resolved");
+  args.AddOption("--set", &settings, "KEY=VALUE", "a setting over the file, checked and shown resolved");
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {
-    const StitchConfig config = LoadStitchConfig(config_path);
+    const StitchConfig config = LoadStitchConfig(config_path, settings);
     std::printf("# stitch settings%s. Any subset may be given to --config; unknown keys are errors.\n%s",
                 config_path.empty() ? " (defaults)" : (" resolved from " + config_path).c_str(),
                 DumpOptions(config).c_str());

@@ -50,6 +50,7 @@ struct RunArgs {
   bool link = false;     // a link bridge pair between the aircraft's bus and the ground's
   bool netns = false;    // and the two sides in two network namespaces
   double link_loss = -1, link_delay_ms = -1, link_budget = -1;  // < 0: as configured
+  std::vector<std::string> settings;  // --set KEY=VALUE
 };
 
 // One run's outcome, for the comparison table.
@@ -145,13 +146,14 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
   SourceSpec spec;
   try {
     bus::CheckAgentName(a.agent);
-    config = LoadStitchConfig(a.config_path);
-    if (!a.pacing.empty()) config.ingest.pacing = a.pacing;
-    if (!a.on_loss.empty()) config.tracker.on_loss = a.on_loss;
-    if (a.link_loss >= 0) config.link.loss = a.link_loss;
-    if (a.link_delay_ms >= 0) config.link.delay_ms = a.link_delay_ms;
-    if (a.link_budget >= 0) config.link.budget_bytes_per_s = a.link_budget;
-    CheckOptions(config, "settings");
+    // The launcher's own flags are settings like --set's, over the file.
+    std::vector<std::string> settings = a.settings;
+    if (!a.pacing.empty()) settings.push_back(TextSetting("ingest.pacing", a.pacing));
+    if (!a.on_loss.empty()) settings.push_back(TextSetting("tracker.on_loss", a.on_loss));
+    if (a.link_loss >= 0) settings.push_back(NumberSetting("link.loss", a.link_loss));
+    if (a.link_delay_ms >= 0) settings.push_back(NumberSetting("link.delay_ms", a.link_delay_ms));
+    if (a.link_budget >= 0) settings.push_back(NumberSetting("link.budget_bytes_per_s", a.link_budget));
+    config = LoadStitchConfig(a.config_path, settings);
     spec.dataset_path = a.dataset;
     spec.calibration_path = a.calibration;
     spec.failures = a.failures;
@@ -436,6 +438,7 @@ int RunCommand(int argc, char** argv) {
                  "induced failures: none, FRAME:LENGTH,... or default (synthetic: 3 gusts; datasets: none)");
   args.AddOption("--on-loss", &a.on_loss, "MODE", "submap (stitch, default) or relocalize (ORB-SLAM2-like baseline)");
   args.AddOption("--config", &a.config_path, "FILE", "YAML settings (print the defaults with `stitch config`)");
+  args.AddOption("--set", &a.settings, "KEY=VALUE", "a setting over the file, e.g. tracker.tracking.orb.num_features=1500");
   args.AddOption("--calib", &a.calibration, "FILE", "calibration overriding the dataset's own");
   args.AddOption("--max-frames", &a.max_frames, "N", "play at most N frames");
   args.AddOption("--pacing", &a.pacing, "MODE", "lockstep (reproducible, default) or realtime");

@@ -1,5 +1,5 @@
 #pragma once
-// Evaluation of a run against ground truth (DESIGN.md, "Evaluation protocol"):
+// Evaluation of a run against ground truth (docs/method.md, "Evaluation protocol"):
 //  - completeness: frames with a pose in the largest merged map / frames in the sequence;
 //  - ATE RMSE after Sim3 (Umeyama) alignment over the frames that have a pose, globally and per
 //    submap; RPE between consecutive posed frames after the same alignment;

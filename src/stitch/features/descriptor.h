@@ -21,8 +21,7 @@ inline int HammingDistance(const uint8_t* a, const uint8_t* b) {
 }
 inline int HammingDistance(const Descriptor& a, const Descriptor& b) { return HammingDistance(a.data(), b.data()); }
 
-// Row `i` of an N x 32 CV_8U descriptor matrix.
-inline const uint8_t* DescriptorRow(const cv::Mat& descriptors, int i) { return descriptors.ptr<uint8_t>(i); }
+// A descriptor from its 32 bytes (e.g. row i of an N x 32 CV_8U matrix: descriptors.ptr<uint8_t>(i)).
 inline Descriptor ToDescriptor(const uint8_t* bytes) {
   Descriptor d;
   std::memcpy(d.data(), bytes, kDescriptorBytes);

@@ -31,7 +31,7 @@ class KeyframeDatabase {
 
   // Every keyframe that shares at least `min_common_words` words with `query` and whose submap
   // `accept_submap` accepts (all when empty), with its common-word count and L1 score, in no
-  // particular order. What the adaptive thresholds of DESIGN.md need.
+  // particular order. What the adaptive thresholds of docs/method.md need.
   std::vector<Candidate> Query(const BowVector& query, const std::function<bool(int64_t)>& accept_submap = nullptr,
                                int min_common_words = 1) const;
 

@@ -191,13 +191,4 @@ void SaveCalibration(const Camera& camera, const std::string& path) {
   if (!out) throw Error(path + ": write failed");
 }
 
-void CheckCalibrationMatchesImage(const Camera& camera, int image_width, int image_height,
-                                  const std::string& source) {
-  if (camera.width() != image_width || camera.height() != image_height) {
-    throw Error(Str() << source << ": calibration is for " << camera.width() << "x"
-                      << camera.height() << " images but the images are " << image_width << "x"
-                      << image_height);
-  }
-}
-
 }  // namespace stitch

@@ -19,8 +19,4 @@ Camera LoadCalibration(const std::string& path, int image_width = 0, int image_h
 // Writes the camera as an ORB-SLAM-style settings file.
 void SaveCalibration(const Camera& camera, const std::string& path);
 
-// Throws stitch::Error ("<source>: calibration is 640x480 but images are 752x480") on mismatch.
-void CheckCalibrationMatchesImage(const Camera& camera, int image_width, int image_height,
-                                  const std::string& source);
-
 }  // namespace stitch

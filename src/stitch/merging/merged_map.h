@@ -1,5 +1,5 @@
 #pragma once
-// One merged map as a single Map (DESIGN.md, step 4, after the pose graph): every keyframe of
+// One merged map as a single Map (docs/method.md, step 4, after the pose graph): every keyframe of
 // the merged submaps at its refined pose in the merged map's frame, their points carried with
 // their reference keyframes, the same physical point seen from two submaps fused into one (first
 // the verified matches of the connected frames, then by projection between the keyframes around

@@ -28,7 +28,7 @@ double Median(std::vector<double> values) {
   return values[middle];
 }
 
-// The adaptive thresholds of DESIGN.md on database candidates: at least k x the best
+// The adaptive thresholds of docs/method.md on database candidates: at least k x the best
 // shared-word count, then at least l x the best score; the `keep` best by score remain. Returns
 // how many passed k.
 int ApplyAdaptiveThresholds(std::vector<KeyframeDatabase::Candidate>* candidates, double k, double l, int keep) {

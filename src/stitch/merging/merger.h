@@ -1,6 +1,6 @@
 #pragma once
-// The merger's algorithm (no LCM here; MergerService carries it over the bus), DESIGN.md steps
-// 2-4: it keeps a copy of every submap from the mappers' updates; for each new keyframe of a
+// The merger's algorithm (no LCM here; MergerService carries it over the bus), docs/method.md,
+// steps 2-4: it keeps a copy of every submap from the mappers' updates; for each new keyframe of a
 // submap it retrieves connected frames in the other submaps with the adaptive thresholds
 // k = N1/N0 and l = S1/S0, verifies each by matching map points and a Sim3, and from the
 // verified connections builds the submap graph, whose minimum spanning tree decides the merges.

@@ -15,9 +15,9 @@ bool ConnectionWeights::Check(std::string* why) const {
 
 bool MergedMapOptions::Check(std::string* why) const {
   auto fail = [&](const std::string& m) { if (why) *why = m; return false; };
-  if (fuse_window < 0) return fail("merged_map.fuse_window must be >= 0");
-  if (!(fuse_radius_px > 0)) return fail("merged_map.fuse_radius_px must be > 0");
-  if (bundle_adjustment_iterations < 1) return fail("merged_map.bundle_adjustment_iterations must be >= 1");
+  if (fuse_window < 0) return fail("merger.merged_map.fuse_window must be >= 0");
+  if (!(fuse_radius_px > 0)) return fail("merger.merged_map.fuse_radius_px must be > 0");
+  if (bundle_adjustment_iterations < 1) return fail("merger.merged_map.bundle_adjustment_iterations must be >= 1");
   return true;
 }
 

@@ -1,5 +1,5 @@
 #pragma once
-// The merger's submap graph (DESIGN.md, steps 3-4): verified connected frames between submaps
+// The merger's submap graph (docs/method.md, steps 3-4): verified connected frames between submaps
 // give each pair of submaps a connection strength C = F + 0.1 M + 0.1 theta_m^2 (weights in
 // MergerOptions::connection_weights); pairs at or
 // above a threshold are edges of weight -C, and Kruskal's minimum spanning tree over them (the

@@ -42,19 +42,28 @@ std::string SyntheticSequence::description() const {
                << flight_.gusts().ToString() << ")";
 }
 
+void SyntheticSequence::AddSensorNoise(cv::Mat* image, uint64_t key) const {
+  if (!(options_.noise_sigma > 0)) return;
+  cv::Mat noise(image->size(), CV_16S);
+  cv::RNG rng(HashU64(static_cast<uint64_t>(options_.seed), key, 0x4e));
+  rng.fill(noise, cv::RNG::NORMAL, 0.0, options_.noise_sigma);
+  cv::Mat noisy;
+  image->convertTo(noisy, CV_16S);
+  noisy += noise;
+  noisy.convertTo(*image, CV_8U);
+}
+
 cv::Mat SyntheticSequence::RenderFrame(int index, cv::Mat* depth) const {
   cv::Mat image = renderer_->Render(flight_.WorldFromCam(index).Inverse(), depth);
   const auto [blur_px, blur_angle] = flight_.GustBlur(index);
   if (blur_px > 0) ApplyMotionBlur(&image, blur_px, blur_angle);
-  if (options_.noise_sigma > 0) {
-    cv::Mat noise(image.size(), CV_16S);
-    cv::RNG rng(HashU64(static_cast<uint64_t>(options_.seed), static_cast<uint64_t>(index), 0x4e));
-    rng.fill(noise, cv::RNG::NORMAL, 0.0, options_.noise_sigma);
-    cv::Mat noisy;
-    image.convertTo(noisy, CV_16S);
-    noisy += noise;
-    noisy.convertTo(image, CV_8U);
-  }
+  AddSensorNoise(&image, static_cast<uint64_t>(index));
+  return image;
+}
+
+cv::Mat SyntheticSequence::RenderAt(const Rigid3d& world_from_cam, uint64_t noise_key, cv::Mat* depth) const {
+  cv::Mat image = renderer_->Render(world_from_cam.Inverse(), depth);
+  AddSensorNoise(&image, noise_key);
   return image;
 }
 

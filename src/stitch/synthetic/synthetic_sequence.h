@@ -51,11 +51,15 @@ class SyntheticSequence : public ImageSequence {
 
   // Random access, for tests and tools.
   cv::Mat RenderFrame(int index, cv::Mat* depth = nullptr) const;
+  // The world seen from any pose (no gust blur), with the sensor noise drawn from `noise_key`.
+  cv::Mat RenderAt(const Rigid3d& world_from_cam, uint64_t noise_key, cv::Mat* depth = nullptr) const;
   const FlightPlan& flight() const { return flight_; }
   const SyntheticWorld& world() const { return *world_; }
   SyntheticWorld& mutable_world() { return *world_; }
 
  private:
+  void AddSensorNoise(cv::Mat* image, uint64_t key) const;
+
   SyntheticOptions options_;
   Camera camera_;
   FlightPlan flight_;

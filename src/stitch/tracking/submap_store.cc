@@ -1,5 +1,7 @@
 #include "stitch/tracking/submap_store.h"
 
+#include <algorithm>
+
 namespace stitch {
 
 void SubmapStore::StartCurrent(std::unique_ptr<Map> map, uint32_t next_keyframe_index) {
@@ -16,15 +18,14 @@ std::optional<SubmapId> SubmapStore::CloseCurrent() {
 }
 
 bool SubmapStore::Reopen(SubmapId id) {
-  for (auto it = closed_.begin(); it != closed_.end(); ++it) {
-    if (it->map->id() != id) continue;
-    if (current_) CloseCurrent();
-    current_ = std::move(it->map);
-    next_keyframe_index_ = it->next_keyframe_index;
-    closed_.erase(it);
-    return true;
-  }
-  return false;
+  const auto it = std::find_if(closed_.begin(), closed_.end(), [&](const Closed& c) { return c.map->id() == id; });
+  if (it == closed_.end()) return false;
+  Closed reopened = std::move(*it);
+  closed_.erase(it);
+  if (current_) CloseCurrent();
+  current_ = std::move(reopened.map);
+  next_keyframe_index_ = reopened.next_keyframe_index;
+  return true;
 }
 
 KeyframeId SubmapStore::NewKeyframeId() { return MakeKeyframeId(current_->id(), next_keyframe_index_++); }

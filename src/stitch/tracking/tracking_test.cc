@@ -1,1 +1,423 @@
+// The tracker's stages one at a time, on rendered views with exact poses and depth (the way
+// COLMAP's incremental mapper tests step through a synthesized scene): when one breaks, its test
+// says which. The whole tracker on whole flights: src/stitch/pipeline.
+
+#include <cmath>
+
 #include <gtest/gtest.h>
+
+#include "stitch/testing/default_vocabulary.h"
+#include "stitch/testing/rendered_views.h"
+#include "stitch/tracking/frame_placer.h"
+#include "stitch/tracking/initializer.h"
+#include "stitch/tracking/keyframe_decision.h"
+#include "stitch/tracking/relocalizer.h"
+#include "stitch/tracking/submap_store.h"
+
+namespace stitch {
+namespace {
+
+using testing::DefaultVocabulary;
+using testing::RenderedViews;
+using testing::RotationErrorDeg;
+using testing::TranslationError;
+
+// The default flight's strip: 70 m above the terrain, 1 m a frame.
+RenderedViews& Strip() {
+  static RenderedViews* views = new RenderedViews();
+  return *views;
+}
+
+OrbExtractor& InitializationExtractor() {
+  static OrbExtractor* extractor = new OrbExtractor([] {
+    OrbOptions options;
+    options.num_features *= 2;  // as the tracker initializes
+    return options;
+  }());
+  return *extractor;
+}
+
+double AngleBetweenDeg(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
+  return std::acos(std::clamp(a.normalized().dot(b.normalized()), -1.0, 1.0)) * 180.0 / M_PI;
+}
+
+// ---------------------------------------------------------------- initialization
+
+// Two views at `a` and `b` (world_from_cam) through a fresh initializer.
+Initializer::Result InitializeBetween(RenderedViews& views, const Rigid3d& a, const Rigid3d& b) {
+  Initializer initializer(TrackingOptions(), &views.geometry(), &DefaultVocabulary());
+  const Initializer::Result first = initializer.Add(views.RenderPose(a, 0, nullptr, &InitializationExtractor()), MakeSubmapId(0, 1));
+  EXPECT_FALSE(first.map);
+  EXPECT_TRUE(initializer.has_reference());
+  return initializer.Add(views.RenderPose(b, 1, nullptr, &InitializationExtractor()), MakeSubmapId(0, 1));
+}
+
+// The initial map against the truth: keyframe 0 is the first view, keyframe 1 the second; the
+// translation is known up to scale.
+void ExpectTrueRelativePose(const Initializer::Result& result, const Rigid3d& a, const Rigid3d& b) {
+  ASSERT_TRUE(result.map) << result.detail;
+  const Map& map = *result.map;
+  EXPECT_EQ(map.num_keyframes(), 2u);
+  EXPECT_GE(static_cast<int>(map.num_points()), TrackingOptions().init_min_matches);
+  const KeyframeId id0 = MakeKeyframeId(map.id(), 0), id1 = MakeKeyframeId(map.id(), 1);
+  EXPECT_NEAR(map.MedianDepth(id0), 1.0, 1e-6) << "the submap's scale is unit median depth";
+  const Rigid3d truth = b.Inverse() * a;  // cam2_from_cam1
+  const Rigid3d& estimated = map.FindKeyframe(id1)->cam_from_world;
+  EXPECT_LT(RotationErrorDeg(estimated, truth), 0.5);
+  EXPECT_LT(AngleBetweenDeg(estimated.translation, truth.translation), 5.0);
+  ASSERT_TRUE(result.frame.cam_from_world);
+  EXPECT_LT(TranslationError(*result.frame.cam_from_world, estimated), 1e-12) << "the frame is keyframe 1";
+  EXPECT_EQ(result.frame.CountTracked(), map.FindKeyframe(id1)->CountPoints());
+}
+
+TEST(Initializer, FlatGroundSeenFromAboveInitializesFromAHomography) {
+  SyntheticOptions options = RenderedViews::Strip(40);
+  options.world.relief_m = 0;
+  options.world.num_buildings = 0;
+  RenderedViews views(options);
+  const Rigid3d a = views.WorldFromCam(0), b = views.WorldFromCam(12);
+  const Initializer::Result result = InitializeBetween(views, a, b);
+  ExpectTrueRelativePose(result, a, b);
+  EXPECT_NE(result.detail.find("homography"), std::string::npos) << result.detail;
+}
+
+TEST(Initializer, BuildingsSeenFromLowInitializeFromAnEssentialMatrix) {
+  SyntheticOptions options = RenderedViews::Strip(40);
+  options.flight.altitude_m = 30;
+  options.world.relief_m = 0;
+  options.world.num_buildings = 200;
+  options.world.building_min_height_m = 10;
+  options.world.building_max_height_m = 20;
+  RenderedViews views(options);
+  const Rigid3d a = views.WorldFromCam(0), b = views.WorldFromCam(3);
+  const Initializer::Result result = InitializeBetween(views, a, b);
+  ExpectTrueRelativePose(result, a, b);
+  EXPECT_NE(result.detail.find("essential"), std::string::npos) << result.detail;
+}
+
+TEST(Initializer, AStillCameraNeverInitializes) {
+  Initializer initializer(TrackingOptions(), &Strip().geometry(), &DefaultVocabulary());
+  const Rigid3d still = Strip().WorldFromCam(20);
+  for (int i = 0; i < 8; ++i) {
+    // The same view again and again, only the sensor noise differs: no parallax.
+    const Initializer::Result result =
+        initializer.Add(Strip().RenderPose(still, i, nullptr, &InitializationExtractor()), MakeSubmapId(0, 1));
+    EXPECT_FALSE(result.map) << "frame " << i << ": " << result.detail;
+    EXPECT_NE(result.reason, TrackingReason::kNone);
+  }
+}
+
+TEST(Initializer, AFrameWithoutFeaturesForgetsTheReference) {
+  Initializer initializer(TrackingOptions(), &Strip().geometry(), &DefaultVocabulary());
+  initializer.Add(Strip().RenderPose(Strip().WorldFromCam(0), 0, nullptr, &InitializationExtractor()), MakeSubmapId(0, 1));
+  ASSERT_TRUE(initializer.has_reference());
+  Frame black = MakeFrame(cv::Mat::zeros(480, 640, CV_8UC1), 1, 0, &InitializationExtractor(), Strip().geometry().undistorter);
+  const Initializer::Result result = initializer.Add(std::move(black), MakeSubmapId(0, 1));
+  EXPECT_EQ(result.reason, TrackingReason::kTooFewFeatures);
+  EXPECT_FALSE(initializer.has_reference());
+}
+
+// ---------------------------------------------------------------- frame placement
+
+// A map of one keyframe (frame `index`, points at true depth) and that frame as the last
+// tracked frame (tracking every point of the keyframe).
+struct OneKeyframe {
+  Map map{SubmapId(), ScalePyramid()};
+  Frame last;
+  KeyframeId keyframe;
+};
+
+OneKeyframe MakeOneKeyframe(int index) {
+  OneKeyframe scene;
+  cv::Mat depth;
+  scene.last = Strip().Render(index, &depth);
+  Keyframe keyframe;
+  scene.map = Strip().MapFromFrame(scene.last, depth, &keyframe);
+  scene.keyframe = keyframe.id;
+  scene.last.points = keyframe.points;
+  Keyframe* in_map = scene.map.FindKeyframe(keyframe.id);
+  in_map->bow = DefaultVocabulary().Transform(in_map->descriptors, &in_map->bow_features);
+  return scene;
+}
+
+// The true velocity cam_from_world(k) * world_from_cam(k - 1) between two frames of the strip.
+Rigid3d TrueVelocity(int from, int to) { return Strip().WorldFromCam(to).Inverse() * Strip().WorldFromCam(from); }
+
+// Within `metres` and `degrees` of the truth (at 70 m above the ground a pixel is 0.16 m), with
+// most matches where the true pose projects their points (points at a feature's rounded pixel's
+// depth miss on slopes and edges).
+void ExpectNearTruth(const Frame& frame, const Rigid3d& truth, const Map& map, double metres = 0.2,
+                     double degrees = 0.2) {
+  ASSERT_TRUE(frame.cam_from_world);
+  EXPECT_LT(TranslationError(*frame.cam_from_world, truth), metres);
+  EXPECT_LT(RotationErrorDeg(*frame.cam_from_world, truth), degrees);
+  int matches = 0;
+  EXPECT_GT(Strip().ConsistencyAt(frame, map, truth, 3.0, &matches), 0.85);
+}
+
+TEST(FramePlacer, MotionModelPlacesAFrameFromAConstantVelocity) {
+  const OneKeyframe scene = MakeOneKeyframe(0);
+  FramePlacer placer(TrackingOptions(), &Strip().geometry(), &DefaultVocabulary());
+  Frame frame = Strip().Render(2);
+  const Rigid3d truth = *frame.cam_from_world;
+  // The prediction 0.6 m and 0.3 degrees off (a velocity that changed a little): the stage must
+  // correct it.
+  Rigid3d predicted = Strip().WorldFromCam(2);
+  predicted.translation += Eigen::Vector3d(0.4, -0.4, 0.2);
+  predicted.rotation = predicted.rotation * Eigen::Quaterniond(Eigen::AngleAxisd(0.3 * M_PI / 180, Eigen::Vector3d::UnitY()));
+  const int inliers = placer.TrackWithMotionModel(scene.map, &frame, scene.last, predicted.Inverse());
+  EXPECT_GT(inliers, 200);
+  ExpectNearTruth(frame, truth, scene.map);
+}
+
+TEST(FramePlacer, MotionModelRefusesAPredictionFarFromTheTruth) {
+  const OneKeyframe scene = MakeOneKeyframe(0);
+  FramePlacer placer(TrackingOptions(), &Strip().geometry(), &DefaultVocabulary());
+  Frame frame = Strip().Render(2);
+  // Predicted 30 m off to the side: the projections land on other features.
+  Rigid3d wrong = Strip().WorldFromCam(2);
+  wrong.translation += Eigen::Vector3d(0, 30, 0);
+  EXPECT_EQ(placer.TrackWithMotionModel(scene.map, &frame, scene.last, wrong.Inverse()), 0);
+}
+
+TEST(FramePlacer, HomographyFollowsAFrameRolledTooFastForTheMotionModel) {
+  const OneKeyframe scene = MakeOneKeyframe(0);
+  FramePlacer placer(TrackingOptions(), &Strip().geometry(), &DefaultVocabulary());
+  // Frame 2's position, rolled 25 degrees about the optical axis: the constant velocity (no
+  // roll) predicts the features up to 140 px away from where they are.
+  Rigid3d rolled = Strip().WorldFromCam(2);
+  rolled.rotation = rolled.rotation * Eigen::Quaterniond(Eigen::AngleAxisd(25.0 * M_PI / 180.0, Eigen::Vector3d::UnitZ()));
+  const Rigid3d truth = rolled.Inverse();
+  const Rigid3d velocity = TrueVelocity(0, 1);
+  Frame by_motion = Strip().RenderPose(rolled, 2);
+  EXPECT_EQ(placer.TrackWithMotionModel(scene.map, &by_motion, scene.last, velocity * velocity * *scene.last.cam_from_world), 0);
+  Frame frame = Strip().RenderPose(rolled, 2);
+  ASSERT_TRUE(placer.TrackWithHomography(scene.map, &frame, scene.last));
+  ExpectNearTruth(frame, truth, scene.map);
+}
+
+TEST(FramePlacer, ReferenceKeyframePlacesAFrameWithoutAPose) {
+  const OneKeyframe scene = MakeOneKeyframe(0);
+  for (const char* matching : {"bow", "lsh", "brute_force"}) {
+    TrackingOptions options;
+    options.reference_matching = matching;
+    FramePlacer placer(options, &Strip().geometry(), &DefaultVocabulary());
+    Frame frame = Strip().Render(6);
+    const Rigid3d truth = *frame.cam_from_world;
+    frame.cam_from_world.reset();
+    KeyframeId reference = scene.keyframe;
+    ASSERT_TRUE(placer.TrackReferenceKeyframe(scene.map, &frame, nullptr, &reference)) << matching;
+    ExpectNearTruth(frame, truth, scene.map);
+    EXPECT_EQ(reference, scene.keyframe);
+  }
+}
+
+TEST(FramePlacer, TheNewestKeyframeStandsInForACulledReference) {
+  const OneKeyframe scene = MakeOneKeyframe(0);
+  FramePlacer placer(TrackingOptions(), &Strip().geometry(), &DefaultVocabulary());
+  Frame frame = Strip().Render(4);
+  KeyframeId reference = MakeKeyframeId(scene.map.id(), 99);  // culled: not in the map
+  EXPECT_TRUE(placer.TrackReferenceKeyframe(scene.map, &frame, &scene.last, &reference));
+  EXPECT_EQ(reference, scene.keyframe);
+}
+
+// Keyframes at frames 0, 8 and 16 sharing points (each adds its new ones from depth).
+struct ThreeKeyframes {
+  Map map{MakeSubmapId(0, 1), ScalePyramid::From(OrbOptions())};
+  std::vector<KeyframeId> keyframes;
+};
+
+const ThreeKeyframes& SharedThreeKeyframes() {
+  static const ThreeKeyframes* scene = [] {
+    auto* s = new ThreeKeyframes;
+    for (int i = 0; i < 3; ++i) {
+      cv::Mat depth;
+      Frame frame = Strip().Render(8 * i, &depth);
+      s->keyframes.push_back(Strip().AddKeyframe(&s->map, frame, depth, i));
+      Keyframe* kf = s->map.FindKeyframe(s->keyframes.back());
+      kf->bow = DefaultVocabulary().Transform(kf->descriptors, &kf->bow_features);
+    }
+    return s;
+  }();
+  return *scene;
+}
+
+TEST(FramePlacer, LocalMapSearchFindsThePointsOfTheCovisibleKeyframes) {
+  const ThreeKeyframes& scene = SharedThreeKeyframes();
+  FramePlacer placer(TrackingOptions(), &Strip().geometry(), &DefaultVocabulary());
+  Frame frame = Strip().Render(20);
+  const Rigid3d truth = *frame.cam_from_world;
+  // 40 points of the first keyframe matched (as a weak frame-to-frame step leaves it), the pose
+  // a little off.
+  const Keyframe& first = *scene.map.FindKeyframe(scene.keyframes[0]);
+  std::vector<PointInView> in_view;
+  for (MapPointId p : first.points) {
+    PointInView view;
+    if (p.valid() && Strip().geometry().InView(*scene.map.FindPoint(p), truth, &view)) in_view.push_back(view);
+  }
+  SearchByProjection(&frame, in_view, scene.map, 1.0);
+  int kept = 0;
+  for (MapPointId& p : frame.points) {
+    if (p.valid() && ++kept > 40) p = MapPointId();
+  }
+  ASSERT_EQ(frame.CountTracked(), 40);
+  Rigid3d start = truth;
+  start.translation += Eigen::Vector3d(0.05, -0.05, 0.02);
+  frame.cam_from_world = start;
+  KeyframeId reference;
+  ASSERT_TRUE(placer.TrackLocalMap(scene.map, &frame, 50, &reference));
+  EXPECT_GT(frame.CountTracked(), 300) << "points of all three keyframes";
+  ExpectNearTruth(frame, truth, scene.map);
+  EXPECT_TRUE(reference.valid());
+  // Too few points confirmed: not tracked.
+  Frame weak = Strip().Render(20);
+  weak.cam_from_world = truth;
+  KeyframeId unused;
+  EXPECT_FALSE(placer.TrackLocalMap(scene.map, &weak, 5000, &unused));
+}
+
+TEST(FramePlacer, PlacesInTheStatedOrder) {
+  const OneKeyframe scene = MakeOneKeyframe(0);
+  FramePlacer placer(TrackingOptions(), &Strip().geometry(), &DefaultVocabulary());
+  const auto place = [&](const Frame* last, const std::optional<Rigid3d>& velocity) {
+    Frame frame = Strip().Render(1);
+    const Rigid3d truth = *frame.cam_from_world;
+    KeyframeId reference = scene.keyframe;
+    const FramePlacer::Placement placement = placer.Place(&frame, scene.map, last, velocity, 30, &reference);
+    EXPECT_TRUE(placement.tracked);
+    ExpectNearTruth(frame, truth, scene.map);
+    return std::string(placement.tracked_by);
+  };
+  EXPECT_EQ(place(&scene.last, TrueVelocity(0, 1)), "motion model");
+  EXPECT_EQ(place(&scene.last, std::nullopt), "homography");
+  EXPECT_EQ(place(nullptr, std::nullopt), "reference keyframe");
+}
+
+// ---------------------------------------------------------------- keyframe decision
+
+TEST(KeyframeDecision, AKeyframeWhenTheFrameTracksFewOfItsReferencesPoints) {
+  const TrackingOptions options;  // keyframe_ratio 0.9
+  KeyframeDecisionInput input;
+  input.reference_points = 300;
+  input.frames_since_keyframe = 5;
+  input.tracked_points = 290;
+  EXPECT_FALSE(NeedKeyframe(input, options, 20)) << "tracks nearly all";
+  input.tracked_points = 250;
+  EXPECT_TRUE(NeedKeyframe(input, options, 20));
+  input.tracked_points = 15;
+  EXPECT_FALSE(NeedKeyframe(input, options, 20)) << "too few points to make a keyframe of";
+  input.tracked_points = 250;
+  input.mapper_ready = false;
+  EXPECT_FALSE(NeedKeyframe(input, options, 20)) << "the mapper has not taken the last one";
+  input.frames_since_keyframe = 100;
+  EXPECT_FALSE(NeedKeyframe(input, options, 20)) << "a long gap does not overrule a busy mapper";
+  input.has_reference = false;
+  EXPECT_TRUE(NeedKeyframe(input, options, 20)) << "a culled reference always gives a keyframe";
+}
+
+TEST(KeyframeDecision, ReferencePointsCountPointsSeenOften) {
+  const ThreeKeyframes& scene = SharedThreeKeyframes();
+  const Keyframe& middle = *scene.map.FindKeyframe(scene.keyframes[1]);
+  int seen_three_times = 0;
+  for (MapPointId p : middle.points) {
+    const MapPoint* point = p.valid() ? scene.map.FindPoint(p) : nullptr;
+    seen_three_times += point && point->observations.size() >= 3;
+  }
+  EXPECT_GT(seen_three_times, 50);
+  EXPECT_EQ(ReferencePoints(scene.map, middle), seen_three_times);
+}
+
+// ---------------------------------------------------------------- relocalization
+
+// A store whose current (or, with `close`, closed) submap holds SharedThreeKeyframes.
+std::unique_ptr<SubmapStore> StoreWithThreeKeyframes(bool close) {
+  auto store = std::make_unique<SubmapStore>();
+  store->StartCurrent(std::make_unique<Map>(SharedThreeKeyframes().map), 3);
+  for (KeyframeId id : SharedThreeKeyframes().keyframes) store->AddToDatabase(*store->current()->FindKeyframe(id));
+  if (close) store->CloseCurrent();
+  return store;
+}
+
+TEST(Relocalizer, PlacesAFrameInTheSubmapItSees) {
+  auto store = StoreWithThreeKeyframes(/*close=*/false);
+  FramePlacer placer(TrackingOptions(), &Strip().geometry(), &DefaultVocabulary());
+  Relocalizer relocalizer(TrackingOptions(), &placer, &DefaultVocabulary());
+  Frame frame = Strip().Render(24);
+  const Rigid3d truth = *frame.cam_from_world;
+  frame.cam_from_world.reset();
+  KeyframeId reference;
+  const std::optional<KeyframeId> at = relocalizer.Relocalize(&frame, store.get(), &reference);
+  ASSERT_TRUE(at);
+  EXPECT_EQ(SubmapOf(*at), store->current()->id());
+  EXPECT_TRUE(reference.valid());
+  EXPECT_GE(frame.CountTracked(), TrackingOptions().relocalization_min_inliers);
+  ExpectNearTruth(frame, truth, *store->current());
+}
+
+TEST(Relocalizer, FindsAClosedSubmapWhenThereIsNoCurrentOne) {
+  auto store = StoreWithThreeKeyframes(/*close=*/true);
+  ASSERT_EQ(store->current(), nullptr);
+  FramePlacer placer(TrackingOptions(), &Strip().geometry(), &DefaultVocabulary());
+  Relocalizer relocalizer(TrackingOptions(), &placer, &DefaultVocabulary());
+  Frame frame = Strip().Render(12);
+  KeyframeId reference;
+  const std::optional<KeyframeId> at = relocalizer.Relocalize(&frame, store.get(), &reference);
+  ASSERT_TRUE(at);
+  EXPECT_EQ(SubmapOf(*at), SharedThreeKeyframes().map.id());
+}
+
+TEST(Relocalizer, NeedsTheLocalMapToConfirmThePose) {
+  auto store = StoreWithThreeKeyframes(/*close=*/false);
+  TrackingOptions options;
+  options.relocalization_min_inliers = 5000;  // more points than the local map holds
+  FramePlacer placer(options, &Strip().geometry(), &DefaultVocabulary());
+  Relocalizer relocalizer(options, &placer, &DefaultVocabulary());
+  Frame frame = Strip().Render(24);
+  KeyframeId reference;
+  EXPECT_FALSE(relocalizer.Relocalize(&frame, store.get(), &reference));
+}
+
+TEST(Relocalizer, RefusesAFrameOfAPlaceTheSubmapNeverSaw) {
+  auto store = StoreWithThreeKeyframes(/*close=*/false);
+  FramePlacer placer(TrackingOptions(), &Strip().geometry(), &DefaultVocabulary());
+  Relocalizer relocalizer(TrackingOptions(), &placer, &DefaultVocabulary());
+  Frame frame = Strip().Render(190);  // 170 m further along: no overlap
+  KeyframeId reference;
+  EXPECT_FALSE(relocalizer.Relocalize(&frame, store.get(), &reference));
+}
+
+// ---------------------------------------------------------------- the store of submaps
+
+TEST(SubmapStore, ClosesReopensAndKeepsEachSubmapsNumbering) {
+  SubmapStore store;
+  const SubmapId first = MakeSubmapId(0, 1), second = MakeSubmapId(0, 2);
+  store.StartCurrent(std::make_unique<Map>(first, ScalePyramid()), 2);
+  EXPECT_EQ(store.NewKeyframeId(), MakeKeyframeId(first, 2));
+  EXPECT_EQ(store.CloseCurrent(), first);
+  EXPECT_EQ(store.current(), nullptr);
+  EXPECT_TRUE(store.has_closed());
+  store.StartCurrent(std::make_unique<Map>(second, ScalePyramid()), 0);
+  EXPECT_EQ(store.NewKeyframeId(), MakeKeyframeId(second, 0));
+  ASSERT_TRUE(store.Reopen(first));  // the current one is closed on the way
+  EXPECT_EQ(store.current()->id(), first);
+  EXPECT_EQ(store.NewKeyframeId(), MakeKeyframeId(first, 3)) << "numbering goes on";
+  EXPECT_NE(store.FindMap(second), nullptr);
+  EXPECT_FALSE(store.Reopen(MakeSubmapId(0, 7)));
+}
+
+TEST(SubmapStore, AppliesTheMappersUpdateToAClosedSubmapAndForgetsRemovedKeyframes) {
+  auto store = StoreWithThreeKeyframes(/*close=*/true);
+  const KeyframeId removed = SharedThreeKeyframes().keyframes[1];
+  ASSERT_TRUE(store->database().Contains(removed.value));
+  LocalMapUpdate update;
+  update.submap = SharedThreeKeyframes().map.id();
+  update.removed_keyframes = {removed};
+  EXPECT_TRUE(store->Apply(update));
+  EXPECT_EQ(store->FindKeyframe(removed), nullptr);
+  EXPECT_FALSE(store->database().Contains(removed.value));
+  update.submap = MakeSubmapId(3, 3);
+  EXPECT_FALSE(store->Apply(update)) << "a submap it does not hold";
+}
+
+}  // namespace
+}  // namespace stitch

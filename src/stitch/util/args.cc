@@ -16,6 +16,14 @@ void ArgParser::AddOption(const std::string& name, std::string* value, const std
                       }});
 }
 
+void ArgParser::AddOption(const std::string& name, std::vector<std::string>* values, const std::string& metavar,
+                          const std::string& help) {
+  options_.push_back({name, metavar, help + " (may be repeated)", "", true, [values](const std::string& v) {
+                        values->push_back(v);
+                        return true;
+                      }});
+}
+
 void ArgParser::AddOption(const std::string& name, int* value, const std::string& metavar,
                           const std::string& help) {
   options_.push_back({name, metavar, help, std::to_string(*value), true, [value](const std::string& v) {

@@ -25,6 +25,9 @@ class ArgParser {
                  const std::string& help);
   void AddOption(const std::string& name, double* value, const std::string& metavar,
                  const std::string& help);
+  // May be given several times; each value is appended.
+  void AddOption(const std::string& name, std::vector<std::string>* values, const std::string& metavar,
+                 const std::string& help);
   void AddFlag(const std::string& name, bool* value, const std::string& help);
   // Collects arguments that are not options (e.g. a run folder).
   void AddPositional(std::vector<std::string>* values, const std::string& metavar,

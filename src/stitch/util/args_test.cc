@@ -37,6 +37,16 @@ TEST(ArgParser, ReadsOptionsFlagsAndPositionals) {
   EXPECT_TRUE(args.Given("--count"));
 }
 
+TEST(ArgParser, ARepeatableOptionKeepsEveryValueInOrder) {
+  ArgParser args("prog", "test");
+  std::vector<std::string> settings;
+  args.AddOption("--set", &settings, "K=V", "a setting");
+  Argv a({"prog", "--set", "a=1", "--set=b=2,3", "--set", "c="});
+  ASSERT_TRUE(args.Parse(a.argc(), a.argv()));
+  EXPECT_EQ(settings, (std::vector<std::string>{"a=1", "b=2,3", "c="}));
+  EXPECT_TRUE(args.Given("--set"));
+}
+
 TEST(ArgParser, RejectsUnknownOptionsAndBadValues) {
   int count = 1;
   ArgParser args("prog", "test");
