@@ -6,8 +6,8 @@
 #include <sys/resource.h>
 
 #include <map>
-#include <set>
 #include <mutex>
+#include <set>
 
 #include <gtest/gtest.h>
 
@@ -17,8 +17,8 @@
 #include "services/merger/merger_service.h"
 #include "services/tracker/tracker_service.h"
 #include "stitch/service_status_t.hpp"
-#include "stitch/tracking_status_t.hpp"
 #include "stitch/source/source.h"
+#include "stitch/tracking_status_t.hpp"
 #include "stitch/util/rng.h"
 
 namespace stitch {
@@ -70,8 +70,8 @@ struct Stack {
 };
 
 // The channels the services listen to, and the first few real messages seen on each.
-const std::vector<std::string> kChannels = {"FRAME", "FRAME_ACK", "LOCAL_MAP", "KEYFRAME", "TRACKING_STATUS", "SUBMAP",
-                                            "SERVICE"};
+const std::vector<std::string> kChannels = {"FRAME",           "FRAME_ACK", "LOCAL_MAP", "KEYFRAME",
+                                            "TRACKING_STATUS", "SUBMAP",    "SERVICE"};
 
 std::map<std::string, std::vector<Bytes>> RecordSeeds() {
   Stack stack("30:6");
@@ -113,7 +113,8 @@ Bytes Mutate(const Bytes& seed, const Bytes& other, Rng* rng) {
       break;
     case 2:  // a few bytes flipped
       for (int i = rng->UniformInt(1, 8); i > 0 && !m.empty(); --i) {
-        m[static_cast<size_t>(rng->UniformInt(0, static_cast<int>(m.size()) - 1))] ^= static_cast<uint8_t>(1 << rng->UniformInt(0, 7));
+        m[static_cast<size_t>(rng->UniformInt(0, static_cast<int>(m.size()) - 1))] ^=
+            static_cast<uint8_t>(1 << rng->UniformInt(0, 7));
       }
       break;
     case 3: {  // an aligned int32 (a count, often) set to an absurd value
@@ -165,8 +166,8 @@ TEST(BusFuzz, MalformedMessagesOnEveryChannelAreRejectedAndTheServicesKeepWorkin
     for (size_t c = 0; c < kChannels.size(); ++c) {
       const auto& own = seeds.at(kChannels[c]);
       const auto& other = seeds.at(kChannels[(c + 1 + static_cast<size_t>(rng.UniformInt(0, 5))) % kChannels.size()]);
-      const Bytes message = Mutate(own[static_cast<size_t>(rng.UniformInt(0, static_cast<int>(own.size()) - 1))],
-                                   other[0], &rng);
+      const Bytes message =
+          Mutate(own[static_cast<size_t>(rng.UniformInt(0, static_cast<int>(own.size()) - 1))], other[0], &rng);
       // Also now and then on another agent's channel, which nobody here listens to.
       const std::string agent = rng.UniformInt(0, 9) == 0 ? "uav7" : "uav0";
       stack.lcm->publish(agent + "/" + kChannels[c], message.data(), static_cast<unsigned>(message.size()));
@@ -186,11 +187,12 @@ TEST(BusFuzz, MalformedMessagesOnEveryChannelAreRejectedAndTheServicesKeepWorkin
   // input like any other, e.g. keyframes of an earlier flight under the same agent, so the flight
   // may start a fresh submap before it settles.)
   std::set<int> posed;
-  statuses.Subscribe<stitch::tracking_status_t>(
-      bus::Channel("uav0", bus::kTrackingStatus), [&](std::unique_ptr<stitch::tracking_status_t> s, const std::string&) {
-        std::lock_guard<std::mutex> lock(mutex);
-        if (s->state == stitch::tracking_status_t::STATE_OK) posed.insert(s->frame_index);
-      });
+  statuses.Subscribe<stitch::tracking_status_t>(bus::Channel("uav0", bus::kTrackingStatus),
+                                                [&](std::unique_ptr<stitch::tracking_status_t> s, const std::string&) {
+                                                  std::lock_guard<std::mutex> lock(mutex);
+                                                  if (s->state == stitch::tracking_status_t::STATE_OK)
+                                                    posed.insert(s->frame_index);
+                                                });
   const int64_t mapped_before = stack.mapper.keyframes_mapped();
   const IngestSummary summary = stack.Fly();
   stack.Stop();

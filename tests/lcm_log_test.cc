@@ -11,9 +11,9 @@
 
 #include "services/common/bus.h"
 #include "stitch/frame_t.hpp"
-#include "stitch/util/ids.h"
 #include "stitch/submap_update_t.hpp"
 #include "stitch/testing/temp_dir.h"
+#include "stitch/util/ids.h"
 #include "tests/test_process.h"
 
 namespace stitch {

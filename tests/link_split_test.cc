@@ -51,8 +51,8 @@ struct RunResult {
 };
 
 RunResult RunStitch(const fs::path& out, const std::vector<std::string>& extra) {
-  std::vector<std::string> args = {Bin("stitch"), "run", "--config", kShortFlight, "--failures", "30:6", "--quiet",
-                                   "--out", out.string()};
+  std::vector<std::string> args = {Bin("stitch"), "run",     "--config", kShortFlight, "--failures",
+                                   "30:6",        "--quiet", "--out",    out.string()};
   args.insert(args.end(), extra.begin(), extra.end());
   const auto result = RunProgram(args, 240);
   EXPECT_EQ(result.exit_code, 0) << result.output;
@@ -107,8 +107,8 @@ RunResult* LinkSplit::plain_ = nullptr;
 TEST_F(LinkSplit, TheMergerBehindALossyLinkOnThisMachineGetsEverySubmap) {
   ASSERT_FALSE(plain_->report.is_null());
   testing::TempDir dir;
-  const RunResult split =
-      RunStitch(dir.path() / "link", {"--link", "--link-loss", "0.2", "--link-delay-ms", "100", "--link-budget", "2000000"});
+  const RunResult split = RunStitch(
+      dir.path() / "link", {"--link", "--link-loss", "0.2", "--link-delay-ms", "100", "--link-budget", "2000000"});
   ExpectSameResult(*plain_, split, "loopback link, 20% loss");
 }
 
@@ -126,7 +126,8 @@ std::string WhyNoNamespaces() {
 
 TEST_F(LinkSplit, AircraftAndGroundInTwoNetworkNamespacesAt5And20PercentLoss) {
   const std::string why = WhyNoNamespaces();
-  if (!why.empty()) GTEST_SKIP() << "network namespaces are not available here (" << why << "); the split test needs them";
+  if (!why.empty())
+    GTEST_SKIP() << "network namespaces are not available here (" << why << "); the split test needs them";
   ASSERT_FALSE(plain_->report.is_null());
   for (const char* loss : {"0.05", "0.2"}) {
     testing::TempDir dir;

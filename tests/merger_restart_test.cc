@@ -18,8 +18,8 @@
 #include "services/common/bus.h"
 #include "services/common/map_convert.h"
 #include "services/config/stitch_config.h"
-#include "stitch/records/merger_records.h"
 #include "stitch/pipeline/inline_pipeline.h"
+#include "stitch/records/merger_records.h"
 #include "stitch/source/source.h"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/util/child_process.h"
@@ -43,7 +43,8 @@ std::vector<stitch::submap_update_t> GustStripUpdates() {
   FailureSchedule unused;
   auto sequence = OpenSource(spec, &unused);
   const Vocabulary vocabulary = LoadVocabulary(config);
-  return ToMessages(RunInline(*sequence, config.pipeline(), vocabulary, nullptr, /*keep_submap_updates=*/true).submap_updates);
+  return ToMessages(
+      RunInline(*sequence, config.pipeline(), vocabulary, nullptr, /*keep_submap_updates=*/true).submap_updates);
 }
 
 int64_t JournalRecords(const std::string& path) {
@@ -59,8 +60,15 @@ std::map<int64_t, std::vector<double>> MergedKeyframes(const std::string& path) 
   std::map<int64_t, std::vector<double>> rows;
   for (const MergedKeyframeRecord& r : ReadMergedKeyframeRecords(path)) {
     const Sim3d& s = r.world_from_cam;
-    rows[r.keyframe.value] = {static_cast<double>(r.component), s.scale, s.rotation.x(), s.rotation.y(), s.rotation.z(),
-                              s.rotation.w(), s.translation.x(), s.translation.y(), s.translation.z()};
+    rows[r.keyframe.value] = {static_cast<double>(r.component),
+                              s.scale,
+                              s.rotation.x(),
+                              s.rotation.y(),
+                              s.rotation.z(),
+                              s.rotation.w(),
+                              s.translation.x(),
+                              s.translation.y(),
+                              s.translation.z()};
   }
   return rows;
 }

@@ -18,9 +18,11 @@ std::string DatasetPath(const std::string& relative) {
   return (root / relative).string();
 }
 
-#define SKIP_UNLESS_PRESENT(path)                                                                 \
-  if (!fs::exists(path)) GTEST_SKIP() << path << " is absent: real-data test skipped (datasets " \
-                                                 "live in ../shared/datasets or $STITCH_DATASETS)"
+#define SKIP_UNLESS_PRESENT(path)                                 \
+  if (!fs::exists(path))                                          \
+  GTEST_SKIP() << path                                            \
+               << " is absent: real-data test skipped (datasets " \
+                  "live in ../shared/datasets or $STITCH_DATASETS)"
 
 TEST(RealData, EurocMicroReadsWithCalibrationAndCameraGroundTruth) {
   const std::string path = DatasetPath("euroc/V1_01_easy_micro");

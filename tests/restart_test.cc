@@ -15,11 +15,11 @@
 
 #include "services/common/bus.h"
 #include "stitch/records/frame_record.h"
-#include "stitch/records/tracker_state.h"
 #include "stitch/records/keyframe_record.h"
-#include "stitch/util/ids.h"
+#include "stitch/records/tracker_state.h"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/util/child_process.h"
+#include "stitch/util/ids.h"
 #include "tests/test_process.h"
 
 namespace stitch {

@@ -6,9 +6,9 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
-#include "stitch/records/frame_record.h"
 #include "stitch/io/ply.h"
 #include "stitch/io/trajectory.h"
+#include "stitch/records/frame_record.h"
 #include "stitch/testing/temp_dir.h"
 #include "tests/test_process.h"
 
@@ -26,12 +26,14 @@ const std::string kShortFlight = testing::ShortFlightConfig();
 TEST(StitchRun, TracksAShortFlightWithTheServicesAsProcesses) {
   testing::TempDir dir;
   const std::string out = dir / "run";
-  const auto result = RunProgram({Bin("stitch"), "run", "--config", kShortFlight, "--out", out, "--failures", "none"}, 180);
+  const auto result =
+      RunProgram({Bin("stitch"), "run", "--config", kShortFlight, "--out", out, "--failures", "none"}, 180);
   ASSERT_EQ(result.exit_code, 0) << result.output;
-  for (const char* file : {"trajectory.tum", "map.ply", "report.json", "trajectory.png", "frames.tsv", "poses.tsv",
-                           "keyframes.tsv", "groundtruth.tum", "config.yaml", "run.json", "logs/tracker.log",
-                           "logs/ingest.log", "logs/mapper.log", "logs/merger.log", "submaps.tsv", "graph.dot",
-                           "graph.png", "merge_log.tsv", "retrieval.tsv", "keyframes_merged.tsv"}) {
+  for (const char* file :
+       {"trajectory.tum",   "map.ply",         "report.json",     "trajectory.png",  "frames.tsv",
+        "poses.tsv",        "keyframes.tsv",   "groundtruth.tum", "config.yaml",     "run.json",
+        "logs/tracker.log", "logs/ingest.log", "logs/mapper.log", "logs/merger.log", "submaps.tsv",
+        "graph.dot",        "graph.png",       "merge_log.tsv",   "retrieval.tsv",   "keyframes_merged.tsv"}) {
     EXPECT_TRUE(fs::exists(fs::path(out) / file)) << file;
   }
   const auto report = ReadJson(out + "/report.json");
@@ -82,7 +84,8 @@ TEST(StitchRun, BadInputsGiveAClearErrorAndANonZeroExit) {
     std::string expected;
   };
   std::ofstream(dir / "typo.yaml") << "ingest:\n  pacnig: realtime\n";
-  std::ofstream(dir / "calib.yaml") << "Camera.fx: 500\nCamera.fy: 500\nCamera.cx: 320\nCamera.cy: 240\nCamera.width: 752\nCamera.height: 480\n";
+  std::ofstream(dir / "calib.yaml")
+      << "Camera.fx: 500\nCamera.fy: 500\nCamera.cx: 320\nCamera.cy: 240\nCamera.width: 752\nCamera.height: 480\n";
   fs::create_directories(dir.path() / "images");
   std::ofstream(dir / "images/0.png") << "not a png";
   const std::vector<Case> cases = {
@@ -114,16 +117,15 @@ TEST(StitchRun, BadInputsGiveAClearErrorAndANonZeroExit) {
 }
 
 TEST(StitchRun, EveryCommandHasHelp) {
-  for (const std::vector<std::string>& args :
-       std::vector<std::vector<std::string>>{{Bin("stitch"), "--help"},
-                                             {Bin("stitch"), "run", "--help"},
-                                             {Bin("stitch"), "eval", "--help"},
-                                             {Bin("stitch"), "render", "--help"},
-                                             {Bin("stitch"), "config", "--help"},
-                                             {Bin("stitch-ingest"), "--help"},
-                                             {Bin("stitch-tracker"), "--help"},
-                                             {Bin("stitch"), "link", "--help"},
-                                             {Bin("stitch-link"), "--help"}}) {
+  for (const std::vector<std::string>& args : std::vector<std::vector<std::string>>{{Bin("stitch"), "--help"},
+                                                                                    {Bin("stitch"), "run", "--help"},
+                                                                                    {Bin("stitch"), "eval", "--help"},
+                                                                                    {Bin("stitch"), "render", "--help"},
+                                                                                    {Bin("stitch"), "config", "--help"},
+                                                                                    {Bin("stitch-ingest"), "--help"},
+                                                                                    {Bin("stitch-tracker"), "--help"},
+                                                                                    {Bin("stitch"), "link", "--help"},
+                                                                                    {Bin("stitch-link"), "--help"}}) {
     const auto result = RunProgram(args, 10);
     EXPECT_EQ(result.exit_code, 0) << args[0] << " " << args[1];
     EXPECT_NE(result.output.find("usage:"), std::string::npos) << result.output;
@@ -133,7 +135,8 @@ TEST(StitchRun, EveryCommandHasHelp) {
 TEST(StitchRender, WritesAFolderThatRunsAsADataset) {
   testing::TempDir dir;
   const std::string images = dir / "flight";
-  const auto render = RunProgram({Bin("stitch"), "render", "--config", kShortFlight, "--out", images, "--max-frames", "12"}, 60);
+  const auto render =
+      RunProgram({Bin("stitch"), "render", "--config", kShortFlight, "--out", images, "--max-frames", "12"}, 60);
   ASSERT_EQ(render.exit_code, 0) << render.output;
   EXPECT_TRUE(fs::exists(images + "/camera.yaml"));
   EXPECT_EQ(Trajectory::ReadTum(images + "/groundtruth.txt").size(), 12u);

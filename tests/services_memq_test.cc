@@ -14,11 +14,11 @@
 #include "services/mapper/mapper_service.h"
 #include "services/tracker/tracker_service.h"
 #include "stitch/eval/evaluation.h"
-#include "stitch/records/frame_record.h"
-#include "stitch/records/keyframe_record.h"
 #include "stitch/frame_ack_t.hpp"
 #include "stitch/keyframe_t.hpp"
 #include "stitch/link_status_t.hpp"
+#include "stitch/records/frame_record.h"
+#include "stitch/records/keyframe_record.h"
 #include "stitch/source/source.h"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/tracking_status_t.hpp"
@@ -35,8 +35,10 @@ struct InProcessStack {
         lcm(bus::OpenLcm("memq://")),
         publisher(lcm.get(), "uav0"),
         ingest(lcm.get(), "memq://", &publisher, config.ingest),
-        tracker(lcm.get(), &publisher, config.tracker, &vocabulary, record_dir.empty() ? "" : record_dir + "/frames.tsv") {
-    if (with_mapper) mapper.emplace(lcm.get(), &publisher, config.mapper, config.tracker.tracking.orb, &vocabulary, record_dir);
+        tracker(lcm.get(), &publisher, config.tracker, &vocabulary,
+                record_dir.empty() ? "" : record_dir + "/frames.tsv") {
+    if (with_mapper)
+      mapper.emplace(lcm.get(), &publisher, config.mapper, config.tracker.tracking.orb, &vocabulary, record_dir);
   }
 
   static StitchConfig LoadConfig(const std::function<void(StitchConfig*)>& adjust) {
@@ -147,21 +149,22 @@ TEST(ServicesInProcess, AFramesAckComesAfterTheKeyframesItMade) {
   std::vector<int> acked_before_their_keyframe;
   std::set<int64_t> sent;
   bus::Subscriber observer(stack.lcm.get());
-  observer.Subscribe<stitch::frame_ack_t>(
-      bus::Channel("uav0", bus::kFrameAck), [&](std::unique_ptr<stitch::frame_ack_t> ack, const std::string&) {
-        std::lock_guard<std::mutex> lock(mutex);
-        acked.insert(ack->frame_index);
-      });
-  observer.Subscribe<stitch::keyframe_t>(
-      bus::Channel("uav0", bus::kKeyframe), [&](std::unique_ptr<stitch::keyframe_t> keyframe, const std::string&) {
-        std::lock_guard<std::mutex> lock(mutex);
-        if (!sent.insert(keyframe->keyframe_id).second) return;  // sent again (no answer from the mapper)
-        // The first is the initialization's reference frame, made when a later frame initialized;
-        // every other keyframe is the frame that made it.
-        if (sent.size() > 1 && acked.count(keyframe->frame_index)) {
-          acked_before_their_keyframe.push_back(keyframe->frame_index);
-        }
-      });
+  observer.Subscribe<stitch::frame_ack_t>(bus::Channel("uav0", bus::kFrameAck),
+                                          [&](std::unique_ptr<stitch::frame_ack_t> ack, const std::string&) {
+                                            std::lock_guard<std::mutex> lock(mutex);
+                                            acked.insert(ack->frame_index);
+                                          });
+  observer.Subscribe<stitch::keyframe_t>(bus::Channel("uav0", bus::kKeyframe),
+                                         [&](std::unique_ptr<stitch::keyframe_t> keyframe, const std::string&) {
+                                           std::lock_guard<std::mutex> lock(mutex);
+                                           if (!sent.insert(keyframe->keyframe_id).second)
+                                             return;  // sent again (no answer from the mapper)
+                                           // The first is the initialization's reference frame, made when a later frame
+                                           // initialized; every other keyframe is the frame that made it.
+                                           if (sent.size() > 1 && acked.count(keyframe->frame_index)) {
+                                             acked_before_their_keyframe.push_back(keyframe->frame_index);
+                                           }
+                                         });
   stack.Play("none", 30);
   EXPECT_GE(sent.size(), 5u);
   EXPECT_EQ(acked.size(), 30u);
@@ -173,7 +176,8 @@ TEST(ServicesInProcess, AFramesAckComesAfterTheKeyframesItMade) {
 struct MergerSide {
   explicit MergerSide(lcm::LCM* lcm, const ScalePyramid& pyramid) : pyramid(pyramid), subscriber(lcm) {
     subscriber.Subscribe<stitch::submap_update_t>(
-        bus::Channel("uav0", bus::kSubmap), [this](std::unique_ptr<stitch::submap_update_t> message, const std::string&) {
+        bus::Channel("uav0", bus::kSubmap),
+        [this](std::unique_ptr<stitch::submap_update_t> message, const std::string&) {
           bytes += message->getEncodedSize();
           const SubmapUpdate update = FromMessage(*message, this->pyramid);
           auto it = replicas.try_emplace(update.submap, update.submap, this->pyramid).first;
@@ -239,11 +243,12 @@ TEST(ServicesInProcess, TrackerWithoutAMapperKeepsTrackingAndSaysSo) {
   std::mutex mutex;
   std::vector<stitch::tracking_status_t> statuses;
   bus::Subscriber subscriber(stack.lcm.get());
-  subscriber.Subscribe<stitch::tracking_status_t>(bus::Channel("uav0", bus::kTrackingStatus),
-                                                  [&](std::unique_ptr<stitch::tracking_status_t> s, const std::string&) {
-                                                    std::lock_guard<std::mutex> lock(mutex);
-                                                    statuses.push_back(*s);
-                                                  });
+  subscriber.Subscribe<stitch::tracking_status_t>(
+      bus::Channel("uav0", bus::kTrackingStatus),
+      [&](std::unique_ptr<stitch::tracking_status_t> s, const std::string&) {
+        std::lock_guard<std::mutex> lock(mutex);
+        statuses.push_back(*s);
+      });
   const IngestSummary summary = stack.Play("none", 25);
   EXPECT_EQ(summary.frames_unacked, 0);
   std::lock_guard<std::mutex> lock(mutex);
@@ -267,8 +272,8 @@ TEST(ServicesInProcess, ALossClosesTheSubmapForTheMergerBeforeTheNextOneStarts) 
         if (message->closed && first_closed_before_status < 0) first_closed_before_status = last_status_frame;
       });
   merger_side.Subscribe<stitch::tracking_status_t>(
-      bus::Channel("uav0", bus::kTrackingStatus),
-      [&](std::unique_ptr<stitch::tracking_status_t> status, const std::string&) { last_status_frame = status->frame_index; });
+      bus::Channel("uav0", bus::kTrackingStatus), [&](std::unique_ptr<stitch::tracking_status_t> status,
+                                                      const std::string&) { last_status_frame = status->frame_index; });
   stack.Play("30:6");
   // Submap 1's final state (closed) arrives before anything of submap 2.
   const SubmapId first = MakeSubmapId(0, 1), second = MakeSubmapId(0, 2);

@@ -29,7 +29,8 @@ std::vector<stitch::submap_update_t> Fly(int agent_number, int first, int count,
   FailureSchedule unused;
   auto sequence = OpenSource(spec, &unused);
   const Vocabulary vocabulary = LoadVocabulary(config);
-  return ToMessages(RunInline(*sequence, config.pipeline(), vocabulary, nullptr, /*keep_submap_updates=*/true).submap_updates);
+  return ToMessages(
+      RunInline(*sequence, config.pipeline(), vocabulary, nullptr, /*keep_submap_updates=*/true).submap_updates);
 }
 
 TEST(SeveralAircraft, TwoAircraftFlyingHalvesOfTheSurveyEndInOneMergedMap) {
@@ -56,7 +57,8 @@ TEST(SeveralAircraft, TwoAircraftFlyingHalvesOfTheSurveyEndInOneMergedMap) {
   }
   const auto deadline = std::chrono::steady_clock::now() + 120s;
   const int64_t total = static_cast<int64_t>(first.size() + second.size());
-  while (merger.updates_processed() < total && std::chrono::steady_clock::now() < deadline) std::this_thread::sleep_for(50ms);
+  while (merger.updates_processed() < total && std::chrono::steady_clock::now() < deadline)
+    std::this_thread::sleep_for(50ms);
   merger.Stop();
   dispatcher.Stop();
   ASSERT_EQ(merger.updates_processed(), total);

@@ -1,13 +1,13 @@
 #include "tests/test_process.h"
 
-#include <chrono>
-#include <fstream>
-#include <cstdlib>
 #include <fcntl.h>
 #include <poll.h>
 #include <sys/wait.h>
-#include <thread>
 #include <unistd.h>
+#include <chrono>
+#include <cstdlib>
+#include <fstream>
+#include <thread>
 
 namespace stitch::testing {
 
@@ -60,9 +60,13 @@ CommandResult RunProgram(const std::vector<std::string>& args, double timeout_s,
   return result;
 }
 
-std::string Bin(const std::string& name) { return std::string(STITCH_BIN_DIR) + "/" + name; }
+std::string Bin(const std::string& name) {
+  return std::string(STITCH_BIN_DIR) + "/" + name;
+}
 
-std::string ShortFlightConfig() { return std::string(STITCH_SOURCE_DIR) + "/tests/short_flight.yaml"; }
+std::string ShortFlightConfig() {
+  return std::string(STITCH_SOURCE_DIR) + "/tests/short_flight.yaml";
+}
 
 nlohmann::json ReadJson(const std::string& path) {
   std::ifstream in(path);

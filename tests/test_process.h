@@ -10,13 +10,13 @@
 namespace stitch::testing {
 
 struct CommandResult {
-  int exit_code = -1;   // or 128 + signal
-  std::string output;   // stdout and stderr
+  int exit_code = -1;  // or 128 + signal
+  std::string output;  // stdout and stderr
 };
 
 // Runs `args[0]` with the rest as arguments, waits at most `timeout_s`, then kills it.
-CommandResult RunProgram(const std::vector<std::string>& args, double timeout_s = 120,
-                         int signal_after_s = -1, int signal = SIGINT);
+CommandResult RunProgram(const std::vector<std::string>& args, double timeout_s = 120, int signal_after_s = -1,
+                         int signal = SIGINT);
 
 // Path of a built program: STITCH_BIN_DIR/name.
 std::string Bin(const std::string& name);

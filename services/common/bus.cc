@@ -7,10 +7,9 @@
 namespace stitch::bus {
 
 void CheckAgentName(const std::string& agent) {
-  const bool valid = !agent.empty() && agent.size() <= 32 &&
-                     std::all_of(agent.begin(), agent.end(), [](char c) {
-                       return std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '-';
-                     });
+  const bool valid = !agent.empty() && agent.size() <= 32 && std::all_of(agent.begin(), agent.end(), [](char c) {
+    return std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '-';
+  });
   if (!valid) {
     throw Error("agent name '" + agent + "' must be 1-32 letters, digits, '_' or '-' (it prefixes channel names)");
   }
@@ -34,7 +33,9 @@ std::vector<std::string> SplitAgents(const std::string& list) {
   return agents;
 }
 
-std::string DefaultLcmUrl() { return "udpm://239.255.76.67:7667?ttl=0&recv_buf_size=2097152"; }
+std::string DefaultLcmUrl() {
+  return "udpm://239.255.76.67:7667?ttl=0&recv_buf_size=2097152";
+}
 
 std::string LocalUdpUrl(int port) {
   return "udpm://239.255.76.67:" + std::to_string(port) + "?ttl=0&recv_buf_size=2097152";
@@ -54,8 +55,9 @@ std::unique_ptr<lcm::LCM> OpenLcm(const std::string& url) {
 Publisher::Publisher(lcm::LCM* lcm, std::string agent) : lcm_(lcm), agent_(std::move(agent)) {
   CheckAgentName(agent_);
   std::random_device device;
-  session_ = static_cast<int64_t>((static_cast<uint64_t>(device()) << 31) ^ device() ^ static_cast<uint64_t>(WallUtime())) &
-             0x7fffffffffffffffLL;
+  session_ =
+      static_cast<int64_t>((static_cast<uint64_t>(device()) << 31) ^ device() ^ static_cast<uint64_t>(WallUtime())) &
+      0x7fffffffffffffffLL;
 }
 
 Subscriber::Subscriber(lcm::LCM* lcm) : lcm_(lcm) {}
@@ -70,14 +72,15 @@ void Subscriber::Reject(const std::string& channel, const std::string& why) {
   const int64_t now = WallUtime();
   int64_t last = last_reject_log_us_.load();
   if (now - last > 1'000'000 && last_reject_log_us_.compare_exchange_strong(last, now)) {
-    STITCH_LOG(WARNING) << "dropped a message on " << channel << ": it " << why << " (" << count
-                        << " dropped so far)";
+    STITCH_LOG(WARNING) << "dropped a message on " << channel << ": it " << why << " (" << count << " dropped so far)";
   }
 }
 
 Dispatcher::Dispatcher(lcm::LCM* lcm) : lcm_(lcm) {}
 
-Dispatcher::~Dispatcher() { Stop(); }
+Dispatcher::~Dispatcher() {
+  Stop();
+}
 
 void Dispatcher::Start() {
   if (running_.exchange(true)) return;

@@ -69,8 +69,8 @@ class Publisher {
       message->header.utime = WallUtime();
     }
     if (lcm_->publish(channel, message) != 0) {
-      STITCH_LOG(WARNING) << "publish on " << channel << " failed (message of "
-                          << message->getEncodedSize() << " bytes)";
+      STITCH_LOG(WARNING) << "publish on " << channel << " failed (message of " << message->getEncodedSize()
+                          << " bytes)";
     }
   }
   const std::string& agent() const { return agent_; }
@@ -101,28 +101,28 @@ class Subscriber {
   void Subscribe(const std::string& channel,
                  std::function<void(std::unique_ptr<Message>, const std::string& channel)> handler) {
     const std::string expected_agent = channel.substr(0, channel.find('/'));
-    auto raw = std::make_unique<RawHandler>([this, handler, expected_agent](const lcm::ReceiveBuffer* buffer,
-                                                                            const std::string& on) {
-      auto message = std::make_unique<Message>();
-      std::string why;
-      try {
-        const int used = message->decode(buffer->data, 0, static_cast<int>(buffer->data_size));
-        if (used < 0) {
-          why = "does not decode as " + std::string(Message::getTypeName()) + " (wrong type or truncated)";
-        } else if (static_cast<uint32_t>(used) != buffer->data_size) {
-          why = "has " + std::to_string(buffer->data_size - used) + " bytes after the message";
-        } else if (message->header.agent != expected_agent) {
-          why = "header names agent '" + message->header.agent + "'";
-        }
-      } catch (const std::exception& e) {
-        why = std::string("could not be decoded: ") + e.what();
-      }
-      if (!why.empty()) {
-        Reject(on, why);
-        return;
-      }
-      handler(std::move(message), on);
-    });
+    auto raw = std::make_unique<RawHandler>(
+        [this, handler, expected_agent](const lcm::ReceiveBuffer* buffer, const std::string& on) {
+          auto message = std::make_unique<Message>();
+          std::string why;
+          try {
+            const int used = message->decode(buffer->data, 0, static_cast<int>(buffer->data_size));
+            if (used < 0) {
+              why = "does not decode as " + std::string(Message::getTypeName()) + " (wrong type or truncated)";
+            } else if (static_cast<uint32_t>(used) != buffer->data_size) {
+              why = "has " + std::to_string(buffer->data_size - used) + " bytes after the message";
+            } else if (message->header.agent != expected_agent) {
+              why = "header names agent '" + message->header.agent + "'";
+            }
+          } catch (const std::exception& e) {
+            why = std::string("could not be decoded: ") + e.what();
+          }
+          if (!why.empty()) {
+            Reject(on, why);
+            return;
+          }
+          handler(std::move(message), on);
+        });
     lcm::Subscription* subscription = lcm_->subscribe(channel, &RawHandler::OnMessage, raw.get());
     // LCM drops what arrives while more than this many messages wait for the dispatcher (30 by
     // default, which a burst of submap parts from the link bridge exceeds); handlers only queue.

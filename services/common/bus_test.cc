@@ -2,8 +2,8 @@
 
 #include "services/common/bus.h"
 
-#include <condition_variable>
 #include <unistd.h>
+#include <condition_variable>
 
 #include <gtest/gtest.h>
 
@@ -36,10 +36,9 @@ void PublishAndReceive(const std::string& url) {
   auto lcm = OpenLcm(url);
   Inbox inbox;
   Subscriber subscriber(lcm.get());
-  subscriber.Subscribe<stitch::frame_ack_t>(Channel("uav3", kFrameAck),
-                                            [&](std::unique_ptr<stitch::frame_ack_t> ack, const std::string&) {
-                                              inbox.Add(std::move(ack));
-                                            });
+  subscriber.Subscribe<stitch::frame_ack_t>(
+      Channel("uav3", kFrameAck),
+      [&](std::unique_ptr<stitch::frame_ack_t> ack, const std::string&) { inbox.Add(std::move(ack)); });
   Dispatcher dispatcher(lcm.get());
   dispatcher.Start();
   Publisher publisher(lcm.get(), "uav3");
@@ -60,7 +59,9 @@ void PublishAndReceive(const std::string& url) {
   EXPECT_EQ(subscriber.rejected(), 0);
 }
 
-TEST(Bus, PublishesAndReceivesInProcess) { PublishAndReceive("memq://"); }
+TEST(Bus, PublishesAndReceivesInProcess) {
+  PublishAndReceive("memq://");
+}
 
 TEST(Bus, PublishesAndReceivesOverUdpMulticast) {
   // A port of this test's own (ttl=0 keeps it on this machine).
@@ -72,9 +73,8 @@ TEST(Bus, MalformedAndForeignMessagesNeverReachTheHandler) {
   Inbox inbox;
   Subscriber subscriber(lcm.get());
   const std::string channel = Channel("uav3", kFrameAck);
-  subscriber.Subscribe<stitch::frame_ack_t>(channel, [&](std::unique_ptr<stitch::frame_ack_t> ack, const std::string&) {
-    inbox.Add(std::move(ack));
-  });
+  subscriber.Subscribe<stitch::frame_ack_t>(
+      channel, [&](std::unique_ptr<stitch::frame_ack_t> ack, const std::string&) { inbox.Add(std::move(ack)); });
   Dispatcher dispatcher(lcm.get());
   dispatcher.Start();
 

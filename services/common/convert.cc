@@ -41,7 +41,8 @@ void QuaternionToWxyz(const Eigen::Quaterniond& q, double* wxyz) {
 // Throws stitch::Error for a quaternion far from unit length (a corrupt message).
 Eigen::Quaterniond WxyzToQuaternion(const double* wxyz, const char* type) {
   const Eigen::Quaterniond q(wxyz[0], wxyz[1], wxyz[2], wxyz[3]);
-  if (!(q.norm() > 0.5 && q.norm() < 1.5)) throw Error(std::string(type) + " message: rotation is not a unit quaternion");
+  if (!(q.norm() > 0.5 && q.norm() < 1.5))
+    throw Error(std::string(type) + " message: rotation is not a unit quaternion");
   return q.normalized();
 }
 
@@ -55,7 +56,8 @@ stitch::rigid3_t ToMessage(const Rigid3d& transform) {
 }
 
 Rigid3d FromMessage(const stitch::rigid3_t& message) {
-  return Rigid3d(WxyzToQuaternion(message.rotation_wxyz, "rigid3"), Eigen::Map<const Eigen::Vector3d>(message.translation));
+  return Rigid3d(WxyzToQuaternion(message.rotation_wxyz, "rigid3"),
+                 Eigen::Map<const Eigen::Vector3d>(message.translation));
 }
 
 stitch::sim3_t ToMessage(const Sim3d& transform) {

@@ -22,7 +22,8 @@ TEST(Convert, CameraRoundTrips) {
 }
 
 TEST(Convert, TransformsRoundTrip) {
-  const Rigid3d r(Eigen::Quaterniond(Eigen::AngleAxisd(0.5, Eigen::Vector3d(1, 1, 0).normalized())), Eigen::Vector3d(1, 2, 3));
+  const Rigid3d r(Eigen::Quaterniond(Eigen::AngleAxisd(0.5, Eigen::Vector3d(1, 1, 0).normalized())),
+                  Eigen::Vector3d(1, 2, 3));
   const Rigid3d r_back = FromMessage(ToMessage(r));
   EXPECT_NEAR(r_back.rotation.angularDistance(r.rotation), 0, 1e-12);
   EXPECT_EQ(r_back.translation, r.translation);

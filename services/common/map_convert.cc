@@ -16,7 +16,9 @@ bool Finite(const float* values, int n) {
   return true;
 }
 
-int32_t PointIndexOrNone(MapPointId id) { return id.valid() ? static_cast<int32_t>(IndexOf(id)) : -1; }
+int32_t PointIndexOrNone(MapPointId id) {
+  return id.valid() ? static_cast<int32_t>(IndexOf(id)) : -1;
+}
 
 MapPointId PointIdOrNone(SubmapId submap, int32_t index) {
   return index >= 0 ? MakeMapPointId(submap, static_cast<uint32_t>(index)) : MapPointId();
@@ -87,7 +89,8 @@ stitch::keyframe_t ToMessage(const Keyframe& keyframe, const Camera& camera, con
 ReceivedKeyframe FromMessage(const stitch::keyframe_t& m, const ScalePyramid& pyramid) {
   const std::string what = "keyframe " + std::to_string(m.keyframe_id);
   const KeyframeId id(m.keyframe_id);
-  if (!id.valid() || SubmapOf(id).value != m.submap_id) throw Error(what + ": id does not belong to submap " + std::to_string(m.submap_id));
+  if (!id.valid() || SubmapOf(id).value != m.submap_id)
+    throw Error(what + ": id does not belong to submap " + std::to_string(m.submap_id));
   const int n = m.num_features;
   if (n < 0 || static_cast<int>(m.x_eighth_px.size()) != n || static_cast<int>(m.point_index.size()) != n ||
       m.num_descriptor_bytes != 32 * n) {
@@ -106,7 +109,8 @@ ReceivedKeyframe FromMessage(const stitch::keyframe_t& m, const ScalePyramid& py
   const SubmapId submap(m.submap_id);
   for (int i = 0; i < n; ++i) {
     const int octave = m.octave[i];
-    if (octave < 0 || octave >= pyramid.num_levels) throw Error(what + ": feature " + std::to_string(i) + " at pyramid level " + std::to_string(octave));
+    if (octave < 0 || octave >= pyramid.num_levels)
+      throw Error(what + ": feature " + std::to_string(i) + " at pyramid level " + std::to_string(octave));
     const float x = m.x_eighth_px[i] / 8.0f, y = m.y_eighth_px[i] / 8.0f;
     if (x < 0 || y < 0 || x >= received.camera.width() || y >= received.camera.height()) {
       throw Error(what + ": feature " + std::to_string(i) + " lies outside the image");
@@ -158,7 +162,8 @@ void DecodeChanges(const Message& m, const std::vector<int64_t>& pose_ids, const
   const SubmapId submap = changes->submap;
   if (pose_ids.size() != m.cam_from_submap.size()) throw Error(what + ": poses and ids disagree");
   const auto own = [&](int64_t id) {
-    if (SubmapOf(KeyframeId(id)) != submap) throw Error(what + ": keyframe " + std::to_string(id) + " of another submap");
+    if (SubmapOf(KeyframeId(id)) != submap)
+      throw Error(what + ": keyframe " + std::to_string(id) + " of another submap");
     return KeyframeId(id);
   };
   for (size_t i = 0; i < pose_ids.size(); ++i) {
@@ -243,7 +248,8 @@ SubmapUpdate FromMessage(const stitch::submap_update_t& m, const ScalePyramid& p
   update.closed = m.closed;
   update.full_state = m.full_state;
   for (const auto& k : m.keyframes) {
-    if (k.submap_id != m.submap_id) throw Error(what + ": keyframe " + std::to_string(k.keyframe_id) + " of another submap");
+    if (k.submap_id != m.submap_id)
+      throw Error(what + ": keyframe " + std::to_string(k.keyframe_id) + " of another submap");
     ReceivedKeyframe received = FromMessage(k, pyramid);
     update.camera = received.camera;
     update.new_keyframes.push_back(std::move(received.keyframe));

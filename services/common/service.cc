@@ -7,7 +7,9 @@ namespace {
 
 std::atomic<bool> g_stop_requested{false};
 
-extern "C" void OnStopSignal(int) { g_stop_requested.store(true); }
+extern "C" void OnStopSignal(int) {
+  g_stop_requested.store(true);
+}
 
 }  // namespace
 
@@ -24,7 +26,8 @@ void ServiceCommandLine::Register(ArgParser* args) {
   args->AddOption("--lcm-url", &lcm_url, "URL", "LCM bus (udpm://group:port?ttl=0, or memq:// in one process)");
   args->AddOption("--agent", &agent, "NAME", "agent (aircraft) name; prefixes every channel");
   args->AddOption("--config", &config_path, "FILE", "YAML settings (see config/default.yaml)");
-  args->AddOption("--set", &settings, "KEY=VALUE", "a setting over the file, e.g. tracker.tracking.orb.num_features=1500");
+  args->AddOption("--set", &settings, "KEY=VALUE",
+                  "a setting over the file, e.g. tracker.tracking.orb.num_features=1500");
   args->AddOption("--log-level", &log_level, "LEVEL", "debug, info, warning or error");
 }
 
@@ -37,7 +40,9 @@ void ServiceCommandLine::Apply(const std::string& service_name) const {
 Heartbeat::Heartbeat(bus::Publisher* publisher, std::string service, std::function<Counts()> counts)
     : publisher_(publisher), service_(std::move(service)), counts_(std::move(counts)) {}
 
-Heartbeat::~Heartbeat() { Stop(); }
+Heartbeat::~Heartbeat() {
+  Stop();
+}
 
 void Heartbeat::SetState(int8_t state, const std::string& detail) {
   {

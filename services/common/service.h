@@ -21,7 +21,7 @@ const std::atomic<bool>& InstallStopSignals();
 struct ServiceCommandLine {
   std::string lcm_url = bus::DefaultLcmUrl();
   std::string agent = "uav0";
-  std::string config_path;   // YAML with one section per service; empty: defaults
+  std::string config_path;            // YAML with one section per service; empty: defaults
   std::vector<std::string> settings;  // --set KEY=VALUE, over the file (and a program's own flags)
   std::string log_level = "info";
 

@@ -34,8 +34,8 @@ class UpdateJournal {
   // a record that does not decode is skipped with a warning.
   int64_t Recover(const std::function<void(const stitch::submap_update_t&)>& each);
 
-  // Appends one update (on <its header's agent>/SUBMAP) and flushes it to the operating system. Throws stitch::Error on a write
-  // failure (a full disk): the caller must know the store is no longer complete.
+  // Appends one update (on <its header's agent>/SUBMAP) and flushes it to the operating system. Throws stitch::Error on
+  // a write failure (a full disk): the caller must know the store is no longer complete.
   void Append(const stitch::submap_update_t& update);
 
   const std::string& path() const { return path_; }

@@ -9,11 +9,11 @@
 #include "services/ingest/ingest_options.h"
 #include "services/link/link_options.h"
 #include "services/mapper/mapper_options.h"
+#include "services/tracker/tracker_options.h"
+#include "stitch/features/vocabulary.h"
 #include "stitch/merging/merger_options.h"
 #include "stitch/pipeline/pipeline_options.h"
-#include "services/tracker/tracker_options.h"
 #include "stitch/synthetic/synthetic_sequence.h"
-#include "stitch/features/vocabulary.h"
 
 namespace stitch {
 

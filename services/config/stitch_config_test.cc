@@ -66,8 +66,9 @@ namespace {
 TEST(StitchConfig, SettingsOverrideTheGivenConfigurationAndAreChecked) {
   StitchConfig base;
   base.tracker.tracking.relocalization_candidates = 5;
-  const StitchConfig set = ApplySettings(base, "tracker.tracking.homography_tracking=false,tracker.tracking.orb.threads=2,"
-                                               "tracker.tracking.reference_matching=lsh");
+  const StitchConfig set = ApplySettings(base,
+                                         "tracker.tracking.homography_tracking=false,tracker.tracking.orb.threads=2,"
+                                         "tracker.tracking.reference_matching=lsh");
   EXPECT_FALSE(set.tracker.tracking.homography_tracking);
   EXPECT_EQ(set.tracker.tracking.orb.threads, 2);
   EXPECT_EQ(set.tracker.tracking.reference_matching, "lsh");
@@ -93,7 +94,8 @@ TEST(StitchConfig, FlagsBecomeSettingsOverTheFileAndTextStaysAsGiven) {
   EXPECT_EQ(config.link.forward, regex) << "quotes, colons and bars survive";
   EXPECT_DOUBLE_EQ(config.link.loss, 0.05);
   // A value with commas is one setting when given as one.
-  EXPECT_EQ(ApplySettings(StitchConfig(), std::vector<std::string>{TextSetting("link.forward", "a,b")}).link.forward, "a,b");
+  EXPECT_EQ(ApplySettings(StitchConfig(), std::vector<std::string>{TextSetting("link.forward", "a,b")}).link.forward,
+            "a,b");
   EXPECT_THROW(LoadStitchConfig(file, {TextSetting("tracker.on_loss", "hover")}), Error);
 }
 

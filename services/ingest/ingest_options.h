@@ -6,21 +6,23 @@
 namespace stitch {
 
 struct IngestOptions {
-  std::string pacing = "lockstep";    // lockstep: wait for the tracker's ack; realtime: camera rate
-  double speed = 1.0;                 // realtime: playback speed factor (2 = twice as fast)
-  std::string encoding = "auto";      // gray8 (raw), jpeg, or auto (see ChooseFrameEncoding)
+  std::string pacing = "lockstep";  // lockstep: wait for the tracker's ack; realtime: camera rate
+  double speed = 1.0;               // realtime: playback speed factor (2 = twice as fast)
+  std::string encoding = "auto";    // gray8 (raw), jpeg, or auto (see ChooseFrameEncoding)
   int jpeg_quality = 92;
-  double ack_timeout_s = 0.25;        // lockstep: re-send a frame not acknowledged within this
-  int max_resends = 40;               // lockstep: then give up on that frame and go on (10 s by default)
-  double wait_for_tracker_s = 30.0;   // lockstep: how long to wait for a tracker at start
-  std::string failure_style = "blur"; // datasets: black, or blur (heavy blur and a jump)
+  double ack_timeout_s = 0.25;         // lockstep: re-send a frame not acknowledged within this
+  int max_resends = 40;                // lockstep: then give up on that frame and go on (10 s by default)
+  double wait_for_tracker_s = 30.0;    // lockstep: how long to wait for a tracker at start
+  std::string failure_style = "blur";  // datasets: black, or blur (heavy blur and a jump)
   int failure_seed = 1;
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
     v("pacing", pacing, "lockstep (reproducible: waits for the tracker) or realtime (drops if it lags)");
     v("speed", speed, "realtime playback speed factor");
-    v("encoding", encoding, "frame encoding on the bus: gray8, jpeg, or auto (gray8 unless the UDP receive buffer is too small for raw frames)");
+    v("encoding", encoding,
+      "frame encoding on the bus: gray8, jpeg, or auto (gray8 unless the UDP receive buffer is too small for raw "
+      "frames)");
     v("jpeg_quality", jpeg_quality, "JPEG quality, 1-100");
     v("ack_timeout_s", ack_timeout_s, "lockstep: re-send a frame not acknowledged within this, seconds");
     v("max_resends", max_resends, "lockstep: re-sends before giving up on a frame");
@@ -30,10 +32,14 @@ struct IngestOptions {
   }
 
   bool Check(std::string* why) const {
-    auto fail = [&](const std::string& m) { if (why) *why = m; return false; };
+    auto fail = [&](const std::string& m) {
+      if (why) *why = m;
+      return false;
+    };
     if (pacing != "lockstep" && pacing != "realtime") return fail("ingest.pacing must be lockstep or realtime");
     if (!(speed > 0 && speed <= 100)) return fail("ingest.speed must be in (0, 100]");
-    if (encoding != "gray8" && encoding != "jpeg" && encoding != "auto") return fail("ingest.encoding must be gray8, jpeg or auto");
+    if (encoding != "gray8" && encoding != "jpeg" && encoding != "auto")
+      return fail("ingest.encoding must be gray8, jpeg or auto");
     if (jpeg_quality < 1 || jpeg_quality > 100) return fail("ingest.jpeg_quality must be in [1, 100]");
     if (!(ack_timeout_s > 0)) return fail("ingest.ack_timeout_s must be > 0");
     if (max_resends < 0) return fail("ingest.max_resends must be >= 0");

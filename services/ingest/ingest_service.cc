@@ -29,13 +29,14 @@ IngestService::IngestService(lcm::LCM* lcm, const std::string& lcm_url, bus::Pub
   CheckOptions(options_, "ingest");
   options_.encoding = ChooseFrameEncoding(options_.encoding, lcm_url);
   const std::string agent = publisher_->agent();
-  subscriber_.Subscribe<stitch::frame_ack_t>(
-      bus::Channel(agent, bus::kFrameAck), [this](std::unique_ptr<stitch::frame_ack_t> ack, const std::string&) {
-        if (ack->frame_session != publisher_->session()) return;  // another ingest's (or an earlier run's) frame
-        std::lock_guard<std::mutex> lock(mutex_);
-        highest_acked_ = std::max(highest_acked_, ack->frame_index);
-        changed_.notify_all();
-      });
+  subscriber_.Subscribe<stitch::frame_ack_t>(bus::Channel(agent, bus::kFrameAck),
+                                             [this](std::unique_ptr<stitch::frame_ack_t> ack, const std::string&) {
+                                               if (ack->frame_session != publisher_->session())
+                                                 return;  // another ingest's (or an earlier run's) frame
+                                               std::lock_guard<std::mutex> lock(mutex_);
+                                               highest_acked_ = std::max(highest_acked_, ack->frame_index);
+                                               changed_.notify_all();
+                                             });
   subscriber_.Subscribe<stitch::service_status_t>(
       bus::Channel(agent, bus::kService), [this](std::unique_ptr<stitch::service_status_t> status, const std::string&) {
         if (status->service != "tracker") return;
@@ -75,7 +76,8 @@ void IngestService::PublishSequenceInfo(const ImageSequence& sequence, const Ing
   publisher_->Publish(bus::Channel(publisher_->agent(), bus::kSequence), &info);
 }
 
-IngestSummary IngestService::Play(ImageSequence& sequence, const FailureSchedule& spoil, const std::atomic<bool>& stop) {
+IngestSummary IngestService::Play(ImageSequence& sequence, const FailureSchedule& spoil,
+                                  const std::atomic<bool>& stop) {
   const bool lockstep = options_.pacing == "lockstep";
   const ImageEncoding encoding = ParseImageEncoding(options_.encoding);
   const FailureStyle failure_style = ParseFailureStyle(options_.failure_style);

@@ -24,7 +24,7 @@ struct IngestSummary {
   int frames_unacked = 0;     // lockstep: given up on after max_resends
   int resends = 0;
   double seconds = 0;
-  bool stopped = false;       // ended by the stop flag, not by the end of the sequence
+  bool stopped = false;  // ended by the stop flag, not by the end of the sequence
 };
 
 // Resolves the `auto` frame encoding for a bus: raw gray8 where whole frames fit the receive

@@ -14,10 +14,10 @@
 
 #include "services/common/convert.h"
 #include "services/tracker/tracker_service.h"
+#include "stitch/frame_ack_t.hpp"
 #include "stitch/records/frame_record.h"
 #include "stitch/source/source.h"
 #include "stitch/testing/temp_dir.h"
-#include "stitch/frame_ack_t.hpp"
 #include "stitch/tracking_status_t.hpp"
 
 namespace stitch {
@@ -53,7 +53,8 @@ struct Recorder {
                                              if (f->num_bytes > 0) frames[f->frame_index] = DecodeImage(*f);
                                            });
     subscriber->Subscribe<stitch::tracking_status_t>(
-        bus::Channel(agent, bus::kTrackingStatus), [this](std::unique_ptr<stitch::tracking_status_t> s, const std::string&) {
+        bus::Channel(agent, bus::kTrackingStatus),
+        [this](std::unique_ptr<stitch::tracking_status_t> s, const std::string&) {
           std::lock_guard<std::mutex> lock(mutex);
           statuses.push_back(*s);
         });
@@ -157,12 +158,12 @@ TEST(Ingest, EveryAcknowledgedFrameIsAlreadyInTheTrackersRecord) {
   InProcessRun run(Lockstep(), path);
   std::mutex mutex;
   std::vector<std::pair<int, int>> acked_and_on_disk;
-  run.subscriber.Subscribe<stitch::frame_ack_t>(
-      bus::Channel("uav0", bus::kFrameAck), [&](std::unique_ptr<stitch::frame_ack_t> ack, const std::string&) {
-        const int on_disk = static_cast<int>(ReadFrameRecords(path).size());
-        std::lock_guard<std::mutex> lock(mutex);
-        acked_and_on_disk.emplace_back(ack->frame_index, on_disk);
-      });
+  run.subscriber.Subscribe<stitch::frame_ack_t>(bus::Channel("uav0", bus::kFrameAck),
+                                                [&](std::unique_ptr<stitch::frame_ack_t> ack, const std::string&) {
+                                                  const int on_disk = static_cast<int>(ReadFrameRecords(path).size());
+                                                  std::lock_guard<std::mutex> lock(mutex);
+                                                  acked_and_on_disk.emplace_back(ack->frame_index, on_disk);
+                                                });
   run.Play(ShortFlight(8));
   ASSERT_EQ(acked_and_on_disk.size(), 8u);
   for (const auto& [frame, on_disk] : acked_and_on_disk) EXPECT_GE(on_disk, frame + 1) << "frame " << frame;

@@ -21,7 +21,8 @@ int main(int argc, char** argv) {
   args.AddOption("--dataset", &source.dataset_path, "PATH", "dataset folder or video file (default: synthetic flight)");
   args.AddOption("--calib", &source.calibration_path, "FILE", "calibration overriding the dataset's own");
   args.AddOption("--failures", &source.failures, "SPEC",
-                 "frames to make unusable: FRAME:LENGTH,... or none; 'default' = 3 gusts on the synthetic flight, none on datasets");
+                 "frames to make unusable: FRAME:LENGTH,... or none; 'default' = 3 gusts on the synthetic flight, none "
+                 "on datasets");
   args.AddOption("--max-frames", &source.max_frames, "N", "play at most N frames (-1: all)");
   args.AddOption("--start-frame", &source.start_frame, "N", "skip the first N frames");
   args.AddOption("--pacing", &pacing, "MODE", "lockstep or realtime (overrides the config)");

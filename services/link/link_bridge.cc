@@ -20,10 +20,10 @@
 namespace stitch {
 namespace {
 
-constexpr size_t kMaxMessageBytes = 64u << 20;        // larger messages are refused, both ways
-constexpr size_t kMaxIncompleteBytes = 256u << 20;    // reassembly memory; beyond it the oldest is given up
-constexpr size_t kMaxRetainedBytes = 256u << 20;      // repair memory; beyond it the oldest is forgotten
-constexpr uint64_t kMaxRepairScan = 10000;            // messages looked at per repair pass
+constexpr size_t kMaxMessageBytes = 64u << 20;      // larger messages are refused, both ways
+constexpr size_t kMaxIncompleteBytes = 256u << 20;  // reassembly memory; beyond it the oldest is given up
+constexpr size_t kMaxRetainedBytes = 256u << 20;    // repair memory; beyond it the oldest is forgotten
+constexpr uint64_t kMaxRepairScan = 10000;          // messages looked at per repair pass
 constexpr double kEchoLifetimeS = 5.0;
 
 sockaddr_in ResolveIpv4(const std::string& text, const char* what) {
@@ -163,8 +163,8 @@ std::string LinkBridge::Describe() const {
   if (c.queued_bytes > 0) text << ", " << c.queued_bytes / 1000 << " kB waiting";
   if (c.messages_expired > 0) text << ", " << c.messages_expired << " expired unsent";
   if (c.datagrams_lost_injected > 0) text << ", " << c.datagrams_lost_injected << " datagrams dropped on purpose";
-  text << "; repaired " << c.fragments_repaired << " fragments, asked " << c.repair_requests_sent
-       << " times; received " << c.messages_delivered << " messages";
+  text << "; repaired " << c.fragments_repaired << " fragments, asked " << c.repair_requests_sent << " times; received "
+       << c.messages_delivered << " messages";
   if (c.messages_given_up > 0) text << ", gave up on " << c.messages_given_up;
   if (c.datagrams_refused > 0) text << ", refused " << c.datagrams_refused << " datagrams";
   return text.str();
@@ -404,8 +404,8 @@ void LinkBridge::ReceiveLoop() {
     while (true) {
       sockaddr_in from{};
       socklen_t from_length = sizeof(from);
-      const ssize_t size =
-          recvfrom(socket_, buffer.data(), buffer.size(), MSG_DONTWAIT, reinterpret_cast<sockaddr*>(&from), &from_length);
+      const ssize_t size = recvfrom(socket_, buffer.data(), buffer.size(), MSG_DONTWAIT,
+                                    reinterpret_cast<sockaddr*>(&from), &from_length);
       if (size < 0) break;
       std::string why;
       link::Datagram datagram;
@@ -432,7 +432,8 @@ void LinkBridge::ReceiveLoop() {
     }
     if (now >= next_echo_sweep) {
       std::lock_guard<std::mutex> lock(echo_mutex_);
-      for (auto it = echo_keys_.begin(); it != echo_keys_.end();) it = it->second < now ? echo_keys_.erase(it) : std::next(it);
+      for (auto it = echo_keys_.begin(); it != echo_keys_.end();)
+        it = it->second < now ? echo_keys_.erase(it) : std::next(it);
       next_echo_sweep = now + 1.0;
     }
   }
@@ -505,7 +506,8 @@ void LinkBridge::OnData(const link::DataFragment& fragment, double now) {
   if (!AcceptSession(fragment.session)) return;
   if ((floor_known_ && fragment.message < floor_) || finished_.count(fragment.message)) return;  // a duplicate
   std::string why;
-  if (fragment.message_bytes > kMaxMessageBytes) why = "a message of " + std::to_string(fragment.message_bytes) + " bytes";
+  if (fragment.message_bytes > kMaxMessageBytes)
+    why = "a message of " + std::to_string(fragment.message_bytes) + " bytes";
   if (fragment.message > floor_ + 1000000) why = "message number far ahead of the rest";
   Partial* partial = nullptr;
   if (why.empty()) {
@@ -552,8 +554,8 @@ void LinkBridge::OnData(const link::DataFragment& fragment, double now) {
 void LinkBridge::Deliver(uint64_t message, Partial* partial) {
   {
     std::lock_guard<std::mutex> lock(echo_mutex_);
-    echo_keys_[EchoKey(partial->channel, reinterpret_cast<const uint8_t*>(partial->bytes.data()), partial->bytes.size())] =
-        MonotonicSeconds() + kEchoLifetimeS;
+    echo_keys_[EchoKey(partial->channel, reinterpret_cast<const uint8_t*>(partial->bytes.data()),
+                       partial->bytes.size())] = MonotonicSeconds() + kEchoLifetimeS;
   }
   lcm_->publish(partial->channel, partial->bytes.data(), static_cast<unsigned int>(partial->bytes.size()));
   {
@@ -624,8 +626,8 @@ void LinkBridge::OnRepair(const link::RepairRequest& request) {
     for (const auto& wanted : request.wanted) {
       const auto retained = retained_.find(wanted.message);
       if (retained == retained_.end() || !retained->second.sent) continue;
-      const int count = link::FragmentCount(retained->second.channel, retained->second.bytes.size(),
-                                            options_.max_datagram_bytes);
+      const int count =
+          link::FragmentCount(retained->second.channel, retained->second.bytes.size(), options_.max_datagram_bytes);
       const auto ask = [&](int index) {
         if (index < count && repairs_waiting_.insert({wanted.message, static_cast<uint16_t>(index)}).second) {
           repairs_.emplace_back(wanted.message, static_cast<uint16_t>(index));

@@ -41,22 +41,22 @@
 namespace stitch {
 
 struct LinkCounts {
-  int64_t messages_queued = 0;        // local messages taken for the other side
-  int64_t messages_sent = 0;          // every fragment sent at least once
-  int64_t messages_expired = 0;       // waited longer than max_queue_s under the budget; dropped
-  int64_t messages_refused = 0;       // too large to send
-  int64_t datagrams_sent = 0;         // including repairs, requests and statuses
-  int64_t bytes_sent = 0;             // with UDP/IP headers (what the budget counts)
+  int64_t messages_queued = 0;   // local messages taken for the other side
+  int64_t messages_sent = 0;     // every fragment sent at least once
+  int64_t messages_expired = 0;  // waited longer than max_queue_s under the budget; dropped
+  int64_t messages_refused = 0;  // too large to send
+  int64_t datagrams_sent = 0;    // including repairs, requests and statuses
+  int64_t bytes_sent = 0;        // with UDP/IP headers (what the budget counts)
   int64_t datagrams_lost_injected = 0;
-  int64_t fragments_repaired = 0;     // sent again because the other side asked
+  int64_t fragments_repaired = 0;  // sent again because the other side asked
   int64_t repair_requests_sent = 0;
-  int64_t messages_delivered = 0;     // from the other side, published here
-  int64_t messages_given_up = 0;      // from the other side, never completed
-  int64_t datagrams_refused = 0;      // malformed or foreign
-  int64_t echoes_suppressed = 0;      // our own publications, not sent back
-  int64_t queued_bytes = 0;           // waiting now
-  double oldest_wait_s = 0;           // how long the oldest waiting message has waited
-  double seconds_since_peer = -1;     // since anything came from the other side; -1: never
+  int64_t messages_delivered = 0;  // from the other side, published here
+  int64_t messages_given_up = 0;   // from the other side, never completed
+  int64_t datagrams_refused = 0;   // malformed or foreign
+  int64_t echoes_suppressed = 0;   // our own publications, not sent back
+  int64_t queued_bytes = 0;        // waiting now
+  double oldest_wait_s = 0;        // how long the oldest waiting message has waited
+  double seconds_since_peer = -1;  // since anything came from the other side; -1: never
 };
 
 class LinkBridge {
@@ -158,17 +158,17 @@ class LinkBridge {
   std::condition_variable wake_;
   std::deque<Outgoing> small_queue_, large_queue_;
   size_t queued_bytes_ = 0;
-  std::deque<std::string> control_;                      // repair requests, statuses: first
-  std::deque<std::pair<uint64_t, uint16_t>> repairs_;    // (message, fragment) asked for again
+  std::deque<std::string> control_;                    // repair requests, statuses: first
+  std::deque<std::pair<uint64_t, uint16_t>> repairs_;  // (message, fragment) asked for again
   std::set<std::pair<uint64_t, uint16_t>> repairs_waiting_;
   std::optional<Sending> small_sending_, large_sending_;  // a small one goes between a large one's fragments
   uint64_t next_message_ = 0;
   std::map<uint64_t, Retained> retained_;
   size_t retained_bytes_ = 0;
-  std::optional<std::string> pending_;                   // picked, waiting for budget
+  std::optional<std::string> pending_;  // picked, waiting for budget
   // Token bucket of the budget: a few datagrams, or 50 ms of budget, may go at once.
-  const double burst_bytes_ = std::max(4.0 * (options_.max_datagram_bytes + link::kUdpIpHeaderBytes),
-                                       0.05 * options_.budget_bytes_per_s);
+  const double burst_bytes_ =
+      std::max(4.0 * (options_.max_datagram_bytes + link::kUdpIpHeaderBytes), 0.05 * options_.budget_bytes_per_s);
   double tokens_ = 0;
   double tokens_at_ = 0;
   std::priority_queue<Delayed, std::vector<Delayed>, std::greater<>> delay_line_;
@@ -177,11 +177,11 @@ class LinkBridge {
 
   // Receiver state (receiver thread only, except the echo keys).
   uint64_t peer_session_ = 0;
-  uint64_t floor_ = 0;                  // every message of the peer below this is finished
-  bool floor_known_ = false;            // set by the peer's first status
+  uint64_t floor_ = 0;        // every message of the peer below this is finished
+  bool floor_known_ = false;  // set by the peer's first status
   uint64_t peer_sent_end_ = 0;
   std::map<uint64_t, Partial> incomplete_;
-  std::set<uint64_t> finished_;         // finished messages at or above floor_
+  std::set<uint64_t> finished_;  // finished messages at or above floor_
   size_t incomplete_bytes_ = 0;
   std::mutex echo_mutex_;
   std::unordered_map<uint64_t, double> echo_keys_;  // key -> expiry

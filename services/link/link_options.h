@@ -33,7 +33,8 @@ struct LinkOptions {
     v("forward", forward, "LCM channels sent to the other side (regular expression)");
     v("listen", listen, "UDP address:port this bridge receives the other side on");
     v("peer", peer, "UDP address:port of the other side's bridge");
-    v("budget_bytes_per_s", budget_bytes_per_s, "bandwidth budget of what this side sends, bytes/s with headers (0: none)");
+    v("budget_bytes_per_s", budget_bytes_per_s,
+      "bandwidth budget of what this side sends, bytes/s with headers (0: none)");
     v("max_datagram_bytes", max_datagram_bytes, "largest UDP payload sent (messages are split into datagrams)");
     v("max_queue_s", max_queue_s, "with a budget: drop messages that waited longer than this, oldest first, seconds");
     v("small_message_bytes", small_message_bytes, "messages up to this size overtake larger waiting ones");
@@ -60,7 +61,8 @@ struct LinkOptions {
     if (budget_bytes_per_s > 0 && budget_bytes_per_s < 2000) {
       return fail("link.budget_bytes_per_s must be 0 (none) or at least 2000");
     }
-    if (max_datagram_bytes < 256 || max_datagram_bytes > 65000) return fail("link.max_datagram_bytes must be in [256, 65000]");
+    if (max_datagram_bytes < 256 || max_datagram_bytes > 65000)
+      return fail("link.max_datagram_bytes must be in [256, 65000]");
     if (!(max_queue_s > 0)) return fail("link.max_queue_s must be > 0");
     if (small_message_bytes < 0) return fail("link.small_message_bytes must be >= 0");
     if (!(retain_s > 0)) return fail("link.retain_s must be > 0");

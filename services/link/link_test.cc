@@ -57,7 +57,7 @@ TEST(LinkWire, FragmentsReassembleIntoTheMessageAndFitTheDatagramSize) {
     EXPECT_EQ(rebuilt, message) << size;
   }
   EXPECT_TRUE(link::Fragment(1, 1, std::string(300, 'c'), "x", 1200).empty());  // channel too long
-  EXPECT_EQ(link::FragmentCount("c", 20000000, 256), 0);  // would need more than 65535 fragments
+  EXPECT_EQ(link::FragmentCount("c", 20000000, 256), 0);                        // would need more than 65535 fragments
 }
 
 TEST(LinkWire, RepairRequestsAndStatusesRoundTripAndSplitToFit) {
@@ -122,7 +122,8 @@ TEST(LinkWire, EveryTruncationAndCorruptionIsRefusedWithAReason) {
   for (int trial = 0; trial < 20000; ++trial) {
     std::string datagram = good[trial % good.size()];
     const int flips = 1 + trial % 4;
-    for (int f = 0; f < flips; ++f) datagram[rng.UniformInt(0, static_cast<int>(datagram.size()) - 1)] ^= 1 << rng.UniformInt(0, 7);
+    for (int f = 0; f < flips; ++f)
+      datagram[rng.UniformInt(0, static_cast<int>(datagram.size()) - 1)] ^= 1 << rng.UniformInt(0, 7);
     link::Datagram decoded;
     std::string why;
     if (!DecodeString(datagram, &decoded, &why)) {
@@ -254,7 +255,7 @@ TEST(LinkBridge, CarriesTheChosenChannelsBothWaysByteForByteWithoutEcho) {
   for (size_t i = 0; i < sizes.size(); ++i) Publish(sides.aircraft_bus.get(), "uav0/SUBMAP", RandomBytes(sizes[i], i));
   Publish(sides.aircraft_bus.get(), "uav0/FRAME", RandomBytes(5000, 9));  // not forwarded
   Publish(sides.ground_bus.get(), "uav0/SUBMAP_REQUEST", "ask");
-  Publish(sides.aircraft_bus.get(), "uav0/SEQUENCE", "sequence");       // forwarded both ways
+  Publish(sides.aircraft_bus.get(), "uav0/SEQUENCE", "sequence");  // forwarded both ways
   ASSERT_TRUE(sides.ground_seen->WaitFor("uav0/SUBMAP", sizes.size(), 5s));
   ASSERT_TRUE(sides.aircraft_seen->WaitFor("uav0/SUBMAP_REQUEST", 1, 5s));
   ASSERT_TRUE(sides.ground_seen->WaitFor("uav0/SEQUENCE", 1, 5s));

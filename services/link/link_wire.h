@@ -20,7 +20,7 @@ namespace stitch::link {
 
 inline constexpr uint32_t kMagic = 0x314c5453;  // "STL1" on the wire
 inline constexpr uint8_t kVersion = 1;
-inline constexpr int kUdpIpHeaderBytes = 28;     // what each datagram costs the link beyond its payload
+inline constexpr int kUdpIpHeaderBytes = 28;  // what each datagram costs the link beyond its payload
 
 enum class DatagramType : uint8_t { kData = 1, kRepair = 2, kStatus = 3 };
 

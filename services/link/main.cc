@@ -21,16 +21,18 @@ int main(int argc, char** argv) {
   args.AddOption("--forward", &given.forward, "REGEX", "channels to send to the other side (overrides link.forward)");
   args.AddOption("--listen", &given.listen, "ADDR:PORT", "UDP address to receive on (overrides link.listen)");
   args.AddOption("--peer", &given.peer, "ADDR:PORT", "the other side's bridge (overrides link.peer)");
-  args.AddOption("--budget", &given.budget_bytes_per_s, "BYTES/S", "bandwidth budget, 0 for none (overrides link.budget_bytes_per_s)");
+  args.AddOption("--budget", &given.budget_bytes_per_s, "BYTES/S",
+                 "bandwidth budget, 0 for none (overrides link.budget_bytes_per_s)");
   args.AddOption("--loss", &given.loss, "P", "inject: drop each datagram sent with probability P (tests, rehearsals)");
   args.AddOption("--delay-ms", &given.delay_ms, "MS", "inject: delay every datagram sent by MS");
   args.AddOption("--jitter-ms", &given.jitter_ms, "MS", "inject: extra uniform delay up to MS (reorders)");
   args.AddOption("--seed", &given.seed, "N", "seed of the injected loss and jitter");
-  args.AddEpilog("Example, the aircraft (10.0.0.2) and the ground station (10.0.0.1):\n"
-                 "  aircraft$ stitch-link --forward 'uav0/(SUBMAP|SEQUENCE|TRACKING_STATUS|SERVICE)' \\\n"
-                 "              --listen 0.0.0.0:7720 --peer 10.0.0.1:7721 --budget 250000\n"
-                 "  ground$   stitch-link --forward 'uav0/SUBMAP_REQUEST' --listen 0.0.0.0:7721 --peer 10.0.0.2:7720\n"
-                 "Every 10 s the log says what was sent, repaired and received.\n");
+  args.AddEpilog(
+      "Example, the aircraft (10.0.0.2) and the ground station (10.0.0.1):\n"
+      "  aircraft$ stitch-link --forward 'uav0/(SUBMAP|SEQUENCE|TRACKING_STATUS|SERVICE)' \\\n"
+      "              --listen 0.0.0.0:7720 --peer 10.0.0.1:7721 --budget 250000\n"
+      "  ground$   stitch-link --forward 'uav0/SUBMAP_REQUEST' --listen 0.0.0.0:7721 --peer 10.0.0.2:7720\n"
+      "Every 10 s the log says what was sent, repaired and received.\n");
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {
     common.Apply("link");

@@ -7,14 +7,14 @@
 #include <thread>
 
 #include "services/common/map_convert.h"
-#include "stitch/records/keyframe_record.h"
 #include "stitch/io/ply.h"
-#include "stitch/util/log.h"
 #include "stitch/link_status_t.hpp"
+#include "stitch/records/keyframe_record.h"
 #include "stitch/submap_request_t.hpp"
 #include "stitch/tracking_status_t.hpp"
-#include "stitch/util/time.h"
+#include "stitch/util/log.h"
 #include "stitch/util/options.h"
+#include "stitch/util/time.h"
 
 namespace stitch {
 
@@ -36,7 +36,8 @@ MapperService::MapperService(lcm::LCM* lcm, bus::Publisher* publisher, MapperOpt
                                               ++received_;
                                               if (auto dropped = queue_.Push(std::move(keyframe))) {
                                                 ++rejected_;
-                                                STITCH_LOG(WARNING) << "mapper queue full: dropped keyframe " << (*dropped)->keyframe_id;
+                                                STITCH_LOG(WARNING) << "mapper queue full: dropped keyframe "
+                                                                    << (*dropped)->keyframe_id;
                                               }
                                             });
   // The tracker closes a submap on loss; its status says so (submaps_closed goes up), and the
@@ -78,7 +79,9 @@ MapperService::MapperService(lcm::LCM* lcm, bus::Publisher* publisher, MapperOpt
   });
 }
 
-MapperService::~MapperService() { Stop(); }
+MapperService::~MapperService() {
+  Stop();
+}
 
 void MapperService::Start() {
   if (running_.exchange(true)) return;
@@ -268,8 +271,8 @@ void MapperService::PublishSubmapUpdate(const SubmapUpdate& update) {
   if (!update.submap.valid()) return;
   for (auto& part : ToMessages(update)) publisher_->Publish(bus::Channel(publisher_->agent(), bus::kSubmap), &part);
   if (update.closed) {
-    STITCH_LOG(INFO) << "submap " << SubmapName(update.submap) << " closed: " << update.manifest.size() << " keyframes, "
-                     << update.changes.points.size() << " points sent to the merger";
+    STITCH_LOG(INFO) << "submap " << SubmapName(update.submap) << " closed: " << update.manifest.size()
+                     << " keyframes, " << update.changes.points.size() << " points sent to the merger";
   }
 }
 
@@ -280,7 +283,7 @@ void MapperService::WriteRecords() const {
     for (const auto& closed : mapping_->closed_maps()) maps.push_back(closed.get());
     if (mapping_->map()) maps.push_back(mapping_->map());
   }
-  static const uint8_t kPalette[][3] = {{30, 90, 200}, {220, 40, 40}, {40, 160, 40}, {180, 40, 180}, {220, 150, 20},
+  static const uint8_t kPalette[][3] = {{30, 90, 200}, {220, 40, 40}, {40, 160, 40}, {180, 40, 180},  {220, 150, 20},
                                         {0, 140, 140}, {160, 60, 90}, {200, 110, 0}, {100, 100, 100}, {180, 180, 60}};
   std::vector<ColouredPoint> cloud;
   std::ofstream keyframes(std::filesystem::path(record_dir_) / "keyframes.tsv");

@@ -8,19 +8,19 @@
 // per submap) and keyframes.tsv (final keyframe poses, culled keyframes included).
 
 #include <atomic>
+#include <map>
 #include <memory>
 #include <mutex>
+#include <set>
 #include <string>
 #include <thread>
 #include <unordered_map>
-#include <map>
-#include <set>
 
 #include "services/common/bus.h"
 #include "services/common/service.h"
 #include "services/mapper/mapper_options.h"
-#include "stitch/mapping/local_mapping.h"
 #include "stitch/keyframe_t.hpp"
+#include "stitch/mapping/local_mapping.h"
 #include "stitch/util/bounded_queue.h"
 
 namespace stitch {
@@ -76,11 +76,11 @@ class MapperService {
     std::set<KeyframeId> keyframes;
     bool full_state = false;
   };
-  std::map<SubmapId, Request> requests_;  // from the merger
-  std::map<SubmapId, double> last_resend_;               // MonotonicSeconds()
+  std::map<SubmapId, Request> requests_;    // from the merger
+  std::map<SubmapId, double> last_resend_;  // MonotonicSeconds()
   std::atomic<int64_t> resends_{0};
   std::atomic<double> last_request_at_{-1e9};  // MonotonicSeconds() of the merger's last request
-  double last_activity_ = 0;  // MonotonicSeconds() of the last keyframe or manifest sent (worker only)
+  double last_activity_ = 0;                   // MonotonicSeconds() of the last keyframe or manifest sent (worker only)
   int64_t points_thinned_ = 0;
   // The aircraft's link bridge's backlog (from <agent>/LINK_STATUS) and when it last said so.
   bool LinkCongested() const;

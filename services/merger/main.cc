@@ -18,8 +18,9 @@ int main(int argc, char** argv) {
                  "graph and merges along its strongest connections; publishes <agent>/GLOBAL_MAP. Runs until SIGINT "
                  "or SIGTERM.");
   common.Register(&args);
-  args.AddOption("--record", &record_dir, "DIR",
-                 "write map.ply, submaps.tsv, keyframes_merged.tsv, graph.dot, graph.png, merge_log.tsv and retrieval.tsv to DIR");
+  args.AddOption(
+      "--record", &record_dir, "DIR",
+      "write map.ply, submaps.tsv, keyframes_merged.tsv, graph.dot, graph.png, merge_log.tsv and retrieval.tsv to DIR");
   args.AddOption("--state", &state_dir, "DIR",
                  "keep the merger's store in DIR (submap_updates.lcmlog, appended as updates arrive); a merger "
                  "restarted with the same DIR resumes where the last one stopped or was killed");

@@ -10,8 +10,8 @@
 #include "services/common/convert.h"
 #include "services/common/map_convert.h"
 #include "stitch/global_map_t.hpp"
-#include "stitch/submap_request_t.hpp"
 #include "stitch/io/ply.h"
+#include "stitch/submap_request_t.hpp"
 #include "stitch/util/log.h"
 #include "stitch/util/time.h"
 
@@ -48,7 +48,9 @@ MergerService::MergerService(lcm::LCM* lcm, bus::Publisher* publisher, const Mer
   if (!state_dir.empty()) journal_ = std::make_unique<UpdateJournal>(state_dir, submap_channels_);
 }
 
-MergerService::~MergerService() { Stop(); }
+MergerService::~MergerService() {
+  Stop();
+}
 
 int64_t MergerService::Replay(const std::string& log_path) {
   recovering_ = true;
@@ -106,7 +108,8 @@ std::optional<MergedMap> MergerService::MergeLargestMap(Merger::Graph* graph) co
   }
   int loops = 0;  // confirmed loops within component 0
   for (const ConnectedFrame& c : graph->agreeing) {
-    loops += SubmapOf(c.keyframe_a) == SubmapOf(c.keyframe_b) && graph->placement.at(SubmapOf(c.keyframe_a)).component == 0;
+    loops +=
+        SubmapOf(c.keyframe_a) == SubmapOf(c.keyframe_b) && graph->placement.at(SubmapOf(c.keyframe_a)).component == 0;
   }
   if (members < 2 && loops == 0) return std::nullopt;
   const SubmapReplica& replica = merger_.submaps().at(root);
@@ -116,12 +119,12 @@ std::optional<MergedMap> MergerService::MergeLargestMap(Merger::Graph* graph) co
                                        pyramid_, replica.camera->Intrinsics(), merger_.options().merged_map);
   for (const auto& [id, pose] : merged.keyframe_poses) graph->keyframe_poses[id] = pose;
   const BundleAdjustmentReport& ba = merged.bundle_adjustment;
-  STITCH_LOG(INFO) << "merged map of " << members << " submaps with " << loops << " loops: " << merged.map.num_keyframes() << " keyframes, "
-                   << merged.map.num_points() << " points; fused " << merged.points_fused_by_connection
-                   << " points from connected frames and " << merged.points_fused_by_projection
-                   << " by projection; bundle adjustment " << ba.initial_rms_px << " -> " << ba.final_rms_px << " px rms ("
-                   << ba.observations << " observations, " << ba.outliers_removed << " outliers removed) in "
-                   << clock.ElapsedMs() << " ms";
+  STITCH_LOG(INFO) << "merged map of " << members << " submaps with " << loops
+                   << " loops: " << merged.map.num_keyframes() << " keyframes, " << merged.map.num_points()
+                   << " points; fused " << merged.points_fused_by_connection << " points from connected frames and "
+                   << merged.points_fused_by_projection << " by projection; bundle adjustment " << ba.initial_rms_px
+                   << " -> " << ba.final_rms_px << " px rms (" << ba.observations << " observations, "
+                   << ba.outliers_removed << " outliers removed) in " << clock.ElapsedMs() << " ms";
   return merged;
 }
 
@@ -155,8 +158,9 @@ void MergerService::Process(const stitch::submap_update_t& message, bool from_jo
   const auto [known, fresh] = agent_of_.try_emplace(update.submap, message.header.agent);
   if (!fresh && known->second != message.header.agent) {
     ++rejected_;
-    STITCH_LOG(WARNING) << "rejected an update of submap " << SubmapName(update.submap) << " from " << message.header.agent
-                        << ": that submap is " << known->second << "'s (two aircraft with one agent_number?)";
+    STITCH_LOG(WARNING) << "rejected an update of submap " << SubmapName(update.submap) << " from "
+                        << message.header.agent << ": that submap is " << known->second
+                        << "'s (two aircraft with one agent_number?)";
     return;
   }
   const std::vector<KeyframeId> missing = merger_.Apply(update);
@@ -217,8 +221,8 @@ void MergerService::RequestWhatWasLost() {
     last = now;
     request.num_keyframes = static_cast<int32_t>(request.keyframe_ids.size());
     const auto agent = agent_of_.find(id);
-    publisher_->Publish(bus::Channel(agent != agent_of_.end() ? agent->second : publisher_->agent(), bus::kSubmapRequest),
-                        &request);
+    publisher_->Publish(
+        bus::Channel(agent != agent_of_.end() ? agent->second : publisher_->agent(), bus::kSubmapRequest), &request);
     ++requests_;
     STITCH_LOG(INFO) << "asked for submap " << SubmapName(id) << " again: " << request.num_keyframes
                      << " keyframes missing" << (request.full_state ? ", final state missing" : "");
@@ -329,7 +333,7 @@ void MergerService::WriteRecords(const Merger::Graph& graph, const MergedMap* me
   WriteSubmapRecords((dir / "submaps.tsv").string(), submaps);
   {
     // map.ply: the largest merged map's points in its frame, one colour per submap.
-    static const uint8_t kPalette[][3] = {{30, 90, 200}, {220, 40, 40}, {40, 160, 40}, {180, 40, 180}, {220, 150, 20},
+    static const uint8_t kPalette[][3] = {{30, 90, 200}, {220, 40, 40}, {40, 160, 40}, {180, 40, 180},  {220, 150, 20},
                                           {0, 140, 140}, {160, 60, 90}, {200, 110, 0}, {100, 100, 100}, {180, 180, 60}};
     std::vector<ColouredPoint> cloud;
     int colour = 0;
@@ -383,15 +387,17 @@ void MergerService::WriteRecords(const Merger::Graph& graph, const MergedMap* me
     std::ofstream out(dir / "graph.dot");
     out << "graph submaps {\n  // edge weight -C; bold: Kruskal's spanning tree\n";
     for (const auto& [id, placement] : graph.placement) {
-      out << "  \"" << SubmapName(id) << "\" [label=\"" << SubmapName(id) << "\\n" << merger_.submaps().at(id).map.num_keyframes()
-          << " kf, map " << placement.component << "\"];\n";
+      out << "  \"" << SubmapName(id) << "\" [label=\"" << SubmapName(id) << "\\n"
+          << merger_.submaps().at(id).map.num_keyframes() << " kf, map " << placement.component << "\"];\n";
     }
     for (const SubmapEdge& e : graph.edges) {
       bool in_tree = false;
       for (const SubmapEdge& t : graph.tree) in_tree |= t.a == e.a && t.b == e.b;
       char label[128];
-      std::snprintf(label, sizeof(label), "C=%.1f (F=%d M=%d %.0f deg%s)", e.strength, e.connected_frames, e.map_points,
-                    e.median_angle_deg, e.disagreeing_frames > 0 ? (", " + std::to_string(e.disagreeing_frames) + " outvoted").c_str() : "");
+      std::snprintf(
+          label, sizeof(label), "C=%.1f (F=%d M=%d %.0f deg%s)", e.strength, e.connected_frames, e.map_points,
+          e.median_angle_deg,
+          e.disagreeing_frames > 0 ? (", " + std::to_string(e.disagreeing_frames) + " outvoted").c_str() : "");
       out << "  \"" << SubmapName(e.a) << "\" -- \"" << SubmapName(e.b) << "\" [label=\"" << label << "\""
           << (in_tree ? ", style=bold" : ", style=dashed") << "];\n";
     }
@@ -406,7 +412,8 @@ void MergerService::WriteRecords(const Merger::Graph& graph, const MergedMap* me
     size_t i = 0;
     for (const auto& [id, placement] : graph.placement) {
       const double angle = 2 * M_PI * static_cast<double>(i++) / std::max<size_t>(1, n) - M_PI / 2;
-      at[id] = cv::Point(size / 2 + static_cast<int>(230 * std::cos(angle)), size / 2 + static_cast<int>(230 * std::sin(angle)));
+      at[id] = cv::Point(size / 2 + static_cast<int>(230 * std::cos(angle)),
+                         size / 2 + static_cast<int>(230 * std::sin(angle)));
     }
     for (const SubmapEdge& e : graph.edges) {
       bool in_tree = false;
@@ -415,13 +422,14 @@ void MergerService::WriteRecords(const Merger::Graph& graph, const MergedMap* me
                cv::LINE_AA);
       char label[32];
       std::snprintf(label, sizeof(label), "%.0f", e.strength);
-      cv::putText(image, label, (at[e.a] + at[e.b]) / 2, cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+      cv::putText(image, label, (at[e.a] + at[e.b]) / 2, cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(0, 0, 0), 1,
+                  cv::LINE_AA);
     }
     static const cv::Scalar kColours[] = {{200, 90, 30}, {40, 40, 220}, {40, 160, 40}, {180, 40, 180}, {20, 150, 220}};
     for (const auto& [id, placement] : graph.placement) {
       cv::circle(image, at[id], 22, kColours[placement.component % 5], cv::FILLED, cv::LINE_AA);
-      cv::putText(image, SubmapName(id), at[id] + cv::Point(-16, 5), cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(255, 255, 255),
-                  1, cv::LINE_AA);
+      cv::putText(image, SubmapName(id), at[id] + cv::Point(-16, 5), cv::FONT_HERSHEY_SIMPLEX, 0.45,
+                  cv::Scalar(255, 255, 255), 1, cv::LINE_AA);
     }
     cv::putText(image, "submap graph: edges labelled C, spanning tree in red, one colour per merged map",
                 cv::Point(10, 20), cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);

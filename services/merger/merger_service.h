@@ -17,8 +17,8 @@
 
 #include "services/common/bus.h"
 #include "services/common/service.h"
-#include "stitch/merging/merger.h"
 #include "services/common/update_journal.h"
+#include "stitch/merging/merger.h"
 #include "stitch/submap_update_t.hpp"
 #include "stitch/util/bounded_queue.h"
 
@@ -82,7 +82,7 @@ class MergerService {
   std::atomic<double> last_receive_{0};
   size_t connections_seen_ = 0;
   std::map<SubmapId, bool> closed_seen_;
-  std::set<SubmapId> refined_closed_;  // closed submaps the merged maps were refined with
+  std::set<SubmapId> refined_closed_;                      // closed submaps the merged maps were refined with
   std::map<SubmapId, double> last_request_, last_update_;  // MonotonicSeconds()
   std::map<KeyframeId, double> missing_since_;             // listed by a manifest, not received
   std::vector<std::string> agents_;                        // whose submaps it merges
@@ -97,7 +97,7 @@ class MergerService {
     std::optional<MergedMap> merged;
   };
   std::optional<Refined> refined_;  // the latest refinement...
-  int64_t refined_at_ = -1;          // ...after this many processed updates
+  int64_t refined_at_ = -1;         // ...after this many processed updates
 };
 
 }  // namespace stitch

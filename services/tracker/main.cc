@@ -19,7 +19,8 @@ int main(int argc, char** argv) {
   common.Register(&args);
   args.AddOption("--record", &record_path, "FILE", "also write one line per frame to FILE (frames.tsv)");
   args.AddOption("--on-loss", &on_loss, "MODE", "submap or relocalize (overrides the config)");
-  args.AddOption("--state", &state_file, "FILE", "keep the next submap number in FILE across restarts (overrides the config)");
+  args.AddOption("--state", &state_file, "FILE",
+                 "keep the next submap number in FILE across restarts (overrides the config)");
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {
     common.Apply("tracker");

@@ -19,15 +19,21 @@ struct TrackerOptions {
   void VisitFields(Visitor& v) {
     v("max_queued_frames", max_queued_frames, "frames that may wait for the tracker; older ones are dropped");
     v("on_loss", on_loss, "after tracking loss: submap (stitch) or relocalize (ORB-SLAM2-like baseline)");
-    v("wait_for_mapper", wait_for_mapper, "after a keyframe, wait for the mapper before the next frame (reproducible runs)");
+    v("wait_for_mapper", wait_for_mapper,
+      "after a keyframe, wait for the mapper before the next frame (reproducible runs)");
     v("mapper_timeout_s", mapper_timeout_s, "longest wait for the mapper, seconds; then track on without it");
-    v("state_file", state_file, "file keeping the next submap number, so submap ids stay unique across tracker restarts (empty: none)");
+    v("state_file", state_file,
+      "file keeping the next submap number, so submap ids stay unique across tracker restarts (empty: none)");
     v("tracking", tracking, "the tracking algorithm");
   }
 
   bool Check(std::string* why) const {
-    auto fail = [&](const std::string& m) { if (why) *why = m; return false; };
-    if (max_queued_frames < 1 || max_queued_frames > 1000) return fail("tracker.max_queued_frames must be in [1, 1000]");
+    auto fail = [&](const std::string& m) {
+      if (why) *why = m;
+      return false;
+    };
+    if (max_queued_frames < 1 || max_queued_frames > 1000)
+      return fail("tracker.max_queued_frames must be in [1, 1000]");
     if (on_loss != "submap" && on_loss != "relocalize") return fail("tracker.on_loss must be submap or relocalize");
     if (!(mapper_timeout_s > 0)) return fail("tracker.mapper_timeout_s must be > 0");
     return tracking.Check(why);

@@ -4,9 +4,9 @@
 
 #include "services/common/convert.h"
 #include "services/common/map_convert.h"
+#include "stitch/frame_ack_t.hpp"
 #include "stitch/records/frame_record.h"
 #include "stitch/records/tracker_state.h"
-#include "stitch/frame_ack_t.hpp"
 #include "stitch/tracking_status_t.hpp"
 #include "stitch/util/log.h"
 #include "stitch/util/options.h"
@@ -17,11 +17,16 @@ namespace {
 
 int8_t ToMessageState(TrackingState state) {
   switch (state) {
-    case TrackingState::kInitializing: return stitch::tracking_status_t::STATE_INITIALIZING;
-    case TrackingState::kOk: return stitch::tracking_status_t::STATE_OK;
-    case TrackingState::kLost: return stitch::tracking_status_t::STATE_LOST;
-    case TrackingState::kSkipped: return stitch::tracking_status_t::STATE_SKIPPED;
-    case TrackingState::kNotTracked: return stitch::tracking_status_t::STATE_NOT_TRACKED;
+    case TrackingState::kInitializing:
+      return stitch::tracking_status_t::STATE_INITIALIZING;
+    case TrackingState::kOk:
+      return stitch::tracking_status_t::STATE_OK;
+    case TrackingState::kLost:
+      return stitch::tracking_status_t::STATE_LOST;
+    case TrackingState::kSkipped:
+      return stitch::tracking_status_t::STATE_SKIPPED;
+    case TrackingState::kNotTracked:
+      return stitch::tracking_status_t::STATE_NOT_TRACKED;
   }
   return stitch::tracking_status_t::STATE_NOT_TRACKED;
 }
@@ -49,13 +54,12 @@ TrackerService::TrackerService(lcm::LCM* lcm, bus::Publisher* publisher, Tracker
   CheckOptions(options_, "tracker");
   if (!vocabulary_ || vocabulary_->empty()) throw Error("the tracker needs a vocabulary");
   const std::string agent = publisher_->agent();
-  subscriber_.Subscribe<stitch::frame_t>(bus::Channel(agent, bus::kFrame),
-                                         [this](std::unique_ptr<stitch::frame_t> frame, const std::string&) {
-                                           OnFrame(std::move(frame));
-                                         });
-  subscriber_.Subscribe<stitch::local_map_update_t>(
-      bus::Channel(agent, bus::kLocalMap),
-      [this](std::unique_ptr<stitch::local_map_update_t> update, const std::string&) { updates_.Push(std::move(update)); });
+  subscriber_.Subscribe<stitch::frame_t>(
+      bus::Channel(agent, bus::kFrame),
+      [this](std::unique_ptr<stitch::frame_t> frame, const std::string&) { OnFrame(std::move(frame)); });
+  subscriber_.Subscribe<stitch::local_map_update_t>(bus::Channel(agent, bus::kLocalMap),
+                                                    [this](std::unique_ptr<stitch::local_map_update_t> update,
+                                                           const std::string&) { updates_.Push(std::move(update)); });
   heartbeat_ = std::make_unique<Heartbeat>(publisher_, "tracker", [this] {
     return Heartbeat::Counts{received_.load(), tracked_.load(), subscriber_.rejected() + dropped_.load()};
   });
@@ -79,7 +83,9 @@ void TrackerService::SaveState() {
   }
 }
 
-TrackerService::~TrackerService() { Stop(); }
+TrackerService::~TrackerService() {
+  Stop();
+}
 
 void TrackerService::Start() {
   if (running_.exchange(true)) return;
@@ -168,12 +174,13 @@ void TrackerService::WaitForMapper() {
       // The keyframe (or the mapper's answer) may have been lost: send it again, once.
       if (publisher_thread_) publisher_thread_->Drain();
       std::lock_guard<std::mutex> lock(unacknowledged_mutex_);
-      for (auto& keyframe : unacknowledged_keyframes_) publisher_->Publish(bus::Channel(publisher_->agent(), bus::kKeyframe), &keyframe);
+      for (auto& keyframe : unacknowledged_keyframes_)
+        publisher_->Publish(bus::Channel(publisher_->agent(), bus::kKeyframe), &keyframe);
     }
   }
   if (!tracking_->MapperCaughtUp()) {
-    STITCH_LOG(WARNING) << "no answer from the mapper for keyframe " << tracking_->last_keyframe_sent()
-                        << " within " << options_.mapper_timeout_s << " s; tracking on without it";
+    STITCH_LOG(WARNING) << "no answer from the mapper for keyframe " << tracking_->last_keyframe_sent() << " within "
+                        << options_.mapper_timeout_s << " s; tracking on without it";
     tracking_->SetMapperConnected(false);
   }
 }
@@ -203,7 +210,8 @@ void TrackerService::Process(const stitch::frame_t& frame) {
     if (!tracking_) {
       const Camera camera = FromMessage(frame.camera);
       const double fps = 0;  // the tracker does not know the source's rate: one second of frames = 30
-      tracking_ = std::make_unique<Tracking>(options_.tracking, camera, vocabulary_, fps, ParseLossPolicy(options_.on_loss));
+      tracking_ =
+          std::make_unique<Tracking>(options_.tracking, camera, vocabulary_, fps, ParseLossPolicy(options_.on_loss));
       STITCH_LOG(INFO) << "camera " << camera.Describe();
     }
     output = tracking_->Track(image, frame.frame_index, frame.t_ns);
@@ -293,7 +301,9 @@ void TrackerService::Report(const stitch::frame_t& frame, const TrackResult& res
   }
 }
 
-void TrackerService::Ack(const stitch::frame_t& frame) { PublishAck(AckOf(frame)); }
+void TrackerService::Ack(const stitch::frame_t& frame) {
+  PublishAck(AckOf(frame));
+}
 
 void TrackerService::PublishAck(stitch::frame_ack_t ack) {
   publisher_->Publish(bus::Channel(publisher_->agent(), bus::kFrameAck), &ack);

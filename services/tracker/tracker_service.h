@@ -20,11 +20,11 @@
 #include "services/common/bus.h"
 #include "services/common/service.h"
 #include "services/tracker/tracker_options.h"
-#include "stitch/tracking/tracking.h"
 #include "stitch/frame_ack_t.hpp"
 #include "stitch/frame_t.hpp"
 #include "stitch/keyframe_t.hpp"
 #include "stitch/local_map_update_t.hpp"
+#include "stitch/tracking/tracking.h"
 #include "stitch/util/bounded_queue.h"
 #include "stitch/util/worker_thread.h"
 
@@ -72,14 +72,14 @@ class TrackerService {
   std::unique_ptr<WorkerThread> publisher_thread_;
   std::mutex unacknowledged_mutex_;
   std::vector<stitch::keyframe_t> unacknowledged_keyframes_;  // sent, not yet covered by an update
-  std::mutex record_mutex_;  // Report() runs in the worker and the dispatcher thread
+  std::mutex record_mutex_;                                   // Report() runs in the worker and the dispatcher thread
   std::ofstream record_;
   bool record_failed_ = false;  // said once
   std::thread worker_;
   std::atomic<bool> running_{false};
   std::atomic<int64_t> received_{0}, tracked_{0}, dropped_{0}, keyframes_{0};
   std::atomic<int> highest_received_{-1}, highest_processed_{-1};  // frame numbers of...
-  std::atomic<int64_t> ingest_session_{0};                           // ...this ingest's frames
+  std::atomic<int64_t> ingest_session_{0};                         // ...this ingest's frames
   int saved_submap_number_ = -1;
 };
 

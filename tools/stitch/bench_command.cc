@@ -110,11 +110,13 @@ nlohmann::json BenchOnce(const BenchArgs& a) {
   json["height"] = sequence->camera().height();
   json["settings"] = a.settings;
   std::printf("\n  per tracked frame (%zu frames)   median     p95    mean   [ms]\n", total.size());
-  const std::pair<const char*, const std::vector<double>*> rows[] = {
-      {"feature extraction", &extraction}, {"frame-to-frame tracking", &frame_to_frame},
-      {"local-map tracking", &local_map},  {"keyframe decision", &keyframe},
-      {"whole frame", &total},             {"every frame (any state)", &all_frames},
-      {"mapping, per keyframe", &mapping}};
+  const std::pair<const char*, const std::vector<double>*> rows[] = {{"feature extraction", &extraction},
+                                                                     {"frame-to-frame tracking", &frame_to_frame},
+                                                                     {"local-map tracking", &local_map},
+                                                                     {"keyframe decision", &keyframe},
+                                                                     {"whole frame", &total},
+                                                                     {"every frame (any state)", &all_frames},
+                                                                     {"mapping, per keyframe", &mapping}};
   for (const auto& [name, values] : rows) {
     const Stat s = Summarize(*values);
     std::printf("  %-32s %7.2f %7.2f %7.2f\n", name, s.median, s.p95, s.mean);
@@ -124,7 +126,8 @@ nlohmann::json BenchOnce(const BenchArgs& a) {
   const double fps = frame_stat.mean > 0 ? 1000.0 / frame_stat.mean : 0;
   std::printf("  tracking throughput %.1f frames/s (tracker alone), peak memory %.0f MB\n", fps, peak_mb);
   std::string placed;
-  for (const auto& [method, count] : tracked_by) placed += (placed.empty() ? "" : ", ") + method + " " + std::to_string(count);
+  for (const auto& [method, count] : tracked_by)
+    placed += (placed.empty() ? "" : ", ") + method + " " + std::to_string(count);
   std::printf("  tracked frames placed by: %s; tracking lost %d time(s)\n", placed.c_str(), losses);
   std::printf("%s", stitch::Summarize(evaluation).c_str());
   json["tracking_fps"] = fps;
@@ -143,17 +146,20 @@ struct Variant {
 std::vector<Variant> SpeedVariants(const StitchConfig& config) {
   const TrackingOptions& t = config.tracker.tracking;
   std::vector<Variant> variants{{"as configured", ""}};
-  variants.push_back({std::string("homography tracking ") + (t.homography_tracking ? "off" : "on"),
-                      std::string("tracker.tracking.homography_tracking=") + (t.homography_tracking ? "false" : "true")});
+  variants.push_back(
+      {std::string("homography tracking ") + (t.homography_tracking ? "off" : "on"),
+       std::string("tracker.tracking.homography_tracking=") + (t.homography_tracking ? "false" : "true")});
   const int roi = t.homography_roi_per_cell > 0 ? 0 : 6;
   variants.push_back({std::string("homography region of interest ") + (roi > 0 ? "on" : "off"),
                       "tracker.tracking.homography_roi_per_cell=" + std::to_string(roi)});
   for (const char* matching : {"bow", "lsh", "brute_force"}) {
     if (t.reference_matching == matching) continue;
-    variants.push_back({std::string("reference matching ") + matching, std::string("tracker.tracking.reference_matching=") + matching});
+    variants.push_back({std::string("reference matching ") + matching,
+                        std::string("tracker.tracking.reference_matching=") + matching});
   }
   const int threads = t.orb.threads > 1 ? 1 : 2;
-  variants.push_back({"extraction threads " + std::to_string(threads), "tracker.tracking.orb.threads=" + std::to_string(threads)});
+  variants.push_back(
+      {"extraction threads " + std::to_string(threads), "tracker.tracking.orb.threads=" + std::to_string(threads)});
   const bool worker = !t.keyframe_worker;
   variants.push_back({std::string("keyframe worker ") + (worker ? "on" : "off"),
                       std::string("tracker.tracking.keyframe_worker=") + (worker ? "true" : "false")});
@@ -182,7 +188,8 @@ nlohmann::json BenchOptions(const BenchArgs& a) {
     const std::string json_path = (scratch / ("variant" + std::to_string(i) + ".json")).string();
     std::string settings = a.settings;
     if (!v.settings.empty()) settings += (settings.empty() ? "" : ",") + v.settings;
-    std::vector<std::string> args{"bench", "--failures", a.failures, "--json", json_path, "--max-frames", std::to_string(a.max_frames)};
+    std::vector<std::string> args{
+        "bench", "--failures", a.failures, "--json", json_path, "--max-frames", std::to_string(a.max_frames)};
     const std::pair<const char*, const std::string*> passed[] = {
         {"--dataset", &a.dataset}, {"--calib", &a.calibration}, {"--config", &a.config_path}, {"--set", &settings}};
     for (const auto& [flag, value] : passed) {
@@ -191,10 +198,12 @@ nlohmann::json BenchOptions(const BenchArgs& a) {
       args.push_back(*value);
     }
     const Stopwatch clock;
-    ChildProcess child("bench", ExecutableDir() + "/stitch", args, (scratch / ("variant" + std::to_string(i) + ".log")).string());
+    ChildProcess child("bench", ExecutableDir() + "/stitch", args,
+                       (scratch / ("variant" + std::to_string(i) + ".log")).string());
     std::optional<int> status;
     while (!(status = child.Poll())) std::this_thread::sleep_for(std::chrono::milliseconds(100));
-    if (*status != 0) throw Error("variant '" + v.name + "' failed (exit " + std::to_string(*status) + "):\n" + child.LogTail(15));
+    if (*status != 0)
+      throw Error("variant '" + v.name + "' failed (exit " + std::to_string(*status) + "):\n" + child.LogTail(15));
     std::ifstream in(json_path);
     nlohmann::json result = nlohmann::json::parse(in);
     result["variant"] = v.name;
@@ -212,10 +221,10 @@ nlohmann::json BenchOptions(const BenchArgs& a) {
     if (!e["ate_rmse_m"].is_null()) std::snprintf(ate, sizeof(ate), "%.4f", e["ate_rmse_m"].get<double>());
     std::printf("%-34s %4d/%-4d %7d %6d %8s | %9.2f %11.2f %9.2f %8.2f %6.2f/%-6.2f %6.1f %6.0f\n",
                 r["variant"].get<std::string>().c_str(), e["frames_localized"].get<int>(), e["frames_total"].get<int>(),
-                e["submaps"].get<int>(), r["losses"].get<int>(),
-                ate,
-                ms("feature extraction", "median"), ms("frame-to-frame tracking", "median"), ms("local-map tracking", "median"),
-                ms("keyframe decision", "p95"), ms("whole frame", "median"), ms("whole frame", "p95"), r["tracking_fps"].get<double>(), r["peak_memory_mb"].get<double>());
+                e["submaps"].get<int>(), r["losses"].get<int>(), ate, ms("feature extraction", "median"),
+                ms("frame-to-frame tracking", "median"), ms("local-map tracking", "median"),
+                ms("keyframe decision", "p95"), ms("whole frame", "median"), ms("whole frame", "p95"),
+                r["tracking_fps"].get<double>(), r["peak_memory_mb"].get<double>());
   }
   nlohmann::json out;
   out["variants"] = all;
@@ -235,9 +244,12 @@ int BenchCommand(int argc, char** argv) {
                  "Without --dataset, the synthetic flight without gusts.");
   args.AddOption("--dataset", &a.dataset, "PATH", "sequence to time (default: the synthetic flight)");
   args.AddOption("--calib", &a.calibration, "FILE", "calibration overriding the dataset's own");
-  args.AddOption("--config", &a.config_path, "FILE", "YAML settings (e.g. synthetic.width: 752 for EuRoC-sized frames)");
-  args.AddOption("--set", &a.settings, "K=V,...", "settings over the configuration, e.g. tracker.tracking.orb.threads=2");
-  args.AddOption("--failures", &a.failures, "SPEC", "induced failures (synthetic flight): none, default or FRAME:LENGTH,...");
+  args.AddOption("--config", &a.config_path, "FILE",
+                 "YAML settings (e.g. synthetic.width: 752 for EuRoC-sized frames)");
+  args.AddOption("--set", &a.settings, "K=V,...",
+                 "settings over the configuration, e.g. tracker.tracking.orb.threads=2");
+  args.AddOption("--failures", &a.failures, "SPEC",
+                 "induced failures (synthetic flight): none, default or FRAME:LENGTH,...");
   args.AddOption("--max-frames", &a.max_frames, "N", "time at most N frames");
   args.AddFlag("--options", &options,
                "run once per speed option switched (homography tracking and its region of interest, reference "

@@ -25,7 +25,8 @@ int EvalCommand(int argc, char** argv) {
   args.AddPositional(&run_dirs, "RUN_DIR", "a folder written by `stitch run`");
   args.AddOption("--est", &estimate_path, "FILE", "estimated trajectory, TUM format");
   args.AddOption("--gt", &truth_path, "FILE", "ground truth, TUM format");
-  args.AddOption("--frames-total", &frames_total, "N", "frames in the sequence, for completeness (default: poses in --est)");
+  args.AddOption("--frames-total", &frames_total, "N",
+                 "frames in the sequence, for completeness (default: poses in --est)");
   args.AddOption("--out", &out_dir, "DIR", "with --est: write report.json and trajectory.png here");
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {

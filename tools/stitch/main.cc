@@ -1,13 +1,13 @@
 // stitch: the launcher. `stitch run` runs the whole system; other commands evaluate, render,
 // and start single services.
 
+#include <unistd.h>
 #include <cstdio>
 #include <cstring>
 #include <string>
-#include <unistd.h>
 
-#include "tools/stitch/commands.h"
 #include "stitch/util/child_process.h"
+#include "tools/stitch/commands.h"
 
 namespace {
 

@@ -19,15 +19,17 @@ int MapCommand(int argc, char** argv) {
   std::vector<std::string> logs;
   std::string out, config_path, agents = "uav0";
   std::vector<std::string> settings;
-  ArgParser args("stitch map",
-                 "Rebuilds the merged map from recorded submap updates: the merger's journal "
-                 "(RUN/merger/submap_updates.lcmlog, kept by `stitch run --journal` and by `stitch-merger --state`) or an "
-                 "lcm-logger recording that holds <agent>/SUBMAP. Runs the merger over them as they were received and "
-                 "writes its outputs to --out: map.ply, submaps.tsv, keyframes_merged.tsv, connections.tsv, graph.dot, "
-                 "graph.png, merge_log.tsv, retrieval.tsv.");
+  ArgParser args(
+      "stitch map",
+      "Rebuilds the merged map from recorded submap updates: the merger's journal "
+      "(RUN/merger/submap_updates.lcmlog, kept by `stitch run --journal` and by `stitch-merger --state`) or an "
+      "lcm-logger recording that holds <agent>/SUBMAP. Runs the merger over them as they were received and "
+      "writes its outputs to --out: map.ply, submaps.tsv, keyframes_merged.tsv, connections.tsv, graph.dot, "
+      "graph.png, merge_log.tsv, retrieval.tsv.");
   args.AddPositional(&logs, "LOG", "an LCM log with submap updates");
   args.AddOption("--out", &out, "DIR", "where to write the merged map (created; must not hold one already)");
-  args.AddOption("--config", &config_path, "FILE", "YAML settings (default: built-in; a run's config.yaml reproduces it)");
+  args.AddOption("--config", &config_path, "FILE",
+                 "YAML settings (default: built-in; a run's config.yaml reproduces it)");
   args.AddOption("--set", &settings, "KEY=VALUE", "a setting over the file, e.g. merger.min_connection_strength=15");
   args.AddOption("--agents", &agents, "A,B,...", "whose updates to take (channels <agent>/SUBMAP)");
   if (!args.Parse(argc, argv)) return args.exit_code();

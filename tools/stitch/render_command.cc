@@ -48,7 +48,8 @@ int RenderCommand(int argc, char** argv) {
     const int total = sequence->size();
     while (sequence->Next(&frame)) {
       const std::string name = FormatSeconds(frame.t_ns) + ".png";
-      if (!cv::imwrite((fs::path(out_dir) / name).string(), frame.image)) throw Error(out_dir + ": cannot write " + name);
+      if (!cv::imwrite((fs::path(out_dir) / name).string(), frame.image))
+        throw Error(out_dir + ": cannot write " + name);
       if (const auto pose = sequence->ground_truth().PoseAt(frame.t_ns)) truth.Add({frame.t_ns, *pose});
       if ((frame.index + 1) % 50 == 0 || frame.index + 1 == total) {
         std::printf("\r  rendered %d/%d", frame.index + 1, total);

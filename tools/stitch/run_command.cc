@@ -9,21 +9,21 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
-#include <optional>
 #include <mutex>
+#include <optional>
 #include <random>
 #include <thread>
 
 #include "services/common/bus.h"
 #include "services/common/service.h"
 #include "services/config/stitch_config.h"
-#include "stitch/util/ids.h"
 #include "stitch/sequence_info_t.hpp"
 #include "stitch/source/source.h"
 #include "stitch/tracking_status_t.hpp"
+#include "stitch/util/child_process.h"
+#include "stitch/util/ids.h"
 #include "stitch/util/options.h"
 #include "tools/stitch/commands.h"
-#include "stitch/util/child_process.h"
 #include "tools/stitch/run_outputs.h"
 #include "tools/stitch/split_network.h"
 
@@ -47,10 +47,10 @@ struct RunArgs {
   bool quiet = false;
   bool journal = false;  // keep the merger's journal in OUT/merger
   bool compare = false;
-  bool link = false;     // a link bridge pair between the aircraft's bus and the ground's
-  bool netns = false;    // and the two sides in two network namespaces
+  bool link = false;   // a link bridge pair between the aircraft's bus and the ground's
+  bool netns = false;  // and the two sides in two network namespaces
   double link_loss = -1, link_delay_ms = -1, link_budget = -1;  // < 0: as configured
-  std::vector<std::string> settings;  // --set KEY=VALUE
+  std::vector<std::string> settings;                            // --set KEY=VALUE
 };
 
 // One run's outcome, for the comparison table.
@@ -66,7 +66,8 @@ class RunMonitor {
  public:
   RunMonitor(lcm::LCM* lcm, const std::string& agent) : subscriber_(lcm) {
     subscriber_.Subscribe<stitch::tracking_status_t>(
-        bus::Channel(agent, bus::kTrackingStatus), [this](std::unique_ptr<stitch::tracking_status_t> s, const std::string&) {
+        bus::Channel(agent, bus::kTrackingStatus),
+        [this](std::unique_ptr<stitch::tracking_status_t> s, const std::string&) {
           std::lock_guard<std::mutex> lock(mutex_);
           if (s->frame_index > highest_frame_) {
             highest_frame_ = s->frame_index;
@@ -106,11 +107,16 @@ class RunMonitor {
 
 const char* StateName(int8_t state) {
   switch (state) {
-    case stitch::tracking_status_t::STATE_INITIALIZING: return "INITIALIZING";
-    case stitch::tracking_status_t::STATE_OK: return "OK";
-    case stitch::tracking_status_t::STATE_LOST: return "LOST";
-    case stitch::tracking_status_t::STATE_SKIPPED: return "SKIPPED";
-    default: return "NOT_TRACKED";
+    case stitch::tracking_status_t::STATE_INITIALIZING:
+      return "INITIALIZING";
+    case stitch::tracking_status_t::STATE_OK:
+      return "OK";
+    case stitch::tracking_status_t::STATE_LOST:
+      return "LOST";
+    case stitch::tracking_status_t::STATE_SKIPPED:
+      return "SKIPPED";
+    default:
+      return "NOT_TRACKED";
   }
 }
 
@@ -134,8 +140,6 @@ int RandomPort() {
   std::random_device device;
   return 20000 + static_cast<int>(device() % 20000);
 }
-
-
 
 RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
   RunOutcome outcome;
@@ -178,7 +182,9 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
     char text[160];
     std::snprintf(text, sizeof(text), "loss %g, delay %g ms, jitter %g ms, budget %s%s", config.link.loss,
                   config.link.delay_ms, config.link.jitter_ms,
-                  config.link.budget_bytes_per_s > 0 ? (std::to_string(static_cast<int64_t>(config.link.budget_bytes_per_s)) + " B/s").c_str() : "none",
+                  config.link.budget_bytes_per_s > 0
+                      ? (std::to_string(static_cast<int64_t>(config.link.budget_bytes_per_s)) + " B/s").c_str()
+                      : "none",
                   a.netns ? ", two network namespaces" : ", loopback");
     info.link = text;
   }
@@ -230,7 +236,7 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
   const std::string bin = ExecutableDir();
   const std::string config_file = (fs::path(out) / "config.yaml").string();
   const auto common_on = [&](const std::string& bus_url) {
-    return std::vector<std::string>{"--lcm-url", bus_url, "--agent",     a.agent,
+    return std::vector<std::string>{"--lcm-url", bus_url,     "--agent",     a.agent,
                                     "--config",  config_file, "--log-level", a.log_level};
   };
   const std::vector<std::string> common = common_on(url), ground_common = common_on(ground_url);
@@ -258,13 +264,14 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
       const std::string ground = network ? SplitNetwork::kGroundAddress : "127.0.0.1";
       const std::string air_port = std::to_string(RandomPort()), ground_port = std::to_string(RandomPort());
       merger = start("merger", "stitch-merger", merger_args);
-      std::vector<std::string> ground_link = with(ground_common, {"--forward", a.agent + "/" + bus::kSubmapRequest, "--listen",
-                                                           ground + ":" + ground_port, "--peer", air + ":" + air_port});
+      std::vector<std::string> ground_link =
+          with(ground_common, {"--forward", a.agent + "/" + bus::kSubmapRequest, "--listen", ground + ":" + ground_port,
+                               "--peer", air + ":" + air_port});
       links.push_back(start("link-ground", "stitch-link", ground_link));
       if (network) network->EnterAircraft();
       links.push_back(start("link-aircraft", "stitch-link",
-                            with(common, {"--forward", a.agent + "/(SUBMAP|SEQUENCE|TRACKING_STATUS|SERVICE)", "--listen",
-                                          air + ":" + air_port, "--peer", ground + ":" + ground_port})));
+                            with(common, {"--forward", a.agent + "/(SUBMAP|SEQUENCE|TRACKING_STATUS|SERVICE)",
+                                          "--listen", air + ":" + air_port, "--peer", ground + ":" + ground_port})));
     } else {
       merger = start("merger", "stitch-merger", merger_args);
     }
@@ -281,7 +288,6 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
     failure = e.what();
   }
 
-
   // Progress until ingest has played everything and the tracker has caught up.
   const bool tty = isatty(STDOUT_FILENO) && !a.quiet;
   int last_decile = 0;
@@ -294,8 +300,8 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
     const double seconds = clock.ElapsedSeconds();
     const double fps = seconds > 0 ? done / seconds : 0;
     if (tty) {
-      std::printf("\r  frame %5d/%d  %5.1f fps  tracker %-12s submap %-6s keyframes %d   ", done, source.num_frames, fps,
-                  snapshot.statuses ? StateName(snapshot.latest.state) : "starting",
+      std::printf("\r  frame %5d/%d  %5.1f fps  tracker %-12s submap %-6s keyframes %d   ", done, source.num_frames,
+                  fps, snapshot.statuses ? StateName(snapshot.latest.state) : "starting",
                   SubmapName(SubmapId(snapshot.latest.submap_id)).c_str(), snapshot.latest.submap_keyframes);
       std::fflush(stdout);
     } else if (!a.quiet && source.num_frames > 0 && done * 10 / source.num_frames > last_decile) {
@@ -318,8 +324,8 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
     if (!failure.empty()) break;
     if (ingest && ingest->Poll() && ingest_done_at < 0) {
       if (*ingest->Poll() != 0) {
-        failure = "ingest failed (status " + std::to_string(*ingest->Poll()) + "); end of " + ingest->log_path() + ":\n" +
-                  ingest->LogTail(8);
+        failure = "ingest failed (status " + std::to_string(*ingest->Poll()) + "); end of " + ingest->log_path() +
+                  ":\n" + ingest->LogTail(8);
         break;
       }
       ingest_done_at = seconds;
@@ -362,8 +368,8 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
   try {
     const Evaluation evaluation = FinishRunOutputs(out, &info);
     SaveRunInfo(info, out);
-    std::printf("%s in %.1f s\n%s", info.interrupted ? "interrupted" : (exit_code ? "failed" : "done"), info.wall_seconds,
-                Summarize(evaluation).c_str());
+    std::printf("%s in %.1f s\n%s", info.interrupted ? "interrupted" : (exit_code ? "failed" : "done"),
+                info.wall_seconds, Summarize(evaluation).c_str());
     for (const auto& figures : info.link_figures) std::printf("%s\n", figures.c_str());
     for (const auto& note : info.notes) std::printf("note: %s\n", note.c_str());
     std::printf("outputs: %s/{trajectory.tum, map.ply, report.json, trajectory.png, logs/}\n", out.c_str());
@@ -408,16 +414,15 @@ std::string FormatComparison(const std::vector<RunOutcome>& runs) {
     std::snprintf(buffer, sizeof(buffer), f, v...);
     return std::string(buffer);
   };
-  row("frames localized (largest map)", [&](const Evaluation& e) {
-    return format("%d (%.1f%%)", e.frames_localized, 100.0 * e.completeness);
-  });
+  row("frames localized (largest map)",
+      [&](const Evaluation& e) { return format("%d (%.1f%%)", e.frames_localized, 100.0 * e.completeness); });
   row("frames posed in any submap", [&](const Evaluation& e) { return format("%d", FramesPosedInAnySubmap(e)); });
   row("usable frames", [&](const Evaluation& e) { return format("%d", e.frames_total - e.frames_unusable); });
   row("keyframes retained", [&](const Evaluation& e) { return format("%d", e.keyframes); });
-  row("submaps (merged in the largest)", [&](const Evaluation& e) { return format("%d (%d)", e.submaps, e.submaps_merged); });
-  row("ATE RMSE, largest map", [&](const Evaluation& e) {
-    return e.errors ? format("%.4f m", e.errors->ate_rmse_m) : std::string("n/a");
-  });
+  row("submaps (merged in the largest)",
+      [&](const Evaluation& e) { return format("%d (%d)", e.submaps, e.submaps_merged); });
+  row("ATE RMSE, largest map",
+      [&](const Evaluation& e) { return e.errors ? format("%.4f m", e.errors->ate_rmse_m) : std::string("n/a"); });
   row("tracking time median", [&](const Evaluation& e) {
     return e.tracking_ms_median ? format("%.1f ms", *e.tracking_ms_median) : std::string("n/a");
   });
@@ -438,7 +443,8 @@ int RunCommand(int argc, char** argv) {
                  "induced failures: none, FRAME:LENGTH,... or default (synthetic: 3 gusts; datasets: none)");
   args.AddOption("--on-loss", &a.on_loss, "MODE", "submap (stitch, default) or relocalize (ORB-SLAM2-like baseline)");
   args.AddOption("--config", &a.config_path, "FILE", "YAML settings (print the defaults with `stitch config`)");
-  args.AddOption("--set", &a.settings, "KEY=VALUE", "a setting over the file, e.g. tracker.tracking.orb.num_features=1500");
+  args.AddOption("--set", &a.settings, "KEY=VALUE",
+                 "a setting over the file, e.g. tracker.tracking.orb.num_features=1500");
   args.AddOption("--calib", &a.calibration, "FILE", "calibration overriding the dataset's own");
   args.AddOption("--max-frames", &a.max_frames, "N", "play at most N frames");
   args.AddOption("--pacing", &a.pacing, "MODE", "lockstep (reproducible, default) or realtime");
@@ -459,13 +465,15 @@ int RunCommand(int argc, char** argv) {
   args.AddOption("--link-delay-ms", &a.link_delay_ms, "MS", "with --link: delay each datagram (link.delay_ms)");
   args.AddOption("--link-budget", &a.link_budget, "BYTES/S",
                  "with --link: bandwidth budget of each side (link.budget_bytes_per_s; 0: none)");
-  args.AddFlag("--compare", &a.compare,
-               "run twice, --on-loss submap then relocalize, into DIR/submap and DIR/relocalize, and print both side by side");
-  args.AddEpilog("Outputs: trajectory.tum, map.ply (the largest merged map), report.json, trajectory.png,\n"
-                 "frames.tsv, poses.tsv, groundtruth.tum (when known), config.yaml (resolved settings), the\n"
-                 "merger's graph.png, graph.dot, merge_log.tsv, retrieval.tsv, submaps.tsv, keyframes_merged.tsv,\n"
-                 "the mapper's keyframes.tsv and submaps.ply, logs/ (one per service); with --journal,\n"
-                 "merger/submap_updates.lcmlog.");
+  args.AddFlag(
+      "--compare", &a.compare,
+      "run twice, --on-loss submap then relocalize, into DIR/submap and DIR/relocalize, and print both side by side");
+  args.AddEpilog(
+      "Outputs: trajectory.tum, map.ply (the largest merged map), report.json, trajectory.png,\n"
+      "frames.tsv, poses.tsv, groundtruth.tum (when known), config.yaml (resolved settings), the\n"
+      "merger's graph.png, graph.dot, merge_log.tsv, retrieval.tsv, submaps.tsv, keyframes_merged.tsv,\n"
+      "the mapper's keyframes.tsv and submaps.ply, logs/ (one per service); with --journal,\n"
+      "merger/submap_updates.lcmlog.");
   if (!args.Parse(argc, argv)) return args.exit_code();
 
   if (!a.link && !a.netns && (a.link_loss >= 0 || a.link_delay_ms >= 0 || a.link_budget >= 0)) {

@@ -6,13 +6,13 @@
 #include <set>
 #include <sstream>
 
+#include "stitch/io/ply.h"
+#include "stitch/io/trajectory.h"
 #include "stitch/records/frame_record.h"
 #include "stitch/records/keyframe_record.h"
 #include "stitch/records/merger_records.h"
-#include "stitch/util/ids.h"
-#include "stitch/io/ply.h"
-#include "stitch/io/trajectory.h"
 #include "stitch/util/error.h"
+#include "stitch/util/ids.h"
 #include "stitch/util/text_file.h"
 
 namespace fs = std::filesystem;
@@ -96,7 +96,8 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
       const auto placed = placement.find(SubmapOf(KeyframeId(id)).value);
       if (in_submap == keyframe_cam_from_world.end() || placed == placement.end()) continue;
       const Rigid3d submap_from_cam = in_submap->second.Inverse();
-      const Sim3d placed_pose = placed->second.second * Sim3d(1.0, submap_from_cam.rotation, submap_from_cam.translation);
+      const Sim3d placed_pose =
+          placed->second.second * Sim3d(1.0, submap_from_cam.rotation, submap_from_cam.translation);
       corrections[placed->first][keyframe_frame_index[id]] = refined * placed_pose.Inverse();
     }
     for (auto& p : input.poses) {
@@ -106,12 +107,14 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
         continue;
       }
       p.component = placed->second.first;
-      Sim3d world_from_cam = placed->second.second * Sim3d(1.0, p.world_from_cam.rotation, p.world_from_cam.translation);
+      Sim3d world_from_cam =
+          placed->second.second * Sim3d(1.0, p.world_from_cam.rotation, p.world_from_cam.translation);
       const auto submap_corrections = corrections.find(p.submap_id);
       if (submap_corrections != corrections.end() && !submap_corrections->second.empty()) {
         const auto& by_frame = submap_corrections->second;
         auto next = by_frame.lower_bound(p.frame_index);
-        if (next == by_frame.end() || (next != by_frame.begin() && p.frame_index - std::prev(next)->first < next->first - p.frame_index)) {
+        if (next == by_frame.end() ||
+            (next != by_frame.begin() && p.frame_index - std::prev(next)->first < next->first - p.frame_index)) {
           next = std::prev(next);
         }
         world_from_cam = next->second * world_from_cam;

@@ -35,7 +35,8 @@ SplitNetwork::SplitNetwork(const std::string& log_path) : ip_(FindIp()), log_pat
   created_aircraft_ = true;
   Ip("netns add " + ground_);
   created_ground_ = true;
-  const std::string air_link = "st" + std::to_string(getpid()) + "a", ground_link = "st" + std::to_string(getpid()) + "g";
+  const std::string air_link = "st" + std::to_string(getpid()) + "a",
+                    ground_link = "st" + std::to_string(getpid()) + "g";
   Ip("link add " + air_link + " netns " + aircraft_ + " type veth peer name " + ground_link + " netns " + ground_);
   for (const auto& [side, link, address] : {std::tuple(aircraft_, air_link, std::string(kAircraftAddress)),
                                             std::tuple(ground_, ground_link, std::string(kGroundAddress))}) {

@@ -52,7 +52,8 @@ std::vector<cv::Mat> CameraSizedViews(const cv::Mat& photo) {
   for (int width : {640, 1280, 2560}) {
     if (width > photo.cols) break;
     cv::Mat scaled;
-    cv::resize(photo, scaled, cv::Size(width, cvRound(photo.rows * static_cast<double>(width) / photo.cols)), 0, 0, cv::INTER_AREA);
+    cv::resize(photo, scaled, cv::Size(width, cvRound(photo.rows * static_cast<double>(width) / photo.cols)), 0, 0,
+               cv::INTER_AREA);
     for (int y = 0; y + 480 <= scaled.rows; y += 240) {
       for (int x = 0; x + 640 <= scaled.cols; x += 320) views.push_back(scaled(cv::Rect(x, y, 640, 480)).clone());
     }
@@ -101,7 +102,8 @@ int Train(int argc, char** argv) {
     std::vector<fs::path> files;
     for (const auto& entry : fs::recursive_directory_iterator(folder)) {
       const std::string ext = entry.path().extension().string();
-      if (entry.is_regular_file() && (ext == ".jpg" || ext == ".jpeg" || ext == ".png" || ext == ".JPG" || ext == ".PNG")) {
+      if (entry.is_regular_file() &&
+          (ext == ".jpg" || ext == ".jpeg" || ext == ".png" || ext == ".JPG" || ext == ".PNG")) {
         files.push_back(entry.path());
       }
     }
@@ -225,14 +227,16 @@ int Retrieval(int argc, char** argv) {
     int positives = 0;
     for (size_t j = 0; j < items.size(); ++j) {
       if (std::abs(items[j].index - items[q].index) <= exclude) continue;
-      neighbour[j] = ViewOverlap(sequence->camera(), items[q].world_from_cam, items[j].world_from_cam, depth) >= min_overlap;
+      neighbour[j] =
+          ViewOverlap(sequence->camera(), items[q].world_from_cam, items[j].world_from_cam, depth) >= min_overlap;
       positives += neighbour[j];
     }
     if (positives == 0) continue;
     auto candidates = database.Query(items[q].bow);
-    candidates.erase(std::remove_if(candidates.begin(), candidates.end(),
-                                    [&](const auto& c) { return std::abs(items[c.keyframe_id].index - items[q].index) <= exclude; }),
-                     candidates.end());
+    candidates.erase(
+        std::remove_if(candidates.begin(), candidates.end(),
+                       [&](const auto& c) { return std::abs(items[c.keyframe_id].index - items[q].index) <= exclude; }),
+        candidates.end());
     std::sort(candidates.begin(), candidates.end(), [](const auto& a, const auto& b) { return a.score > b.score; });
     ++queries;
     int hits = 0;
@@ -251,11 +255,12 @@ int Retrieval(int argc, char** argv) {
     }
     average_precision += precision_sum / positives;
   }
-  std::printf("%s\n  vocabulary %s\n  %zu frames in the database, %d queries with a true neighbour more than %d frames away\n"
-              "  precision@1 %.3f   hit rate in top 5 %.3f   mean average precision %.3f\n",
-              sequence->description().c_str(), vocabulary.Describe().c_str(), items.size(), queries, exclude,
-              queries ? static_cast<double>(top1) / queries : 0.0, queries ? static_cast<double>(top5) / queries : 0.0,
-              queries ? average_precision / queries : 0.0);
+  std::printf(
+      "%s\n  vocabulary %s\n  %zu frames in the database, %d queries with a true neighbour more than %d frames away\n"
+      "  precision@1 %.3f   hit rate in top 5 %.3f   mean average precision %.3f\n",
+      sequence->description().c_str(), vocabulary.Describe().c_str(), items.size(), queries, exclude,
+      queries ? static_cast<double>(top1) / queries : 0.0, queries ? static_cast<double>(top5) / queries : 0.0,
+      queries ? average_precision / queries : 0.0);
   return 0;
 }
 

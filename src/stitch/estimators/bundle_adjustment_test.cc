@@ -21,7 +21,8 @@ struct Scene {
 Scene MakeScene() {
   Scene scene;
   Rng rng(7);
-  for (int i = 0; i < 300; ++i) scene.true_points.emplace_back(rng.Uniform(-4, 4), rng.Uniform(-3, 3), rng.Uniform(6, 10));
+  for (int i = 0; i < 300; ++i)
+    scene.true_points.emplace_back(rng.Uniform(-4, 4), rng.Uniform(-3, 3), rng.Uniform(6, 10));
   for (int k = 0; k < 5; ++k) {
     const Rigid3d world_from_cam(Eigen::Quaterniond(Eigen::AngleAxisd(0.02 * k, Eigen::Vector3d::UnitY())),
                                  Eigen::Vector3d(0.4 * k, 0.05 * k, 0));
@@ -48,7 +49,8 @@ Scene MakeScene() {
     keyframe.descriptors = cv::Mat::zeros(static_cast<int>(keyframe.keypoints.size()), 32, CV_8U);
     scene.map.AddKeyframe(keyframe);
   }
-  for (size_t p = 0; p < scene.true_points.size(); ++p) scene.map.UpdatePointGeometry(MakeMapPointId(scene.map.id(), static_cast<uint32_t>(p)));
+  for (size_t p = 0; p < scene.true_points.size(); ++p)
+    scene.map.UpdatePointGeometry(MakeMapPointId(scene.map.id(), static_cast<uint32_t>(p)));
   return scene;
 }
 
@@ -58,15 +60,18 @@ TEST(BundleAdjustment, ReducesReprojectionErrorAndKeepsFixedKeyframesFixed) {
   // Perturb the free keyframes (2, 3, 4) and every point.
   for (int k = 2; k < 5; ++k) {
     Keyframe* kf = scene.map.FindKeyframe(MakeKeyframeId(scene.map.id(), k));
-    kf->cam_from_world = Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.02, Eigen::Vector3d(rng.Normal(), rng.Normal(), rng.Normal()).normalized())),
-                                 Eigen::Vector3d(0.05 * rng.Normal(), 0.05 * rng.Normal(), 0.05 * rng.Normal())) * kf->cam_from_world;
+    kf->cam_from_world = Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(
+                                     0.02, Eigen::Vector3d(rng.Normal(), rng.Normal(), rng.Normal()).normalized())),
+                                 Eigen::Vector3d(0.05 * rng.Normal(), 0.05 * rng.Normal(), 0.05 * rng.Normal())) *
+                         kf->cam_from_world;
   }
   for (auto& [id, point] : scene.map.points()) {
     scene.map.FindPoint(id)->position += 0.05 * Eigen::Vector3d(rng.Normal(), rng.Normal(), rng.Normal());
   }
   const Rigid3d fixed0 = scene.map.FindKeyframe(MakeKeyframeId(scene.map.id(), 0))->cam_from_world;
   const Rigid3d fixed1 = scene.map.FindKeyframe(MakeKeyframeId(scene.map.id(), 1))->cam_from_world;
-  std::vector<KeyframeId> free{MakeKeyframeId(scene.map.id(), 2), MakeKeyframeId(scene.map.id(), 3), MakeKeyframeId(scene.map.id(), 4)};
+  std::vector<KeyframeId> free{MakeKeyframeId(scene.map.id(), 2), MakeKeyframeId(scene.map.id(), 3),
+                               MakeKeyframeId(scene.map.id(), 4)};
   std::vector<KeyframeId> fixed{MakeKeyframeId(scene.map.id(), 0), MakeKeyframeId(scene.map.id(), 1)};
   BundleAdjustmentOptions options;
   options.iterations = 10;
@@ -109,13 +114,14 @@ TEST(BundleAdjustment, KeyframesWithoutPointsKeepTheirPoses) {
   Keyframe* moved = scene.map.FindKeyframe(MakeKeyframeId(scene.map.id(), 3));
   moved->cam_from_world.translation += Eigen::Vector3d(0.05, 0, 0);
   const Rigid3d empty_free = scene.map.FindKeyframe(MakeKeyframeId(scene.map.id(), 4))->cam_from_world;
-  const BundleAdjustmentReport report =
-      BundleAdjust(&scene.map, {MakeKeyframeId(scene.map.id(), 3), MakeKeyframeId(scene.map.id(), 4)},
-                   {MakeKeyframeId(scene.map.id(), 0), MakeKeyframeId(scene.map.id(), 1), MakeKeyframeId(scene.map.id(), 2)},
-                   kCamera, BundleAdjustmentOptions());
+  const BundleAdjustmentReport report = BundleAdjust(
+      &scene.map, {MakeKeyframeId(scene.map.id(), 3), MakeKeyframeId(scene.map.id(), 4)},
+      {MakeKeyframeId(scene.map.id(), 0), MakeKeyframeId(scene.map.id(), 1), MakeKeyframeId(scene.map.id(), 2)},
+      kCamera, BundleAdjustmentOptions());
   ASSERT_TRUE(report.converged);
   EXPECT_LT((moved->cam_from_world.CentreInWorld() - scene.true_poses[3].CentreInWorld()).norm(), 0.01);
-  EXPECT_EQ(scene.map.FindKeyframe(MakeKeyframeId(scene.map.id(), 4))->cam_from_world.translation, empty_free.translation);
+  EXPECT_EQ(scene.map.FindKeyframe(MakeKeyframeId(scene.map.id(), 4))->cam_from_world.translation,
+            empty_free.translation);
 }
 
 TEST(BundleAdjustment, ReprojectionJacobiansMatchNumericDifferentiation) {

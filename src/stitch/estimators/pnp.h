@@ -14,15 +14,15 @@ namespace stitch {
 
 struct PnpOptions {
   int iterations = 300;
-  double max_error_px = 4.0;   // inlier threshold at pyramid level 0 (scaled by each match's level)
+  double max_error_px = 4.0;  // inlier threshold at pyramid level 0 (scaled by each match's level)
   double confidence = 0.99;
   int min_inliers = 10;
 };
 
 struct PnpMatch {
-  Eigen::Vector2d pixel;          // undistorted keypoint
+  Eigen::Vector2d pixel;  // undistorted keypoint
   Eigen::Vector3d point_in_world;
-  double level_scale = 1.0;       // scale of the keypoint's pyramid level
+  double level_scale = 1.0;  // scale of the keypoint's pyramid level
 };
 
 struct PnpResult {

@@ -43,8 +43,7 @@ PoseOptimizerResult OptimizePose(const std::vector<PoseObservation>& observation
         dproj << k.fx * inv_z, 0, -k.fx * p.x() * inv_z * inv_z, 0, k.fy * inv_z, -k.fy * p.y() * inv_z * inv_z;
         Eigen::Matrix<double, 3, 6> dp;
         dp << 0, p.z(), -p.y(), 1, 0, 0,  // -[p]x for omega, identity for v
-            -p.z(), 0, p.x(), 0, 1, 0,
-            p.y(), -p.x(), 0, 0, 0, 1;
+            -p.z(), 0, p.x(), 0, 1, 0, p.y(), -p.x(), 0, 0, 0, 1;
         const Eigen::Matrix<double, 2, 6> j = dproj * dp;  // d(predicted)/d(delta)
         h.noalias() += weight * j.transpose() * j;
         b.noalias() += weight * j.transpose() * residual;

@@ -14,7 +14,7 @@
 namespace stitch {
 
 struct PoseObservation {
-  Eigen::Vector2d pixel;        // undistorted keypoint
+  Eigen::Vector2d pixel;  // undistorted keypoint
   Eigen::Vector3d point_in_world;
   double inverse_sigma2 = 1.0;  // 1 / (level scale)^2
 };
@@ -22,16 +22,16 @@ struct PoseObservation {
 struct PoseOptimizerOptions {
   int rounds = 4;
   int iterations_per_round = 10;
-  double chi2_threshold = 5.991;   // 95% for 2 DoF: larger normalized errors are outliers
-  int robust_rounds = 2;           // first rounds use the Huber cost, later ones plain least squares
+  double chi2_threshold = 5.991;  // 95% for 2 DoF: larger normalized errors are outliers
+  int robust_rounds = 2;          // first rounds use the Huber cost, later ones plain least squares
 };
 
 struct PoseOptimizerResult {
   Rigid3d cam_from_world;
-  std::vector<char> inlier;        // per observation
+  std::vector<char> inlier;  // per observation
   int num_inliers = 0;
-  double final_chi2 = 0;           // sum over inliers of normalized squared errors
-  bool converged = false;          // false when the system was singular or the pose went bad
+  double final_chi2 = 0;   // sum over inliers of normalized squared errors
+  bool converged = false;  // false when the system was singular or the pose went bad
 };
 
 PoseOptimizerResult OptimizePose(const std::vector<PoseObservation>& observations, const Rigid3d& initial,

@@ -11,7 +11,8 @@ const PinholeIntrinsics kCamera{450, 450, 319.5, 239.5};
 
 TEST(PoseOptimizer, ConvergesFromAPerturbedPoseAndFindsTheOutliers) {
   Rng rng(1);
-  const Rigid3d truth(Eigen::Quaterniond(Eigen::AngleAxisd(0.4, Eigen::Vector3d(1, -2, 0.5).normalized())), Eigen::Vector3d(0.3, -1, 2));
+  const Rigid3d truth(Eigen::Quaterniond(Eigen::AngleAxisd(0.4, Eigen::Vector3d(1, -2, 0.5).normalized())),
+                      Eigen::Vector3d(0.3, -1, 2));
   std::vector<PoseObservation> observations;
   std::vector<bool> is_outlier;
   while (observations.size() < 300) {
@@ -29,8 +30,9 @@ TEST(PoseOptimizer, ConvergesFromAPerturbedPoseAndFindsTheOutliers) {
     observations.push_back(o);
     is_outlier.push_back(outlier);
   }
-  const Rigid3d perturbation(Eigen::Quaterniond(Eigen::AngleAxisd(5 * M_PI / 180, Eigen::Vector3d(0.3, 1, 0.2).normalized())),
-                             Eigen::Vector3d(0.3, -0.2, 0.25));
+  const Rigid3d perturbation(
+      Eigen::Quaterniond(Eigen::AngleAxisd(5 * M_PI / 180, Eigen::Vector3d(0.3, 1, 0.2).normalized())),
+      Eigen::Vector3d(0.3, -0.2, 0.25));
   const PoseOptimizerResult result = OptimizePose(observations, perturbation * truth, kCamera);
   ASSERT_TRUE(result.converged);
   // At the optimum: no worse than the true pose on the same observations (noise makes the

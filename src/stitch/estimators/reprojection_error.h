@@ -10,7 +10,8 @@
 namespace stitch {
 
 struct ReprojectionError {
-  ReprojectionError(const Eigen::Vector2d& observed, double sqrt_information, double fx, double fy, double cx, double cy)
+  ReprojectionError(const Eigen::Vector2d& observed, double sqrt_information, double fx, double fy, double cx,
+                    double cy)
       : observed(observed), sqrt_information(sqrt_information), fx(fx), fy(fy), cx(cx), cy(cy) {}
 
   template <typename T>

@@ -55,7 +55,8 @@ struct TransferError {
 };
 
 Sim3d Refine(const std::vector<Sim3Correspondence>& pairs, const std::vector<char>& inlier, const Sim3d& initial,
-             const Rigid3d& cam_a_from_a, const Rigid3d& cam_b_from_b, const PinholeIntrinsics& k, const Sim3Options& options) {
+             const Rigid3d& cam_a_from_a, const Rigid3d& cam_b_from_b, const PinholeIntrinsics& k,
+             const Sim3Options& options) {
   double rotation[4] = {initial.rotation.x(), initial.rotation.y(), initial.rotation.z(), initial.rotation.w()};
   double translation[3] = {initial.translation.x(), initial.translation.y(), initial.translation.z()};
   double log_scale = std::log(initial.scale);
@@ -64,8 +65,8 @@ Sim3d Refine(const std::vector<Sim3Correspondence>& pairs, const std::vector<cha
   for (size_t i = 0; i < pairs.size(); ++i) {
     if (!inlier[i]) continue;
     const Sim3Correspondence& c = pairs[i];
-    problem.AddResidualBlock(new ceres::AutoDiffCostFunction<TransferError, 2, 4, 3, 1>(
-                                 new TransferError(c.point_a, cam_b_from_b, c.pixel_b, std::sqrt(c.sigma2_b), k, false)),
+    problem.AddResidualBlock(new ceres::AutoDiffCostFunction<TransferError, 2, 4, 3, 1>(new TransferError(
+                                 c.point_a, cam_b_from_b, c.pixel_b, std::sqrt(c.sigma2_b), k, false)),
                              huber, rotation, translation, &log_scale);
     problem.AddResidualBlock(new ceres::AutoDiffCostFunction<TransferError, 2, 4, 3, 1>(
                                  new TransferError(c.point_b, cam_a_from_a, c.pixel_a, std::sqrt(c.sigma2_a), k, true)),
@@ -92,8 +93,9 @@ std::vector<char> Sim3Inliers(const std::vector<Sim3Correspondence>& pairs, cons
   std::vector<char> inlier(pairs.size(), 0);
   for (size_t i = 0; i < pairs.size(); ++i) {
     const Sim3Correspondence& c = pairs[i];
-    inlier[i] = ReprojectionChi2(b_from_a * c.point_a, cam_b_from_b, c.pixel_b, c.sigma2_b, intrinsics) < chi2_threshold &&
-                ReprojectionChi2(a_from_b * c.point_b, cam_a_from_a, c.pixel_a, c.sigma2_a, intrinsics) < chi2_threshold;
+    inlier[i] =
+        ReprojectionChi2(b_from_a * c.point_a, cam_b_from_b, c.pixel_b, c.sigma2_b, intrinsics) < chi2_threshold &&
+        ReprojectionChi2(a_from_b * c.point_b, cam_a_from_a, c.pixel_a, c.sigma2_a, intrinsics) < chi2_threshold;
   }
   return inlier;
 }
@@ -117,7 +119,8 @@ std::optional<Sim3Estimate> EstimateSim3(const std::vector<Sim3Correspondence>& 
       continue;  // collinear sample
     }
     if (!(b_from_a.scale > 0) || !std::isfinite(b_from_a.scale)) continue;
-    std::vector<char> inlier = Sim3Inliers(pairs, b_from_a, cam_a_from_a, cam_b_from_b, intrinsics, options.chi2_threshold);
+    std::vector<char> inlier =
+        Sim3Inliers(pairs, b_from_a, cam_a_from_a, cam_b_from_b, intrinsics, options.chi2_threshold);
     const int count = static_cast<int>(std::count(inlier.begin(), inlier.end(), 1));
     if (count > best.num_inliers) {
       best.b_from_a = b_from_a;

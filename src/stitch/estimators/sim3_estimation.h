@@ -17,11 +17,11 @@ namespace stitch {
 
 // A map point seen by keyframe A (in submap A) matched to one seen by keyframe B (in submap B).
 struct Sim3Correspondence {
-  Eigen::Vector3d point_a;   // in submap A's frame
-  Eigen::Vector3d point_b;   // in submap B's frame
-  Eigen::Vector2d pixel_a;   // its undistorted keypoint in keyframe A
-  Eigen::Vector2d pixel_b;   // ...in keyframe B
-  double sigma2_a = 1.0;     // variance of that keypoint's level, px^2
+  Eigen::Vector3d point_a;  // in submap A's frame
+  Eigen::Vector3d point_b;  // in submap B's frame
+  Eigen::Vector2d pixel_a;  // its undistorted keypoint in keyframe A
+  Eigen::Vector2d pixel_b;  // ...in keyframe B
+  double sigma2_a = 1.0;    // variance of that keypoint's level, px^2
   double sigma2_b = 1.0;
 };
 
@@ -30,7 +30,7 @@ struct Sim3Options {
   double chi2_threshold = 9.21;  // 99% for 2 DoF: a pair is an inlier when both reprojections are within
   int min_inliers = 20;
   int refine_iterations = 10;
-  uint64_t seed = 1;             // RANSAC samples are deterministic
+  uint64_t seed = 1;  // RANSAC samples are deterministic
 };
 
 struct Sim3Estimate {

@@ -12,7 +12,8 @@ TEST(Sim3Estimation, RecoversAKnownSimilarityFromNoisyMatchesWithOutliers) {
   // Submap B is submap A scaled by 2.5, turned and moved.
   const Sim3d truth(2.5, Eigen::Quaterniond(Eigen::AngleAxisd(0.7, Eigen::Vector3d(0.2, 1, 0.3).normalized())),
                     Eigen::Vector3d(3, -1, 0.5));
-  const Rigid3d cam_a_from_a(Eigen::Quaterniond(Eigen::AngleAxisd(0.1, Eigen::Vector3d::UnitX())), Eigen::Vector3d(0.2, 0, 0));
+  const Rigid3d cam_a_from_a(Eigen::Quaterniond(Eigen::AngleAxisd(0.1, Eigen::Vector3d::UnitX())),
+                             Eigen::Vector3d(0.2, 0, 0));
   // Keyframe B sees the same place: its pose in B is keyframe A's pose carried by the similarity
   // (and shifted a little).
   const Sim3d cam_a_in_b = truth * Sim3d(1.0, cam_a_from_a.Inverse().rotation, cam_a_from_a.Inverse().translation);
@@ -35,7 +36,8 @@ TEST(Sim3Estimation, RecoversAKnownSimilarityFromNoisyMatchesWithOutliers) {
     // Map point positions carry triangulation noise too.
     c.point_a += 0.005 * Eigen::Vector3d(uniform(rng), uniform(rng), uniform(rng));
     if (pairs.size() % 3 == 0) {  // a third are wrong matches
-      c.point_b = truth * (cam_a_from_a.Inverse() * Eigen::Vector3d(1.5 * uniform(rng), uniform(rng), 4 + uniform(rng)));
+      c.point_b =
+          truth * (cam_a_from_a.Inverse() * Eigen::Vector3d(1.5 * uniform(rng), uniform(rng), 4 + uniform(rng)));
       ++outliers;
     }
     pairs.push_back(c);

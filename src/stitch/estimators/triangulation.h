@@ -15,6 +15,7 @@ std::optional<Eigen::Vector3d> TriangulateDlt(const Rigid3d& cam1_from_world, co
                                               const Rigid3d& cam2_from_world, const Eigen::Vector2d& normalized2);
 
 // Cosine of the angle between the rays from the two camera centres to `point_in_world`.
-double ParallaxCosine(const Eigen::Vector3d& point_in_world, const Eigen::Vector3d& centre1, const Eigen::Vector3d& centre2);
+double ParallaxCosine(const Eigen::Vector3d& point_in_world, const Eigen::Vector3d& centre1,
+                      const Eigen::Vector3d& centre2);
 
 }  // namespace stitch

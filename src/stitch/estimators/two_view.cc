@@ -26,8 +26,9 @@ struct Candidate {
 
 // Triangulates the inlier matches for one motion hypothesis and counts the good points: in front
 // of both cameras, reprojection error under 2 sigma, and some parallax.
-Candidate Check(const Rigid3d& cam2_from_cam1, const std::vector<Eigen::Vector2d>& p1, const std::vector<Eigen::Vector2d>& p2,
-                const std::vector<char>& inlier, const PinholeIntrinsics& k, double sigma) {
+Candidate Check(const Rigid3d& cam2_from_cam1, const std::vector<Eigen::Vector2d>& p1,
+                const std::vector<Eigen::Vector2d>& p2, const std::vector<char>& inlier, const PinholeIntrinsics& k,
+                double sigma) {
   Candidate c;
   c.cam2_from_cam1 = cam2_from_cam1;
   c.points.assign(p1.size(), Eigen::Vector3d::Zero());
@@ -73,8 +74,14 @@ double ScoreHomography(const Eigen::Matrix3d& h, const std::vector<Eigen::Vector
     const double e2 = (a.hnormalized() - p2[i]).squaredNorm() * inv_s2;
     const double e1 = (b.hnormalized() - p1[i]).squaredNorm() * inv_s2;
     bool in = true;
-    if (e2 < kChi2TwoDof) score += kChi2TwoDof - e2; else in = false;
-    if (e1 < kChi2TwoDof) score += kChi2TwoDof - e1; else in = false;
+    if (e2 < kChi2TwoDof)
+      score += kChi2TwoDof - e2;
+    else
+      in = false;
+    if (e1 < kChi2TwoDof)
+      score += kChi2TwoDof - e1;
+    else
+      in = false;
     (*inliers)[i] = in;
   }
   return score;
@@ -91,8 +98,14 @@ double ScoreFundamental(const Eigen::Matrix3d& f, const std::vector<Eigen::Vecto
     const double d2 = std::pow(l2.dot(p2[i].homogeneous()), 2) / (l2.head<2>().squaredNorm() + 1e-18) * inv_s2;
     const double d1 = std::pow(l1.dot(p1[i].homogeneous()), 2) / (l1.head<2>().squaredNorm() + 1e-18) * inv_s2;
     bool in = true;
-    if (d2 < kChi2OneDof) score += kChi2TwoDof - d2; else in = false;
-    if (d1 < kChi2OneDof) score += kChi2TwoDof - d1; else in = false;
+    if (d2 < kChi2OneDof)
+      score += kChi2TwoDof - d2;
+    else
+      in = false;
+    if (d1 < kChi2OneDof)
+      score += kChi2TwoDof - d1;
+    else
+      in = false;
     (*inliers)[i] = in;
   }
   return score;
@@ -106,7 +119,8 @@ Rigid3d Refine(const Candidate& c, const std::vector<Eigen::Vector2d>& p1, const
   double identity_rotation[4] = {0, 0, 0, 1}, zero[3] = {0, 0, 0};
   const Eigen::Quaterniond& q = c.cam2_from_cam1.rotation;
   double rotation[4] = {q.x(), q.y(), q.z(), q.w()};
-  double translation[3] = {c.cam2_from_cam1.translation.x(), c.cam2_from_cam1.translation.y(), c.cam2_from_cam1.translation.z()};
+  double translation[3] = {c.cam2_from_cam1.translation.x(), c.cam2_from_cam1.translation.y(),
+                           c.cam2_from_cam1.translation.z()};
   std::vector<Eigen::Vector3d> points = c.points;
   ceres::Problem problem;
   ceres::LossFunction* huber = new ceres::HuberLoss(std::sqrt(kChi2TwoDof));
@@ -144,13 +158,17 @@ Rigid3d ToRigid(const cv::Mat& r, const cv::Mat& t) {
   cv::cv2eigen(r, rotation);
   cv::cv2eigen(t, translation);
   const double norm = translation.norm();
-  return Rigid3d(Eigen::Quaterniond(rotation).normalized(), norm > 0 ? Eigen::Vector3d(translation / norm) : translation);
+  return Rigid3d(Eigen::Quaterniond(rotation).normalized(),
+                 norm > 0 ? Eigen::Vector3d(translation / norm) : translation);
 }
 
 }  // namespace
 
 bool TwoViewOptions::Check(std::string* why) const {
-  auto fail = [&](const std::string& m) { if (why) *why = m; return false; };
+  auto fail = [&](const std::string& m) {
+    if (why) *why = m;
+    return false;
+  };
   if (!(sigma_px > 0)) return fail("two_view.sigma_px must be > 0");
   if (!(min_parallax_deg >= 0)) return fail("two_view.min_parallax_deg must be >= 0");
   if (min_triangulated < 8) return fail("two_view.min_triangulated must be >= 8");
@@ -159,8 +177,9 @@ bool TwoViewOptions::Check(std::string* why) const {
   return true;
 }
 
-std::optional<TwoViewResult> InitializeTwoView(const std::vector<Eigen::Vector2d>& p1, const std::vector<Eigen::Vector2d>& p2,
-                                               const PinholeIntrinsics& k, const TwoViewOptions& options, std::string* why) {
+std::optional<TwoViewResult> InitializeTwoView(const std::vector<Eigen::Vector2d>& p1,
+                                               const std::vector<Eigen::Vector2d>& p2, const PinholeIntrinsics& k,
+                                               const TwoViewOptions& options, std::string* why) {
   auto fail = [&](const std::string& m) {
     if (why) *why = m;
     return std::nullopt;
@@ -224,7 +243,8 @@ std::optional<TwoViewResult> InitializeTwoView(const std::vector<Eigen::Vector2d
   if (valid.empty()) {
     double best_parallax = 0;
     for (const Candidate& c : candidates) best_parallax = std::max(best_parallax, c.parallax_deg);
-    return fail(model + ": parallax " + std::to_string(best_parallax) + " deg, need " + std::to_string(options.min_parallax_deg));
+    return fail(model + ": parallax " + std::to_string(best_parallax) + " deg, need " +
+                std::to_string(options.min_parallax_deg));
   }
   std::sort(valid.begin(), valid.end(), [](const Candidate& a, const Candidate& b) { return a.num_good > b.num_good; });
   Candidate best = valid[0];

@@ -19,11 +19,11 @@
 namespace stitch {
 
 struct TwoViewOptions {
-  double sigma_px = 1.0;            // keypoint noise at level 0
-  double min_parallax_deg = 1.0;    // the 50th best parallax must reach this
+  double sigma_px = 1.0;          // keypoint noise at level 0
+  double min_parallax_deg = 1.0;  // the 50th best parallax must reach this
   int min_triangulated = 50;
-  double homography_ratio = 0.40;   // choose H when SH / (SH + SF) exceeds this
-  double min_good_fraction = 0.9;   // of the chosen model's inliers, triangulated well
+  double homography_ratio = 0.40;  // choose H when SH / (SH + SF) exceeds this
+  double min_good_fraction = 0.9;  // of the chosen model's inliers, triangulated well
 
   template <class Visitor>
   void VisitFields(Visitor& v) {

@@ -26,7 +26,9 @@ TwoViewCase MakeCase(const std::vector<Eigen::Vector3d>& points, const Rigid3d& 
     if (x.z() <= 0 || x2.z() <= 0) continue;
     Eigen::Vector2d u1 = kCamera.Project(x) + noise_px * Eigen::Vector2d(rng.Normal(), rng.Normal());
     Eigen::Vector2d u2 = kCamera.Project(x2) + noise_px * Eigen::Vector2d(rng.Normal(), rng.Normal());
-    if (u1.x() < 0 || u1.y() < 0 || u1.x() > 639 || u1.y() > 479 || u2.x() < 0 || u2.y() < 0 || u2.x() > 639 || u2.y() > 479) continue;
+    if (u1.x() < 0 || u1.y() < 0 || u1.x() > 639 || u1.y() > 479 || u2.x() < 0 || u2.y() < 0 || u2.x() > 639 ||
+        u2.y() > 479)
+      continue;
     if (rng.Uniform() < outlier_fraction) u2 = Eigen::Vector2d(rng.Uniform(0, 639), rng.Uniform(0, 479));
     c.p1.push_back(u1);
     c.p2.push_back(u2);
@@ -35,7 +37,9 @@ TwoViewCase MakeCase(const std::vector<Eigen::Vector3d>& points, const Rigid3d& 
   return c;
 }
 
-double AngleDeg(const Eigen::Quaterniond& a, const Eigen::Quaterniond& b) { return a.angularDistance(b) * 180 / M_PI; }
+double AngleDeg(const Eigen::Quaterniond& a, const Eigen::Quaterniond& b) {
+  return a.angularDistance(b) * 180 / M_PI;
+}
 double DirectionErrorDeg(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
   return std::acos(std::clamp(a.normalized().dot(b.normalized()), -1.0, 1.0)) * 180 / M_PI;
 }
@@ -76,7 +80,8 @@ TEST(TwoView, RecoversAUavMotionOverNearlyFlatGroundFromTheHomography) {
     const double x = rng.Uniform(-50, 50), y = rng.Uniform(-38, 38);
     points.emplace_back(x, y, 70.0 + 0.5 * std::sin(x / 9) + 0.5 * std::cos(y / 7));
   }
-  const Rigid3d motion(Eigen::Quaterniond(Eigen::AngleAxisd(0.01, Eigen::Vector3d::UnitZ())), Eigen::Vector3d(0, 3.0, 0));
+  const Rigid3d motion(Eigen::Quaterniond(Eigen::AngleAxisd(0.01, Eigen::Vector3d::UnitZ())),
+                       Eigen::Vector3d(0, 3.0, 0));
   const TwoViewCase c = MakeCase(points, motion, 0.5, 0.05, 4);
   std::string why;
   const auto result = InitializeTwoView(c.p1, c.p2, kCamera, TwoViewOptions(), &why);
@@ -92,13 +97,15 @@ TEST(TwoView, RefusesTooLittleParallax) {
   std::vector<Eigen::Vector3d> points;
   for (int i = 0; i < 300; ++i) points.emplace_back(rng.Uniform(-3, 3), rng.Uniform(-2, 2), rng.Uniform(4, 9));
   // A pure rotation: no baseline, nothing can be triangulated (the camera of the EuRoC piece on the ground).
-  const Rigid3d rotation_only(Eigen::Quaterniond(Eigen::AngleAxisd(0.05, Eigen::Vector3d::UnitY())), Eigen::Vector3d::Zero());
+  const Rigid3d rotation_only(Eigen::Quaterniond(Eigen::AngleAxisd(0.05, Eigen::Vector3d::UnitY())),
+                              Eigen::Vector3d::Zero());
   const TwoViewCase c = MakeCase(points, rotation_only, 0.5, 0.0, 6);
   std::string why;
   EXPECT_FALSE(InitializeTwoView(c.p1, c.p2, kCamera, TwoViewOptions(), &why));
   EXPECT_FALSE(why.empty());
   // Too few matches.
-  EXPECT_FALSE(InitializeTwoView({c.p1.begin(), c.p1.begin() + 20}, {c.p2.begin(), c.p2.begin() + 20}, kCamera, TwoViewOptions(), &why));
+  EXPECT_FALSE(InitializeTwoView({c.p1.begin(), c.p1.begin() + 20}, {c.p2.begin(), c.p2.begin() + 20}, kCamera,
+                                 TwoViewOptions(), &why));
 }
 
 }  // namespace

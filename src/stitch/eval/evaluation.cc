@@ -12,8 +12,8 @@
 #include <opencv2/imgproc.hpp>
 
 #include "stitch/geometry/similarity.h"
-#include "stitch/util/ids.h"
 #include "stitch/util/error.h"
+#include "stitch/util/ids.h"
 #include "stitch/util/text_file.h"
 
 namespace stitch {
@@ -42,8 +42,7 @@ std::vector<StampedPose> ToStamped(const std::vector<PoseRecord>& poses) {
 }  // namespace
 
 std::optional<TrajectoryErrors> CompareTrajectories(const std::vector<StampedPose>& estimated,
-                                                    const Trajectory& ground_truth,
-                                                    int64_t max_association_gap_ns) {
+                                                    const Trajectory& ground_truth, int64_t max_association_gap_ns) {
   std::vector<Eigen::Vector3d> estimate_positions, truth_positions;
   std::vector<Rigid3d> estimate_poses, truth_poses;
   for (const auto& pose : estimated) {
@@ -172,8 +171,11 @@ nlohmann::json ToJson(const Evaluation& e) {
   j["tracking_ms_p95"] = optional(e.tracking_ms_p95);
   json submaps = json::array();
   for (const auto& s : e.per_submap) {
-    submaps.push_back({{"submap_id", s.submap_id}, {"component", s.component}, {"frames", s.frames},
-                       {"frames_with_ground_truth", s.frames_with_ground_truth}, {"ate_rmse_m", optional(s.ate_rmse_m)},
+    submaps.push_back({{"submap_id", s.submap_id},
+                       {"component", s.component},
+                       {"frames", s.frames},
+                       {"frames_with_ground_truth", s.frames_with_ground_truth},
+                       {"ate_rmse_m", optional(s.ate_rmse_m)},
                        {"ate_in_map_m", optional(s.ate_in_map_m)}});
   }
   j["per_submap"] = submaps;
@@ -183,15 +185,17 @@ nlohmann::json ToJson(const Evaluation& e) {
 std::string Summarize(const Evaluation& e) {
   char line[256];
   std::string text;
-  std::snprintf(line, sizeof(line), "  frames localized  %d of %d (%.1f%%)%s\n", e.frames_localized, e.frames_total,
-                100.0 * e.completeness,
-                e.frames_unusable > 0 ? (" - " + std::to_string(e.frames_unusable) + " frames were made unusable").c_str() : "");
+  std::snprintf(
+      line, sizeof(line), "  frames localized  %d of %d (%.1f%%)%s\n", e.frames_localized, e.frames_total,
+      100.0 * e.completeness,
+      e.frames_unusable > 0 ? (" - " + std::to_string(e.frames_unusable) + " frames were made unusable").c_str() : "");
   text += line;
   std::snprintf(line, sizeof(line), "  keyframes         %d\n  submaps           %d (%d in the largest map)\n",
                 e.keyframes, e.submaps, e.submaps_merged);
   text += line;
   if (e.errors) {
-    std::snprintf(line, sizeof(line), "  ATE RMSE          %.4f m over %d frames (Sim3-aligned; median %.4f, max %.4f)\n",
+    std::snprintf(line, sizeof(line),
+                  "  ATE RMSE          %.4f m over %d frames (Sim3-aligned; median %.4f, max %.4f)\n",
                   e.errors->ate_rmse_m, e.errors->pairs, e.errors->ate_median_m, e.errors->ate_max_m);
   } else if (e.has_ground_truth) {
     std::snprintf(line, sizeof(line), "  ATE RMSE          n/a (fewer than 3 posed frames with ground truth)\n");
@@ -208,7 +212,8 @@ std::string Summarize(const Evaluation& e) {
     }
   }
   if (e.tracking_ms_median) {
-    std::snprintf(line, sizeof(line), "  tracking time     %.1f ms median, %.1f ms p95\n", *e.tracking_ms_median, *e.tracking_ms_p95);
+    std::snprintf(line, sizeof(line), "  tracking time     %.1f ms median, %.1f ms p95\n", *e.tracking_ms_median,
+                  *e.tracking_ms_p95);
     text += line;
   }
   return text;
@@ -228,9 +233,18 @@ void WriteTrajectoryPlot(const std::string& path, const EvaluationInput& input, 
   std::vector<Eigen::Vector3d> truth;
   for (const auto& p : input.ground_truth.poses()) truth.push_back(p.world_from_cam.translation);
   Eigen::Vector2d lo = Eigen::Vector2d::Constant(1e18), hi = Eigen::Vector2d::Constant(-1e18);
-  for (const auto& t : truth) { lo = lo.cwiseMin(t.head<2>()); hi = hi.cwiseMax(t.head<2>()); }
-  for (const auto& [e, p] : estimate) { lo = lo.cwiseMin(e.head<2>()); hi = hi.cwiseMax(e.head<2>()); }
-  if (!(hi.x() >= lo.x())) { lo = Eigen::Vector2d(-1, -1); hi = Eigen::Vector2d(1, 1); }
+  for (const auto& t : truth) {
+    lo = lo.cwiseMin(t.head<2>());
+    hi = hi.cwiseMax(t.head<2>());
+  }
+  for (const auto& [e, p] : estimate) {
+    lo = lo.cwiseMin(e.head<2>());
+    hi = hi.cwiseMax(e.head<2>());
+  }
+  if (!(hi.x() >= lo.x())) {
+    lo = Eigen::Vector2d(-1, -1);
+    hi = Eigen::Vector2d(1, 1);
+  }
   const double span = std::max({hi.x() - lo.x(), hi.y() - lo.y(), 1e-6});
   const double scale = std::min((kWidth - 2.0 * kMargin) / std::max(hi.x() - lo.x(), span * 0.05),
                                 (kHeight - 2.0 * kMargin) / std::max(hi.y() - lo.y(), span * 0.05));
@@ -241,7 +255,7 @@ void WriteTrajectoryPlot(const std::string& path, const EvaluationInput& input, 
   for (size_t i = 1; i < truth.size(); ++i) {
     cv::line(canvas, to_px(truth[i - 1]), to_px(truth[i]), cv::Scalar(170, 170, 170), 3, cv::LINE_AA);
   }
-  static const cv::Scalar kPalette[] = {{200, 90, 30}, {40, 40, 220}, {40, 160, 40}, {180, 40, 180}, {20, 150, 220},
+  static const cv::Scalar kPalette[] = {{200, 90, 30}, {40, 40, 220}, {40, 160, 40}, {180, 40, 180},  {20, 150, 220},
                                         {140, 140, 0}, {90, 60, 160}, {0, 110, 200}, {100, 100, 100}, {60, 180, 180}};
   std::map<int64_t, int> colour_of;
   for (const auto& [e, p] : estimate) {
@@ -255,17 +269,22 @@ void WriteTrajectoryPlot(const std::string& path, const EvaluationInput& input, 
     const cv::Scalar colour = kPalette[colour_of[p->submap_id] % 10];
     const bool continues = i > 0 && estimate[i - 1].second->submap_id == p->submap_id &&
                            p->frame_index - estimate[i - 1].second->frame_index <= 3;
-    if (continues) cv::line(canvas, to_px(estimate[i - 1].first), to_px(e), colour, 2, cv::LINE_AA);
-    else cv::circle(canvas, to_px(e), 2, colour, cv::FILLED, cv::LINE_AA);
+    if (continues)
+      cv::line(canvas, to_px(estimate[i - 1].first), to_px(e), colour, 2, cv::LINE_AA);
+    else
+      cv::circle(canvas, to_px(e), 2, colour, cv::FILLED, cv::LINE_AA);
   }
-  cv::putText(canvas, title, cv::Point(kMargin, 30), cv::FONT_HERSHEY_SIMPLEX, 0.6, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
-  std::string legend = truth.empty() ? "estimate (own frame, no ground truth)" : "grey: ground truth; colours: submaps, Sim3-aligned";
+  cv::putText(canvas, title, cv::Point(kMargin, 30), cv::FONT_HERSHEY_SIMPLEX, 0.6, cv::Scalar(0, 0, 0), 1,
+              cv::LINE_AA);
+  std::string legend =
+      truth.empty() ? "estimate (own frame, no ground truth)" : "grey: ground truth; colours: submaps, Sim3-aligned";
   if (evaluation.errors) {
     char ate[64];
     std::snprintf(ate, sizeof(ate), "; ATE %.3f m", evaluation.errors->ate_rmse_m);
     legend += ate;
   }
-  cv::putText(canvas, legend, cv::Point(kMargin, 52), cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(60, 60, 60), 1, cv::LINE_AA);
+  cv::putText(canvas, legend, cv::Point(kMargin, 52), cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(60, 60, 60), 1,
+              cv::LINE_AA);
   // Scale bar: a round length near a fifth of the width.
   const double target = (kWidth - 2.0 * kMargin) / scale / 5;
   const double magnitude = std::pow(10.0, std::floor(std::log10(target)));
@@ -274,7 +293,8 @@ void WriteTrajectoryPlot(const std::string& path, const EvaluationInput& input, 
   cv::line(canvas, cv::Point(kMargin, kHeight - 25), cv::Point(kMargin + bar_px, kHeight - 25), cv::Scalar(0, 0, 0), 2);
   char bar_text[32];
   std::snprintf(bar_text, sizeof(bar_text), "%g %s", bar, truth.empty() ? "units" : "m");
-  cv::putText(canvas, bar_text, cv::Point(kMargin + bar_px + 8, kHeight - 20), cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+  cv::putText(canvas, bar_text, cv::Point(kMargin + bar_px + 8, kHeight - 20), cv::FONT_HERSHEY_SIMPLEX, 0.45,
+              cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
   if (!cv::imwrite(path, canvas)) throw Error(path + ": cannot write the plot");
 }
 

@@ -19,11 +19,11 @@
 namespace stitch {
 
 struct EvaluationInput {
-  int frames_total = 0;               // frames in the sequence
-  int frames_unusable = 0;            // of those, replaced by the failure schedule
-  std::vector<PoseRecord> poses;      // the run's final poses
-  Trajectory ground_truth;            // may be empty
-  std::vector<double> tracking_ms;    // per processed frame
+  int frames_total = 0;             // frames in the sequence
+  int frames_unusable = 0;          // of those, replaced by the failure schedule
+  std::vector<PoseRecord> poses;    // the run's final poses
+  Trajectory ground_truth;          // may be empty
+  std::vector<double> tracking_ms;  // per processed frame
   int keyframes = 0;
   int submaps = 0;
   int64_t max_association_gap_ns = 50'000'000;  // ground-truth interpolation window
@@ -55,7 +55,7 @@ struct Evaluation {
   double completeness = 0;   // frames_localized / frames_total
   int keyframes = 0;
   int submaps = 0;
-  int submaps_merged = 0;    // submaps in the largest merged map
+  int submaps_merged = 0;  // submaps in the largest merged map
   int largest_component = -1;
   std::optional<TrajectoryErrors> errors;  // largest map vs ground truth
   std::vector<SubmapEvaluation> per_submap;
@@ -76,7 +76,7 @@ std::string Summarize(const Evaluation& evaluation);
 
 // Top view (x, y) of the ground truth (grey) and the estimate aligned to it, one colour per
 // submap. Without ground truth, the estimate alone in its own frame.
-void WriteTrajectoryPlot(const std::string& path, const EvaluationInput& input,
-                         const Evaluation& evaluation, const std::string& title);
+void WriteTrajectoryPlot(const std::string& path, const EvaluationInput& input, const Evaluation& evaluation,
+                         const std::string& title);
 
 }  // namespace stitch

@@ -31,8 +31,8 @@ std::vector<PoseRecord> Estimate(const Trajectory& gt, const Sim3d& est_from_gt,
     r.t_ns = p.t_ns;
     r.submap_id = r.frame_index < 30 ? 1 : 2;
     r.component = component;
-    const Eigen::Vector3d centre = est_from_gt * p.world_from_cam.translation +
-                                   noise * Eigen::Vector3d(rng.Normal(), rng.Normal(), rng.Normal());
+    const Eigen::Vector3d centre =
+        est_from_gt * p.world_from_cam.translation + noise * Eigen::Vector3d(rng.Normal(), rng.Normal(), rng.Normal());
     r.world_from_cam = Rigid3d(est_from_gt.rotation * p.world_from_cam.rotation, centre);
     poses.push_back(r);
   }
@@ -60,7 +60,8 @@ TEST(Evaluation, AteMeasuresNoiseInGroundTruthUnits) {
   const Trajectory gt = GroundTruth(400);
   const double noise_in_gt_m = 0.05;
   std::vector<StampedPose> estimated;
-  for (const auto& r : Estimate(gt, kEstFromGt, noise_in_gt_m * kEstFromGt.scale)) estimated.push_back({r.t_ns, r.world_from_cam});
+  for (const auto& r : Estimate(gt, kEstFromGt, noise_in_gt_m * kEstFromGt.scale))
+    estimated.push_back({r.t_ns, r.world_from_cam});
   const auto errors = CompareTrajectories(estimated, gt);
   ASSERT_TRUE(errors);
   // 3D isotropic noise of sigma per axis has RMS norm sigma * sqrt(3).
@@ -70,7 +71,7 @@ TEST(Evaluation, AteMeasuresNoiseInGroundTruthUnits) {
 TEST(Evaluation, CompletenessCountsTheLargestMergedMapOnly) {
   const Trajectory gt = GroundTruth(100);
   std::vector<PoseRecord> poses = Estimate(gt, kEstFromGt, 0.0, 0);
-  poses.resize(70);                          // frames 0..69 in map 0
+  poses.resize(70);                                      // frames 0..69 in map 0
   for (int i = 60; i < 70; ++i) poses[i].component = 1;  // a smaller, unmerged map
   EvaluationInput input;
   input.frames_total = 100;
@@ -90,8 +91,8 @@ TEST(Evaluation, CompletenessCountsTheLargestMergedMapOnly) {
   ASSERT_EQ(e.per_submap.size(), 2u);
   ASSERT_TRUE(e.per_submap[0].ate_rmse_m);
   const nlohmann::json j = ToJson(e);
-  for (const char* key : {"frames_total", "frames_localized", "completeness", "keyframes", "submaps",
-                          "submaps_merged", "ate_rmse_m", "tracking_ms_median"}) {
+  for (const char* key : {"frames_total", "frames_localized", "completeness", "keyframes", "submaps", "submaps_merged",
+                          "ate_rmse_m", "tracking_ms_median"}) {
     EXPECT_TRUE(j.contains(key)) << key;
   }
 }

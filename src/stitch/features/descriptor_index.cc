@@ -34,7 +34,8 @@ DescriptorIndex::DescriptorIndex(const cv::Mat& descriptors, DescriptorSearch se
   bucket_rows_.resize(lsh_.tables);
   std::vector<uint32_t> keys(rows);
   for (int t = 0; t < lsh_.tables; ++t) {
-    for (int i = 0; i < lsh_.key_bits; ++i) std::swap(all[i], all[i + rng.UniformInt(0, static_cast<int>(all.size()) - 1 - i)]);
+    for (int i = 0; i < lsh_.key_bits; ++i)
+      std::swap(all[i], all[i + rng.UniformInt(0, static_cast<int>(all.size()) - 1 - i)]);
     sampled_bits_[t].assign(all.begin(), all.begin() + lsh_.key_bits);
     // Counting sort of the rows by key: bucket b holds rows [start[b], start[b + 1]).
     std::vector<int>& start = bucket_start_[t];

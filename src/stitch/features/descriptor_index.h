@@ -25,10 +25,10 @@ DescriptorSearch ParseDescriptorSearch(const std::string& name);
 // brute force between a keyframe and a frame, 5x faster; probing the buckets one bit away as
 // well costs 2.5x and finds no more there (it helps descriptors 40-60 bits apart).
 struct LshOptions {
-  int tables = 12;    // hash tables; more find more far neighbours and cost more per query
-  int key_bits = 10;  // bits per key (1024 buckets a table)
+  int tables = 12;                // hash tables; more find more far neighbours and cost more per query
+  int key_bits = 10;              // bits per key (1024 buckets a table)
   bool probe_neighbours = false;  // also the buckets one bit away from the query's key
-  uint64_t seed = 1;  // which bits each table samples
+  uint64_t seed = 1;              // which bits each table samples
 };
 
 struct NearestDescriptors {
@@ -65,7 +65,7 @@ class DescriptorIndex {
   std::vector<std::vector<uint16_t>> sampled_bits_;  // per table: which of the 256 bits
   std::vector<std::vector<int>> bucket_start_;       // per table: 2^key_bits + 1 offsets into rows
   std::vector<std::vector<int>> bucket_rows_;        // per table: rows sorted by key
-  mutable std::vector<uint32_t> seen_;  // per row: the query number that last saw it
+  mutable std::vector<uint32_t> seen_;               // per row: the query number that last saw it
   mutable uint32_t query_number_ = 0;
 };
 

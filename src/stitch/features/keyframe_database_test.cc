@@ -97,7 +97,8 @@ TEST(KeyframeDatabase, FiltersBySubmapAndForgetsRemovedKeyframes) {
   ASSERT_FALSE(others.empty());
   for (const auto& c : others) EXPECT_EQ(c.submap_id, 2);
   // Keyframe 20 (submap 2) overlaps 19 by 90%: it is the best of the other submap.
-  const auto best = std::max_element(others.begin(), others.end(), [](const auto& a, const auto& b) { return a.score < b.score; });
+  const auto best =
+      std::max_element(others.begin(), others.end(), [](const auto& a, const auto& b) { return a.score < b.score; });
   EXPECT_EQ(best->keyframe_id, 20);
   database.Remove(20);
   EXPECT_FALSE(database.Contains(20));

@@ -12,14 +12,16 @@
 namespace stitch {
 namespace {
 
-constexpr int kPatchSize = 31;       // ORB's descriptor patch
-constexpr int kHalfPatchSize = 15;   // orientation patch radius
-constexpr int kEdgeThreshold = 19;   // no keypoint closer to a level's border than this
+constexpr int kPatchSize = 31;      // ORB's descriptor patch
+constexpr int kHalfPatchSize = 15;  // orientation patch radius
+constexpr int kEdgeThreshold = 19;  // no keypoint closer to a level's border than this
 
 struct QuadNode {
   cv::Point2f top_left, bottom_right;
   std::vector<cv::KeyPoint> points;
-  bool Splittable() const { return points.size() > 1 && bottom_right.x - top_left.x > 1 && bottom_right.y - top_left.y > 1; }
+  bool Splittable() const {
+    return points.size() > 1 && bottom_right.x - top_left.x > 1 && bottom_right.y - top_left.y > 1;
+  }
   void Split(std::array<QuadNode, 4>* children) const {
     const cv::Point2f middle = (top_left + bottom_right) * 0.5f;
     (*children)[0].top_left = top_left;
@@ -41,7 +43,10 @@ struct QuadNode {
 }  // namespace
 
 bool OrbOptions::Check(std::string* why) const {
-  auto fail = [&](const std::string& m) { if (why) *why = m; return false; };
+  auto fail = [&](const std::string& m) {
+    if (why) *why = m;
+    return false;
+  };
   if (num_features < 10 || num_features > 100000) return fail("orb.num_features must be in [10, 100000]");
   if (!(scale_factor > 1.0 && scale_factor <= 2.0)) return fail("orb.scale_factor must be in (1, 2]");
   if (num_levels < 1 || num_levels > 16) return fail("orb.num_levels must be in [1, 16]");
@@ -83,8 +88,8 @@ OrbExtractor::OrbExtractor(const OrbOptions& options) : options_(options) {
     circle_extent_[v] = static_cast<int>(std::floor(std::sqrt(kHalfPatchSize * kHalfPatchSize - v * v + 0.5)));
   }
   runner_ = std::make_unique<ParallelRunner>(options_.threads);
-  describer_ = cv::ORB::create(options_.num_features, static_cast<float>(options_.scale_factor), levels,
-                               kEdgeThreshold, 0, 2, cv::ORB::FAST_SCORE, kPatchSize, options_.fast_threshold);
+  describer_ = cv::ORB::create(options_.num_features, static_cast<float>(options_.scale_factor), levels, kEdgeThreshold,
+                               0, 2, cv::ORB::FAST_SCORE, kPatchSize, options_.fast_threshold);
 }
 
 OrbExtractor::~OrbExtractor() = default;
@@ -117,7 +122,9 @@ std::vector<cv::KeyPoint> OrbExtractor::DetectLevel(int level) const {
     return cy * cells_x + cx;
   };
   // FAST cannot fire within 3 pixels of the area's border; no keypoint within the edge margin.
-  const auto inside = [&](const cv::Point2f& p) { return p.x >= 3 && p.y >= 3 && p.x < area.width - 3 && p.y < area.height - 3; };
+  const auto inside = [&](const cv::Point2f& p) {
+    return p.x >= 3 && p.y >= 3 && p.x < area.width - 3 && p.y < area.height - 3;
+  };
   std::vector<cv::KeyPoint> corners, kept;
   cv::FAST(image(area), corners, options_.fast_threshold, true);
   std::vector<char> cell_has_strong(cells_x * cells_y, 0);
@@ -134,7 +141,8 @@ std::vector<cv::KeyPoint> OrbExtractor::DetectLevel(int level) const {
       if (cell_has_strong[cell]) continue;
       // The cell and 4 pixels around it: FAST's 3-pixel ring and the neighbours its non-maximum
       // suppression compares, so the cell's corners are those of a pass over the whole level.
-      const int x0 = std::max(0, static_cast<int>(cx * cell_w) - 4), y0 = std::max(0, static_cast<int>(cy * cell_h) - 4);
+      const int x0 = std::max(0, static_cast<int>(cx * cell_w) - 4),
+                y0 = std::max(0, static_cast<int>(cy * cell_h) - 4);
       const int x1 = std::min(area.width, static_cast<int>((cx + 1) * cell_w) + 5);
       const int y1 = std::min(area.height, static_cast<int>((cy + 1) * cell_h) + 5);
       cv::FAST(image(area)(cv::Rect(x0, y0, x1 - x0, y1 - y0)), weak, options_.min_fast_threshold, true);
@@ -149,7 +157,8 @@ std::vector<cv::KeyPoint> OrbExtractor::DetectLevel(int level) const {
     k.pt.x += area.x;
     k.pt.y += area.y;
   }
-  const cv::Rect inner(kEdgeThreshold, kEdgeThreshold, image.cols - 2 * kEdgeThreshold, image.rows - 2 * kEdgeThreshold);
+  const cv::Rect inner(kEdgeThreshold, kEdgeThreshold, image.cols - 2 * kEdgeThreshold,
+                       image.rows - 2 * kEdgeThreshold);
   return Distribute(std::move(kept), inner, features_per_level_[level]);
 }
 
@@ -202,8 +211,9 @@ std::vector<cv::KeyPoint> OrbExtractor::Distribute(std::vector<cv::KeyPoint> can
   std::vector<cv::KeyPoint> result;
   result.reserve(nodes.size());
   for (const auto& node : nodes) {
-    result.push_back(*std::max_element(node.points.begin(), node.points.end(),
-                                       [](const cv::KeyPoint& a, const cv::KeyPoint& b) { return a.response < b.response; }));
+    result.push_back(
+        *std::max_element(node.points.begin(), node.points.end(),
+                          [](const cv::KeyPoint& a, const cv::KeyPoint& b) { return a.response < b.response; }));
   }
   return result;
 }

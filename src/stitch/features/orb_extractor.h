@@ -21,11 +21,11 @@ struct OrbOptions {
   int num_features = 1000;
   double scale_factor = 1.2;
   int num_levels = 8;
-  int fast_threshold = 20;      // preferred FAST threshold
-  int min_fast_threshold = 7;   // used in cells where no corner passes the preferred one
-  int cell_size = 35;           // pixels; the adaptive threshold works per cell
+  int fast_threshold = 20;          // preferred FAST threshold
+  int min_fast_threshold = 7;       // used in cells where no corner passes the preferred one
+  int cell_size = 35;               // pixels; the adaptive threshold works per cell
   std::string detector = "stitch";  // stitch: spread as above; opencv: cv::ORB's own detection (for comparison)
-  int threads = 1;              // threads detecting pyramid levels (the caller's and helpers)
+  int threads = 1;                  // threads detecting pyramid levels (the caller's and helpers)
 
   template <class Visitor>
   void VisitFields(Visitor& v) {

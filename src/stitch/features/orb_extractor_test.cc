@@ -36,7 +36,8 @@ TEST(OrbExtractor, FindsTheRequestedNumberSpreadOverImageAndScales) {
     ASSERT_GE(k.pt.y, 15.0f);
     ASSERT_LT(k.pt.x, image.cols - 15.0f);
     ASSERT_LT(k.pt.y, image.rows - 15.0f);
-    ++cells[std::min(3, static_cast<int>(4 * k.pt.y / image.rows)) * 4 + std::min(3, static_cast<int>(4 * k.pt.x / image.cols))];
+    ++cells[std::min(3, static_cast<int>(4 * k.pt.y / image.rows)) * 4 +
+            std::min(3, static_cast<int>(4 * k.pt.x / image.cols))];
     ASSERT_GE(k.octave, 0);
     ASSERT_LT(k.octave, 8);
     ++levels[k.octave];

@@ -125,7 +125,10 @@ std::vector<Descriptor> Cluster(const std::vector<Descriptor>& all, std::vector<
 }  // namespace
 
 bool VocabularyTrainingOptions::Check(std::string* why) const {
-  auto fail = [&](const std::string& m) { if (why) *why = m; return false; };
+  auto fail = [&](const std::string& m) {
+    if (why) *why = m;
+    return false;
+  };
   if (branching < 2 || branching > 64) return fail("vocabulary branching must be in [2, 64]");
   if (depth < 1 || depth > 8) return fail("vocabulary depth must be in [1, 8]");
   if (std::pow(branching, depth) > 5e7) return fail("vocabulary branching^depth must be at most 5e7 words");
@@ -133,8 +136,8 @@ bool VocabularyTrainingOptions::Check(std::string* why) const {
   return true;
 }
 
-Vocabulary Vocabulary::Train(const std::vector<std::vector<Descriptor>>& images, const VocabularyTrainingOptions& options,
-                             const std::function<void(double)>& progress) {
+Vocabulary Vocabulary::Train(const std::vector<std::vector<Descriptor>>& images,
+                             const VocabularyTrainingOptions& options, const std::function<void(double)>& progress) {
   std::string why;
   if (!options.Check(&why)) throw Error(why);
   std::vector<Descriptor> all;
@@ -198,8 +201,7 @@ Vocabulary Vocabulary::Train(const std::vector<std::vector<Descriptor>>& images,
   }
   const double n = static_cast<double>(images.size());
   for (size_t w = 0; w < vocabulary.words_.size(); ++w) {
-    vocabulary.nodes_[vocabulary.words_[w]].weight =
-        static_cast<float>(std::log(n / std::max(1, images_with_word[w])));
+    vocabulary.nodes_[vocabulary.words_[w]].weight = static_cast<float>(std::log(n / std::max(1, images_with_word[w])));
   }
   if (progress) progress(1.0);
   return vocabulary;
@@ -362,7 +364,8 @@ Vocabulary Vocabulary::Load(const std::string& path) {
     }
     uint64_t stored;
     std::memcpy(&stored, bytes.data() + bytes.size() - 8, 8);
-    if (stored != Fnv1a(bytes.data(), bytes.size() - 8)) throw Error(path + ": vocabulary checksum mismatch (corrupt file)");
+    if (stored != Fnv1a(bytes.data(), bytes.size() - 8))
+      throw Error(path + ": vocabulary checksum mismatch (corrupt file)");
     vocabulary.nodes_.resize(num_nodes);
     vocabulary.words_.assign(num_words, 0);
     for (uint32_t i = 0; i < num_nodes; ++i) {
@@ -373,9 +376,10 @@ Vocabulary Vocabulary::Load(const std::string& path) {
       node.num_children = Get<uint16_t>(cursor);
       node.word = Get<int32_t>(cursor);
       node.weight = Get<float>(cursor);
-      const bool children_ok = node.num_children == 0 ||
-                               (node.first_child > i && node.first_child + node.num_children <= num_nodes);
-      const bool word_ok = node.num_children > 0 ? node.word == -1 : (node.word >= 0 && static_cast<uint32_t>(node.word) < num_words);
+      const bool children_ok =
+          node.num_children == 0 || (node.first_child > i && node.first_child + node.num_children <= num_nodes);
+      const bool word_ok =
+          node.num_children > 0 ? node.word == -1 : (node.word >= 0 && static_cast<uint32_t>(node.word) < num_words);
       if (!children_ok || !word_ok) throw Error(path + ": vocabulary node " + std::to_string(i) + " is inconsistent");
       if (node.word >= 0) vocabulary.words_[node.word] = i;
     }

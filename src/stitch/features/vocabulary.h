@@ -21,9 +21,9 @@
 namespace stitch {
 
 struct VocabularyTrainingOptions {
-  int branching = 10;      // k
-  int depth = 5;           // L
-  int max_iterations = 15; // k-majority iterations per node
+  int branching = 10;       // k
+  int depth = 5;            // L
+  int max_iterations = 15;  // k-majority iterations per node
   int seed = 1;
 
   template <class Visitor>
@@ -40,10 +40,10 @@ class Vocabulary {
  public:
   struct Node {
     Descriptor descriptor{};
-    uint32_t first_child = 0;   // children are [first_child, first_child + num_children)
+    uint32_t first_child = 0;  // children are [first_child, first_child + num_children)
     uint16_t num_children = 0;
-    int32_t word = -1;          // >= 0 for leaves
-    float weight = 0;           // IDF, leaves only
+    int32_t word = -1;  // >= 0 for leaves
+    float weight = 0;   // IDF, leaves only
   };
 
   Vocabulary() = default;
@@ -84,8 +84,8 @@ class Vocabulary {
   static constexpr int kDirectIndexLevel = 2;
   int branching_ = 0;
   int depth_ = 0;
-  std::vector<Node> nodes_;     // node 0 is the root
-  std::vector<NodeId> words_;   // word -> node
+  std::vector<Node> nodes_;    // node 0 is the root
+  std::vector<NodeId> words_;  // word -> node
 };
 
 }  // namespace stitch

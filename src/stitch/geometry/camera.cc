@@ -11,8 +11,10 @@ namespace stitch {
 
 const char* CameraModelName(CameraModel model) {
   switch (model) {
-    case CameraModel::kPinholeRadTan: return "pinhole-radtan";
-    case CameraModel::kFisheye: return "fisheye";
+    case CameraModel::kPinholeRadTan:
+      return "pinhole-radtan";
+    case CameraModel::kFisheye:
+      return "fisheye";
   }
   return "unknown";
 }
@@ -24,16 +26,16 @@ int Camera::NumParams(CameraModel model) {
 Camera::Camera(CameraModel model, int width, int height, const std::vector<double>& params)
     : model_(model), width_(width), height_(height) {
   if (static_cast<int>(params.size()) != NumParams(model)) {
-    throw Error(Str() << CameraModelName(model) << " camera needs " << NumParams(model)
-                      << " parameters, got " << params.size());
+    throw Error(Str() << CameraModelName(model) << " camera needs " << NumParams(model) << " parameters, got "
+                      << params.size());
   }
   for (size_t i = 0; i < params.size(); ++i) params_[i] = params[i];
   std::string why;
   if (!Check(&why)) throw Error("invalid camera: " + why);
 }
 
-Camera Camera::Pinhole(int width, int height, double fx, double fy, double cx, double cy,
-                       double k1, double k2, double p1, double p2, double k3) {
+Camera Camera::Pinhole(int width, int height, double fx, double fy, double cx, double cy, double k1, double k2,
+                       double p1, double p2, double k3) {
   return Camera(CameraModel::kPinholeRadTan, width, height, {fx, fy, cx, cy, k1, k2, p1, p2, k3});
 }
 
@@ -52,8 +54,7 @@ Eigen::Vector2d Camera::Distort(const Eigen::Vector2d& u) const {
   const double x = u.x();
   const double y = u.y();
   if (model_ == CameraModel::kPinholeRadTan) {
-    const double k1 = params_[4], k2 = params_[5], p1 = params_[6], p2 = params_[7],
-                 k3 = params_[8];
+    const double k1 = params_[4], k2 = params_[5], p1 = params_[6], p2 = params_[7], k3 = params_[8];
     const double r2 = x * x + y * y;
     const double radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3));
     return {x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x),
@@ -64,8 +65,7 @@ Eigen::Vector2d Camera::Distort(const Eigen::Vector2d& u) const {
   if (r < 1e-12) return u;
   const double theta = std::atan(r);
   const double t2 = theta * theta;
-  const double theta_d =
-      theta * (1.0 + t2 * (params_[4] + t2 * (params_[5] + t2 * (params_[6] + t2 * params_[7]))));
+  const double theta_d = theta * (1.0 + t2 * (params_[4] + t2 * (params_[5] + t2 * (params_[6] + t2 * params_[7]))));
   return u * (theta_d / r);
 }
 
@@ -89,11 +89,9 @@ Eigen::Vector2d Camera::PixelToNormalized(const Eigen::Vector2d& pixel) const {
     double theta = theta_d;
     for (int i = 0; i < 20; ++i) {
       const double t2 = theta * theta;
-      const double f = theta * (1 + t2 * (params_[4] + t2 * (params_[5] + t2 * (params_[6] +
-                                                                                 t2 * params_[7])))) -
-                       theta_d;
-      const double df = 1 + t2 * (3 * params_[4] + t2 * (5 * params_[5] +
-                                                         t2 * (7 * params_[6] + t2 * 9 * params_[7])));
+      const double f =
+          theta * (1 + t2 * (params_[4] + t2 * (params_[5] + t2 * (params_[6] + t2 * params_[7])))) - theta_d;
+      const double df = 1 + t2 * (3 * params_[4] + t2 * (5 * params_[5] + t2 * (7 * params_[6] + t2 * 9 * params_[7])));
       const double step = f / df;
       theta -= step;
       if (std::abs(step) < 1e-14) break;
@@ -155,15 +153,15 @@ bool Camera::Check(std::string* why) const {
     return fail(Str() << "focal lengths fx=" << fx() << " fy=" << fy() << " differ by more than 4x");
   }
   if (cx() < 0 || cy() < 0 || cx() > width_ || cy() > height_) {
-    return fail(Str() << "principal point (" << cx() << ", " << cy() << ") lies outside the "
-                      << width_ << "x" << height_ << " image");
+    return fail(Str() << "principal point (" << cx() << ", " << cy() << ") lies outside the " << width_ << "x"
+                      << height_ << " image");
   }
   if (HasDistortion()) {
     // The distortion must be one-to-one over the image: along the ray to each image corner, the
     // distorted radius must grow with the undistorted one up to the corner, and undistorting the
     // corner must find that point (not one on a folded-over branch).
-    const Eigen::Vector2d corners[] = {{-0.5, -0.5}, {width_ - 0.5, -0.5}, {-0.5, height_ - 0.5},
-                                       {width_ - 0.5, height_ - 0.5}};
+    const Eigen::Vector2d corners[] = {
+        {-0.5, -0.5}, {width_ - 0.5, -0.5}, {-0.5, height_ - 0.5}, {width_ - 0.5, height_ - 0.5}};
     for (const auto& corner : corners) {
       const Eigen::Vector2d undistorted = PixelToNormalized(corner);
       const bool round_trip = undistorted.allFinite() && (NormalizedToPixel(undistorted) - corner).norm() < 0.01;
@@ -175,8 +173,8 @@ bool Camera::Check(std::string* why) const {
         previous = radius;
       }
       if (!monotonic) {
-        return fail(Str() << "distortion parameters fold the image over itself towards corner ("
-                          << corner.x() << ", " << corner.y() << "): check their order and values");
+        return fail(Str() << "distortion parameters fold the image over itself towards corner (" << corner.x() << ", "
+                          << corner.y() << "): check their order and values");
       }
     }
   }
@@ -185,8 +183,8 @@ bool Camera::Check(std::string* why) const {
 
 std::string Camera::Describe() const {
   std::ostringstream s;
-  s << CameraModelName(model_) << " " << width_ << "x" << height_ << " fx=" << fx()
-    << " fy=" << fy() << " cx=" << cx() << " cy=" << cy();
+  s << CameraModelName(model_) << " " << width_ << "x" << height_ << " fx=" << fx() << " fy=" << fy() << " cx=" << cx()
+    << " cy=" << cy();
   if (HasDistortion()) {
     s << " dist=[";
     for (int i = 4; i < NumParams(model_); ++i) s << (i > 4 ? " " : "") << params_[i];

@@ -44,8 +44,8 @@ class Camera {
   Camera() = default;
   // Throws stitch::Error if the parameters are not a usable camera (see Check).
   Camera(CameraModel model, int width, int height, const std::vector<double>& params);
-  static Camera Pinhole(int width, int height, double fx, double fy, double cx, double cy,
-                        double k1 = 0, double k2 = 0, double p1 = 0, double p2 = 0, double k3 = 0);
+  static Camera Pinhole(int width, int height, double fx, double fy, double cx, double cy, double k1 = 0, double k2 = 0,
+                        double p1 = 0, double p2 = 0, double k3 = 0);
 
   CameraModel model() const { return model_; }
   int width() const { return width_; }
@@ -72,8 +72,8 @@ class Camera {
   Eigen::Vector2d UndistortPixel(const Eigen::Vector2d& pixel) const;
 
   bool InImage(const Eigen::Vector2d& pixel, double border = 0.0) const {
-    return pixel.x() >= border - 0.5 && pixel.y() >= border - 0.5 &&
-           pixel.x() <= width_ - 0.5 - border && pixel.y() <= height_ - 0.5 - border;
+    return pixel.x() >= border - 0.5 && pixel.y() >= border - 0.5 && pixel.x() <= width_ - 0.5 - border &&
+           pixel.y() <= height_ - 0.5 - border;
   }
   // The same camera for an image resized by `factor` (e.g. 0.5 for half size).
   Camera Scaled(double factor) const;

@@ -10,8 +10,8 @@ namespace {
 
 // EuRoC cam0 (radial-tangential) and a typical fisheye.
 Camera EurocCamera() {
-  return Camera::Pinhole(752, 480, 458.654, 457.296, 367.215, 248.375, -0.28340811, 0.07395907,
-                         0.00019359, 1.76187114e-05);
+  return Camera::Pinhole(752, 480, 458.654, 457.296, 367.215, 248.375, -0.28340811, 0.07395907, 0.00019359,
+                         1.76187114e-05);
 }
 Camera FisheyeCamera() {
   return Camera(CameraModel::kFisheye, 640, 480, {380, 380, 320, 240, -0.01, 0.05, -0.08, 0.03});

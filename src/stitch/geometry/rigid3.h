@@ -15,9 +15,7 @@ struct Rigid3d {
   Rigid3d() = default;
   Rigid3d(const Eigen::Quaterniond& r, const Eigen::Vector3d& t) : rotation(r), translation(t) {}
 
-  Eigen::Vector3d operator*(const Eigen::Vector3d& point) const {
-    return rotation * point + translation;
-  }
+  Eigen::Vector3d operator*(const Eigen::Vector3d& point) const { return rotation * point + translation; }
   // c_from_a = c_from_b * b_from_a
   Rigid3d operator*(const Rigid3d& b_from_a) const {
     return {(rotation * b_from_a.rotation).normalized(), rotation * b_from_a.translation + translation};
@@ -42,12 +40,9 @@ struct Sim3d {
   Eigen::Vector3d translation = Eigen::Vector3d::Zero();
 
   Sim3d() = default;
-  Sim3d(double s, const Eigen::Quaterniond& r, const Eigen::Vector3d& t)
-      : scale(s), rotation(r), translation(t) {}
+  Sim3d(double s, const Eigen::Quaterniond& r, const Eigen::Vector3d& t) : scale(s), rotation(r), translation(t) {}
 
-  Eigen::Vector3d operator*(const Eigen::Vector3d& point) const {
-    return scale * (rotation * point) + translation;
-  }
+  Eigen::Vector3d operator*(const Eigen::Vector3d& point) const { return scale * (rotation * point) + translation; }
   Sim3d operator*(const Sim3d& b_from_a) const {
     return {scale * b_from_a.scale, (rotation * b_from_a.rotation).normalized(),
             scale * (rotation * b_from_a.translation) + translation};

@@ -7,11 +7,10 @@
 
 namespace stitch {
 
-Sim3d AlignPoints(const std::vector<Eigen::Vector3d>& points_in_a,
-                  const std::vector<Eigen::Vector3d>& points_in_b, bool estimate_scale) {
+Sim3d AlignPoints(const std::vector<Eigen::Vector3d>& points_in_a, const std::vector<Eigen::Vector3d>& points_in_b,
+                  bool estimate_scale) {
   if (points_in_a.size() != points_in_b.size()) {
-    throw Error(Str() << "AlignPoints: " << points_in_a.size() << " points in a but "
-                      << points_in_b.size() << " in b");
+    throw Error(Str() << "AlignPoints: " << points_in_a.size() << " points in a but " << points_in_b.size() << " in b");
   }
   if (points_in_a.size() < 3) {
     throw Error(Str() << "AlignPoints: need at least 3 point pairs, got " << points_in_a.size());

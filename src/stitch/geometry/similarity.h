@@ -11,7 +11,7 @@
 namespace stitch {
 
 // Needs at least 3 non-collinear pairs; throws stitch::Error otherwise.
-Sim3d AlignPoints(const std::vector<Eigen::Vector3d>& points_in_a,
-                  const std::vector<Eigen::Vector3d>& points_in_b, bool estimate_scale = true);
+Sim3d AlignPoints(const std::vector<Eigen::Vector3d>& points_in_a, const std::vector<Eigen::Vector3d>& points_in_b,
+                  bool estimate_scale = true);
 
 }  // namespace stitch

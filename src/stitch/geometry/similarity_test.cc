@@ -41,8 +41,10 @@ TEST(AlignPoints, RejectsDegenerateInput) {
 }
 
 TEST(Rigid3d, ComposesAndInverts) {
-  const Rigid3d b_from_a(Eigen::Quaterniond(Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitZ())), Eigen::Vector3d(1, 2, 3));
-  const Rigid3d c_from_b(Eigen::Quaterniond(Eigen::AngleAxisd(-1.1, Eigen::Vector3d::UnitX())), Eigen::Vector3d(-1, 0, 5));
+  const Rigid3d b_from_a(Eigen::Quaterniond(Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitZ())),
+                         Eigen::Vector3d(1, 2, 3));
+  const Rigid3d c_from_b(Eigen::Quaterniond(Eigen::AngleAxisd(-1.1, Eigen::Vector3d::UnitX())),
+                         Eigen::Vector3d(-1, 0, 5));
   const Eigen::Vector3d p(0.5, -0.25, 2);
   EXPECT_NEAR(((c_from_b * b_from_a) * p - c_from_b * (b_from_a * p)).norm(), 0, 1e-12);
   EXPECT_NEAR((b_from_a.Inverse() * (b_from_a * p) - p).norm(), 0, 1e-12);

@@ -26,8 +26,7 @@ double OptionalNumber(const YAML::Node& root, const std::string& key, const std:
   return root[key] ? RequireNumber(root, key, path) : 0.0;
 }
 
-std::vector<double> NumberList(const YAML::Node& node, const std::string& what,
-                               const std::string& path) {
+std::vector<double> NumberList(const YAML::Node& node, const std::string& what, const std::string& path) {
   try {
     return node.as<std::vector<double>>();
   } catch (const YAML::Exception&) {
@@ -35,16 +34,14 @@ std::vector<double> NumberList(const YAML::Node& node, const std::string& what,
   }
 }
 
-Camera FinishCamera(CameraModel model, int file_width, int file_height,
-                    const std::vector<double>& params, int image_width, int image_height,
-                    const std::string& path) {
+Camera FinishCamera(CameraModel model, int file_width, int file_height, const std::vector<double>& params,
+                    int image_width, int image_height, const std::string& path) {
   int width = file_width;
   int height = file_height;
   if (width > 0 && height > 0) {
     if (image_width > 0 && image_height > 0 && (width != image_width || height != image_height)) {
-      throw Error(Str() << path << ": calibration is for " << width << "x" << height
-                        << " images but the images are " << image_width << "x" << image_height
-                        << "; use the calibration of this camera and resolution");
+      throw Error(Str() << path << ": calibration is for " << width << "x" << height << " images but the images are "
+                        << image_width << "x" << image_height << "; use the calibration of this camera and resolution");
     }
   } else if (image_width > 0 && image_height > 0) {
     width = image_width;
@@ -60,39 +57,31 @@ Camera FinishCamera(CameraModel model, int file_width, int file_height,
 }
 
 // ORB-SLAM2 (Camera.) or ORB-SLAM3 (Camera1.) settings.
-Camera ReadOrbSlamSettings(const YAML::Node& root, const std::string& prefix,
-                           int image_width, int image_height, const std::string& path) {
+Camera ReadOrbSlamSettings(const YAML::Node& root, const std::string& prefix, int image_width, int image_height,
+                           const std::string& path) {
   std::string type = "PinHole";
   if (root["Camera.type"]) type = root["Camera.type"].as<std::string>();
-  const auto get = [&](const std::string& name) {
-    return RequireNumber(root, prefix + name, path);
-  };
-  const auto opt = [&](const std::string& name) {
-    return OptionalNumber(root, prefix + name, path);
-  };
-  const int width = static_cast<int>(
-      root["Camera.width"] ? RequireNumber(root, "Camera.width", path) : opt("width"));
-  const int height = static_cast<int>(
-      root["Camera.height"] ? RequireNumber(root, "Camera.height", path) : opt("height"));
+  const auto get = [&](const std::string& name) { return RequireNumber(root, prefix + name, path); };
+  const auto opt = [&](const std::string& name) { return OptionalNumber(root, prefix + name, path); };
+  const int width = static_cast<int>(root["Camera.width"] ? RequireNumber(root, "Camera.width", path) : opt("width"));
+  const int height =
+      static_cast<int>(root["Camera.height"] ? RequireNumber(root, "Camera.height", path) : opt("height"));
   if (type == "PinHole" || type == "Pinhole" || type == "pinhole") {
-    return FinishCamera(CameraModel::kPinholeRadTan, width, height,
-                        {get("fx"), get("fy"), get("cx"), get("cy"), opt("k1"), opt("k2"),
-                         opt("p1"), opt("p2"), opt("k3")},
-                        image_width, image_height, path);
+    return FinishCamera(
+        CameraModel::kPinholeRadTan, width, height,
+        {get("fx"), get("fy"), get("cx"), get("cy"), opt("k1"), opt("k2"), opt("p1"), opt("p2"), opt("k3")},
+        image_width, image_height, path);
   }
   if (type == "KannalaBrandt8" || type == "Fisheye" || type == "fisheye") {
     return FinishCamera(CameraModel::kFisheye, width, height,
-                        {get("fx"), get("fy"), get("cx"), get("cy"), opt("k1"), opt("k2"),
-                         opt("k3"), opt("k4")},
+                        {get("fx"), get("fy"), get("cx"), get("cy"), opt("k1"), opt("k2"), opt("k3"), opt("k4")},
                         image_width, image_height, path);
   }
-  throw Error(path + ": Camera.type '" + type +
-              "' is not supported (use PinHole or KannalaBrandt8)");
+  throw Error(path + ": Camera.type '" + type + "' is not supported (use PinHole or KannalaBrandt8)");
 }
 
 // EuRoC / Kalibr sensor.yaml.
-Camera ReadSensorYaml(const YAML::Node& root, int image_width, int image_height,
-                      const std::string& path) {
+Camera ReadSensorYaml(const YAML::Node& root, int image_width, int image_height, const std::string& path) {
   const std::vector<double> k = NumberList(root["intrinsics"], "intrinsics", path);
   if (k.size() != 4) throw Error(path + ": intrinsics must be [fu, fv, cu, cv]");
   std::vector<double> d;
@@ -106,8 +95,7 @@ Camera ReadSensorYaml(const YAML::Node& root, int image_width, int image_height,
     width = static_cast<int>(r[0]);
     height = static_cast<int>(r[1]);
   }
-  const std::string model =
-      root["distortion_model"] ? root["distortion_model"].as<std::string>() : "radial-tangential";
+  const std::string model = root["distortion_model"] ? root["distortion_model"].as<std::string>() : "radial-tangential";
   if (root["camera_model"] && root["camera_model"].as<std::string>() != "pinhole") {
     throw Error(path + ": camera_model '" + root["camera_model"].as<std::string>() +
                 "' is not supported (pinhole only)");
@@ -117,17 +105,15 @@ Camera ReadSensorYaml(const YAML::Node& root, int image_width, int image_height,
       throw Error(path + ": radial-tangential needs 4 or 5 distortion_coefficients (k1 k2 p1 p2 [k3])");
     }
     return FinishCamera(CameraModel::kPinholeRadTan, width, height,
-                        {k[0], k[1], k[2], k[3], d[0], d[1], d[2], d[3], d.size() == 5 ? d[4] : 0.0},
-                        image_width, image_height, path);
+                        {k[0], k[1], k[2], k[3], d[0], d[1], d[2], d[3], d.size() == 5 ? d[4] : 0.0}, image_width,
+                        image_height, path);
   }
   if (model == "equidistant") {
     if (d.size() != 4) throw Error(path + ": equidistant needs 4 distortion_coefficients");
-    return FinishCamera(CameraModel::kFisheye, width, height,
-                        {k[0], k[1], k[2], k[3], d[0], d[1], d[2], d[3]}, image_width,
-                        image_height, path);
+    return FinishCamera(CameraModel::kFisheye, width, height, {k[0], k[1], k[2], k[3], d[0], d[1], d[2], d[3]},
+                        image_width, image_height, path);
   }
-  throw Error(path + ": distortion_model '" + model +
-              "' is not supported (radial-tangential or equidistant)");
+  throw Error(path + ": distortion_model '" + model + "' is not supported (radial-tangential or equidistant)");
 }
 
 // KITTI odometry calib.txt: "P0: fx 0 cx 0 0 fy cy 0 0 0 1 0".
@@ -140,8 +126,8 @@ Camera ReadKittiCalib(const std::string& path, int image_width, int image_height
     double p[12];
     for (double& v : p) values >> v;
     if (!values) throw Error(path + ": P0 needs 12 numbers");
-    return FinishCamera(CameraModel::kPinholeRadTan, 0, 0,
-                        {p[0], p[5], p[2], p[6], 0, 0, 0, 0, 0}, image_width, image_height, path);
+    return FinishCamera(CameraModel::kPinholeRadTan, 0, 0, {p[0], p[5], p[2], p[6], 0, 0, 0, 0, 0}, image_width,
+                        image_height, path);
   }
   throw Error(path + ": no 'P0:' line (KITTI calib.txt)");
 }
@@ -178,14 +164,13 @@ void SaveCalibration(const Camera& camera, const std::string& path) {
   } else {
     out << "Camera.type: \"KannalaBrandt8\"\n";
   }
-  out << "Camera.fx: " << p[0] << "\nCamera.fy: " << p[1] << "\nCamera.cx: " << p[2]
-      << "\nCamera.cy: " << p[3] << "\n";
+  out << "Camera.fx: " << p[0] << "\nCamera.fy: " << p[1] << "\nCamera.cx: " << p[2] << "\nCamera.cy: " << p[3] << "\n";
   if (camera.model() == CameraModel::kPinholeRadTan) {
-    out << "Camera.k1: " << p[4] << "\nCamera.k2: " << p[5] << "\nCamera.p1: " << p[6]
-        << "\nCamera.p2: " << p[7] << "\nCamera.k3: " << p[8] << "\n";
+    out << "Camera.k1: " << p[4] << "\nCamera.k2: " << p[5] << "\nCamera.p1: " << p[6] << "\nCamera.p2: " << p[7]
+        << "\nCamera.k3: " << p[8] << "\n";
   } else {
-    out << "Camera.k1: " << p[4] << "\nCamera.k2: " << p[5] << "\nCamera.k3: " << p[6]
-        << "\nCamera.k4: " << p[7] << "\n";
+    out << "Camera.k1: " << p[4] << "\nCamera.k2: " << p[5] << "\nCamera.k3: " << p[6] << "\nCamera.k4: " << p[7]
+        << "\n";
   }
   out << "Camera.width: " << camera.width() << "\nCamera.height: " << camera.height() << "\n";
   if (!out) throw Error(path + ": write failed");

@@ -10,7 +10,9 @@
 namespace stitch {
 namespace {
 
-void Write(const std::string& path, const std::string& text) { std::ofstream(path) << text; }
+void Write(const std::string& path, const std::string& text) {
+  std::ofstream(path) << text;
+}
 
 std::string ErrorOf(const std::function<void()>& f) {
   try {
@@ -35,9 +37,10 @@ TEST(Calibration, ReadsOrbSlam2Settings) {
 
 TEST(Calibration, ReadsOrbSlam3SettingsAndTakesSizeFromImages) {
   testing::TempDir dir;
-  Write(dir / "s3.yaml", "%YAML:1.0\nCamera.type: \"PinHole\"\nCamera1.fx: 458.6\nCamera1.fy: 457.3\n"
-                         "Camera1.cx: 367.2\nCamera1.cy: 248.4\nCamera1.k1: -0.28\nCamera1.k2: 0.07\n"
-                         "Camera1.p1: 0.0002\nCamera1.p2: 0.00002\n");
+  Write(dir / "s3.yaml",
+        "%YAML:1.0\nCamera.type: \"PinHole\"\nCamera1.fx: 458.6\nCamera1.fy: 457.3\n"
+        "Camera1.cx: 367.2\nCamera1.cy: 248.4\nCamera1.k1: -0.28\nCamera1.k2: 0.07\n"
+        "Camera1.p1: 0.0002\nCamera1.p2: 0.00002\n");
   EXPECT_THROW(LoadCalibration(dir / "s3.yaml"), Error);  // no size anywhere
   const Camera camera = LoadCalibration(dir / "s3.yaml", 752, 480);
   EXPECT_EQ(camera.width(), 752);
@@ -48,8 +51,10 @@ TEST(Calibration, ReadsEurocSensorYaml) {
   testing::TempDir dir;
   Write(dir / "sensor.yaml",
         "%YAML:1.0\nsensor_type: camera\nT_BS:\n  cols: 4\n  rows: 4\n  data: [1,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,0,1]\n"
-        "rate_hz: 20\nresolution: [752, 480]\ncamera_model: pinhole\nintrinsics: [458.654, 457.296, 367.215, 248.375] #fu, fv, cu, cv\n"
-        "distortion_model: radial-tangential\ndistortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]\n");
+        "rate_hz: 20\nresolution: [752, 480]\ncamera_model: pinhole\nintrinsics: [458.654, 457.296, 367.215, 248.375] "
+        "#fu, fv, cu, cv\n"
+        "distortion_model: radial-tangential\ndistortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, "
+        "1.76187114e-05]\n");
   const Camera camera = LoadCalibration(dir / "sensor.yaml", 752, 480);
   EXPECT_DOUBLE_EQ(camera.fx(), 458.654);
   EXPECT_DOUBLE_EQ(camera.params()[4], -0.28340811);
@@ -58,8 +63,9 @@ TEST(Calibration, ReadsEurocSensorYaml) {
 
 TEST(Calibration, ReadsKittiCalib) {
   testing::TempDir dir;
-  Write(dir / "calib.txt", "P0: 7.188560e+02 0 6.071928e+02 0 0 7.188560e+02 1.852157e+02 0 0 0 1 0\n"
-                           "P1: 7.188560e+02 0 6.071928e+02 -3.861448e+02 0 7.188560e+02 1.852157e+02 0 0 0 1 0\n");
+  Write(dir / "calib.txt",
+        "P0: 7.188560e+02 0 6.071928e+02 0 0 7.188560e+02 1.852157e+02 0 0 0 1 0\n"
+        "P1: 7.188560e+02 0 6.071928e+02 -3.861448e+02 0 7.188560e+02 1.852157e+02 0 0 0 1 0\n");
   const Camera camera = LoadCalibration(dir / "calib.txt", 1241, 376);
   EXPECT_DOUBLE_EQ(camera.fx(), 718.856);
   EXPECT_DOUBLE_EQ(camera.cy(), 185.2157);
@@ -68,7 +74,8 @@ TEST(Calibration, ReadsKittiCalib) {
 
 TEST(Calibration, SizeMismatchSaysBothSizes) {
   testing::TempDir dir;
-  Write(dir / "c.yaml", "Camera.fx: 500\nCamera.fy: 500\nCamera.cx: 320\nCamera.cy: 240\nCamera.width: 640\nCamera.height: 480\n");
+  Write(dir / "c.yaml",
+        "Camera.fx: 500\nCamera.fy: 500\nCamera.cx: 320\nCamera.cy: 240\nCamera.width: 640\nCamera.height: 480\n");
   const std::string why = ErrorOf([&] { LoadCalibration(dir / "c.yaml", 752, 480); });
   EXPECT_NE(why.find("640x480"), std::string::npos) << why;
   EXPECT_NE(why.find("752x480"), std::string::npos) << why;
@@ -80,16 +87,19 @@ TEST(Calibration, BadFilesGiveClearErrors) {
   Write(dir / "broken.yaml", "Camera.fx: [1, 2\n  : : :\n");
   EXPECT_NE(ErrorOf([&] { LoadCalibration(dir / "broken.yaml"); }).find("not valid YAML"), std::string::npos);
   Write(dir / "other.yaml", "hello: world\n");
-  EXPECT_NE(ErrorOf([&] { LoadCalibration(dir / "other.yaml", 640, 480); }).find("not a calibration file"), std::string::npos);
+  EXPECT_NE(ErrorOf([&] { LoadCalibration(dir / "other.yaml", 640, 480); }).find("not a calibration file"),
+            std::string::npos);
   Write(dir / "nan.yaml", "Camera.fx: abc\nCamera.fy: 1\nCamera.cx: 1\nCamera.cy: 1\n");
-  EXPECT_NE(ErrorOf([&] { LoadCalibration(dir / "nan.yaml", 640, 480); }).find("Camera.fx is not a number"), std::string::npos);
+  EXPECT_NE(ErrorOf([&] { LoadCalibration(dir / "nan.yaml", 640, 480); }).find("Camera.fx is not a number"),
+            std::string::npos);
   Write(dir / "neg.yaml", "Camera.fx: -5\nCamera.fy: 1\nCamera.cx: 1\nCamera.cy: 1\n");
   EXPECT_NE(ErrorOf([&] { LoadCalibration(dir / "neg.yaml", 640, 480); }).find("must be positive"), std::string::npos);
 }
 
 TEST(Calibration, SaveThenLoadRoundTrips) {
   testing::TempDir dir;
-  const Camera camera = Camera::Pinhole(752, 480, 458.654, 457.296, 367.215, 248.375, -0.28, 0.07, 0.0002, 1.7e-05, 0.001);
+  const Camera camera =
+      Camera::Pinhole(752, 480, 458.654, 457.296, 367.215, 248.375, -0.28, 0.07, 0.0002, 1.7e-05, 0.001);
   SaveCalibration(camera, dir / "out.yaml");
   const Camera back = LoadCalibration(dir / "out.yaml");
   EXPECT_EQ(back.params(), camera.params());

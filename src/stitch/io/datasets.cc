@@ -30,15 +30,15 @@ struct ImageEntry {
 bool IsImageFile(const fs::path& path) {
   std::string ext = path.extension().string();
   std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
-  return ext == ".png" || ext == ".jpg" || ext == ".jpeg" || ext == ".pgm" || ext == ".bmp" ||
-         ext == ".tif" || ext == ".tiff" || ext == ".ppm";
+  return ext == ".png" || ext == ".jpg" || ext == ".jpeg" || ext == ".pgm" || ext == ".bmp" || ext == ".tif" ||
+         ext == ".tiff" || ext == ".ppm";
 }
 
 bool IsVideoFile(const fs::path& path) {
   std::string ext = path.extension().string();
   std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
-  return ext == ".mp4" || ext == ".avi" || ext == ".mkv" || ext == ".mov" || ext == ".webm" ||
-         ext == ".m4v" || ext == ".mpg" || ext == ".mpeg";
+  return ext == ".mp4" || ext == ".avi" || ext == ".mkv" || ext == ".mov" || ext == ".webm" || ext == ".m4v" ||
+         ext == ".mpg" || ext == ".mpeg";
 }
 
 cv::Mat ReadGray(const std::string& path, std::string* error) {
@@ -76,17 +76,15 @@ Camera CameraForImages(const std::vector<ImageEntry>& images, const std::string&
 // Frames listed up front (TUM, EuRoC, KITTI, image folders).
 class ImageListSequence : public ImageSequence {
  public:
-  ImageListSequence(std::string description, std::vector<ImageEntry> images, Camera camera,
-                    Trajectory ground_truth, double fps)
+  ImageListSequence(std::string description, std::vector<ImageEntry> images, Camera camera, Trajectory ground_truth,
+                    double fps)
       : description_(std::move(description)),
         images_(std::move(images)),
         camera_(std::move(camera)),
         ground_truth_(std::move(ground_truth)),
         fps_(fps) {}
 
-  std::string description() const override {
-    return description_ + " (" + std::to_string(images_.size()) + " frames)";
-  }
+  std::string description() const override { return description_ + " (" + std::to_string(images_.size()) + " frames)"; }
   int size() const override { return static_cast<int>(images_.size()); }
   const Camera& camera() const override { return camera_; }
   double nominal_fps() const override { return fps_; }
@@ -99,11 +97,9 @@ class ImageListSequence : public ImageSequence {
     frame->t_ns = entry.t_ns;
     frame->error.clear();
     frame->image = ReadGray(entry.path, &frame->error);
-    if (!frame->image.empty() &&
-        (frame->image.cols != camera_.width() || frame->image.rows != camera_.height())) {
-      frame->error = Str() << entry.path << ": image is " << frame->image.cols << "x"
-                           << frame->image.rows << " but the sequence is " << camera_.width()
-                           << "x" << camera_.height();
+    if (!frame->image.empty() && (frame->image.cols != camera_.width() || frame->image.rows != camera_.height())) {
+      frame->error = Str() << entry.path << ": image is " << frame->image.cols << "x" << frame->image.rows
+                           << " but the sequence is " << camera_.width() << "x" << camera_.height();
       frame->image.release();
     }
     ++next_;
@@ -140,12 +136,12 @@ std::vector<ImageEntry> Slice(std::vector<ImageEntry> images, const SequenceOpti
 // used when the sequence folder brings none.
 std::optional<Camera> TumDefaultCamera(const std::string& folder_name, int width, int height) {
   if (folder_name.find("freiburg1") != std::string::npos) {
-    return Camera::Pinhole(width, height, 517.306408, 516.469215, 318.643040, 255.313989,
-                           0.262383, -0.953104, -0.005358, 0.002628, 1.163314);
+    return Camera::Pinhole(width, height, 517.306408, 516.469215, 318.643040, 255.313989, 0.262383, -0.953104,
+                           -0.005358, 0.002628, 1.163314);
   }
   if (folder_name.find("freiburg2") != std::string::npos) {
-    return Camera::Pinhole(width, height, 520.908620, 521.007327, 325.141442, 249.701764,
-                           0.231222, -0.784899, -0.003257, -0.000105, 0.917205);
+    return Camera::Pinhole(width, height, 520.908620, 521.007327, 325.141442, 249.701764, 0.231222, -0.784899,
+                           -0.003257, -0.000105, 0.917205);
   }
   if (folder_name.find("freiburg3") != std::string::npos) {
     return Camera::Pinhole(width, height, 535.4, 539.2, 320.1, 247.6);
@@ -156,20 +152,24 @@ std::optional<Camera> TumDefaultCamera(const std::string& folder_name, int width
 std::unique_ptr<ImageSequence> OpenTum(const fs::path& root, const SequenceOptions& options) {
   const fs::path list = root / "rgb.txt";
   std::vector<ImageEntry> images;
-  ForEachDataLine(list.string(), [&](const std::string& line, int line_number) {
-    std::istringstream fields(line);
-    std::string stamp, file;
-    fields >> stamp >> file;
-    if (file.empty()) throw Error(Str() << list.string() << ":" << line_number << ": expected 'timestamp filename'");
-    try {
-      images.push_back({ParseSecondsToNs(stamp), (root / file).string()});
-    } catch (const Error& e) {
-      throw Error(Str() << list.string() << ":" << line_number << ": " << e.what());
-    }
-  }, " (TUM RGB-D sequences have rgb.txt)");
+  ForEachDataLine(
+      list.string(),
+      [&](const std::string& line, int line_number) {
+        std::istringstream fields(line);
+        std::string stamp, file;
+        fields >> stamp >> file;
+        if (file.empty())
+          throw Error(Str() << list.string() << ":" << line_number << ": expected 'timestamp filename'");
+        try {
+          images.push_back({ParseSecondsToNs(stamp), (root / file).string()});
+        } catch (const Error& e) {
+          throw Error(Str() << list.string() << ":" << line_number << ": " << e.what());
+        }
+      },
+      " (TUM RGB-D sequences have rgb.txt)");
   images = Slice(std::move(images), options);
-  const std::string folder_name = root.filename().empty() ? root.parent_path().filename().string()
-                                                          : root.filename().string();
+  const std::string folder_name =
+      root.filename().empty() ? root.parent_path().filename().string() : root.filename().string();
   std::string calibration = options.calibration_path;
   if (calibration.empty()) calibration = FirstExisting({root / "camera.yaml", root / "calibration.yaml"});
   Camera camera;
@@ -182,8 +182,7 @@ std::unique_ptr<ImageSequence> OpenTum(const fs::path& root, const SequenceOptio
     if (first.empty()) throw Error(root.string() + ": cannot read the first image: " + error);
     auto known = TumDefaultCamera(folder_name, first.cols, first.rows);
     if (!known) {
-      throw Error(root.string() +
-                  ": no camera.yaml and the folder name does not say freiburg1/2/3; pass --calib");
+      throw Error(root.string() + ": no camera.yaml and the folder name does not say freiburg1/2/3; pass --calib");
     }
     camera = *known;
   }
@@ -192,8 +191,8 @@ std::unique_ptr<ImageSequence> OpenTum(const fs::path& root, const SequenceOptio
     ground_truth = Trajectory::ReadTum((root / "groundtruth.txt").string());
   }
   const double fps = FpsFromTimestamps(images, 30.0);
-  return std::make_unique<ImageListSequence>("TUM RGB-D " + root.string(), std::move(images),
-                                             camera, std::move(ground_truth), fps);
+  return std::make_unique<ImageListSequence>("TUM RGB-D " + root.string(), std::move(images), camera,
+                                             std::move(ground_truth), fps);
 }
 
 // --- EuRoC MAV -----------------------------------------------------------------------------
@@ -234,19 +233,22 @@ std::unique_ptr<ImageSequence> OpenEuroc(const fs::path& given, const SequenceOp
   const fs::path cam = mav / "cam0";
   const fs::path list = cam / "data.csv";
   std::vector<ImageEntry> images;
-  ForEachDataLine(list.string(), [&](const std::string& line, int line_number) {
-    const auto comma = line.find(',');
-    if (comma == std::string::npos) {
-      throw Error(Str() << list.string() << ":" << line_number << ": expected 'timestamp,filename'");
-    }
-    std::string file = line.substr(comma + 1);
-    while (!file.empty() && std::isspace(static_cast<unsigned char>(file.back()))) file.pop_back();
-    try {
-      images.push_back({std::stoll(line.substr(0, comma)), (cam / "data" / file).string()});
-    } catch (const std::exception&) {
-      throw Error(Str() << list.string() << ":" << line_number << ": bad timestamp");
-    }
-  }, " (EuRoC sequences have mav0/cam0/data.csv)");
+  ForEachDataLine(
+      list.string(),
+      [&](const std::string& line, int line_number) {
+        const auto comma = line.find(',');
+        if (comma == std::string::npos) {
+          throw Error(Str() << list.string() << ":" << line_number << ": expected 'timestamp,filename'");
+        }
+        std::string file = line.substr(comma + 1);
+        while (!file.empty() && std::isspace(static_cast<unsigned char>(file.back()))) file.pop_back();
+        try {
+          images.push_back({std::stoll(line.substr(0, comma)), (cam / "data" / file).string()});
+        } catch (const std::exception&) {
+          throw Error(Str() << list.string() << ":" << line_number << ": bad timestamp");
+        }
+      },
+      " (EuRoC sequences have mav0/cam0/data.csv)");
   images = Slice(std::move(images), options);
   const std::string sensor = (cam / "sensor.yaml").string();
   const std::string calibration = options.calibration_path.empty() ? sensor : options.calibration_path;
@@ -255,9 +257,8 @@ std::unique_ptr<ImageSequence> OpenEuroc(const fs::path& given, const SequenceOp
   if (fs::exists(root / "groundtruth_cam0.txt")) {
     ground_truth = Trajectory::ReadTum((root / "groundtruth_cam0.txt").string());
   } else if (fs::exists(mav / "state_groundtruth_estimate0" / "data.csv")) {
-    ground_truth = ReadEurocStateGroundTruth(
-        (mav / "state_groundtruth_estimate0" / "data.csv").string(),
-        fs::exists(sensor) ? ReadTBS(sensor) : Eigen::Matrix4d::Identity());
+    ground_truth = ReadEurocStateGroundTruth((mav / "state_groundtruth_estimate0" / "data.csv").string(),
+                                             fs::exists(sensor) ? ReadTBS(sensor) : Eigen::Matrix4d::Identity());
   }
   const double fps = FpsFromTimestamps(images, 20.0);
   return std::make_unique<ImageListSequence>("EuRoC " + root.string(), std::move(images), camera,
@@ -278,8 +279,7 @@ std::unique_ptr<ImageSequence> OpenKitti(const fs::path& root, const SequenceOpt
     // rejects on purpose; KITTI's resolution is far coarser than a double's.
     const double seconds = std::stod(stamp);
     std::snprintf(name, sizeof(name), "%06zu.png", images.size());
-    images.push_back({static_cast<int64_t>(std::llround(seconds * 1e9)),
-                      (root / "image_0" / name).string()});
+    images.push_back({static_cast<int64_t>(std::llround(seconds * 1e9)), (root / "image_0" / name).string()});
   }
   images = Slice(std::move(images), options);
   const std::string calibration =
@@ -287,9 +287,8 @@ std::unique_ptr<ImageSequence> OpenKitti(const fs::path& root, const SequenceOpt
   const Camera camera = CameraForImages(images, calibration, root.string());
   Trajectory ground_truth;
   const fs::path sequence_dir = fs::absolute(root).lexically_normal();
-  const std::string sequence_name = sequence_dir.filename().empty()
-                                        ? sequence_dir.parent_path().filename().string()
-                                        : sequence_dir.filename().string();
+  const std::string sequence_name = sequence_dir.filename().empty() ? sequence_dir.parent_path().filename().string()
+                                                                    : sequence_dir.filename().string();
   const fs::path poses = sequence_dir.parent_path().parent_path() / "poses" / (sequence_name + ".txt");
   if (fs::exists(poses)) {
     std::ifstream pin(poses);
@@ -366,8 +365,7 @@ std::unique_ptr<ImageSequence> OpenImageFolder(const fs::path& root, const Seque
   std::vector<ImageEntry> images = Slice(TimestampFolder(files, fps), options);
   std::string calibration = options.calibration_path;
   if (calibration.empty()) {
-    calibration = FirstExisting({root / "camera.yaml", root / "calibration.yaml",
-                                 root.parent_path() / "camera.yaml"});
+    calibration = FirstExisting({root / "camera.yaml", root / "calibration.yaml", root.parent_path() / "camera.yaml"});
   }
   if (calibration.empty()) {
     throw Error(root.string() + ": no calibration; put camera.yaml beside the images or pass --calib FILE");
@@ -377,8 +375,8 @@ std::unique_ptr<ImageSequence> OpenImageFolder(const fs::path& root, const Seque
   const std::string gt = FirstExisting({root / "groundtruth.txt", root.parent_path() / "groundtruth.txt"});
   if (!gt.empty()) ground_truth = Trajectory::ReadTum(gt);
   const double sequence_fps = FpsFromTimestamps(images, fps);
-  return std::make_unique<ImageListSequence>("image folder " + root.string(), std::move(images),
-                                             camera, std::move(ground_truth), sequence_fps);
+  return std::make_unique<ImageListSequence>("image folder " + root.string(), std::move(images), camera,
+                                             std::move(ground_truth), sequence_fps);
 }
 
 // --- Video file ----------------------------------------------------------------------------
@@ -403,8 +401,7 @@ class VideoSequence : public ImageSequence {
     has_pending_ = true;
     std::string calibration = options.calibration_path;
     if (calibration.empty()) {
-      calibration = FirstExisting({fs::path(path_).replace_extension(".yaml"),
-                                   path.parent_path() / "camera.yaml"});
+      calibration = FirstExisting({fs::path(path_).replace_extension(".yaml"), path.parent_path() / "camera.yaml"});
     }
     if (calibration.empty()) {
       throw Error(path_ + ": no calibration; pass --calib FILE or put " +

@@ -33,7 +33,8 @@ void WriteText(const fs::path& path, const std::string& text) {
 
 std::string PinholeYaml(int width = kWidth, int height = kHeight) {
   return "%YAML:1.0\nCamera.type: \"PinHole\"\nCamera.fx: 500\nCamera.fy: 500\nCamera.cx: 319.5\nCamera.cy: 239.5\n"
-         "Camera.width: " + std::to_string(width) + "\nCamera.height: " + std::to_string(height) + "\n";
+         "Camera.width: " +
+         std::to_string(width) + "\nCamera.height: " + std::to_string(height) + "\n";
 }
 
 std::vector<SequenceFrame> ReadAll(ImageSequence& sequence) {

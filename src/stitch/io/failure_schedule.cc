@@ -20,8 +20,8 @@ FailureSchedule::FailureSchedule(std::vector<FailureWindow> windows) : windows_(
                         << ": start must be >= 0 and length > 0");
     }
     if (i > 0 && windows_[i].start < windows_[i - 1].end()) {
-      throw Error(Str() << "failure windows " << windows_[i - 1].start << ":" << windows_[i - 1].length
-                        << " and " << windows_[i].start << ":" << windows_[i].length << " overlap");
+      throw Error(Str() << "failure windows " << windows_[i - 1].start << ":" << windows_[i - 1].length << " and "
+                        << windows_[i].start << ":" << windows_[i].length << " overlap");
     }
   }
 }

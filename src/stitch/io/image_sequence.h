@@ -14,10 +14,10 @@
 namespace stitch {
 
 struct SequenceFrame {
-  int index = -1;      // position in the sequence, from 0
-  int64_t t_ns = 0;    // capture time
-  cv::Mat image;       // CV_8UC1; empty when the frame could not be read (see `error`)
-  std::string error;   // why `image` is empty, e.g. "rgb/17.png: not a readable image"
+  int index = -1;     // position in the sequence, from 0
+  int64_t t_ns = 0;   // capture time
+  cv::Mat image;      // CV_8UC1; empty when the frame could not be read (see `error`)
+  std::string error;  // why `image` is empty, e.g. "rgb/17.png: not a readable image"
 };
 
 class ImageSequence {
@@ -50,7 +50,6 @@ std::string DetectDatasetKind(const std::string& path);
 
 // Opens a dataset of the detected kind. Throws stitch::Error for a missing folder, a missing or
 // wrong calibration, or a first image that cannot be read.
-std::unique_ptr<ImageSequence> OpenDataset(const std::string& path,
-                                           const SequenceOptions& options = {});
+std::unique_ptr<ImageSequence> OpenDataset(const std::string& path, const SequenceOptions& options = {});
 
 }  // namespace stitch

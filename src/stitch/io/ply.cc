@@ -10,8 +10,7 @@ namespace stitch {
 void WritePly(const std::string& path, const std::vector<ColouredPoint>& points) {
   std::ofstream out(path, std::ios::binary);
   if (!out) throw Error(path + ": cannot write");
-  out << "ply\nformat binary_little_endian 1.0\ncomment written by stitch\nelement vertex "
-      << points.size()
+  out << "ply\nformat binary_little_endian 1.0\ncomment written by stitch\nelement vertex " << points.size()
       << "\nproperty float x\nproperty float y\nproperty float z\nproperty uchar red\n"
          "property uchar green\nproperty uchar blue\nend_header\n";
   for (const auto& p : points) {

@@ -21,9 +21,8 @@ void Trajectory::Add(const StampedPose& pose) {
     poses_.push_back(pose);
     return;
   }
-  const auto at = std::upper_bound(
-      poses_.begin(), poses_.end(), pose.t_ns,
-      [](int64_t t, const StampedPose& p) { return t < p.t_ns; });
+  const auto at = std::upper_bound(poses_.begin(), poses_.end(), pose.t_ns,
+                                   [](int64_t t, const StampedPose& p) { return t < p.t_ns; });
   poses_.insert(at, pose);
 }
 
@@ -31,8 +30,8 @@ std::string FormatTumPose(const Rigid3d& world_from_cam) {
   const auto& t = world_from_cam.translation;
   const auto& q = world_from_cam.rotation;
   char buffer[200];
-  std::snprintf(buffer, sizeof(buffer), "%.9g %.9g %.9g %.9g %.9g %.9g %.9g", t.x(), t.y(), t.z(), q.x(), q.y(),
-                q.z(), q.w());
+  std::snprintf(buffer, sizeof(buffer), "%.9g %.9g %.9g %.9g %.9g %.9g %.9g", t.x(), t.y(), t.z(), q.x(), q.y(), q.z(),
+                q.w());
   return buffer;
 }
 
@@ -48,22 +47,25 @@ bool ReadTumPose(std::istream& fields, Rigid3d* world_from_cam) {
 
 Trajectory Trajectory::ReadTum(const std::string& path) {
   std::vector<StampedPose> poses;
-  ForEachDataLine(path, [&](const std::string& line, int line_number) {
-    std::istringstream fields(line);
-    std::string stamp;
-    StampedPose pose;
-    fields >> stamp;
-    if (!ReadTumPose(fields, &pose.world_from_cam)) {
-      throw Error(Str() << path << ":" << line_number
-                        << ": expected 'timestamp tx ty tz qx qy qz qw' (TUM format) with a unit quaternion");
-    }
-    try {
-      pose.t_ns = ParseSecondsToNs(stamp);
-    } catch (const Error& e) {
-      throw Error(Str() << path << ":" << line_number << ": " << e.what());
-    }
-    poses.push_back(pose);
-  }, " (trajectory file)");
+  ForEachDataLine(
+      path,
+      [&](const std::string& line, int line_number) {
+        std::istringstream fields(line);
+        std::string stamp;
+        StampedPose pose;
+        fields >> stamp;
+        if (!ReadTumPose(fields, &pose.world_from_cam)) {
+          throw Error(Str() << path << ":" << line_number
+                            << ": expected 'timestamp tx ty tz qx qy qz qw' (TUM format) with a unit quaternion");
+        }
+        try {
+          pose.t_ns = ParseSecondsToNs(stamp);
+        } catch (const Error& e) {
+          throw Error(Str() << path << ":" << line_number << ": " << e.what());
+        }
+        poses.push_back(pose);
+      },
+      " (trajectory file)");
   return Trajectory(std::move(poses));
 }
 
@@ -77,9 +79,8 @@ void Trajectory::WriteTum(const std::string& path) const {
 
 std::optional<Rigid3d> Trajectory::PoseAt(int64_t t_ns, int64_t max_gap_ns) const {
   if (poses_.empty()) return std::nullopt;
-  const auto after = std::lower_bound(
-      poses_.begin(), poses_.end(), t_ns,
-      [](const StampedPose& p, int64_t t) { return p.t_ns < t; });
+  const auto after =
+      std::lower_bound(poses_.begin(), poses_.end(), t_ns, [](const StampedPose& p, int64_t t) { return p.t_ns < t; });
   constexpr int64_t kSameSample = 1000;  // 1 us: timestamps printed with microseconds
   if (after != poses_.end() && after->t_ns - t_ns <= kSameSample) return after->world_from_cam;
   if (after != poses_.begin() && t_ns - std::prev(after)->t_ns <= kSameSample) {

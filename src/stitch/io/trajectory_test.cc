@@ -13,7 +13,8 @@ namespace {
 TEST(Trajectory, TumRoundTripKeepsNanoseconds) {
   testing::TempDir dir;
   Trajectory t;
-  t.Add({1403715273262142976LL, Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.4, Eigen::Vector3d::UnitY())), Eigen::Vector3d(1, 2, 3))});
+  t.Add({1403715273262142976LL,
+         Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.4, Eigen::Vector3d::UnitY())), Eigen::Vector3d(1, 2, 3))});
   t.Add({1403715273212142976LL, Rigid3d()});  // out of order on purpose
   t.WriteTum(dir / "t.tum");
   const Trajectory back = Trajectory::ReadTum(dir / "t.tum");
@@ -25,7 +26,8 @@ TEST(Trajectory, TumRoundTripKeepsNanoseconds) {
 
 TEST(Trajectory, InterpolatesBetweenSamplesOnly) {
   Trajectory t({{0, Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0, 0, 0))},
-                {10'000'000, Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.2, Eigen::Vector3d::UnitZ())), Eigen::Vector3d(1, 0, 0))}});
+                {10'000'000, Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.2, Eigen::Vector3d::UnitZ())),
+                                     Eigen::Vector3d(1, 0, 0))}});
   const auto mid = t.PoseAt(5'000'000);
   ASSERT_TRUE(mid);
   EXPECT_NEAR(mid->translation.x(), 0.5, 1e-12);

@@ -36,7 +36,8 @@ Undistorter::Undistorter(const Camera& camera) : camera_(camera) {
     float* mx = map_x_.ptr<float>(y);
     float* my = map_y_.ptr<float>(y);
     for (int x = 0; x < camera.width(); ++x) {
-      const Eigen::Vector2d u = camera.HasDistortion() ? camera.UndistortPixel(Eigen::Vector2d(x, y)) : Eigen::Vector2d(x, y);
+      const Eigen::Vector2d u =
+          camera.HasDistortion() ? camera.UndistortPixel(Eigen::Vector2d(x, y)) : Eigen::Vector2d(x, y);
       mx[x] = static_cast<float>(u.x());
       my[x] = static_cast<float>(u.y());
       if (x == 0 || y == 0 || x == camera.width() - 1 || y == camera.height() - 1) {

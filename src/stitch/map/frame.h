@@ -23,8 +23,8 @@ struct ScalePyramid {
   int num_levels = 8;
   double scale_factor = 1.2;
   double log_scale_factor = 0;
-  std::vector<float> scale;            // scale_factor^level
-  std::vector<float> sigma2;           // scale^2: variance of a measurement at the level, px^2
+  std::vector<float> scale;   // scale_factor^level
+  std::vector<float> sigma2;  // scale^2: variance of a measurement at the level, px^2
   std::vector<float> inverse_sigma2;
 
   static ScalePyramid From(const OrbOptions& options);
@@ -79,10 +79,10 @@ struct Frame {
   BowVector bow;                             // empty until computed
   FeatureVector bow_features;
   FeatureGrid grid;
-  std::vector<MapPointId> points;            // per feature; invalid when none
-  std::vector<char> outlier;                 // per feature
+  std::vector<MapPointId> points;  // per feature; invalid when none
+  std::vector<char> outlier;       // per feature
   std::optional<Rigid3d> cam_from_world;
-  double sharpness = 0;                      // ImageSharpness of the image
+  double sharpness = 0;  // ImageSharpness of the image
 
   size_t size() const { return keypoints.size(); }
   int CountTracked() const;  // features with a point that is not an outlier

@@ -96,7 +96,8 @@ std::vector<LocalMapUpdate> SplitLocalMapUpdate(const LocalMapUpdate& update, si
   part.removed_points = update.removed_points;
   part.removed_keyframes = update.removed_keyframes;
   part.keyframe_poses = update.keyframe_poses;
-  bytes += 4 * update.removed_points.size() + 8 * update.removed_keyframes.size() + kPoseBytes * update.keyframe_poses.size();
+  bytes += 4 * update.removed_points.size() + 8 * update.removed_keyframes.size() +
+           kPoseBytes * update.keyframe_poses.size();
   // Points before associations, so each association finds its points in an earlier part or
   // its own (parts are applied in order; a lost part is repaired by the next update).
   for (const MapPoint& point : update.points) {

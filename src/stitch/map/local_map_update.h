@@ -16,7 +16,7 @@ struct LocalMapUpdate {
   int revision = 0;
   KeyframeId last_keyframe;  // newest keyframe the mapper has processed
   int queued_keyframes = 0;
-  std::vector<std::pair<KeyframeId, Rigid3d>> keyframe_poses;             // cam_from_world
+  std::vector<std::pair<KeyframeId, Rigid3d>> keyframe_poses;                // cam_from_world
   std::vector<std::pair<KeyframeId, std::vector<MapPointId>>> associations;  // per feature
   std::vector<MapPoint> points;  // observations left empty: the associations carry them
   std::vector<MapPointId> removed_points;

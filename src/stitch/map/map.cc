@@ -100,7 +100,9 @@ void Map::RemoveKeyframe(KeyframeId id) {
   }
 }
 
-MapPointId Map::NewPointId() { return MakeMapPointId(id_, next_point_index_++); }
+MapPointId Map::NewPointId() {
+  return MakeMapPointId(id_, next_point_index_++);
+}
 
 MapPoint& Map::AddPoint(MapPoint point) {
   const MapPointId id = point.id;
@@ -202,7 +204,8 @@ void Map::UpdatePointAppearance(MapPointId id) {
   std::vector<const uint8_t*> descriptors;
   for (const auto& [kf, feature] : point->observations) {
     const Keyframe* keyframe = FindKeyframe(kf);
-    if (keyframe && feature < keyframe->descriptors.rows) descriptors.push_back(keyframe->descriptors.ptr<uint8_t>(feature));
+    if (keyframe && feature < keyframe->descriptors.rows)
+      descriptors.push_back(keyframe->descriptors.ptr<uint8_t>(feature));
   }
   if (descriptors.empty()) return;
   // The descriptor closest (in median distance) to all others.
@@ -255,8 +258,9 @@ void Map::SetOrderedCovisibility(Keyframe* keyframe) {
     if (weight > best.first) best = {weight, other};
   }
   if (keyframe->ordered.empty() && best.second.valid()) keyframe->ordered.push_back(best);
-  std::sort(keyframe->ordered.begin(), keyframe->ordered.end(),
-            [](const auto& a, const auto& b) { return a.first > b.first || (a.first == b.first && a.second < b.second); });
+  std::sort(keyframe->ordered.begin(), keyframe->ordered.end(), [](const auto& a, const auto& b) {
+    return a.first > b.first || (a.first == b.first && a.second < b.second);
+  });
 }
 
 void Map::UpdateConnections(KeyframeId id) {

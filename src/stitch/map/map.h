@@ -42,9 +42,9 @@ struct MapPoint {
   MapPointId id;
   Eigen::Vector3d position = Eigen::Vector3d::Zero();  // point_in_world (submap frame)
   Descriptor descriptor{};
-  Eigen::Vector3d normal = Eigen::Vector3d::Zero();    // mean viewing direction, unit
-  float min_distance = 0, max_distance = 0;            // scale-invariance range
-  std::map<KeyframeId, int> observations;              // keyframe -> feature index
+  Eigen::Vector3d normal = Eigen::Vector3d::Zero();  // mean viewing direction, unit
+  float min_distance = 0, max_distance = 0;          // scale-invariance range
+  std::map<KeyframeId, int> observations;            // keyframe -> feature index
   KeyframeId reference_keyframe;
   KeyframeId first_keyframe;
   int visible = 1;  // times predicted in view

@@ -49,15 +49,16 @@ TEST(Ids, PackAgentSubmapAndIndex) {
 
 TEST(Map, ObservationsAndCovisibilityFollowSharedPoints) {
   Fixture f;
-  // Keyframe 0 sees points 0-29, keyframe 1 points 10-39 (20 shared), keyframe 2 points 25-34 (5 with kf0, 10 with kf1).
-  // Inserted one after the other, as a mapper does.
+  // Keyframe 0 sees points 0-29, keyframe 1 points 10-39 (20 shared), keyframe 2 points 25-34 (5 with kf0, 10 with
+  // kf1). Inserted one after the other, as a mapper does.
   f.map.AddKeyframe(MakeKeyframe(f.map, 0, {f.points.begin(), f.points.begin() + 30}));
   f.map.UpdateConnections(MakeKeyframeId(f.map.id(), 0));
   f.map.AddKeyframe(MakeKeyframe(f.map, 1, {f.points.begin() + 10, f.points.begin() + 40}));
   f.map.UpdateConnections(MakeKeyframeId(f.map.id(), 1));
   f.map.AddKeyframe(MakeKeyframe(f.map, 2, {f.points.begin() + 25, f.points.begin() + 35}));
   f.map.UpdateConnections(MakeKeyframeId(f.map.id(), 2));
-  const KeyframeId k0 = MakeKeyframeId(f.map.id(), 0), k1 = MakeKeyframeId(f.map.id(), 1), k2 = MakeKeyframeId(f.map.id(), 2);
+  const KeyframeId k0 = MakeKeyframeId(f.map.id(), 0), k1 = MakeKeyframeId(f.map.id(), 1),
+                   k2 = MakeKeyframeId(f.map.id(), 2);
   EXPECT_EQ(f.map.FindPoint(f.points[12])->observations.size(), 2u);
   EXPECT_EQ(f.map.FindKeyframe(k0)->covisibility.at(k1), 20);
   EXPECT_EQ(f.map.FindKeyframe(k1)->covisibility.at(k2), 10);
@@ -97,7 +98,8 @@ TEST(Map, RemovingAKeyframeReconnectsTheSpanningTree) {
     f.map.AddKeyframe(MakeKeyframe(f.map, k, all));
     f.map.UpdateConnections(MakeKeyframeId(f.map.id(), k));
   }
-  const KeyframeId k0 = MakeKeyframeId(f.map.id(), 0), k1 = MakeKeyframeId(f.map.id(), 1), k2 = MakeKeyframeId(f.map.id(), 2);
+  const KeyframeId k0 = MakeKeyframeId(f.map.id(), 0), k1 = MakeKeyframeId(f.map.id(), 1),
+                   k2 = MakeKeyframeId(f.map.id(), 2);
   ASSERT_EQ(f.map.FindKeyframe(k2)->parent, k0);
   f.map.RemoveKeyframe(k1);
   EXPECT_EQ(f.map.FindKeyframe(k1), nullptr);

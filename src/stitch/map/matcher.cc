@@ -39,8 +39,10 @@ class RotationHistogram {
         which[2] = b;
       }
     }
-    if (top[1] < 0.1 * top[0]) which[1] = which[2] = -1;
-    else if (top[2] < 0.1 * top[0]) which[2] = -1;
+    if (top[1] < 0.1 * top[0])
+      which[1] = which[2] = -1;
+    else if (top[2] < 0.1 * top[0])
+      which[2] = -1;
     std::vector<int> rejected;
     for (int b = 0; b < kHistogramBins; ++b) {
       if (b == which[0] || b == which[1] || b == which[2]) continue;
@@ -65,10 +67,12 @@ int SearchForInitialization(const Frame& reference, const Frame& current, std::v
   for (size_t i = 0; i < n; ++i) {
     if (reference.keypoints[i].octave > 0) continue;
     const Eigen::Vector2d& p = (*previous)[i];
-    const std::vector<int> nearby = current.grid.InArea(p.x(), p.y(), window, current.keypoints, current.undistorted, 0, 0);
+    const std::vector<int> nearby =
+        current.grid.InArea(p.x(), p.y(), window, current.keypoints, current.undistorted, 0, 0);
     int best = 1 << 20, second = 1 << 20, best_index = -1;
     for (int j : nearby) {
-      const int d = HammingDistance(reference.descriptors.ptr<uint8_t>(static_cast<int>(i)), current.descriptors.ptr<uint8_t>(j));
+      const int d =
+          HammingDistance(reference.descriptors.ptr<uint8_t>(static_cast<int>(i)), current.descriptors.ptr<uint8_t>(j));
       if (distance_of_current[j] <= d) continue;
       if (d < best) {
         second = best;
@@ -119,8 +123,8 @@ int SearchAroundPredictions(Frame* current, const Frame& last, const Map& map,
     const Eigen::Vector2d& pixel = *predicted[i];
     const int level = last.keypoints[i].octave;
     const double r = radius * map.pyramid().scale[level];
-    const std::vector<int> nearby =
-        current->grid.InArea(pixel.x(), pixel.y(), r, current->keypoints, current->undistorted, std::max(0, level - 1), level + 1);
+    const std::vector<int> nearby = current->grid.InArea(pixel.x(), pixel.y(), r, current->keypoints,
+                                                         current->undistorted, std::max(0, level - 1), level + 1);
     int best = 256, best_index = -1;
     for (int j : nearby) {
       if (current->points[j].valid()) continue;
@@ -170,13 +174,15 @@ std::vector<std::pair<int, int>> MatchByIndex(const std::vector<cv::KeyPoint>& k
     matches.push_back({static_cast<int>(i), j});
   }
   for (int m : histogram.Rejected()) matches[m].first = -1;
-  matches.erase(std::remove_if(matches.begin(), matches.end(), [](const auto& m) { return m.first < 0; }), matches.end());
+  matches.erase(std::remove_if(matches.begin(), matches.end(), [](const auto& m) { return m.first < 0; }),
+                matches.end());
   return matches;
 }
 
 int SearchByIndex(const Keyframe& keyframe, Frame* frame, const Map& map, const DescriptorIndex& index, double ratio) {
   std::vector<char> usable(keyframe.points.size(), 0);
-  for (size_t i = 0; i < usable.size(); ++i) usable[i] = keyframe.points[i].valid() && map.FindPoint(keyframe.points[i]);
+  for (size_t i = 0; i < usable.size(); ++i)
+    usable[i] = keyframe.points[i].valid() && map.FindPoint(keyframe.points[i]);
   const auto matches = MatchByIndex(keyframe.keypoints, keyframe.descriptors, usable, *frame, index, ratio);
   for (const auto& [i, j] : matches) {
     frame->points[j] = keyframe.points[i];
@@ -212,8 +218,9 @@ int SearchByProjection(Frame* frame, const std::vector<PointInView>& points, con
     if (!point) continue;
     // Wider windows for oblique views, where the appearance changes more.
     const double r = threshold * (view.view_cosine > 0.998 ? 2.5 : 4.0) * pyramid.scale[view.predicted_level];
-    const std::vector<int> nearby = frame->grid.InArea(view.pixel.x(), view.pixel.y(), r, frame->keypoints,
-                                                       frame->undistorted, view.predicted_level - 1, view.predicted_level);
+    const std::vector<int> nearby =
+        frame->grid.InArea(view.pixel.x(), view.pixel.y(), r, frame->keypoints, frame->undistorted,
+                           view.predicted_level - 1, view.predicted_level);
     int best = 256, second = 256, best_level = -1, second_level = -1, best_index = -1;
     for (int j : nearby) {
       if (frame->points[j].valid()) continue;
@@ -311,11 +318,12 @@ std::vector<std::pair<int, int>> MatchKeyframesByBow(const Keyframe& a, const Ma
                                                      const Map& map_b, double ratio) {
   const auto in_a = [&](int i) { return a.points[i].valid() && map_a.FindPoint(a.points[i]); };
   const auto in_b = [&](int j) { return b.points[j].valid() && map_b.FindPoint(b.points[j]); };
-  return MatchUnderSameNodes(a.bow_features, a.descriptors, a.keypoints, in_a, b.bow_features, b.descriptors, b.keypoints,
-                             in_b, ratio);
+  return MatchUnderSameNodes(a.bow_features, a.descriptors, a.keypoints, in_a, b.bow_features, b.descriptors,
+                             b.keypoints, in_b, ratio);
 }
 
-Eigen::Matrix3d FundamentalMatrix(const Rigid3d& cam1_from_world, const Rigid3d& cam2_from_world, const PinholeIntrinsics& k) {
+Eigen::Matrix3d FundamentalMatrix(const Rigid3d& cam1_from_world, const Rigid3d& cam2_from_world,
+                                  const PinholeIntrinsics& k) {
   const Rigid3d cam2_from_cam1 = cam2_from_world * cam1_from_world.Inverse();
   const Eigen::Vector3d& t = cam2_from_cam1.translation;
   Eigen::Matrix3d t_cross;
@@ -324,8 +332,9 @@ Eigen::Matrix3d FundamentalMatrix(const Rigid3d& cam1_from_world, const Rigid3d&
   return k_inv.transpose() * t_cross * cam2_from_cam1.RotationMatrix() * k_inv;
 }
 
-std::vector<std::pair<int, int>> SearchForTriangulation(const Keyframe& kf1, const Keyframe& kf2, const Eigen::Matrix3d& f21,
-                                                        const PinholeIntrinsics& k, const ScalePyramid& pyramid) {
+std::vector<std::pair<int, int>> SearchForTriangulation(const Keyframe& kf1, const Keyframe& kf2,
+                                                        const Eigen::Matrix3d& f21, const PinholeIntrinsics& k,
+                                                        const ScalePyramid& pyramid) {
   // The epipole: kf1's centre seen by kf2. Matches too close to it are unreliable.
   const Eigen::Vector3d c1_in_2 = kf2.cam_from_world * kf1.Centre();
   const bool epipole_in_front = c1_in_2.z() > 0;
@@ -396,7 +405,8 @@ int Fuse(Map* map, KeyframeId keyframe_id, const std::vector<MapPointId>& candid
     if (ray.dot(point->normal) < 0.5 * distance) continue;
     const int level = pyramid.PredictLevel(distance, point->max_distance);
     const double r = radius * pyramid.scale[level];
-    const std::vector<int> nearby = keyframe->grid.InArea(pixel.x(), pixel.y(), r, keyframe->keypoints, keyframe->undistorted);
+    const std::vector<int> nearby =
+        keyframe->grid.InArea(pixel.x(), pixel.y(), r, keyframe->keypoints, keyframe->undistorted);
     int best = 256, best_index = -1;
     for (int j : nearby) {
       const int feature_level = keyframe->keypoints[j].octave;

@@ -43,7 +43,8 @@ std::vector<std::pair<int, int>> MatchByIndex(const std::vector<cv::KeyPoint>& k
 
 // Reference keyframe without the vocabulary: the keyframe's points matched to the frame through
 // an index over the frame's descriptors (brute force or LSH). Assigns frame->points.
-int SearchByIndex(const Keyframe& keyframe, Frame* frame, const Map& map, const DescriptorIndex& index, double ratio = 0.7);
+int SearchByIndex(const Keyframe& keyframe, Frame* frame, const Map& map, const DescriptorIndex& index,
+                  double ratio = 0.7);
 
 // A local map point predicted in a frame.
 struct PointInView {
@@ -75,8 +76,9 @@ std::vector<std::pair<int, int>> MatchKeyframesByBow(const Keyframe& a, const Ma
 // Triangulation: unmatched features of kf1 and kf2 under the same vocabulary node whose positions
 // agree with the epipolar geometry (`f21`: x2^T f21 x1 = 0 in undistorted pixels) and are not
 // near the epipole. Returns (feature in kf1, feature in kf2) pairs.
-std::vector<std::pair<int, int>> SearchForTriangulation(const Keyframe& kf1, const Keyframe& kf2, const Eigen::Matrix3d& f21,
-                                                        const PinholeIntrinsics& k, const ScalePyramid& pyramid);
+std::vector<std::pair<int, int>> SearchForTriangulation(const Keyframe& kf1, const Keyframe& kf2,
+                                                        const Eigen::Matrix3d& f21, const PinholeIntrinsics& k,
+                                                        const ScalePyramid& pyramid);
 
 // Fundamental matrix mapping undistorted pixels of kf1 to epipolar lines in kf2.
 Eigen::Matrix3d FundamentalMatrix(const Rigid3d& cam1_from_world, const Rigid3d& cam2_from_world,

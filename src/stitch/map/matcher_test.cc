@@ -18,12 +18,17 @@ testing::RenderedViews& Shared() {
 }
 
 const Vocabulary& SharedVocabulary() {
-  static const Vocabulary* v = new Vocabulary(Vocabulary::Load(std::string(STITCH_SOURCE_DIR) + "/vocabulary/default.stitchvoc"));
+  static const Vocabulary* v =
+      new Vocabulary(Vocabulary::Load(std::string(STITCH_SOURCE_DIR) + "/vocabulary/default.stitchvoc"));
   return *v;
 }
 
-Frame RenderFrame(int index, cv::Mat* depth) { return Shared().Render(index, depth); }
-Map MapFromFrame(const Frame& frame, const cv::Mat& depth, Keyframe* out) { return Shared().MapFromFrame(frame, depth, out); }
+Frame RenderFrame(int index, cv::Mat* depth) {
+  return Shared().Render(index, depth);
+}
+Map MapFromFrame(const Frame& frame, const cv::Mat& depth, Keyframe* out) {
+  return Shared().MapFromFrame(frame, depth, out);
+}
 double Consistency(const Frame& frame, const Map& map, double tolerance, int* count) {
   return Shared().Consistency(frame, map, tolerance, count);
 }
@@ -37,7 +42,8 @@ TEST(Matcher, ProjectionSearchFindsTheRightFeatures) {
   std::vector<PointInView> in_view;
   for (const auto& [id, point] : map.points()) {
     PointInView view;
-    if (PredictInView(point, *current.cam_from_world, Shared().k(), 0, 0, 639, 479, map.pyramid(), &view)) in_view.push_back(view);
+    if (PredictInView(point, *current.cam_from_world, Shared().k(), 0, 0, 639, 479, map.pyramid(), &view))
+      in_view.push_back(view);
   }
   const int matched = SearchByProjection(&current, in_view, map, 1.0);
   int count = 0;
@@ -88,7 +94,8 @@ TEST(Matcher, IndexSearchFindsAtLeastWhatTheBowSearchFinds) {
       current.bow = SharedVocabulary().Transform(current.descriptors, &current.bow_features, 2);
       matched[method] = SearchByBow(keyframe, &current, map);
     } else {
-      const DescriptorIndex index(current.descriptors, method == 1 ? DescriptorSearch::kBruteForce : DescriptorSearch::kLsh);
+      const DescriptorIndex index(current.descriptors,
+                                  method == 1 ? DescriptorSearch::kBruteForce : DescriptorSearch::kLsh);
       matched[method] = SearchByIndex(keyframe, &current, map, index);
     }
     int count = 0;

@@ -72,8 +72,13 @@ void BM_MatchReferenceKeyframe(benchmark::State& state) {
   for (auto _ : state) {
     std::fill(frame.points.begin(), frame.points.end(), MapPointId());
     switch (method) {
-      case kBow: matched = SearchByBow(s.keyframe, &frame, s.map); break;
-      case kBruteForce: matched = SearchByIndex(s.keyframe, &frame, s.map, DescriptorIndex(frame.descriptors, DescriptorSearch::kBruteForce)); break;
+      case kBow:
+        matched = SearchByBow(s.keyframe, &frame, s.map);
+        break;
+      case kBruteForce:
+        matched =
+            SearchByIndex(s.keyframe, &frame, s.map, DescriptorIndex(frame.descriptors, DescriptorSearch::kBruteForce));
+        break;
       case kLsh: {
         LshOptions lsh;
         if (state.range(1) > 0) {
@@ -81,22 +86,35 @@ void BM_MatchReferenceKeyframe(benchmark::State& state) {
           lsh.key_bits = static_cast<int>(state.range(2));
           lsh.probe_neighbours = state.range(3) != 0;
         }
-        matched = SearchByIndex(s.keyframe, &frame, s.map, DescriptorIndex(frame.descriptors, DescriptorSearch::kLsh, lsh));
+        matched =
+            SearchByIndex(s.keyframe, &frame, s.map, DescriptorIndex(frame.descriptors, DescriptorSearch::kLsh, lsh));
         break;
       }
-      case kFlannLsh: matched = SearchByFlannLsh(s.keyframe, &frame, s.map); break;
+      case kFlannLsh:
+        matched = SearchByFlannLsh(s.keyframe, &frame, s.map);
+        break;
     }
   }
   int count = 0;
   const double ratio = s.views.Consistency(frame, s.map, 3.0, &count);
-  state.SetLabel(method == kBow ? "bow" : method == kBruteForce ? "brute force" : method == kLsh ? "lsh" : "opencv flann lsh");
+  state.SetLabel(method == kBow          ? "bow"
+                 : method == kBruteForce ? "brute force"
+                 : method == kLsh        ? "lsh"
+                                         : "opencv flann lsh");
   state.counters["matches"] = matched;
   state.counters["inliers"] = ratio * count;
   state.counters["inlier_ratio"] = ratio;
-  state.counters["matches_per_s"] = benchmark::Counter(static_cast<double>(matched), benchmark::Counter::kIsIterationInvariantRate);
+  state.counters["matches_per_s"] =
+      benchmark::Counter(static_cast<double>(matched), benchmark::Counter::kIsIterationInvariantRate);
 }
-BENCHMARK(BM_MatchReferenceKeyframe)->Args({kBow, 0, 0, 0})->Args({kBruteForce, 0, 0, 0})->Args({kLsh, 0, 0, 0})
-    ->Args({kLsh, 8, 8, 0})->Args({kLsh, 16, 12, 0})->Args({kLsh, 6, 10, 1})->Args({kFlannLsh, 0, 0, 0})
+BENCHMARK(BM_MatchReferenceKeyframe)
+    ->Args({kBow, 0, 0, 0})
+    ->Args({kBruteForce, 0, 0, 0})
+    ->Args({kLsh, 0, 0, 0})
+    ->Args({kLsh, 8, 8, 0})
+    ->Args({kLsh, 16, 12, 0})
+    ->Args({kLsh, 6, 10, 1})
+    ->Args({kFlannLsh, 0, 0, 0})
     ->Unit(benchmark::kMicrosecond);
 
 }  // namespace

@@ -16,12 +16,12 @@ namespace stitch {
 struct SubmapUpdate {
   SubmapId submap;
   int revision = 0;
-  bool closed = false;      // tracking left the submap: this is its final state
-  bool full_state = false;  // `changes` covers every keyframe and point of the submap
-  std::optional<Camera> camera;          // of the keyframes' images (comes with every keyframe)
-  std::vector<Keyframe> new_keyframes;   // features, descriptors, pose, associations (no caches)
-  LocalMapUpdate changes;                // poses, associations, points, removals
-  std::vector<KeyframeId> manifest;      // every keyframe the submap holds now (may be empty in a part)
+  bool closed = false;                  // tracking left the submap: this is its final state
+  bool full_state = false;              // `changes` covers every keyframe and point of the submap
+  std::optional<Camera> camera;         // of the keyframes' images (comes with every keyframe)
+  std::vector<Keyframe> new_keyframes;  // features, descriptors, pose, associations (no caches)
+  LocalMapUpdate changes;               // poses, associations, points, removals
+  std::vector<KeyframeId> manifest;     // every keyframe the submap holds now (may be empty in a part)
 };
 
 // The keyframe just mapped, in full, with the window's `changes` (as sent to the tracker).

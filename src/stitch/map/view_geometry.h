@@ -16,8 +16,8 @@ struct ViewGeometry {
 
   // PredictInView within this camera's undistorted image.
   bool InView(const MapPoint& point, const Rigid3d& cam_from_world, PointInView* view) const {
-    return PredictInView(point, cam_from_world, intrinsics, undistorter.min_x(), undistorter.min_y(), undistorter.max_x(),
-                         undistorter.max_y(), pyramid, view);
+    return PredictInView(point, cam_from_world, intrinsics, undistorter.min_x(), undistorter.min_y(),
+                         undistorter.max_x(), undistorter.max_y(), pyramid, view);
   }
 
   Camera camera;

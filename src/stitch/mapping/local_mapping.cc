@@ -19,9 +19,7 @@ constexpr uint32_t kMapperPointIndexBase = 1u << 24;
 
 LocalMapping::LocalMapping(const MappingOptions& options, const Camera& camera, const OrbOptions& orb,
                            const Vocabulary* vocabulary)
-    : options_(options),
-      geometry_(camera, ScalePyramid::From(orb)),
-      vocabulary_(vocabulary) {
+    : options_(options), geometry_(camera, ScalePyramid::From(orb)), vocabulary_(vocabulary) {
   CheckOptions(options_, "mapper");
   if (!vocabulary_ || vocabulary_->empty()) throw Error("LocalMapping needs a vocabulary");
 }
@@ -85,10 +83,12 @@ MappingReport LocalMapping::ProcessKeyframe(Keyframe keyframe, const std::vector
   report.new_points = static_cast<int>(created.size());
   report.fused = FuseWithNeighbours(map_.get(), id, geometry_, options_.fuse_neighbours);
   if (map_->num_keyframes() > 2) {
-    report.bundle_adjustment = LocalBundleAdjustment(map_.get(), id, geometry_.intrinsics, options_.local_bundle_adjustment);
+    report.bundle_adjustment =
+        LocalBundleAdjustment(map_.get(), id, geometry_.intrinsics, options_.local_bundle_adjustment);
   }
   if (options_.cull_keyframes) {
-    for (const CulledKeyframe& culled : CullRedundantKeyframes(map_.get(), id, first_keyframe_, options_.keyframe_redundancy)) {
+    for (const CulledKeyframe& culled :
+         CullRedundantKeyframes(map_.get(), id, first_keyframe_, options_.keyframe_redundancy)) {
       culled_.push_back(culled);
       report.culled_keyframes.push_back(culled.id);
     }
@@ -102,7 +102,8 @@ void LocalMapping::InsertKeyframe(Keyframe keyframe, const std::vector<MapPoint>
   // Keypoint geometry is recomputed here: a keyframe from the bus carries only raw keypoints.
   if (keyframe.undistorted.size() != keyframe.keypoints.size()) {
     keyframe.undistorted.clear();
-    for (const auto& k : keyframe.keypoints) keyframe.undistorted.push_back(geometry_.undistorter.Undistort(k.pt.x, k.pt.y));
+    for (const auto& k : keyframe.keypoints)
+      keyframe.undistorted.push_back(geometry_.undistorter.Undistort(k.pt.x, k.pt.y));
   }
   keyframe.grid = FeatureGrid(keyframe.undistorted, geometry_.undistorter);
   if (keyframe.bow.empty()) keyframe.bow = vocabulary_->Transform(keyframe.descriptors, &keyframe.bow_features);

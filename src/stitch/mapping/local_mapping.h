@@ -49,7 +49,8 @@ struct MappedKeyframe {
 class LocalMapping {
  public:
   // `vocabulary` must outlive the mapper.
-  LocalMapping(const MappingOptions& options, const Camera& camera, const OrbOptions& orb, const Vocabulary* vocabulary);
+  LocalMapping(const MappingOptions& options, const Camera& camera, const OrbOptions& orb,
+               const Vocabulary* vocabulary);
 
   // The per-keyframe protocol, the same over the bus and inline: processes the keyframe
   // (ProcessKeyframe), then makes the closed submap's final state, the tracker's update and the

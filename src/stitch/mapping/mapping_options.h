@@ -9,12 +9,12 @@
 namespace stitch {
 
 struct MappingOptions {
-  int triangulation_neighbours = 20;     // covisible keyframes to triangulate with
-  double min_baseline_ratio = 0.01;      // baseline / median depth to try a neighbour
-  int fuse_neighbours = 20;              // first-order neighbours searched for duplicates
-  double point_min_found_ratio = 0.25;   // recent points found in fewer of the frames predicting them are culled
-  int point_min_observations = 2;        // recent points with this few observations after 2 keyframes are culled
-  double keyframe_redundancy = 0.9;      // keyframes whose points are this much seen by 3 others are culled
+  int triangulation_neighbours = 20;    // covisible keyframes to triangulate with
+  double min_baseline_ratio = 0.01;     // baseline / median depth to try a neighbour
+  int fuse_neighbours = 20;             // first-order neighbours searched for duplicates
+  double point_min_found_ratio = 0.25;  // recent points found in fewer of the frames predicting them are culled
+  int point_min_observations = 2;       // recent points with this few observations after 2 keyframes are culled
+  double keyframe_redundancy = 0.9;     // keyframes whose points are this much seen by 3 others are culled
   bool cull_keyframes = true;
   BundleAdjustmentOptions local_bundle_adjustment;
 
@@ -23,9 +23,12 @@ struct MappingOptions {
     v("triangulation_neighbours", triangulation_neighbours, "covisible keyframes to triangulate new points with");
     v("min_baseline_ratio", min_baseline_ratio, "baseline / median depth below which a neighbour is not used");
     v("fuse_neighbours", fuse_neighbours, "neighbour keyframes searched for duplicate points");
-    v("point_min_found_ratio", point_min_found_ratio, "new points found in fewer of the keyframes predicting them are culled");
-    v("point_min_observations", point_min_observations, "new points observed this few times after two keyframes are culled");
-    v("keyframe_redundancy", keyframe_redundancy, "keyframes whose points this fraction is seen by 3 others are culled");
+    v("point_min_found_ratio", point_min_found_ratio,
+      "new points found in fewer of the keyframes predicting them are culled");
+    v("point_min_observations", point_min_observations,
+      "new points observed this few times after two keyframes are culled");
+    v("keyframe_redundancy", keyframe_redundancy,
+      "keyframes whose points this fraction is seen by 3 others are culled");
     v("cull_keyframes", cull_keyframes, "remove redundant keyframes");
     v("local_bundle_adjustment", local_bundle_adjustment, "local bundle adjustment");
   }

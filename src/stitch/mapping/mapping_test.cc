@@ -39,9 +39,8 @@ Scene MakeScene(const std::vector<int>& frames, int stride = 1, int max_matches 
     cv::Mat depth;
     Frame frame = Strip().Render(frames[i], &depth);
     ComputeBow(testing::DefaultVocabulary(), &frame);
-    scene.keyframes.push_back(
-        Strip().AddKeyframe(&scene.map, frame, depth, static_cast<int>(i), i == 0 || later_stride < 0 ? stride : later_stride,
-                            max_matches));
+    scene.keyframes.push_back(Strip().AddKeyframe(&scene.map, frame, depth, static_cast<int>(i),
+                                                  i == 0 || later_stride < 0 ? stride : later_stride, max_matches));
     scene.depths.push_back(depth);
   }
   return scene;
@@ -93,7 +92,9 @@ TEST(Triangulation, NoBaselineNoNewPoints) {
 
 // Keyframe 1 made every point anew (a duplicate of keyframe 0's) but for 30 shared ones that make
 // the two covisible.
-Scene TwoKeyframesWithDuplicates() { return MakeScene({0, 4}, /*stride=*/1, /*max_matches=*/30); }
+Scene TwoKeyframesWithDuplicates() {
+  return MakeScene({0, 4}, /*stride=*/1, /*max_matches=*/30);
+}
 
 TEST(Fusion, TheSamePointMadeTwiceBecomesOne) {
   Scene scene = TwoKeyframesWithDuplicates();
@@ -199,8 +200,7 @@ TEST(LocalBundleAdjustment, PullsAPerturbedKeyframeAndItsPointsBackToTheTruth) {
       point->position = perturbed * (1.02 * (truth * point->position));
     }
   }
-  const BundleAdjustmentReport report =
-      LocalBundleAdjustment(map, newest->id, Strip().k(), BundleAdjustmentOptions());
+  const BundleAdjustmentReport report = LocalBundleAdjustment(map, newest->id, Strip().k(), BundleAdjustmentOptions());
   EXPECT_TRUE(report.converged);
   EXPECT_GT(report.initial_rms_px, 3.0);
   EXPECT_LT(report.final_rms_px, 1.5);

@@ -7,8 +7,8 @@
 
 namespace stitch {
 
-std::vector<MapPointId> TriangulateNewPoints(Map* map, KeyframeId keyframe, const ViewGeometry& geometry, int neighbours,
-                                             double min_baseline_ratio) {
+std::vector<MapPointId> TriangulateNewPoints(Map* map, KeyframeId keyframe, const ViewGeometry& geometry,
+                                             int neighbours, double min_baseline_ratio) {
   const PinholeIntrinsics& k = geometry.intrinsics;
   const ScalePyramid& pyramid = geometry.pyramid;
   Keyframe* kf1 = map->FindKeyframe(keyframe);

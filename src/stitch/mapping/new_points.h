@@ -15,8 +15,8 @@ namespace stitch {
 // epipolar constraint, triangulated, and kept when in front of both cameras, within 5.991
 // sigma^2 of both features, at a parallax above 1.1 degrees (cosine < 0.9998) and at distances
 // that agree with the pyramid levels seen at. Returns the new points' ids, in creation order.
-std::vector<MapPointId> TriangulateNewPoints(Map* map, KeyframeId keyframe, const ViewGeometry& geometry, int neighbours,
-                                             double min_baseline_ratio);
+std::vector<MapPointId> TriangulateNewPoints(Map* map, KeyframeId keyframe, const ViewGeometry& geometry,
+                                             int neighbours, double min_baseline_ratio);
 
 // The keyframe's points projected into its first-order (`neighbours` best covisible) and
 // second-order (5 best of each) neighbours, and their points into it: a point landing on a

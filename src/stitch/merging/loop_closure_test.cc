@@ -49,7 +49,8 @@ std::vector<SubmapUpdate> LoopingSubmap() {
   uint32_t next_point = 0;
   for (int k = 0; k < kKeyframes; ++k) {
     const Rigid3d cam_from_world = TrueWorldFromCam(k).Inverse();
-    const Sim3d submap_from_cam = SubmapFromWorld(k) * Sim3d(1, TrueWorldFromCam(k).rotation, TrueWorldFromCam(k).translation);
+    const Sim3d submap_from_cam =
+        SubmapFromWorld(k) * Sim3d(1, TrueWorldFromCam(k).rotation, TrueWorldFromCam(k).translation);
     Keyframe keyframe;
     keyframe.id = MakeKeyframeId(kSubmap, k);
     keyframe.frame_index = 10 * k;
@@ -59,7 +60,8 @@ std::vector<SubmapUpdate> LoopingSubmap() {
     for (size_t p = 0; p < ground.size(); ++p) {
       const Eigen::Vector3d in_cam = cam_from_world * ground[p];
       const Eigen::Vector2d pixel = kCamera.Intrinsics().Project(in_cam);
-      if (in_cam.z() > 0 && pixel.x() > 5 && pixel.x() < 634 && pixel.y() > 5 && pixel.y() < 474) seen.push_back(static_cast<int>(p));
+      if (in_cam.z() > 0 && pixel.x() > 5 && pixel.x() < 634 && pixel.y() > 5 && pixel.y() < 474)
+        seen.push_back(static_cast<int>(p));
     }
     keyframe.descriptors = cv::Mat(static_cast<int>(seen.size()), 32, CV_8U);
     for (size_t i = 0; i < seen.size(); ++i) {
@@ -145,7 +147,8 @@ TEST(LoopClosure, TheMergerClosesALoopWithinASubmapAndTakesOutMostOfTheDrift) {
   EXPECT_GE(graph.loops_used, 2);
   EXPECT_EQ(graph.tree.size(), 0u);
   const double before = WorstError(drifted), after = WorstError(graph.keyframe_poses);
-  std::printf("worst keyframe error %.3f m drifted, %.3f m after the loops (%d used)\n", before, after, graph.loops_used);
+  std::printf("worst keyframe error %.3f m drifted, %.3f m after the loops (%d used)\n", before, after,
+              graph.loops_used);
   EXPECT_GT(before, 0.5);
   EXPECT_LT(after, 0.3 * before) << "before " << before << " m, after " << after << " m";
 }

@@ -58,9 +58,10 @@ MergedMap AssembleMergedMap(const std::map<SubmapId, SubmapReplica>& submaps,
     for (const auto& [id, keyframe] : submap.keyframes()) {
       const auto refined = keyframe_poses.find(id);
       const Rigid3d submap_from_cam = keyframe.cam_from_world.Inverse();
-      world_from_cam[id] = refined != keyframe_poses.end()
-                               ? refined->second
-                               : place.world_from_submap * Sim3d(1.0, submap_from_cam.rotation, submap_from_cam.translation);
+      world_from_cam[id] =
+          refined != keyframe_poses.end()
+              ? refined->second
+              : place.world_from_submap * Sim3d(1.0, submap_from_cam.rotation, submap_from_cam.translation);
       if (submap_id == place.root && (!anchor.valid() || id < anchor)) anchor = id;
     }
     // Points move with their reference keyframe (the pose graph moved each keyframe on its own).

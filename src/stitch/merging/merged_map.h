@@ -10,19 +10,19 @@
 #include <map>
 #include <vector>
 
-#include "stitch/merging/merger_options.h"
-#include "stitch/merging/submap_graph.h"
 #include "stitch/estimators/bundle_adjustment.h"
 #include "stitch/map/map.h"
 #include "stitch/map/submap_update.h"
+#include "stitch/merging/merger_options.h"
+#include "stitch/merging/submap_graph.h"
 
 namespace stitch {
 
 struct MergedMap {
   int component = -1;
-  Map map;                                    // in the merged map's frame; ids as in the submaps
-  std::map<KeyframeId, Sim3d> keyframe_poses; // world_from_cam, the scale being the keyframe's submap's
-  int points_fused_by_connection = 0;         // verified matches of connected frames made one point
+  Map map;                                     // in the merged map's frame; ids as in the submaps
+  std::map<KeyframeId, Sim3d> keyframe_poses;  // world_from_cam, the scale being the keyframe's submap's
+  int points_fused_by_connection = 0;          // verified matches of connected frames made one point
   int points_fused_by_projection = 0;
   BundleAdjustmentReport bundle_adjustment;
 

@@ -20,8 +20,8 @@ struct TwoSubmaps {
   std::map<SubmapId, SubmapReplica> submaps;
   Sim3d b_from_world{0.5, Eigen::Quaterniond(Eigen::AngleAxisd(0.35, Eigen::Vector3d(0.2, 1, 0.3).normalized())),
                      Eigen::Vector3d(1, -2, 3)};
-  std::vector<Eigen::Vector3d> points;              // world
-  std::map<KeyframeId, Eigen::Vector3d> centres;    // world
+  std::vector<Eigen::Vector3d> points;                         // world
+  std::map<KeyframeId, Eigen::Vector3d> centres;               // world
   std::vector<std::pair<MapPointId, MapPointId>> same_points;  // (in A, in B)
 };
 
@@ -75,7 +75,8 @@ TwoSubmaps MakeTwoSubmaps() {
     scene.submaps.emplace(submap, std::move(replica));
   }
   for (int p = 0; p < kPoints; ++p) {
-    scene.same_points.push_back({MakeMapPointId(kA, static_cast<uint32_t>(p)), MakeMapPointId(kB, static_cast<uint32_t>(p))});
+    scene.same_points.push_back(
+        {MakeMapPointId(kA, static_cast<uint32_t>(p)), MakeMapPointId(kB, static_cast<uint32_t>(p))});
   }
   return scene;
 }
@@ -98,7 +99,8 @@ double WorstCentreError(const MergedMap& merged, const TwoSubmaps& scene) {
   }
   const Sim3d truth_from_estimated = AlignPoints(estimated, truth);
   double worst = 0;
-  for (size_t i = 0; i < estimated.size(); ++i) worst = std::max(worst, (truth_from_estimated * estimated[i] - truth[i]).norm());
+  for (size_t i = 0; i < estimated.size(); ++i)
+    worst = std::max(worst, (truth_from_estimated * estimated[i] - truth[i]).norm());
   return worst;
 }
 
@@ -122,8 +124,9 @@ TEST(MergedMap, FusedPointsLetTheBundleAdjustmentPutAMisplacedSubmapBack) {
   EXPECT_EQ(placed.map.num_keyframes(), 2u * kKeyframesPerSubmap);
   EXPECT_GT(WorstCentreError(placed, scene), 0.03);
 
-  const MergedMap merged = AssembleMergedMap(scene.submaps, Placement(scene, error), {}, {connection}, 0,
-                                             ScalePyramid::From(OrbOptions()), kCamera.Intrinsics(), MergedMapOptions());
+  const MergedMap merged =
+      AssembleMergedMap(scene.submaps, Placement(scene, error), {}, {connection}, 0, ScalePyramid::From(OrbOptions()),
+                        kCamera.Intrinsics(), MergedMapOptions());
   EXPECT_EQ(merged.points_fused_by_connection, 40);
   EXPECT_GT(merged.points_fused_by_projection, 200);
   EXPECT_LT(merged.map.num_points(), 2u * kPoints - 240);

@@ -3,9 +3,9 @@
 #include <algorithm>
 #include <cmath>
 
-#include "stitch/merging/pose_graph.h"
 #include "stitch/features/descriptor.h"
 #include "stitch/map/matcher.h"
+#include "stitch/merging/pose_graph.h"
 #include "stitch/util/error.h"
 #include "stitch/util/options.h"
 
@@ -252,7 +252,8 @@ std::optional<Sim3Estimate> Merger::VerifyByProjection(const SubmapReplica& a, c
   Sim3Options first_guess;
   first_guess.min_inliers = std::max(6, options_.sim3_min_inliers / 2);
   first_guess.seed = static_cast<uint64_t>(keyframe_a.id.value ^ (keyframe_b.id.value << 1));
-  const auto guess = EstimateSim3(pairs, keyframe_a.cam_from_world, keyframe_b.cam_from_world, k, first_guess, inlier_count);
+  const auto guess =
+      EstimateSim3(pairs, keyframe_a.cam_from_world, keyframe_b.cam_from_world, k, first_guess, inlier_count);
   if (!guess) return std::nullopt;
   std::vector<char> used_a(keyframe_a.keypoints.size(), 0), used_b(keyframe_b.keypoints.size(), 0);
   for (const auto& [i, j] : matches) {
@@ -336,8 +337,8 @@ std::map<KeyframeId, Sim3d> Merger::RefineKeyframePoses(const std::map<SubmapId,
       const auto link = [&](KeyframeId other_id) {
         const Keyframe* other = map.FindKeyframe(other_id);
         if (!other) return;
-        edges.push_back({kf_id, other_id, as_sim3(keyframe.cam_from_world * other->cam_from_world.Inverse()),
-                         kIntraSubmapWeight});
+        edges.push_back(
+            {kf_id, other_id, as_sim3(keyframe.cam_from_world * other->cam_from_world.Inverse()), kIntraSubmapWeight});
       };
       if (previous.valid()) link(previous);
       for (size_t n = 0; n < keyframe.ordered.size(); ++n) {
@@ -392,7 +393,8 @@ std::vector<ConnectedFrame> Merger::ConfirmedLoops() const {
   constexpr double kMaxLogScale = 0.05;
   constexpr double kMaxShiftOfDepth = 0.1;  // of the keyframe's median depth
   const auto near = [](KeyframeId a, KeyframeId b) {
-    return SubmapOf(a) == SubmapOf(b) && std::max(IndexOf(a), IndexOf(b)) - std::min(IndexOf(a), IndexOf(b)) <= kNearKeyframes;
+    return SubmapOf(a) == SubmapOf(b) &&
+           std::max(IndexOf(a), IndexOf(b)) - std::min(IndexOf(a), IndexOf(b)) <= kNearKeyframes;
   };
   std::vector<ConnectedFrame> confirmed;
   for (size_t i = 0; i < loops_.size(); ++i) {

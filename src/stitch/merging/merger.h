@@ -12,14 +12,14 @@
 #include <string>
 #include <vector>
 
-#include "stitch/merging/merged_map.h"
-#include "stitch/merging/merger_options.h"
-#include "stitch/merging/submap_graph.h"
 #include "stitch/estimators/sim3_estimation.h"
 #include "stitch/features/keyframe_database.h"
 #include "stitch/features/vocabulary.h"
 #include "stitch/map/frame.h"
 #include "stitch/map/submap_update.h"
+#include "stitch/merging/merged_map.h"
+#include "stitch/merging/merger_options.h"
+#include "stitch/merging/submap_graph.h"
 #include "stitch/records/merger_records.h"
 
 namespace stitch {
@@ -58,13 +58,15 @@ class Merger {
   // `matches` / `inliers` (optional) receive the counts whatever the outcome.
   std::optional<ConnectedFrame> Verify(const SubmapReplica& a, const Keyframe& keyframe_a, const SubmapReplica& b,
                                        const Keyframe& keyframe_b, int* matches, int* inliers) const;
-  std::optional<Sim3Estimate> VerifyByProjection(const SubmapReplica& a, const Keyframe& keyframe_a, const SubmapReplica& b,
-                                                 const Keyframe& keyframe_b, const std::vector<std::pair<int, int>>& matches,
+  std::optional<Sim3Estimate> VerifyByProjection(const SubmapReplica& a, const Keyframe& keyframe_a,
+                                                 const SubmapReplica& b, const Keyframe& keyframe_b,
+                                                 const std::vector<std::pair<int, int>>& matches,
                                                  std::vector<Sim3Correspondence>* pairs,
                                                  std::vector<std::pair<MapPointId, MapPointId>>* point_ids,
                                                  int* inlier_count) const;
   const Undistorter& UndistorterFor(const Camera& camera);
-  std::map<KeyframeId, Sim3d> RefineKeyframePoses(const std::map<SubmapId, SubmapPlacement>& placement, Graph* graph) const;
+  std::map<KeyframeId, Sim3d> RefineKeyframePoses(const std::map<SubmapId, SubmapPlacement>& placement,
+                                                  Graph* graph) const;
   // Loops confirmed by another loop between the same places with the same correction.
   std::vector<ConnectedFrame> ConfirmedLoops() const;
 
@@ -74,7 +76,7 @@ class Merger {
   std::map<SubmapId, SubmapReplica> submaps_;
   std::map<std::string, Undistorter> undistorters_;  // by camera description
   KeyframeDatabase database_;
-  std::set<KeyframeId> prepared_;                    // keyframes with undistorted points and BoW
+  std::set<KeyframeId> prepared_;  // keyframes with undistorted points and BoW
   std::vector<ConnectedFrame> connections_;
   std::vector<ConnectedFrame> loops_;
   std::vector<RetrievalRecord> retrievals_;

@@ -14,7 +14,10 @@ bool ConnectionWeights::Check(std::string* why) const {
 }
 
 bool MergedMapOptions::Check(std::string* why) const {
-  auto fail = [&](const std::string& m) { if (why) *why = m; return false; };
+  auto fail = [&](const std::string& m) {
+    if (why) *why = m;
+    return false;
+  };
   if (fuse_window < 0) return fail("merger.merged_map.fuse_window must be >= 0");
   if (!(fuse_radius_px > 0)) return fail("merger.merged_map.fuse_radius_px must be > 0");
   if (bundle_adjustment_iterations < 1) return fail("merger.merged_map.bundle_adjustment_iterations must be >= 1");
@@ -22,10 +25,14 @@ bool MergedMapOptions::Check(std::string* why) const {
 }
 
 bool MergerOptions::Check(std::string* why) const {
-  auto fail = [&](const std::string& m) { if (why) *why = m; return false; };
+  auto fail = [&](const std::string& m) {
+    if (why) *why = m;
+    return false;
+  };
   if (!(min_connection_strength >= 0)) return fail("merger.min_connection_strength must be >= 0");
   if (max_candidates < 1) return fail("merger.max_candidates must be >= 1");
-  if (min_matches < 3 || sim3_min_inliers < 3) return fail("merger.min_matches and merger.sim3_min_inliers must be >= 3");
+  if (min_matches < 3 || sim3_min_inliers < 3)
+    return fail("merger.min_matches and merger.sim3_min_inliers must be >= 3");
   if (!(match_ratio > 0 && match_ratio <= 1)) return fail("merger.match_ratio must be in (0, 1]");
   if (loop_min_separation < 1) return fail("merger.loop_min_separation must be >= 1");
   if (!(resend_interval_s > 0)) return fail("merger.resend_interval_s must be > 0");

@@ -24,10 +24,10 @@ struct ConnectionWeights {
 };
 
 struct MergedMapOptions {
-  bool fuse_points = true;              // fuse duplicates across submaps
-  int fuse_window = 10;                 // covisible keyframes taken around each connected keyframe
-  double fuse_radius_px = 3.0;          // search radius (x level scale) when fusing by projection
-  bool bundle_adjustment = true;        // global bundle adjustment after fusing
+  bool fuse_points = true;        // fuse duplicates across submaps
+  int fuse_window = 10;           // covisible keyframes taken around each connected keyframe
+  double fuse_radius_px = 3.0;    // search radius (x level scale) when fusing by projection
+  bool bundle_adjustment = true;  // global bundle adjustment after fusing
   int bundle_adjustment_iterations = 10;
 
   template <class Visitor>
@@ -57,12 +57,15 @@ struct MergerOptions {
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
-    v("min_connection_strength", min_connection_strength, "connection strength C = F + 0.1 M + 0.1 theta^2 needed to merge two submaps");
-    v("connection_weights", connection_weights, "weights of the connection strength C = frames F + points M + angle theta^2");
+    v("min_connection_strength", min_connection_strength,
+      "connection strength C = F + 0.1 M + 0.1 theta^2 needed to merge two submaps");
+    v("connection_weights", connection_weights,
+      "weights of the connection strength C = frames F + points M + angle theta^2");
     v("max_candidates", max_candidates, "connected-frame candidates verified per keyframe");
     v("min_matches", min_matches, "descriptor matches between map points needed to try a Sim3");
     v("match_ratio", match_ratio, "best / second-best descriptor distance for a match");
-    v("match_by_projection", match_by_projection, "when too few matches agree with a Sim3, search more by projecting with a first guess");
+    v("match_by_projection", match_by_projection,
+      "when too few matches agree with a Sim3, search more by projecting with a first guess");
     v("sim3_min_inliers", sim3_min_inliers, "map points that must agree with the Sim3 of a connected frame");
     v("request_resends", request_resends,
       "ask the mapper (on <agent>/SUBMAP_REQUEST) for keyframes and final states the link lost");

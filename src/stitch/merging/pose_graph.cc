@@ -8,7 +8,7 @@ namespace stitch {
 namespace {
 
 struct Parameters {
-  double rotation[4];     // x y z w (Eigen order)
+  double rotation[4];  // x y z w (Eigen order)
   double translation[3];
   double log_scale;
 };
@@ -22,7 +22,8 @@ struct RelativeSim3Error {
     const Eigen::Map<const Eigen::Matrix<T, 3, 1>> translation_i(ti), translation_j(tj);
     // Predicted i_from_j = (world_from_i)^-1 * world_from_j.
     const Eigen::Quaternion<T> rotation = rotation_i.conjugate() * rotation_j;
-    const Eigen::Matrix<T, 3, 1> translation = (rotation_i.conjugate() * (translation_j - translation_i)) * ceres::exp(-si[0]);
+    const Eigen::Matrix<T, 3, 1> translation =
+        (rotation_i.conjugate() * (translation_j - translation_i)) * ceres::exp(-si[0]);
     const T log_scale = sj[0] - si[0];
     Eigen::Quaternion<T> error = measured.rotation.cast<T>().conjugate() * rotation;
     const T sign = error.w() < T(0) ? T(-1) : T(1);
@@ -64,8 +65,9 @@ PoseGraphReport OptimizePoseGraph(std::map<KeyframeId, Sim3d>* poses, const std:
     if (i == parameters.end() || j == parameters.end() || e.i == e.j) continue;
     problem.AddResidualBlock(new ceres::AutoDiffCostFunction<RelativeSim3Error, 7, 4, 3, 1, 4, 3, 1>(
                                  new RelativeSim3Error(e.i_from_j, e.weight)),
-                             e.robust ? new ceres::HuberLoss(e.weight) : nullptr, i->second.rotation, i->second.translation, &i->second.log_scale,
-                             j->second.rotation, j->second.translation, &j->second.log_scale);
+                             e.robust ? new ceres::HuberLoss(e.weight) : nullptr, i->second.rotation,
+                             i->second.translation, &i->second.log_scale, j->second.rotation, j->second.translation,
+                             &j->second.log_scale);
     ++report.edges;
   }
   for (auto& [id, p] : parameters) {
@@ -92,7 +94,8 @@ PoseGraphReport OptimizePoseGraph(std::map<KeyframeId, Sim3d>* poses, const std:
   ceres::Solve(options, &problem, &summary);
   report.initial_cost = summary.initial_cost;
   report.final_cost = summary.final_cost;
-  report.converged = summary.termination_type == ceres::CONVERGENCE || summary.termination_type == ceres::NO_CONVERGENCE;
+  report.converged =
+      summary.termination_type == ceres::CONVERGENCE || summary.termination_type == ceres::NO_CONVERGENCE;
   for (auto& [id, p] : parameters) {
     if (!problem.HasParameterBlock(p.rotation)) continue;
     (*poses)[id] = Sim3d(std::exp(p.log_scale),

@@ -15,7 +15,7 @@ namespace stitch {
 
 struct PoseGraphEdge {
   KeyframeId i, j;
-  Sim3d i_from_j;       // camera j in camera i's frame
+  Sim3d i_from_j;  // camera j in camera i's frame
   double weight = 1.0;
   bool robust = false;  // Huber cost: for measurements that may be wrong (connected frames)
 };

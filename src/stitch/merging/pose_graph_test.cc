@@ -11,9 +11,9 @@ namespace {
 std::map<KeyframeId, Sim3d> Path(int n) {
   std::map<KeyframeId, Sim3d> poses;
   for (int k = 0; k < n; ++k) {
-    poses[MakeKeyframeId(MakeSubmapId(0, 1), k)] =
-        Sim3d(1.0 + 0.01 * k, Eigen::Quaterniond(Eigen::AngleAxisd(0.05 * k, Eigen::Vector3d(0.1, 0.2, 1).normalized())),
-              Eigen::Vector3d(0.5 * k, 0.1 * k * k / n, 0.02 * k));
+    poses[MakeKeyframeId(MakeSubmapId(0, 1), k)] = Sim3d(
+        1.0 + 0.01 * k, Eigen::Quaterniond(Eigen::AngleAxisd(0.05 * k, Eigen::Vector3d(0.1, 0.2, 1).normalized())),
+        Eigen::Vector3d(0.5 * k, 0.1 * k * k / n, 0.02 * k));
   }
   return poses;
 }
@@ -26,8 +26,8 @@ std::vector<PoseGraphEdge> ExactEdges(const std::map<KeyframeId, Sim3d>& poses) 
     previous = id;
   }
   // A loop: the last keyframe measured from the first.
-  edges.push_back({poses.begin()->first, poses.rbegin()->first, poses.begin()->second.Inverse() * poses.rbegin()->second,
-                   1.0, true});
+  edges.push_back({poses.begin()->first, poses.rbegin()->first,
+                   poses.begin()->second.Inverse() * poses.rbegin()->second, 1.0, true});
   return edges;
 }
 
@@ -53,7 +53,8 @@ TEST(PoseGraph, PerturbedKeyframesReturnToTheirMeasuredPlaces) {
   for (auto& [id, pose] : poses) {
     if (id == truth.begin()->first) continue;
     pose.translation += Eigen::Vector3d(noise(rng), noise(rng), noise(rng));
-    pose.rotation = (pose.rotation * Eigen::Quaterniond(Eigen::AngleAxisd(noise(rng), Eigen::Vector3d::UnitX()))).normalized();
+    pose.rotation =
+        (pose.rotation * Eigen::Quaterniond(Eigen::AngleAxisd(noise(rng), Eigen::Vector3d::UnitX()))).normalized();
     pose.scale *= std::exp(noise(rng));
   }
   OptimizePoseGraph(&poses, ExactEdges(truth), {truth.begin()->first}, 50);

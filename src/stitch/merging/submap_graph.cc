@@ -45,7 +45,8 @@ double ConnectionStrength(int connected_frames, int map_points, double median_an
 
 bool SimilaritiesAgree(const Sim3d& x, const Sim3d& y) {
   const Sim3d difference = x.Inverse() * y;
-  return RotationAngle(difference.rotation) <= kAgreeingRotationRad && std::abs(std::log(difference.scale)) <= kAgreeingLogScale;
+  return RotationAngle(difference.rotation) <= kAgreeingRotationRad &&
+         std::abs(std::log(difference.scale)) <= kAgreeingLogScale;
 }
 
 std::vector<SubmapEdge> SummarizeConnections(const std::vector<ConnectedFrame>& connections,

@@ -8,21 +8,21 @@
 
 #include <cmath>
 #include <map>
-#include <vector>
 #include <utility>
+#include <vector>
 
 #include "stitch/geometry/rigid3.h"
-#include "stitch/util/ids.h"
 #include "stitch/merging/merger_options.h"
+#include "stitch/util/ids.h"
 
 namespace stitch {
 
 // A keyframe of submap `a` verified against a keyframe of submap `b`.
 struct ConnectedFrame {
   KeyframeId keyframe_a, keyframe_b;
-  Sim3d b_from_a;              // submap b's frame from submap a's
-  int map_points = 0;          // matched map points that agree with b_from_a
-  double median_angle_deg = 0; // median intersection angle of those points' rays from the two cameras
+  Sim3d b_from_a;               // submap b's frame from submap a's
+  int map_points = 0;           // matched map points that agree with b_from_a
+  double median_angle_deg = 0;  // median intersection angle of those points' rays from the two cameras
   std::vector<std::pair<MapPointId, MapPointId>> point_pairs;  // those points: (in a, in b)
 };
 
@@ -41,12 +41,12 @@ double ConnectionStrength(int connected_frames, int map_points, double median_an
 
 struct SubmapEdge {
   SubmapId a, b;
-  int connected_frames = 0;    // F
-  int map_points = 0;          // M
-  double median_angle_deg = 0; // theta_m, over the connected frames
-  double strength = 0;         // C
-  Sim3d b_from_a;              // from the connected frame with the most map points among the agreeing ones
-  int disagreeing_frames = 0;  // connected frames left out because they disagree with b_from_a
+  int connected_frames = 0;     // F
+  int map_points = 0;           // M
+  double median_angle_deg = 0;  // theta_m, over the connected frames
+  double strength = 0;          // C
+  Sim3d b_from_a;               // from the connected frame with the most map points among the agreeing ones
+  int disagreeing_frames = 0;   // connected frames left out because they disagree with b_from_a
 };
 
 // One edge per pair of submaps with connected frames between them (either direction). The
@@ -63,8 +63,8 @@ std::vector<SubmapEdge> MinimumSpanningForest(const std::vector<SubmapId>& subma
                                               double min_strength);
 
 struct SubmapPlacement {
-  int component = -1;         // merged map; 0 is the one with the most keyframes
-  SubmapId root;              // the component's largest submap, whose frame is the component's
+  int component = -1;  // merged map; 0 is the one with the most keyframes
+  SubmapId root;       // the component's largest submap, whose frame is the component's
   Sim3d world_from_submap;
 };
 

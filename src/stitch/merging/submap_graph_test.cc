@@ -5,7 +5,9 @@
 namespace stitch {
 namespace {
 
-SubmapId S(char name) { return MakeSubmapId(0, name - 'A' + 1); }
+SubmapId S(char name) {
+  return MakeSubmapId(0, name - 'A' + 1);
+}
 
 SubmapEdge Edge(char a, char b, double strength, const Sim3d& b_from_a = Sim3d()) {
   SubmapEdge e;
@@ -52,7 +54,8 @@ TEST(SubmapGraph, ConnectionsOfAPairInEitherDirectionMakeOneEdge) {
 // can pass verification with many points and still be tens of degrees off. The pair's other
 // connected frames outvote it, and it neither places the submap nor counts in the strength.
 TEST(SubmapGraph, ConnectedFramesThatDisagreeWithTheOthersAreOutvoted) {
-  const Sim3d b_from_a(0.77, Eigen::Quaterniond(Eigen::AngleAxisd(0.87, Eigen::Vector3d::UnitZ())), Eigen::Vector3d(-0.3, -0.6, 0.2));
+  const Sim3d b_from_a(0.77, Eigen::Quaterniond(Eigen::AngleAxisd(0.87, Eigen::Vector3d::UnitZ())),
+                       Eigen::Vector3d(-0.3, -0.6, 0.2));
   const auto nudged = [&](double degrees) {
     Sim3d s = b_from_a;
     s.rotation = Eigen::Quaterniond(Eigen::AngleAxisd(degrees * M_PI / 180.0, Eigen::Vector3d::UnitX())) * s.rotation;
@@ -111,8 +114,10 @@ TEST(SubmapGraph, KruskalTakesTheStrongestConnectionsInOrder) {
 }
 
 TEST(SubmapGraph, PlacementComposesTheSimilaritiesAlongTheTree) {
-  const Sim3d b_from_a(2.0, Eigen::Quaterniond(Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitZ())), Eigen::Vector3d(1, 2, 3));
-  const Sim3d c_from_b(0.5, Eigen::Quaterniond(Eigen::AngleAxisd(-0.2, Eigen::Vector3d::UnitX())), Eigen::Vector3d(0, 1, 0));
+  const Sim3d b_from_a(2.0, Eigen::Quaterniond(Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitZ())),
+                       Eigen::Vector3d(1, 2, 3));
+  const Sim3d c_from_b(0.5, Eigen::Quaterniond(Eigen::AngleAxisd(-0.2, Eigen::Vector3d::UnitX())),
+                       Eigen::Vector3d(0, 1, 0));
   const std::vector<SubmapEdge> tree = {Edge('A', 'B', 50, b_from_a), Edge('B', 'C', 40, c_from_b)};
   const auto placement = PlaceSubmaps({{S('A'), 20}, {S('B'), 5}, {S('C'), 5}}, tree);
   // A point of the world (A's frame) seen in C's frame comes back to the same place.

@@ -38,6 +38,7 @@ struct InlineRun {
 // Plays `sequence` through the tracker, mapper and merger; `on_frame` (optional) sees every
 // frame as it is done. Throws stitch::Error on invalid settings.
 InlineRun RunInline(ImageSequence& sequence, const PipelineOptions& options, const Vocabulary& vocabulary,
-                    const std::function<void(const InlineFrame&)>& on_frame = nullptr, bool keep_submap_updates = false);
+                    const std::function<void(const InlineFrame&)>& on_frame = nullptr,
+                    bool keep_submap_updates = false);
 
 }  // namespace stitch

@@ -94,7 +94,9 @@ class ScriptedSequence : public ImageSequence {
 void Play(std::vector<int>* script, int first, int last) {
   for (int i = first; i <= last; ++i) script->push_back(i);
 }
-void Repeat(std::vector<int>* script, int entry, int count) { script->insert(script->end(), count, entry); }
+void Repeat(std::vector<int>* script, int entry, int count) {
+  script->insert(script->end(), count, entry);
+}
 
 InlineRun RunScript(const std::vector<int>& script, const std::string& on_loss, bool keyframe_worker = true) {
   PipelineOptions options;
@@ -251,7 +253,7 @@ TEST(TrackingLoss, ALossRightAfterAKeyframeClosesTheSubmapWithThatKeyframe) {
 TEST(TrackingLoss, TwoLossesInARowCloseOneSubmapAndBurnNoNumber) {
   std::vector<int> script;
   Play(&script, 0, 59);
-  Repeat(&script, ScriptedSequence::kBlack, 5);                   // the first failure
+  Repeat(&script, ScriptedSequence::kBlack, 5);                                  // the first failure
   for (int i = 65; i < 70; ++i) script.push_back(ScriptedSequence::Blurred(i));  // the second, at once
   Play(&script, 70, 119);
   const InlineRun run = RunScript(script, "submap");
@@ -289,7 +291,8 @@ class ShakingSequence : public ImageSequence {
       const int64_t t = flown.poses()[i].t_ns;
       Rigid3d world_from_cam = flown.poses()[i].world_from_cam;
       const double roll = i >= shake_from ? amplitude_deg * std::sin(2.1 * i) : 0.0;
-      world_from_cam.rotation = world_from_cam.rotation * Eigen::Quaterniond(Eigen::AngleAxisd(roll * M_PI / 180, Eigen::Vector3d::UnitZ()));
+      world_from_cam.rotation =
+          world_from_cam.rotation * Eigen::Quaterniond(Eigen::AngleAxisd(roll * M_PI / 180, Eigen::Vector3d::UnitZ()));
       truth_.Add({t, world_from_cam});
     }
   }
@@ -345,9 +348,11 @@ TEST(HomographyTracking, KeepsAShakingCameraOnTrackWhereTheMotionModelGoesAstray
     ASSERT_TRUE(e.errors);
     ate[variant] = e.errors->ate_rmse_m;
     const char* names[] = {"off", "on", "on, region of interest"};
-    std::printf("homography tracking %s: %d of %d frames tracked (%d placed by the homography, %.2f ms each), %d submap(s), "
-                "ATE %.3f m\n", names[variant], ok, sequence.size(), by_homography,
-                by_homography ? homography_ms / by_homography : 0.0, run.submaps, ate[variant]);
+    std::printf(
+        "homography tracking %s: %d of %d frames tracked (%d placed by the homography, %.2f ms each), %d submap(s), "
+        "ATE %.3f m\n",
+        names[variant], ok, sequence.size(), by_homography, by_homography ? homography_ms / by_homography : 0.0,
+        run.submaps, ate[variant]);
     if (variant > 0) {
       EXPECT_EQ(run.submaps, 1);
       EXPECT_GE(ok, sequence.size() - 3);  // all but the frames before initialization

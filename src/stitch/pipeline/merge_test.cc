@@ -6,8 +6,8 @@
 
 #include <gtest/gtest.h>
 
-#include "stitch/pipeline/inline_pipeline.h"
 #include "stitch/geometry/similarity.h"
+#include "stitch/pipeline/inline_pipeline.h"
 #include "stitch/source/source.h"
 #include "stitch/testing/default_vocabulary.h"
 

@@ -62,10 +62,12 @@ std::ofstream AppendToFrameRecord(const std::string& path) {
     std::string tail(tail_size, '\0');
     std::ifstream in(path, std::ios::binary);
     in.seekg(static_cast<std::streamoff>(size - tail_size));
-    if (!in.read(tail.data(), static_cast<std::streamsize>(tail_size))) throw Error(path + ": cannot read the frame record");
+    if (!in.read(tail.data(), static_cast<std::streamsize>(tail_size)))
+      throw Error(path + ": cannot read the frame record");
     if (tail.back() != '\n') {
       const size_t newline = tail.rfind('\n');
-      if (newline == std::string::npos && tail_size < size) throw Error(path + ": not a frame record (no line ends in its last 64 KiB)");
+      if (newline == std::string::npos && tail_size < size)
+        throw Error(path + ": not a frame record (no line ends in its last 64 KiB)");
       kept = size - tail_size + (newline == std::string::npos ? 0 : newline + 1);
       std::filesystem::resize_file(path, kept, error);
       if (error) throw Error(path + ": cannot drop the frame record's unfinished last line: " + error.message());

@@ -14,10 +14,10 @@ namespace stitch {
 struct FrameRecord {
   int frame_index = -1;
   int64_t t_ns = 0;
-  std::string state;        // INITIALIZING, OK, LOST, SKIPPED, NOT_TRACKED
-  int reason = 0;           // tracking_status_t REASON_* value
+  std::string state;  // INITIALIZING, OK, LOST, SKIPPED, NOT_TRACKED
+  int reason = 0;     // tracking_status_t REASON_* value
   int64_t submap_id = -1;
-  Rigid3d world_from_cam;   // in the submap's frame; meaningful when state == "OK"
+  Rigid3d world_from_cam;           // in the submap's frame; meaningful when state == "OK"
   int64_t reference_keyframe = -1;  // keyframe the pose was tracked against (-1: none)
   Rigid3d cam_from_reference;       // the pose relative to that keyframe
   int num_features = 0;
@@ -26,7 +26,7 @@ struct FrameRecord {
   double tracking_ms = 0;
 };
 
-std::string FrameRecordHeader();  // "# ..." line, with newline
+std::string FrameRecordHeader();                           // "# ..." line, with newline
 std::string FormatFrameRecord(const FrameRecord& record);  // one line, with newline
 // Throws stitch::Error naming the line for a malformed record.
 std::vector<FrameRecord> ReadFrameRecords(const std::string& path);

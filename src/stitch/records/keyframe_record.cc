@@ -9,7 +9,8 @@
 namespace stitch {
 
 std::string KeyframeRecordHeader() {
-  return "# keyframe_id submap_id frame_index t_ns culled tx ty tz qx qy qz qw (world_from_cam in the submap's frame)\n";
+  return "# keyframe_id submap_id frame_index t_ns culled tx ty tz qx qy qz qw (world_from_cam in the submap's "
+         "frame)\n";
 }
 
 std::string FormatKeyframeRecord(const KeyframeRecord& r) {

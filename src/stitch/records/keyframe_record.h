@@ -20,7 +20,7 @@ struct KeyframeRecord {
   Rigid3d world_from_cam;  // in the submap's frame
 };
 
-std::string KeyframeRecordHeader();  // "# ..." line, with newline
+std::string KeyframeRecordHeader();                              // "# ..." line, with newline
 std::string FormatKeyframeRecord(const KeyframeRecord& record);  // one line, with newline
 // Throws stitch::Error naming the file and line for a malformed record or an unreadable file.
 std::vector<KeyframeRecord> ReadKeyframeRecords(const std::string& path);

@@ -13,8 +13,9 @@ namespace {
 TEST(KeyframeRecord, RoundTripsThroughTheFile) {
   testing::TempDir dir;
   const std::string path = dir / "keyframes.tsv";
-  const KeyframeRecord kept{4294967297, 4294967296, 12, 600'000'000,
-                            false, Rigid3d(Eigen::Quaterniond(0.6, 0, 0.8, 0), Eigen::Vector3d(1.5, -2, 10))};
+  const KeyframeRecord kept{4294967297, 4294967296,
+                            12,         600'000'000,
+                            false,      Rigid3d(Eigen::Quaterniond(0.6, 0, 0.8, 0), Eigen::Vector3d(1.5, -2, 10))};
   KeyframeRecord culled = kept;
   culled.keyframe_id = 4294967298;
   culled.culled = true;

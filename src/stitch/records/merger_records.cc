@@ -71,11 +71,12 @@ bool ParseIds(const std::string& text, std::vector<KeyframeId>* ids) {
 }  // namespace
 
 void WriteSubmapRecords(const std::string& path, const std::vector<SubmapRecord>& records) {
-  std::string text = "# submap_id component root keyframes points closed scale qx qy qz qw tx ty tz (world_from_submap)\n";
+  std::string text =
+      "# submap_id component root keyframes points closed scale qx qy qz qw tx ty tz (world_from_submap)\n";
   for (const SubmapRecord& r : records) {
     char head[160];
-    std::snprintf(head, sizeof(head), "%" PRId64 " %d %" PRId64 " %zu %zu %d ", r.submap.value, r.component, r.root.value,
-                  r.keyframes, r.points, r.closed ? 1 : 0);
+    std::snprintf(head, sizeof(head), "%" PRId64 " %d %" PRId64 " %zu %zu %d ", r.submap.value, r.component,
+                  r.root.value, r.keyframes, r.points, r.closed ? 1 : 0);
     text += head + FormatSim3(r.world_from_submap) + "\n";
   }
   WriteFileAtomically(path, text);
@@ -158,8 +159,8 @@ std::vector<RetrievalRecord> ReadRetrievalRecords(const std::string& path) {
   return ReadLines<RetrievalRecord>(path, "retrieval record", [](const std::string& line, RetrievalRecord* r) {
     const std::vector<std::string> f = SplitTabs(line);
     if (f.size() != 16) return false;
-    std::istringstream numbers(f[0] + " " + f[1] + " " + f[2] + " " + f[3] + " " + f[4] + " " + f[5] + " " + f[6] + " " +
-                               f[7] + " " + f[8] + " " + f[9]);
+    std::istringstream numbers(f[0] + " " + f[1] + " " + f[2] + " " + f[3] + " " + f[4] + " " + f[5] + " " + f[6] +
+                               " " + f[7] + " " + f[8] + " " + f[9]);
     numbers >> r->keyframe.value >> r->previous.value >> r->nearby.value >> r->n0 >> r->n1 >> r->s0 >> r->s1 >> r->k >>
         r->l >> r->shared_word_candidates;
     if (!numbers || !ParseIds(f[10], &r->candidates) || !ParseIds(f[11], &r->connected) ||

@@ -51,9 +51,9 @@ std::vector<ConnectionRecord> ReadConnectionRecords(const std::string& path);
 // One connected-frame query, as the method's thresholds need to be studied.
 struct RetrievalRecord {
   KeyframeId keyframe, previous, nearby;
-  int n0 = 0, n1 = 0;     // words shared with the previous / the ~50%-overlap keyframe
-  double s0 = 0, s1 = 0;  // BoW scores with them
-  double k = 0, l = 0;    // N1/N0 and S1/S0
+  int n0 = 0, n1 = 0;                  // words shared with the previous / the ~50%-overlap keyframe
+  double s0 = 0, s1 = 0;               // BoW scores with them
+  double k = 0, l = 0;                 // N1/N0 and S1/S0
   int shared_word_candidates = 0;      // frames in other submaps passing k
   std::vector<KeyframeId> candidates;  // ...then passing l (verified in this order, at most max_candidates)
   std::vector<KeyframeId> connected;   // verified

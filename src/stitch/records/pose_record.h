@@ -15,7 +15,7 @@ struct PoseRecord {
   int frame_index = -1;
   int64_t t_ns = 0;
   int64_t submap_id = -1;
-  int component = -1;   // merged map; equal values share one frame
+  int component = -1;  // merged map; equal values share one frame
   bool is_keyframe = false;
   Rigid3d world_from_cam;  // in the component's frame (its scale is arbitrary)
 };

@@ -11,11 +11,21 @@ namespace fs = std::filesystem;
 namespace stitch {
 
 nlohmann::json RunInfo::ToJson() const {
-  return {{"source", source},           {"dataset", dataset},           {"frames_total", frames_total},
-          {"frames_unusable", frames_unusable}, {"failures", failures}, {"on_loss", on_loss},
-          {"pacing", pacing},           {"lcm_url", lcm_url},           {"agent", agent},
-          {"started_at", started_at},   {"wall_seconds", wall_seconds}, {"interrupted", interrupted},
-          {"link", link},               {"link_figures", link_figures}, {"notes", notes}};
+  return {{"source", source},
+          {"dataset", dataset},
+          {"frames_total", frames_total},
+          {"frames_unusable", frames_unusable},
+          {"failures", failures},
+          {"on_loss", on_loss},
+          {"pacing", pacing},
+          {"lcm_url", lcm_url},
+          {"agent", agent},
+          {"started_at", started_at},
+          {"wall_seconds", wall_seconds},
+          {"interrupted", interrupted},
+          {"link", link},
+          {"link_figures", link_figures},
+          {"notes", notes}};
 }
 
 RunInfo RunInfo::FromJson(const nlohmann::json& j) {

@@ -10,11 +10,11 @@
 namespace stitch {
 
 struct RunInfo {
-  std::string source;        // what was played
-  std::string dataset;       // its path; empty for the synthetic flight
+  std::string source;   // what was played
+  std::string dataset;  // its path; empty for the synthetic flight
   int frames_total = 0;
   int frames_unusable = 0;
-  std::string failures;      // the failure schedule, "none" when empty
+  std::string failures;  // the failure schedule, "none" when empty
   std::string on_loss;
   std::string pacing;
   std::string lcm_url;

@@ -49,7 +49,8 @@ FailureSchedule ResolveFailures(const SourceSpec& spec, int num_frames) {
 std::unique_ptr<ImageSequence> OpenSource(const SourceSpec& spec, FailureSchedule* spoil) {
   if (spec.synthetic_source()) {
     const SyntheticOptions& options = spec.synthetic;
-    const int played = spec.max_frames > 0 ? std::min(spec.max_frames, options.flight.num_frames) : options.flight.num_frames;
+    const int played =
+        spec.max_frames > 0 ? std::min(spec.max_frames, options.flight.num_frames) : options.flight.num_frames;
     // Gusts are scheduled in frames of the played part.
     FailureSchedule gusts = ResolveFailures(spec, played);
     std::vector<FailureWindow> shifted;

@@ -11,12 +11,12 @@
 namespace stitch {
 
 struct SourceSpec {
-  std::string dataset_path;     // empty: the synthetic flight
-  std::string calibration_path; // overrides the dataset's calibration
+  std::string dataset_path;          // empty: the synthetic flight
+  std::string calibration_path;      // overrides the dataset's calibration
   std::string failures = "default";  // "default" (synthetic: 3 gusts; datasets: none), "none", or FRAME:LENGTH,...
-  int max_frames = -1;          // -1: all
+  int max_frames = -1;               // -1: all
   int start_frame = 0;
-  SyntheticOptions synthetic;   // used when dataset_path is empty
+  SyntheticOptions synthetic;  // used when dataset_path is empty
 
   bool synthetic_source() const { return dataset_path.empty(); }
 };

@@ -10,7 +10,9 @@
 namespace stitch {
 namespace {
 
-double Deg(double d) { return d * M_PI / 180.0; }
+double Deg(double d) {
+  return d * M_PI / 180.0;
+}
 
 // Smooth 0 -> 1 over [0, 1].
 double SmoothStep(double t) {
@@ -21,20 +23,27 @@ double SmoothStep(double t) {
 }  // namespace
 
 bool FlightOptions::Check(std::string* why) const {
-  auto fail = [&](const std::string& m) { if (why) *why = m; return false; };
+  auto fail = [&](const std::string& m) {
+    if (why) *why = m;
+    return false;
+  };
   if (num_frames < 2 || num_frames > 1000000) return fail("flight.num_frames must be in [2, 1000000]");
   if (!(fps > 0 && fps <= 1000)) return fail("flight.fps must be in (0, 1000]");
   if (!(altitude_m >= 5 && altitude_m <= 5000)) return fail("flight.altitude_m must be in [5, 5000]");
   if (num_strips < 1 || num_strips > 100) return fail("flight.num_strips must be in [1, 100]");
   if (!(strip_length_m > 0 && strip_length_m <= 20000)) return fail("flight.strip_length_m must be in (0, 20000]");
   if (!(side_overlap >= 0 && side_overlap < 0.95)) return fail("flight.side_overlap must be in [0, 0.95)");
-  if (!(attitude_jitter_deg >= 0 && attitude_jitter_deg <= 20)) return fail("flight.attitude_jitter_deg must be in [0, 20]");
+  if (!(attitude_jitter_deg >= 0 && attitude_jitter_deg <= 20))
+    return fail("flight.attitude_jitter_deg must be in [0, 20]");
   if (!(altitude_jitter_m >= 0)) return fail("flight.altitude_jitter_m must be >= 0");
   return true;
 }
 
 bool GustOptions::Check(std::string* why) const {
-  auto fail = [&](const std::string& m) { if (why) *why = m; return false; };
+  auto fail = [&](const std::string& m) {
+    if (why) *why = m;
+    return false;
+  };
   if (!(std::abs(yaw_deg) <= 180)) return fail("gust.yaw_deg must be in [-180, 180]");
   if (!(altitude_change >= 0 && altitude_change < 0.6)) return fail("gust.altitude_change must be in [0, 0.6)");
   if (!(lateral_m >= 0)) return fail("gust.lateral_m must be >= 0");
@@ -53,8 +62,7 @@ FlightPlan::FlightPlan(const FlightOptions& flight, const GustOptions& gust, con
   const double footprint_across = camera.width() * flight_.altitude_m / camera.fx();
   const double footprint_along = camera.height() * flight_.altitude_m / camera.fy();
   strip_spacing_ = (1.0 - flight_.side_overlap) * footprint_across;
-  path_length_ = flight_.num_strips * flight_.strip_length_m +
-                 (flight_.num_strips - 1) * M_PI * strip_spacing_ / 2;
+  path_length_ = flight_.num_strips * flight_.strip_length_m + (flight_.num_strips - 1) * M_PI * strip_spacing_ / 2;
 
   Rng rng(seed);
   // Wind: two slow sinusoids per axis with random phases.
@@ -72,10 +80,9 @@ FlightPlan::FlightPlan(const FlightOptions& flight, const GustOptions& gust, con
     const double sign_yaw = rng.Uniform() < 0.5 ? -1 : 1;
     const double sign_lateral = rng.Uniform() < 0.5 ? -1 : 1;
     const double sign_altitude = rng.Uniform() < 0.5 ? -1 : 1;
-    effects.push_back({sign_yaw * Deg(gust_.yaw_deg) * rng.Uniform(0.8, 1.0),
-                       sign_lateral * gust_.lateral_m * rng.Uniform(0.8, 1.0),
-                       sign_altitude * gust_.altitude_change * flight_.altitude_m * rng.Uniform(0.8, 1.0),
-                       rng.Uniform(0, M_PI)});
+    effects.push_back(
+        {sign_yaw * Deg(gust_.yaw_deg) * rng.Uniform(0.8, 1.0), sign_lateral * gust_.lateral_m * rng.Uniform(0.8, 1.0),
+         sign_altitude * gust_.altitude_change * flight_.altitude_m * rng.Uniform(0.8, 1.0), rng.Uniform(0, M_PI)});
   }
 
   min_xy_ = Eigen::Vector2d::Constant(1e18);
@@ -87,8 +94,7 @@ FlightPlan::FlightPlan(const FlightOptions& flight, const GustOptions& gust, con
     Eigen::Vector2d position;
     double heading;
     PathAt(path_length_ * i / (flight_.num_frames - 1), &position, &heading);
-    double altitude = flight_.altitude_m +
-                      flight_.altitude_jitter_m * std::sin(2 * M_PI * frequency[0] * t + phase[0]);
+    double altitude = flight_.altitude_m + flight_.altitude_jitter_m * std::sin(2 * M_PI * frequency[0] * t + phase[0]);
     double roll = Deg(flight_.attitude_jitter_deg) * std::sin(2 * M_PI * frequency[1] * t + phase[1]) +
                   0.5 * Deg(flight_.attitude_jitter_deg) * std::sin(2 * M_PI * frequency[2] * t + phase[2]);
     double pitch = Deg(flight_.attitude_jitter_deg) * std::sin(2 * M_PI * frequency[3] * t + phase[3]) +
@@ -113,10 +119,9 @@ FlightPlan::FlightPlan(const FlightOptions& flight, const GustOptions& gust, con
     }
     // Body: x forward, y left, z up. Camera: looks down (z_cam = -z_body), image top forward
     // (y_cam = -x_body), image right to the right (x_cam = -y_body).
-    const Eigen::Quaterniond world_from_body =
-        Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()) *
-        Eigen::AngleAxisd(pitch, Eigen::Vector3d::UnitY()) *
-        Eigen::AngleAxisd(roll, Eigen::Vector3d::UnitX());
+    const Eigen::Quaterniond world_from_body = Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()) *
+                                               Eigen::AngleAxisd(pitch, Eigen::Vector3d::UnitY()) *
+                                               Eigen::AngleAxisd(roll, Eigen::Vector3d::UnitX());
     Eigen::Matrix3d body_from_cam;
     body_from_cam.col(0) = -Eigen::Vector3d::UnitY();
     body_from_cam.col(1) = -Eigen::Vector3d::UnitX();

@@ -19,11 +19,11 @@ namespace stitch {
 struct FlightOptions {
   int num_frames = 1000;
   double fps = 20.0;
-  double altitude_m = 70.0;           // above the terrain's mean height
+  double altitude_m = 70.0;  // above the terrain's mean height
   int num_strips = 4;
   double strip_length_m = 240.0;
-  double side_overlap = 0.6;          // fraction of the footprint shared by neighbouring strips
-  double attitude_jitter_deg = 1.0;   // wind: slow roll / pitch wobble
+  double side_overlap = 0.6;         // fraction of the footprint shared by neighbouring strips
+  double attitude_jitter_deg = 1.0;  // wind: slow roll / pitch wobble
   double altitude_jitter_m = 1.0;
 
   template <class Visitor>
@@ -63,8 +63,8 @@ struct GustOptions {
 class FlightPlan {
  public:
   // `camera` sets the footprint (and so the strip spacing). Throws stitch::Error on bad options.
-  FlightPlan(const FlightOptions& flight, const GustOptions& gust, const Camera& camera,
-             const FailureSchedule& gusts, uint64_t seed);
+  FlightPlan(const FlightOptions& flight, const GustOptions& gust, const Camera& camera, const FailureSchedule& gusts,
+             uint64_t seed);
 
   int num_frames() const { return flight_.num_frames; }
   int64_t TimestampNs(int frame) const;

@@ -23,8 +23,8 @@ TEST(FlightPlan, FliesParallelStripsWithTheRequestedSideOverlap) {
   EXPECT_NEAR(last.x(), options.num_strips % 2 == 0 ? 0.0 : options.strip_length_m, 1e-6);
   // The camera looks straight down, image top towards the flight direction.
   const Eigen::Matrix3d r = plan.WorldFromCam(5).RotationMatrix();
-  EXPECT_NEAR(r.col(2).z(), -1.0, 1e-9);             // optical axis down
-  EXPECT_NEAR(r.col(1).x(), -1.0, 1e-9);             // image down = backwards on strip 0 (+x)
+  EXPECT_NEAR(r.col(2).z(), -1.0, 1e-9);  // optical axis down
+  EXPECT_NEAR(r.col(1).x(), -1.0, 1e-9);  // image down = backwards on strip 0 (+x)
   // Equal steps along the path, about path length / frames.
   const double step = plan.path_length_m() / (options.num_frames - 1);
   for (int i = 1; i < options.num_frames; ++i) {

@@ -12,11 +12,11 @@ constexpr float kNearZ = 0.5f;       // metres; nothing of the world comes close
 constexpr uint8_t kBackground = 96;  // beyond the edge of the world
 
 struct Vertex {
-  float sx, sy;      // pixel
-  float inv_z;       // 1 / depth
-  float u_z, v_z;    // texture metres / depth
-  float shade_z;     // shade / depth
-  bool valid;        // in front of the near plane
+  float sx, sy;    // pixel
+  float inv_z;     // 1 / depth
+  float u_z, v_z;  // texture metres / depth
+  float shade_z;   // shade / depth
+  bool valid;      // in front of the near plane
 };
 
 // Bilinear sample of one mip level at texel coordinates (u, v).
@@ -52,8 +52,7 @@ class Rasterizer {
 
   // Draws a triangle whose texture coordinates are in metres of `texture` (u wraps for facades).
   // `world_area_m2` sets the mip level: texels the triangle covers over pixels it covers.
-  void Draw(const Vertex& a, const Vertex& b, const Vertex& c, const MipTexture& texture,
-            double world_area_m2) {
+  void Draw(const Vertex& a, const Vertex& b, const Vertex& c, const MipTexture& texture, double world_area_m2) {
     if (!a.valid || !b.valid || !c.valid) return;
     const float area = (b.sx - a.sx) * (c.sy - a.sy) - (b.sy - a.sy) * (c.sx - a.sx);
     // Counter-clockwise world triangles facing the camera have negative area in the image.
@@ -118,8 +117,7 @@ class Rasterizer {
 
 }  // namespace
 
-Renderer::Renderer(const SyntheticWorld& world, const Camera& camera)
-    : world_(world), camera_(camera) {
+Renderer::Renderer(const SyntheticWorld& world, const Camera& camera) : world_(world), camera_(camera) {
   if (camera_.HasDistortion()) {
     // For each pixel of the distorted image, where it lies in the pinhole image.
     distort_map_x_.create(camera_.height(), camera_.width(), CV_32F);
@@ -138,8 +136,8 @@ cv::Mat Renderer::Render(const Rigid3d& cam_from_world, cv::Mat* depth) const {
   cv::Mat pinhole = RenderPinhole(cam_from_world, depth);
   if (!camera_.HasDistortion()) return pinhole;
   cv::Mat distorted;
-  cv::remap(pinhole, distorted, distort_map_x_, distort_map_y_, cv::INTER_LINEAR,
-            cv::BORDER_CONSTANT, cv::Scalar(kBackground));
+  cv::remap(pinhole, distorted, distort_map_x_, distort_map_y_, cv::INTER_LINEAR, cv::BORDER_CONSTANT,
+            cv::Scalar(kBackground));
   return distorted;
 }
 
@@ -173,8 +171,8 @@ cv::Mat Renderer::RenderPinhole(const Rigid3d& cam_from_world, cv::Mat* depth) c
   bool unbounded = false;
   const double corners[4][2] = {{-0.5, -0.5}, {width - 0.5, -0.5}, {-0.5, height - 0.5}, {width - 0.5, height - 0.5}};
   for (const auto& corner : corners) {
-    const Eigen::Vector3d ray = world_from_cam.rotation *
-        Eigen::Vector3d((corner[0] - cx) / fx, (corner[1] - cy) / fy, 1.0);
+    const Eigen::Vector3d ray =
+        world_from_cam.rotation * Eigen::Vector3d((corner[0] - cx) / fx, (corner[1] - cy) / fy, 1.0);
     for (double ground : {world_.MinHeight(), world_.MaxHeight()}) {
       if (ray.z() >= -1e-6 || centre.z() <= ground) {
         unbounded = true;
@@ -191,9 +189,11 @@ cv::Mat Renderer::RenderPinhole(const Rigid3d& cam_from_world, cv::Mat* depth) c
   }
   const double spacing = world_.spacing();
   const int c0 = std::max(0, static_cast<int>(std::floor((lo.x() - world_.min_xy().x()) / spacing)) - 1);
-  const int c1 = std::min(world_.grid_cols() - 1, static_cast<int>(std::ceil((hi.x() - world_.min_xy().x()) / spacing)) + 1);
+  const int c1 =
+      std::min(world_.grid_cols() - 1, static_cast<int>(std::ceil((hi.x() - world_.min_xy().x()) / spacing)) + 1);
   const int r0 = std::max(0, static_cast<int>(std::floor((lo.y() - world_.min_xy().y()) / spacing)) - 1);
-  const int r1 = std::min(world_.grid_rows() - 1, static_cast<int>(std::ceil((hi.y() - world_.min_xy().y()) / spacing)) + 1);
+  const int r1 =
+      std::min(world_.grid_rows() - 1, static_cast<int>(std::ceil((hi.y() - world_.min_xy().y()) / spacing)) + 1);
 
   if (c0 < c1 && r0 < r1) {
     const int cols = c1 - c0 + 1;

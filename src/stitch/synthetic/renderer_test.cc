@@ -68,8 +68,8 @@ TEST(Renderer, MarkersLandWhereTheCameraModelProjectsThem) {
     for (const auto& [point, projected] : markers) {
       const double depth = (world_from_cam.Inverse() * point).z();
       const Eigen::Vector2d centroid = MarkerCentroid(image, projected, depth, camera.fx());
-      EXPECT_LT((centroid - projected).norm(), 0.5) << "frame " << frame << " marker at " << projected.transpose()
-                                                    << " rendered at " << centroid.transpose();
+      EXPECT_LT((centroid - projected).norm(), 0.5)
+          << "frame " << frame << " marker at " << projected.transpose() << " rendered at " << centroid.transpose();
     }
   }
 }
@@ -97,10 +97,13 @@ TEST(Renderer, DepthMatchesTheSurfaceAndBuildingsOcclude) {
     const int x = rng.UniformInt(0, camera.width() - 1), y = rng.UniformInt(0, camera.height() - 1);
     const float d = depth.at<float>(y, x);
     ASSERT_GT(d, 0.0f);
-    const Eigen::Vector3d p = world_from_cam * (camera.PixelToRay(Eigen::Vector2d(x, y)) * (d / camera.PixelToRay(Eigen::Vector2d(x, y)).z()));
+    const Eigen::Vector3d p = world_from_cam * (camera.PixelToRay(Eigen::Vector2d(x, y)) *
+                                                (d / camera.PixelToRay(Eigen::Vector2d(x, y)).z()));
     const double above_terrain = p.z() - world.TerrainHeight(p.x(), p.y());
-    if (std::abs(above_terrain) < 0.02) ++on_terrain;
-    else EXPECT_GT(above_terrain, 0.0) << "a point below the terrain at pixel " << x << "," << y;
+    if (std::abs(above_terrain) < 0.02)
+      ++on_terrain;
+    else
+      EXPECT_GT(above_terrain, 0.0) << "a point below the terrain at pixel " << x << "," << y;
   }
   EXPECT_GT(on_terrain, 100);
 }

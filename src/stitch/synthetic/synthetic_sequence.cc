@@ -9,7 +9,10 @@
 namespace stitch {
 
 bool SyntheticOptions::Check(std::string* why) const {
-  auto fail = [&](const std::string& m) { if (why) *why = m; return false; };
+  auto fail = [&](const std::string& m) {
+    if (why) *why = m;
+    return false;
+  };
   if (width < 32 || width > 8192 || height < 32 || height > 8192) {
     return fail("synthetic.width and height must be in [32, 8192]");
   }
@@ -37,9 +40,8 @@ SyntheticSequence::SyntheticSequence(const SyntheticOptions& options, const Fail
 }
 
 std::string SyntheticSequence::description() const {
-  return Str() << "synthetic UAV survey (seed " << options_.seed << ", " << flight_.num_frames()
-               << " frames, " << options_.width << "x" << options_.height << ", gusts "
-               << flight_.gusts().ToString() << ")";
+  return Str() << "synthetic UAV survey (seed " << options_.seed << ", " << flight_.num_frames() << " frames, "
+               << options_.width << "x" << options_.height << ", gusts " << flight_.gusts().ToString() << ")";
 }
 
 void SyntheticSequence::AddSensorNoise(cv::Mat* image, uint64_t key) const {

@@ -16,8 +16,8 @@ double ValueNoise(uint64_t seed, double x, double y) {
   const double fx = std::floor(x), fy = std::floor(y);
   const int64_t ix = static_cast<int64_t>(fx), iy = static_cast<int64_t>(fy);
   const auto lattice = [&](int64_t a, int64_t b) {
-    return static_cast<double>(HashU64(seed, static_cast<uint64_t>(a), static_cast<uint64_t>(b)) >> 11) *
-               0x1.0p-52 - 1.0;
+    return static_cast<double>(HashU64(seed, static_cast<uint64_t>(a), static_cast<uint64_t>(b)) >> 11) * 0x1.0p-52 -
+           1.0;
   };
   double tx = x - fx, ty = y - fy;
   tx = tx * tx * (3 - 2 * tx);
@@ -44,7 +44,9 @@ cv::Point ToTexel(const Eigen::Vector2d& world, const Eigen::Vector2d& origin, d
                    static_cast<int>(std::lround((world.y() - origin.y()) / texel)));
 }
 
-uint8_t Clamp8(double v) { return static_cast<uint8_t>(std::clamp(v, 0.0, 255.0)); }
+uint8_t Clamp8(double v) {
+  return static_cast<uint8_t>(std::clamp(v, 0.0, 255.0));
+}
 
 // Anti-aliased coverage (0-255) of a polygon over its bounding box clipped to the image; empty
 // when the polygon lies outside.
@@ -59,8 +61,8 @@ cv::Mat PolygonMask(const std::vector<cv::Point>& polygon, const cv::Size& image
 }
 
 // Fills a polygon, with parallel stripes inside it when stripe_spacing > 0 (crop rows).
-void FillField(cv::Mat& texture, const std::vector<cv::Point>& polygon, int intensity,
-               double stripe_angle, double stripe_spacing_texels, int stripe_delta) {
+void FillField(cv::Mat& texture, const std::vector<cv::Point>& polygon, int intensity, double stripe_angle,
+               double stripe_spacing_texels, int stripe_delta) {
   cv::Rect bounds;
   const cv::Mat mask = PolygonMask(polygon, texture.size(), &bounds);
   if (mask.empty()) return;
@@ -74,8 +76,7 @@ void FillField(cv::Mat& texture, const std::vector<cv::Point>& polygon, int inte
       const cv::Point2d base = centre + cv::Point2d(-s * offset, c * offset);
       const cv::Point a(cvRound(base.x - c * reach), cvRound(base.y - s * reach));
       const cv::Point b(cvRound(base.x + c * reach), cvRound(base.y + s * reach));
-      cv::line(patch, a, b, cv::Scalar(std::clamp(intensity + stripe_delta, 0, 255)), thickness,
-               cv::LINE_AA);
+      cv::line(patch, a, b, cv::Scalar(std::clamp(intensity + stripe_delta, 0, 255)), thickness, cv::LINE_AA);
     }
   }
   // Blend by the anti-aliased mask so field borders are smooth.
@@ -109,7 +110,10 @@ void Darken(cv::Mat& texture, const std::vector<cv::Point>& polygon, double fact
 }  // namespace
 
 bool WorldOptions::Check(std::string* why) const {
-  auto fail = [&](const std::string& m) { if (why) *why = m; return false; };
+  auto fail = [&](const std::string& m) {
+    if (why) *why = m;
+    return false;
+  };
   if (!(grid_spacing_m > 0.05 && grid_spacing_m <= 20)) return fail("world.grid_spacing_m must be in (0.05, 20]");
   if (!(texel_m > 0.005 && texel_m <= 2)) return fail("world.texel_m must be in (0.005, 2]");
   if (!(relief_m >= 0)) return fail("world.relief_m must be >= 0");
@@ -131,16 +135,16 @@ std::array<Eigen::Vector2d, 4> Building::Corners() const {
           centre + half_length * ax + half_width * ay, centre - half_length * ax + half_width * ay};
 }
 
-SyntheticWorld::SyntheticWorld(const WorldOptions& options, uint64_t seed,
-                               const Eigen::Vector2d& min_xy, const Eigen::Vector2d& max_xy)
+SyntheticWorld::SyntheticWorld(const WorldOptions& options, uint64_t seed, const Eigen::Vector2d& min_xy,
+                               const Eigen::Vector2d& max_xy)
     : options_(options), min_xy_(min_xy), max_xy_(max_xy) {
   std::string why;
   if (!options_.Check(&why)) throw Error(why);
   if (!((max_xy - min_xy).minCoeff() > 2 * options_.grid_spacing_m)) {
     throw Error("synthetic world: extent is too small");
   }
-  sun_direction_ = Eigen::Vector3d(std::cos(0.8) * std::cos(2.3), std::cos(0.8) * std::sin(2.3),
-                                   std::sin(0.8)).normalized();
+  sun_direction_ =
+      Eigen::Vector3d(std::cos(0.8) * std::cos(2.3), std::cos(0.8) * std::sin(2.3), std::sin(0.8)).normalized();
   BuildTerrain(seed);
   PlaceBuildings(seed + 101);
   FlattenUnderBuildings();
@@ -175,12 +179,14 @@ void SyntheticWorld::PlaceBuildings(uint64_t seed) {
                           min_xy_.y() + rng.Uniform(0.15, 0.85) * size.y());
   }
   int attempts = 0;
-  while (static_cast<int>(buildings_.size()) < options_.num_buildings && attempts++ < 200 * options_.num_buildings + 100) {
+  while (static_cast<int>(buildings_.size()) < options_.num_buildings &&
+         attempts++ < 200 * options_.num_buildings + 100) {
     const Eigen::Vector2d& village = villages[rng.UniformInt(0, num_villages - 1)];
     Building b;
     b.centre = village + Eigen::Vector2d(rng.Normal(0, 45), rng.Normal(0, 45));
     b.half_length = 0.5 * rng.Uniform(options_.building_min_side_m, options_.building_max_side_m);
-    b.half_width = 0.5 * rng.Uniform(options_.building_min_side_m, std::max(options_.building_min_side_m, 2 * b.half_length));
+    b.half_width =
+        0.5 * rng.Uniform(options_.building_min_side_m, std::max(options_.building_min_side_m, 2 * b.half_length));
     b.yaw = rng.Uniform(0, M_PI);
     b.height = rng.Uniform(options_.building_min_height_m, options_.building_max_height_m);
     b.facade_offset_m = rng.Uniform(0, 400);
@@ -218,7 +224,8 @@ void SyntheticWorld::FlattenUnderBuildings() {
     for (int r = r0; r <= r1; ++r) {
       for (int c = c0; c <= c1; ++c) {
         const Eigen::Vector2d d = Eigen::Vector2d(min_xy_.x() + c * spacing(), min_xy_.y() + r * spacing()) - b.centre;
-        const double outside = std::max(std::abs(d.dot(ax)) - b.half_length, std::abs(d.dot(ay)) - b.half_width) - margin;
+        const double outside =
+            std::max(std::abs(d.dot(ax)) - b.half_length, std::abs(d.dot(ay)) - b.half_width) - margin;
         float& h = heights_[r * grid_cols_ + c];
         if (outside <= 0) {
           h = static_cast<float>(b.base_z);
@@ -251,8 +258,7 @@ void SyntheticWorld::ComputeShading() {
 }
 
 float SyntheticWorld::WallShade(const Eigen::Vector2d& outward_normal) const {
-  const double lambert = std::max(0.0, outward_normal.normalized().dot(sun_direction_.head<2>())) /
-                         sun_direction_.z();
+  const double lambert = std::max(0.0, outward_normal.normalized().dot(sun_direction_.head<2>())) / sun_direction_.z();
   return static_cast<float>(0.45 + 0.45 * lambert);
 }
 
@@ -287,8 +293,8 @@ void SyntheticWorld::PaintGround(uint64_t seed) {
     std::vector<cv::Point> polygon;
     const double sx[] = {-1, 1, 1, -1}, sy[] = {-1, -1, 1, 1};
     for (int k = 0; k < 4; ++k) {
-      const Eigen::Vector2d corner = centre + sx[k] * half_a * ax + sy[k] * half_b * ay +
-                                     Eigen::Vector2d(rng.Normal(0, 4), rng.Normal(0, 4));
+      const Eigen::Vector2d corner =
+          centre + sx[k] * half_a * ax + sy[k] * half_b * ay + Eigen::Vector2d(rng.Normal(0, 4), rng.Normal(0, 4));
       polygon.push_back(to_texel(corner));
     }
     const int intensity = rng.UniformInt(55, 200);
@@ -313,7 +319,8 @@ void SyntheticWorld::PaintGround(uint64_t seed) {
       p += 8.0 * Eigen::Vector2d(std::cos(heading), std::sin(heading));
     }
     const int width = static_cast<int>(rng.Uniform(4, 7) / texel);
-    cv::polylines(texture, road, false, cv::Scalar(rng.UniformInt(60, 90)), width + static_cast<int>(1.0 / texel), cv::LINE_AA);
+    cv::polylines(texture, road, false, cv::Scalar(rng.UniformInt(60, 90)), width + static_cast<int>(1.0 / texel),
+                  cv::LINE_AA);
     cv::polylines(texture, road, false, cv::Scalar(rng.UniformInt(150, 200)), width, cv::LINE_AA);
     for (size_t s = 0; s + 1 < road.size(); s += 2) {
       cv::line(texture, road[s], road[s + 1], cv::Scalar(235), std::max(1, static_cast<int>(0.2 / texel)), cv::LINE_AA);
@@ -340,19 +347,25 @@ void SyntheticWorld::PaintGround(uint64_t seed) {
     const Eigen::Vector2d centre(min_xy_.x() + rng.Uniform() * size.x(), min_xy_.y() + rng.Uniform() * size.y());
     const double spread = rng.Uniform(10, 35);
     const int count = rng.UniformInt(60, 250);
-    for (int t = 0; t < count; ++t) tree_spots.push_back({centre + Eigen::Vector2d(rng.Normal(0, spread), rng.Normal(0, spread)), rng.Uniform(1.0, 3.0)});
+    for (int t = 0; t < count; ++t)
+      tree_spots.push_back(
+          {centre + Eigen::Vector2d(rng.Normal(0, spread), rng.Normal(0, spread)), rng.Uniform(1.0, 3.0)});
   }
   const int scattered = static_cast<int>(area / 300.0);
   for (int t = 0; t < scattered; ++t) {
-    tree_spots.push_back({Eigen::Vector2d(min_xy_.x() + rng.Uniform() * size.x(), min_xy_.y() + rng.Uniform() * size.y()), rng.Uniform(0.8, 2.5)});
+    tree_spots.push_back(
+        {Eigen::Vector2d(min_xy_.x() + rng.Uniform() * size.x(), min_xy_.y() + rng.Uniform() * size.y()),
+         rng.Uniform(0.8, 2.5)});
   }
   const Eigen::Vector2d sun_offset = sun_direction_.head<2>().normalized();
   for (const auto& [centre, radius] : tree_spots) {
     const int r = std::max(2, static_cast<int>(radius / texel));
     const double height = 2.5 * radius;
-    cv::circle(texture, to_texel(centre + height * 0.4 * shadow_per_metre), r, cv::Scalar(rng.UniformInt(20, 45)), cv::FILLED, cv::LINE_AA);
+    cv::circle(texture, to_texel(centre + height * 0.4 * shadow_per_metre), r, cv::Scalar(rng.UniformInt(20, 45)),
+               cv::FILLED, cv::LINE_AA);
     cv::circle(texture, to_texel(centre), r, cv::Scalar(rng.UniformInt(35, 80)), cv::FILLED, cv::LINE_AA);
-    cv::circle(texture, to_texel(centre + 0.35 * radius * sun_offset), std::max(1, r / 2), cv::Scalar(rng.UniformInt(80, 130)), cv::FILLED, cv::LINE_AA);
+    cv::circle(texture, to_texel(centre + 0.35 * radius * sun_offset), std::max(1, r / 2),
+               cv::Scalar(rng.UniformInt(80, 130)), cv::FILLED, cv::LINE_AA);
   }
 
   // Small things: stones, bushes, marks.
@@ -376,15 +389,20 @@ void SyntheticWorld::PaintGround(uint64_t seed) {
       std::vector<cv::Point> half{to_texel(corners[0]), to_texel(corners[1]), to_texel(b.centre + b.half_length * ax),
                                   to_texel(b.centre - b.half_length * ax)};
       cv::fillPoly(texture, std::vector<std::vector<cv::Point>>{half}, cv::Scalar(Clamp8(base * 0.65)), cv::LINE_AA);
-      cv::line(texture, to_texel(b.centre - b.half_length * ax), to_texel(b.centre + b.half_length * ax), cv::Scalar(Clamp8(base * 1.2)), std::max(1, static_cast<int>(0.4 / texel)), cv::LINE_AA);
+      cv::line(texture, to_texel(b.centre - b.half_length * ax), to_texel(b.centre + b.half_length * ax),
+               cv::Scalar(Clamp8(base * 1.2)), std::max(1, static_cast<int>(0.4 / texel)), cv::LINE_AA);
     } else {
-      cv::polylines(texture, roof, true, cv::Scalar(Clamp8(base * 0.5)), std::max(1, static_cast<int>(0.5 / texel)), cv::LINE_AA);
+      cv::polylines(texture, roof, true, cv::Scalar(Clamp8(base * 0.5)), std::max(1, static_cast<int>(0.5 / texel)),
+                    cv::LINE_AA);
       const int boxes = rng.UniformInt(1, 5);
       for (int k = 0; k < boxes; ++k) {
-        const Eigen::Vector2d c = b.centre + rng.Uniform(-0.6, 0.6) * b.half_length * ax + rng.Uniform(-0.6, 0.6) * b.half_width * ay;
+        const Eigen::Vector2d c =
+            b.centre + rng.Uniform(-0.6, 0.6) * b.half_length * ax + rng.Uniform(-0.6, 0.6) * b.half_width * ay;
         const double s = rng.Uniform(0.6, 2.0);
-        std::vector<cv::Point> box{to_texel(c - s * ax - s * ay), to_texel(c + s * ax - s * ay), to_texel(c + s * ax + s * ay), to_texel(c - s * ax + s * ay)};
-        cv::fillPoly(texture, std::vector<std::vector<cv::Point>>{box}, cv::Scalar(rng.UniformInt(20, 250)), cv::LINE_AA);
+        std::vector<cv::Point> box{to_texel(c - s * ax - s * ay), to_texel(c + s * ax - s * ay),
+                                   to_texel(c + s * ax + s * ay), to_texel(c - s * ax + s * ay)};
+        cv::fillPoly(texture, std::vector<std::vector<cv::Point>>{box}, cv::Scalar(rng.UniformInt(20, 250)),
+                     cv::LINE_AA);
       }
     }
   }
@@ -430,8 +448,8 @@ void SyntheticWorld::PaintFacades(uint64_t seed) {
     const double floor_h = rng.Uniform(2.8, 3.6), spacing = rng.Uniform(2.2, 4.0);
     const double win_w = rng.Uniform(0.8, std::min(1.8, spacing - 0.4)), win_h = rng.Uniform(1.0, 1.8);
     for (double v = 0.9; v + win_h < rows * texel; v += floor_h) {
-      cv::line(texture, cv::Point(x, static_cast<int>(v / texel) - 3), cv::Point(x + length, static_cast<int>(v / texel) - 3),
-               cv::Scalar(Clamp8(wall * 0.7)), 2);
+      cv::line(texture, cv::Point(x, static_cast<int>(v / texel) - 3),
+               cv::Point(x + length, static_cast<int>(v / texel) - 3), cv::Scalar(Clamp8(wall * 0.7)), 2);
       for (double u = 0.5; u + win_w < length * texel; u += spacing) {
         const cv::Rect window(x + static_cast<int>(u / texel), static_cast<int>(v / texel),
                               static_cast<int>(win_w / texel), static_cast<int>(win_h / texel));
@@ -457,9 +475,11 @@ void SyntheticWorld::PaintMarker(double x, double y, double radius_m) {
   const cv::Point2d centre((x - min_xy_.x()) / ground_.texel_m, (y - min_xy_.y()) / ground_.texel_m);
   constexpr int kShift = 4;  // sub-texel centre
   cv::circle(level0, cv::Point(cvRound(centre.x * (1 << kShift)), cvRound(centre.y * (1 << kShift))),
-             static_cast<int>(radius_m / ground_.texel_m * 2.0 * (1 << kShift)), cv::Scalar(0), cv::FILLED, cv::LINE_AA, kShift);
+             static_cast<int>(radius_m / ground_.texel_m * 2.0 * (1 << kShift)), cv::Scalar(0), cv::FILLED, cv::LINE_AA,
+             kShift);
   cv::circle(level0, cv::Point(cvRound(centre.x * (1 << kShift)), cvRound(centre.y * (1 << kShift))),
-             static_cast<int>(radius_m / ground_.texel_m * (1 << kShift)), cv::Scalar(255), cv::FILLED, cv::LINE_AA, kShift);
+             static_cast<int>(radius_m / ground_.texel_m * (1 << kShift)), cv::Scalar(255), cv::FILLED, cv::LINE_AA,
+             kShift);
   BuildMipLevels(&ground_);
 }
 

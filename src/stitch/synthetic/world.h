@@ -13,10 +13,10 @@
 namespace stitch {
 
 struct WorldOptions {
-  double grid_spacing_m = 1.0;    // terrain mesh resolution
-  double texel_m = 0.1;           // ground texture resolution
-  double relief_m = 8.0;          // amplitude of the hills (peak to mean)
-  double hill_wavelength_m = 160; // size of the largest hills
+  double grid_spacing_m = 1.0;     // terrain mesh resolution
+  double texel_m = 0.1;            // ground texture resolution
+  double relief_m = 8.0;           // amplitude of the hills (peak to mean)
+  double hill_wavelength_m = 160;  // size of the largest hills
   int num_buildings = 50;
   double building_min_height_m = 5.0;
   double building_max_height_m = 18.0;
@@ -39,10 +39,10 @@ struct WorldOptions {
 };
 
 struct Building {
-  Eigen::Vector2d centre;   // world x, y
-  double half_length = 0;   // along its own x axis
+  Eigen::Vector2d centre;  // world x, y
+  double half_length = 0;  // along its own x axis
   double half_width = 0;
-  double yaw = 0;           // radians, of its x axis from world x
+  double yaw = 0;  // radians, of its x axis from world x
   double base_z = 0;
   double height = 0;
   double facade_offset_m = 0;  // where its walls start in the facade texture

@@ -35,10 +35,10 @@ std::vector<char> FeatureRichCells(const Frame& frame, const std::vector<char>& 
   std::vector<std::vector<int>> cells(kCellsX * kCellsY);
   for (size_t i = 0; i < frame.size(); ++i) {
     if (!use[i]) continue;
-    const int cx = std::clamp(static_cast<int>(kCellsX * (frame.undistorted[i].x() - min_x) / (max_x - min_x + 1e-9)), 0,
-                              kCellsX - 1);
-    const int cy = std::clamp(static_cast<int>(kCellsY * (frame.undistorted[i].y() - min_y) / (max_y - min_y + 1e-9)), 0,
-                              kCellsY - 1);
+    const int cx = std::clamp(static_cast<int>(kCellsX * (frame.undistorted[i].x() - min_x) / (max_x - min_x + 1e-9)),
+                              0, kCellsX - 1);
+    const int cy = std::clamp(static_cast<int>(kCellsY * (frame.undistorted[i].y() - min_y) / (max_y - min_y + 1e-9)),
+                              0, kCellsY - 1);
     cells[cy * kCellsX + cx].push_back(static_cast<int>(i));
   }
   int occupied = 0, total = 0;
@@ -68,7 +68,8 @@ FramePlacer::FramePlacer(const TrackingOptions& options, const ViewGeometry* geo
       wait_for_keyframe_bow_(std::move(wait_for_keyframe_bow)) {}
 
 FramePlacer::Placement FramePlacer::Place(Frame* frame, const Map& map, const Frame* last,
-                                          const std::optional<Rigid3d>& velocity, int min_inliers, KeyframeId* reference) {
+                                          const std::optional<Rigid3d>& velocity, int min_inliers,
+                                          KeyframeId* reference) {
   // With homography tracking, a placement the local map does not confirm gives way to the next
   // method (a wrong constant-velocity guess under jitter can still find 20 chance matches).
   Placement result;
@@ -91,8 +92,7 @@ FramePlacer::Placement FramePlacer::Place(Frame* frame, const Map& map, const Fr
   if (velocity && last && gap >= 1) {
     Rigid3d predicted = *last->cam_from_world;
     for (int i = 0; i < gap; ++i) predicted = *velocity * predicted;
-    attempt("motion model",
-            [&] { return (motion_inliers = TrackWithMotionModel(map, frame, *last, predicted)) > 0; });
+    attempt("motion model", [&] { return (motion_inliers = TrackWithMotionModel(map, frame, *last, predicted)) > 0; });
   }
   if (result.tracked && retry && motion_inliers < kWeakMotionModel * last->CountTracked()) {
     // The motion model kept few of the last frame's points: a wrong guess that chance matches
@@ -110,7 +110,8 @@ FramePlacer::Placement FramePlacer::Place(Frame* frame, const Map& map, const Fr
       result.tracked_by = "motion model";
     }
   }
-  if (options_.homography_tracking && last) attempt("homography", [&] { return TrackWithHomography(map, frame, *last); });
+  if (options_.homography_tracking && last)
+    attempt("homography", [&] { return TrackWithHomography(map, frame, *last); });
   attempt("reference keyframe", [&] { return TrackReferenceKeyframe(map, frame, last, reference); });
   result.pose_diverged = pose_diverged_;
   return result;
@@ -166,8 +167,9 @@ int FramePlacer::TrackWithMotionModel(const Map& map, Frame* frame, const Frame&
 const DescriptorIndex& FramePlacer::FrameIndex(const Frame& frame) {
   if (!frame_index_ || frame_index_of_ != frame.frame_index || frame_index_->size() != static_cast<int>(frame.size())) {
     // LSH for the homography's matching when the reference keyframe goes by bag of words.
-    const DescriptorSearch search = options_.reference_matching == "bow" ? DescriptorSearch::kLsh
-                                                                         : ParseDescriptorSearch(options_.reference_matching);
+    const DescriptorSearch search = options_.reference_matching == "bow"
+                                        ? DescriptorSearch::kLsh
+                                        : ParseDescriptorSearch(options_.reference_matching);
     frame_index_.emplace(frame.descriptors, search);
     frame_index_of_ = frame.frame_index;
   }
@@ -197,8 +199,9 @@ bool FramePlacer::TrackWithHomography(const Map& map, Frame* frame, const Frame&
   std::fill(frame->points.begin(), frame->points.end(), MapPointId());
   std::vector<char> tracked(last.size(), 0);
   for (size_t i = 0; i < last.size(); ++i) tracked[i] = last.points[i].valid() && !last.outlier[i];
-  const std::vector<char> queried =
-      options_.homography_roi_per_cell > 0 ? FeatureRichCells(last, tracked, options_.homography_roi_per_cell) : tracked;
+  const std::vector<char> queried = options_.homography_roi_per_cell > 0
+                                        ? FeatureRichCells(last, tracked, options_.homography_roi_per_cell)
+                                        : tracked;
   const auto matches = MatchByIndex(last.keypoints, last.descriptors, queried, *frame, FrameIndex(*frame), 0.8);
   if (matches.size() < 15) return false;
   std::vector<cv::Point2f> from, to;
@@ -260,8 +263,9 @@ bool FramePlacer::TrackLocalMap(const Map& map, Frame* frame, int min_inliers, K
   }
   std::vector<std::pair<int, KeyframeId>> ranked;
   for (const auto& [kf, count] : counts) ranked.push_back({count, kf});
-  std::sort(ranked.begin(), ranked.end(),
-            [](const auto& a, const auto& b) { return a.first > b.first || (a.first == b.first && a.second < b.second); });
+  std::sort(ranked.begin(), ranked.end(), [](const auto& a, const auto& b) {
+    return a.first > b.first || (a.first == b.first && a.second < b.second);
+  });
   std::set<KeyframeId> local;
   local_keyframes_.clear();
   const auto add = [&](KeyframeId id) {

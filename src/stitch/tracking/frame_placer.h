@@ -28,10 +28,10 @@ namespace stitch {
 class FramePlacer {
  public:
   struct Placement {
-    bool tracked = false;        // placed and confirmed by the local map
-    bool placed = false;         // the last method tried found a pose (before the local map)
-    bool pose_diverged = false;  // a pose optimization failed to converge on the way
-    const char* tracked_by = "";  // "motion model", "homography" or "reference keyframe"
+    bool tracked = false;          // placed and confirmed by the local map
+    bool placed = false;           // the last method tried found a pose (before the local map)
+    bool pose_diverged = false;    // a pose optimization failed to converge on the way
+    const char* tracked_by = "";   // "motion model", "homography" or "reference keyframe"
     double frame_to_frame_ms = 0;  // the methods: matching and pose
     double local_map_ms = 0;       // confirming against the local map
   };
@@ -76,8 +76,8 @@ class FramePlacer {
   const Vocabulary* vocabulary_;
   std::function<void()> wait_for_keyframe_bow_;
   bool pose_diverged_ = false;
-  std::vector<KeyframeId> local_keyframes_;  // TrackLocalMap's scratch
-  FlatIdSet seen_points_;                    // ...kept to reuse its table
+  std::vector<KeyframeId> local_keyframes_;     // TrackLocalMap's scratch
+  FlatIdSet seen_points_;                       // ...kept to reuse its table
   std::optional<DescriptorIndex> frame_index_;  // of the frame being tracked
   int frame_index_of_ = -1;                     // ...its frame number
 };

@@ -67,8 +67,9 @@ Initializer::Result Initializer::Add(Frame frame, SubmapId submap) {
     return result;
   }
   result.reason = TrackingReason::kNone;
-  result.detail = std::string("initialized from ") + (two_view->used_homography ? "a homography" : "an essential matrix") +
-                  " with " + std::to_string(two_view->num_triangulated) + " points";
+  result.detail = std::string("initialized from ") +
+                  (two_view->used_homography ? "a homography" : "an essential matrix") + " with " +
+                  std::to_string(two_view->num_triangulated) + " points";
   result.frame = std::move(frame);
   return result;
 }
@@ -108,7 +109,8 @@ std::unique_ptr<Map> Initializer::BuildMap(Frame* frame, const std::vector<int>&
   const double median_depth = map->MedianDepth(id0);
   const int tracked = map->FindKeyframe(id1)->CountPoints();
   if (median_depth <= 0 || tracked < options_.init_min_matches) {
-    *why = "initial map rejected: median depth " + std::to_string(median_depth) + ", " + std::to_string(tracked) + " points";
+    *why = "initial map rejected: median depth " + std::to_string(median_depth) + ", " + std::to_string(tracked) +
+           " points";
     return nullptr;
   }
   // Unit median depth: the submap's scale (monocular scale is arbitrary).

@@ -5,7 +5,9 @@ namespace stitch {
 KeyframeBowWorker::KeyframeBowWorker(const Vocabulary* vocabulary)
     : vocabulary_(vocabulary), worker_(std::make_unique<WorkerThread>()) {}
 
-KeyframeBowWorker::~KeyframeBowWorker() { worker_.reset(); }
+KeyframeBowWorker::~KeyframeBowWorker() {
+  worker_.reset();
+}
 
 void KeyframeBowWorker::Submit(KeyframeId keyframe, cv::Mat descriptors) {
   worker_->Submit([this, keyframe, descriptors = std::move(descriptors)] {

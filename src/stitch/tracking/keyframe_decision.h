@@ -14,7 +14,7 @@ struct KeyframeDecisionInput {
   int reference_points = 0;   // ReferencePoints() of its reference keyframe
   bool has_reference = true;  // false: the reference keyframe is gone (culled): always a keyframe
   int frames_since_keyframe = 0;
-  bool mapper_ready = true;   // the mapper has caught up (or is not connected)
+  bool mapper_ready = true;  // the mapper has caught up (or is not connected)
 };
 
 // Points of `reference` (in `map`) observed often enough to count for the decision.

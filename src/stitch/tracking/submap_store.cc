@@ -28,7 +28,9 @@ bool SubmapStore::Reopen(SubmapId id) {
   return true;
 }
 
-KeyframeId SubmapStore::NewKeyframeId() { return MakeKeyframeId(current_->id(), next_keyframe_index_++); }
+KeyframeId SubmapStore::NewKeyframeId() {
+  return MakeKeyframeId(current_->id(), next_keyframe_index_++);
+}
 
 Keyframe* SubmapStore::FindKeyframe(KeyframeId id) {
   Map* map = FindMap(SubmapOf(id));

@@ -117,7 +117,8 @@ Tracking::Output Tracking::Initialize(Frame frame) {
   TrackResult& result = output.result;
   result.state = TrackingState::kInitializing;
   result.num_features = static_cast<int>(frame.size());
-  Initializer::Result initialized = initializer_.Add(std::move(frame), MakeSubmapId(options_.agent_number, next_submap_number_));
+  Initializer::Result initialized =
+      initializer_.Add(std::move(frame), MakeSubmapId(options_.agent_number, next_submap_number_));
   result.reason = initialized.reason;
   result.detail = initialized.detail;
   if (!initialized.map) {
@@ -176,8 +177,7 @@ void Tracking::TrackInSubmap(Frame frame, Output* output) {
   TrackResult& result = output->result;
   bool ok = false;
   std::string why;
-  const bool blurred =
-      typical_sharpness_ > 0 && frame.sharpness < options_.min_relative_sharpness * typical_sharpness_;
+  const bool blurred = typical_sharpness_ > 0 && frame.sharpness < options_.min_relative_sharpness * typical_sharpness_;
   if (frame.size() < 20) {
     why = std::to_string(frame.size()) + " features";
     result.reason = TrackingReason::kTooFewFeatures;
@@ -191,8 +191,8 @@ void Tracking::TrackInSubmap(Frame frame, Output* output) {
   } else {
     // Right after untracked frames the pose comes from a weaker prediction: demand more support.
     const int needed = consecutive_failures_ > 0 ? options_.min_inliers_after_failure : options_.min_inliers;
-    const FramePlacer::Placement placement = placer_.Place(&frame, *store_.current(), last_frame_ ? &*last_frame_ : nullptr,
-                                                           velocity_, needed, &reference_keyframe_);
+    const FramePlacer::Placement placement = placer_.Place(
+        &frame, *store_.current(), last_frame_ ? &*last_frame_ : nullptr, velocity_, needed, &reference_keyframe_);
     result.timings.frame_to_frame = placement.frame_to_frame_ms;
     result.timings.local_map = placement.local_map_ms;
     ok = placement.tracked;

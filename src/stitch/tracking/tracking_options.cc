@@ -5,9 +5,13 @@
 namespace stitch {
 
 bool TrackingOptions::Check(std::string* why) const {
-  auto fail = [&](const std::string& m) { if (why) *why = m; return false; };
+  auto fail = [&](const std::string& m) {
+    if (why) *why = m;
+    return false;
+  };
   if (!orb.Check(why) || !initialization.Check(why)) return false;
-  if (init_min_features < 8 || init_min_matches < 8) return fail("tracker.tracking: init_min_features and init_min_matches must be >= 8");
+  if (init_min_features < 8 || init_min_matches < 8)
+    return fail("tracker.tracking: init_min_features and init_min_matches must be >= 8");
   if (init_window_px < 5) return fail("tracker.tracking.init_window_px must be >= 5");
   if (min_inliers < 6 || min_inliers_after_failure < min_inliers) {
     return fail("tracker.tracking: need 6 <= min_inliers <= min_inliers_after_failure");
@@ -15,18 +19,24 @@ bool TrackingOptions::Check(std::string* why) const {
   if (lost_after_frames < 1) return fail("tracker.tracking.lost_after_frames must be >= 1");
   if (!(keyframe_ratio > 0 && keyframe_ratio < 1)) return fail("tracker.tracking.keyframe_ratio must be in (0, 1)");
   if (max_keyframe_gap < 0) return fail("tracker.tracking.max_keyframe_gap must be >= 0");
-  if (!(min_relative_sharpness >= 0 && min_relative_sharpness < 1)) return fail("tracker.tracking.min_relative_sharpness must be in [0, 1)");
+  if (!(min_relative_sharpness >= 0 && min_relative_sharpness < 1))
+    return fail("tracker.tracking.min_relative_sharpness must be in [0, 1)");
   if (relocalize_closed_after_frames < 0) return fail("tracker.tracking.relocalize_closed_after_frames must be >= 0");
   if (relocalization_candidates < 1) return fail("tracker.tracking.relocalization_candidates must be >= 1");
-  if (relocalization_min_inliers < min_inliers) return fail("tracker.tracking.relocalization_min_inliers must be >= min_inliers");
+  if (relocalization_min_inliers < min_inliers)
+    return fail("tracker.tracking.relocalization_min_inliers must be >= min_inliers");
   if (reference_matching != "bow" && reference_matching != "lsh" && reference_matching != "brute_force") {
     return fail("tracker.tracking.reference_matching must be bow, lsh or brute_force");
   }
-  if (!(homography_threshold_px > 0 && homography_threshold_px <= 100)) return fail("tracker.tracking.homography_threshold_px must be in (0, 100]");
-  if (!(homography_search_px > 0 && homography_search_px <= 200)) return fail("tracker.tracking.homography_search_px must be in (0, 200]");
-  if (homography_roi_per_cell < 0 || homography_roi_per_cell > 1000) return fail("tracker.tracking.homography_roi_per_cell must be in [0, 1000]");
+  if (!(homography_threshold_px > 0 && homography_threshold_px <= 100))
+    return fail("tracker.tracking.homography_threshold_px must be in (0, 100]");
+  if (!(homography_search_px > 0 && homography_search_px <= 200))
+    return fail("tracker.tracking.homography_search_px must be in (0, 200]");
+  if (homography_roi_per_cell < 0 || homography_roi_per_cell > 1000)
+    return fail("tracker.tracking.homography_roi_per_cell must be in [0, 1000]");
   if (agent_number < 0 || agent_number > 32767) return fail("tracker.tracking.agent_number must be in [0, 32767]");
-  if (first_submap_number < 1 || first_submap_number > 65535) return fail("tracker.tracking.first_submap_number must be in [1, 65535]");
+  if (first_submap_number < 1 || first_submap_number > 65535)
+    return fail("tracker.tracking.first_submap_number must be in [1, 65535]");
   return true;
 }
 

@@ -12,17 +12,19 @@ namespace stitch {
 struct TrackingOptions {
   OrbOptions orb;
   TwoViewOptions initialization;
-  int init_min_features = 100;     // a frame needs this many features to take part in initialization
-  int init_min_matches = 50;       // matches with the reference frame to keep it and attempt initialization
-  int init_window_px = 100;        // search window around each feature's last match
-  int min_inliers = 30;            // tracked points for a frame to count as tracked
+  int init_min_features = 100;         // a frame needs this many features to take part in initialization
+  int init_min_matches = 50;           // matches with the reference frame to keep it and attempt initialization
+  int init_window_px = 100;            // search window around each feature's last match
+  int min_inliers = 30;                // tracked points for a frame to count as tracked
   int min_inliers_after_failure = 30;  // ...right after an untracked frame (as ORB-SLAM after relocalization)
-  int lost_after_frames = 3;       // consecutive untracked frames that make tracking lost
-  double keyframe_ratio = 0.9;     // new keyframe when the frame tracks fewer than this x reference's points
-  int max_keyframe_gap = 0;        // frames between keyframes at most (0: one second of frames)
-  double min_relative_sharpness = 0.45;  // frames sharper than this x the recent tracked frames are tracked; others are blurred
-  int relocalization_candidates = 8;    // keyframes tried per frame when relocalizing
-  int relocalize_closed_after_frames = 20;  // submap policy: frames a new map tries to initialize before closed submaps are tried
+  int lost_after_frames = 3;           // consecutive untracked frames that make tracking lost
+  double keyframe_ratio = 0.9;         // new keyframe when the frame tracks fewer than this x reference's points
+  int max_keyframe_gap = 0;            // frames between keyframes at most (0: one second of frames)
+  // Frames sharper than this x the recent tracked frames are tracked; others are blurred.
+  double min_relative_sharpness = 0.45;
+  int relocalization_candidates = 8;  // keyframes tried per frame when relocalizing
+  // Submap policy: frames a new map tries to initialize before closed submaps are tried.
+  int relocalize_closed_after_frames = 20;
   int relocalization_min_inliers = 50;  // tracked points that accept a relocalized pose
   // Matching against the reference keyframe and relocalization candidates, where no pose says
   // where to look: bow (the vocabulary's direct index), lsh or brute_force (DescriptorIndex).
@@ -41,7 +43,7 @@ struct TrackingOptions {
   // A new keyframe's bag of words (for relocalization; the mapper computes its own) on a
   // background thread instead of in the frame loop.
   bool keyframe_worker = true;
-  int agent_number = 0;            // high bits of every id this tracker makes
+  int agent_number = 0;  // high bits of every id this tracker makes
   int first_submap_number = 1;
 
   template <class Visitor>
@@ -53,19 +55,33 @@ struct TrackingOptions {
     v("init_window_px", init_window_px, "initialization search window, pixels");
     v("min_inliers", min_inliers, "tracked points for a frame to count as tracked");
     v("min_inliers_after_failure", min_inliers_after_failure, "tracked points needed right after an untracked frame");
-    v("lost_after_frames", lost_after_frames, "consecutive untracked frames that make tracking lost (one bad frame is skipped)");
-    v("keyframe_ratio", keyframe_ratio, "new keyframe when tracking fewer than this fraction of the reference keyframe's points");
+    v("lost_after_frames", lost_after_frames,
+      "consecutive untracked frames that make tracking lost (one bad frame is skipped)");
+    v("keyframe_ratio", keyframe_ratio,
+      "new keyframe when tracking fewer than this fraction of the reference keyframe's points");
     v("max_keyframe_gap", max_keyframe_gap, "frames between keyframes at most (0: one second)");
-    v("min_relative_sharpness", min_relative_sharpness, "a frame less sharp than this fraction of recent tracked frames is skipped as motion-blurred (0: off)");
-    v("relocalize_closed_after_frames", relocalize_closed_after_frames, "submap policy: frames a new map tries to initialize alone before relocalization into closed submaps is tried too");
-    v("relocalization_candidates", relocalization_candidates, "keyframes (by bag of words) tried per frame when relocalizing");
+    v("min_relative_sharpness", min_relative_sharpness,
+      "a frame less sharp than this fraction of recent tracked frames is skipped as motion-blurred (0: off)");
+    v("relocalize_closed_after_frames", relocalize_closed_after_frames,
+      "submap policy: frames a new map tries to initialize alone before relocalization into closed submaps is tried "
+      "too");
+    v("relocalization_candidates", relocalization_candidates,
+      "keyframes (by bag of words) tried per frame when relocalizing");
     v("relocalization_min_inliers", relocalization_min_inliers, "tracked points needed to accept a relocalized pose");
-    v("reference_matching", reference_matching, "matching against the reference keyframe and relocalization candidates: bow (vocabulary direct index), lsh or brute_force");
-    v("homography_tracking", homography_tracking, "when the motion model fails, track through a homography fitted to matches with the last frame (fast rotation, jitter)");
+    v("reference_matching", reference_matching,
+      "matching against the reference keyframe and relocalization candidates: bow (vocabulary direct index), lsh or "
+      "brute_force");
+    v("homography_tracking", homography_tracking,
+      "when the motion model fails, track through a homography fitted to matches with the last frame (fast rotation, "
+      "jitter)");
     v("homography_threshold_px", homography_threshold_px, "RANSAC inlier threshold of that homography, pixels");
-    v("homography_search_px", homography_search_px, "search radius around the homography's predicted positions, pixels at level 0");
-    v("homography_roi_per_cell", homography_roi_per_cell, "homography matching only from feature-rich cells of the last frame (8x6), at most this many strongest features each (0: all tracked features)");
-    v("keyframe_worker", keyframe_worker, "compute new keyframes' bag of words (relocalization database) on a background thread, off the frame loop");
+    v("homography_search_px", homography_search_px,
+      "search radius around the homography's predicted positions, pixels at level 0");
+    v("homography_roi_per_cell", homography_roi_per_cell,
+      "homography matching only from feature-rich cells of the last frame (8x6), at most this many strongest features "
+      "each (0: all tracked features)");
+    v("keyframe_worker", keyframe_worker,
+      "compute new keyframes' bag of words (relocalization database) on a background thread, off the frame loop");
     v("agent_number", agent_number, "number of this aircraft in every id (0-32767)");
     v("first_submap_number", first_submap_number, "number of the first submap (1-65535)");
   }

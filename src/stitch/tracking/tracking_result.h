@@ -28,10 +28,10 @@ const char* TrackingReasonName(TrackingReason reason);
 
 // Where a frame's time went, milliseconds.
 struct TrackTimings {
-  double extraction = 0;   // ORB features and their undistortion
+  double extraction = 0;      // ORB features and their undistortion
   double frame_to_frame = 0;  // motion model, homography or reference keyframe: matching and pose
-  double local_map = 0;    // local map: selection, projection search, pose
-  double keyframe = 0;     // keyframe decision and creation
+  double local_map = 0;       // local map: selection, projection search, pose
+  double keyframe = 0;        // keyframe decision and creation
   double total = 0;
 };
 
@@ -41,7 +41,7 @@ struct TrackResult {
   std::string detail;
   SubmapId submap;
   std::optional<Rigid3d> cam_from_submap;
-  KeyframeId reference_keyframe;             // for re-composing the pose with refined keyframes
+  KeyframeId reference_keyframe;  // for re-composing the pose with refined keyframes
   std::optional<Rigid3d> cam_from_reference;
   int num_features = 0;
   int num_tracked_points = 0;

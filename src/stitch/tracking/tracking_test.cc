@@ -46,7 +46,8 @@ double AngleBetweenDeg(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
 // Two views at `a` and `b` (world_from_cam) through a fresh initializer.
 Initializer::Result InitializeBetween(RenderedViews& views, const Rigid3d& a, const Rigid3d& b) {
   Initializer initializer(TrackingOptions(), &views.geometry(), &DefaultVocabulary());
-  const Initializer::Result first = initializer.Add(views.RenderPose(a, 0, nullptr, &InitializationExtractor()), MakeSubmapId(0, 1));
+  const Initializer::Result first =
+      initializer.Add(views.RenderPose(a, 0, nullptr, &InitializationExtractor()), MakeSubmapId(0, 1));
   EXPECT_FALSE(first.map);
   EXPECT_TRUE(initializer.has_reference());
   return initializer.Add(views.RenderPose(b, 1, nullptr, &InitializationExtractor()), MakeSubmapId(0, 1));
@@ -109,9 +110,11 @@ TEST(Initializer, AStillCameraNeverInitializes) {
 
 TEST(Initializer, AFrameWithoutFeaturesForgetsTheReference) {
   Initializer initializer(TrackingOptions(), &Strip().geometry(), &DefaultVocabulary());
-  initializer.Add(Strip().RenderPose(Strip().WorldFromCam(0), 0, nullptr, &InitializationExtractor()), MakeSubmapId(0, 1));
+  initializer.Add(Strip().RenderPose(Strip().WorldFromCam(0), 0, nullptr, &InitializationExtractor()),
+                  MakeSubmapId(0, 1));
   ASSERT_TRUE(initializer.has_reference());
-  Frame black = MakeFrame(cv::Mat::zeros(480, 640, CV_8UC1), 1, 0, &InitializationExtractor(), Strip().geometry().undistorter);
+  Frame black =
+      MakeFrame(cv::Mat::zeros(480, 640, CV_8UC1), 1, 0, &InitializationExtractor(), Strip().geometry().undistorter);
   const Initializer::Result result = initializer.Add(std::move(black), MakeSubmapId(0, 1));
   EXPECT_EQ(result.reason, TrackingReason::kTooFewFeatures);
   EXPECT_FALSE(initializer.has_reference());
@@ -141,7 +144,9 @@ OneKeyframe MakeOneKeyframe(int index) {
 }
 
 // The true velocity cam_from_world(k) * world_from_cam(k - 1) between two frames of the strip.
-Rigid3d TrueVelocity(int from, int to) { return Strip().WorldFromCam(to).Inverse() * Strip().WorldFromCam(from); }
+Rigid3d TrueVelocity(int from, int to) {
+  return Strip().WorldFromCam(to).Inverse() * Strip().WorldFromCam(from);
+}
 
 // Within `metres` and `degrees` of the truth (at 70 m above the ground a pixel is 0.16 m), with
 // most matches where the true pose projects their points (points at a feature's rounded pixel's
@@ -164,7 +169,8 @@ TEST(FramePlacer, MotionModelPlacesAFrameFromAConstantVelocity) {
   // correct it.
   Rigid3d predicted = Strip().WorldFromCam(2);
   predicted.translation += Eigen::Vector3d(0.4, -0.4, 0.2);
-  predicted.rotation = predicted.rotation * Eigen::Quaterniond(Eigen::AngleAxisd(0.3 * M_PI / 180, Eigen::Vector3d::UnitY()));
+  predicted.rotation =
+      predicted.rotation * Eigen::Quaterniond(Eigen::AngleAxisd(0.3 * M_PI / 180, Eigen::Vector3d::UnitY()));
   const int inliers = placer.TrackWithMotionModel(scene.map, &frame, scene.last, predicted.Inverse());
   EXPECT_GT(inliers, 200);
   ExpectNearTruth(frame, truth, scene.map);
@@ -186,11 +192,14 @@ TEST(FramePlacer, HomographyFollowsAFrameRolledTooFastForTheMotionModel) {
   // Frame 2's position, rolled 25 degrees about the optical axis: the constant velocity (no
   // roll) predicts the features up to 140 px away from where they are.
   Rigid3d rolled = Strip().WorldFromCam(2);
-  rolled.rotation = rolled.rotation * Eigen::Quaterniond(Eigen::AngleAxisd(25.0 * M_PI / 180.0, Eigen::Vector3d::UnitZ()));
+  rolled.rotation =
+      rolled.rotation * Eigen::Quaterniond(Eigen::AngleAxisd(25.0 * M_PI / 180.0, Eigen::Vector3d::UnitZ()));
   const Rigid3d truth = rolled.Inverse();
   const Rigid3d velocity = TrueVelocity(0, 1);
   Frame by_motion = Strip().RenderPose(rolled, 2);
-  EXPECT_EQ(placer.TrackWithMotionModel(scene.map, &by_motion, scene.last, velocity * velocity * *scene.last.cam_from_world), 0);
+  EXPECT_EQ(
+      placer.TrackWithMotionModel(scene.map, &by_motion, scene.last, velocity * velocity * *scene.last.cam_from_world),
+      0);
   Frame frame = Strip().RenderPose(rolled, 2);
   ASSERT_TRUE(placer.TrackWithHomography(scene.map, &frame, scene.last));
   ExpectNearTruth(frame, truth, scene.map);

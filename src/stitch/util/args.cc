@@ -24,8 +24,7 @@ void ArgParser::AddOption(const std::string& name, std::vector<std::string>* val
                       }});
 }
 
-void ArgParser::AddOption(const std::string& name, int* value, const std::string& metavar,
-                          const std::string& help) {
+void ArgParser::AddOption(const std::string& name, int* value, const std::string& metavar, const std::string& help) {
   options_.push_back({name, metavar, help, std::to_string(*value), true, [value](const std::string& v) {
                         try {
                           size_t used = 0;
@@ -39,8 +38,7 @@ void ArgParser::AddOption(const std::string& name, int* value, const std::string
                       }});
 }
 
-void ArgParser::AddOption(const std::string& name, double* value, const std::string& metavar,
-                          const std::string& help) {
+void ArgParser::AddOption(const std::string& name, double* value, const std::string& metavar, const std::string& help) {
   std::ostringstream shown;
   shown << *value;
   options_.push_back({name, metavar, help, shown.str(), true, [value](const std::string& v) {
@@ -63,8 +61,8 @@ void ArgParser::AddFlag(const std::string& name, bool* value, const std::string&
                       }});
 }
 
-void ArgParser::AddPositional(std::vector<std::string>* values, const std::string& metavar,
-                              const std::string& help, int max_count) {
+void ArgParser::AddPositional(std::vector<std::string>* values, const std::string& metavar, const std::string& help,
+                              int max_count) {
   positional_ = values;
   positional_metavar_ = metavar;
   positional_help_ = help;
@@ -92,8 +90,10 @@ std::string ArgParser::Usage() const {
   out << "\n\n" << description_ << "\n\noptions:\n";
   const auto line = [&](const std::string& left, const std::string& help) {
     out << "  " << left;
-    if (left.size() < 28) out << std::string(28 - left.size(), ' ');
-    else out << "\n  " << std::string(28, ' ');
+    if (left.size() < 28)
+      out << std::string(28 - left.size(), ' ');
+    else
+      out << "\n  " << std::string(28, ' ');
     out << help << "\n";
   };
   if (positional_) line(positional_metavar_, positional_help_);

@@ -19,19 +19,16 @@ class ArgParser {
  public:
   ArgParser(std::string program, std::string description);
 
-  void AddOption(const std::string& name, std::string* value, const std::string& metavar,
-                 const std::string& help);
-  void AddOption(const std::string& name, int* value, const std::string& metavar,
-                 const std::string& help);
-  void AddOption(const std::string& name, double* value, const std::string& metavar,
-                 const std::string& help);
+  void AddOption(const std::string& name, std::string* value, const std::string& metavar, const std::string& help);
+  void AddOption(const std::string& name, int* value, const std::string& metavar, const std::string& help);
+  void AddOption(const std::string& name, double* value, const std::string& metavar, const std::string& help);
   // May be given several times; each value is appended.
   void AddOption(const std::string& name, std::vector<std::string>* values, const std::string& metavar,
                  const std::string& help);
   void AddFlag(const std::string& name, bool* value, const std::string& help);
   // Collects arguments that are not options (e.g. a run folder).
-  void AddPositional(std::vector<std::string>* values, const std::string& metavar,
-                     const std::string& help, int max_count = 1);
+  void AddPositional(std::vector<std::string>* values, const std::string& metavar, const std::string& help,
+                     int max_count = 1);
   void AddEpilog(const std::string& text) { epilog_ += text; }
 
   // Returns false when the program should exit: after --help (exit code 0) or on an error (the

@@ -1,14 +1,14 @@
 #include "stitch/util/child_process.h"
 
+#include <fcntl.h>
+#include <sys/wait.h>
+#include <unistd.h>
 #include <csignal>
 #include <cstring>
-#include <fcntl.h>
-#include <fstream>
-#include <sys/wait.h>
-#include <thread>
-#include <unistd.h>
 #include <deque>
 #include <filesystem>
+#include <fstream>
+#include <thread>
 
 #include "stitch/util/error.h"
 
@@ -17,7 +17,8 @@ namespace stitch {
 ChildProcess::ChildProcess(std::string name, const std::string& program, const std::vector<std::string>& args,
                            const std::string& log_path)
     : name_(std::move(name)), log_path_(log_path) {
-  if (access(program.c_str(), X_OK) != 0) throw Error(program + ": not found or not executable (is the build complete?)");
+  if (access(program.c_str(), X_OK) != 0)
+    throw Error(program + ": not found or not executable (is the build complete?)");
   const int log_fd = open(log_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
   if (log_fd < 0) throw Error(log_path + ": cannot create log file: " + std::strerror(errno));
   std::vector<std::string> argv_storage{program};

@@ -33,7 +33,8 @@ using KeyframeId = Id<struct KeyframeTag>;
 using MapPointId = Id<struct MapPointTag>;
 
 constexpr SubmapId MakeSubmapId(int agent_number, int submap_number) {
-  return SubmapId((static_cast<int64_t>(agent_number & 0x7fff) << 48) | (static_cast<int64_t>(submap_number & 0xffff) << 32));
+  return SubmapId((static_cast<int64_t>(agent_number & 0x7fff) << 48) |
+                  (static_cast<int64_t>(submap_number & 0xffff) << 32));
 }
 constexpr KeyframeId MakeKeyframeId(SubmapId submap, uint32_t index) {
   return KeyframeId(submap.value | static_cast<int64_t>(index));
@@ -49,8 +50,12 @@ template <class Tag>
 constexpr uint32_t IndexOf(Id<Tag> id) {
   return static_cast<uint32_t>(id.value & 0xffffffff);
 }
-constexpr int SubmapNumber(SubmapId id) { return static_cast<int>((id.value >> 32) & 0xffff); }
-constexpr int AgentNumber(SubmapId id) { return static_cast<int>((id.value >> 48) & 0x7fff); }
+constexpr int SubmapNumber(SubmapId id) {
+  return static_cast<int>((id.value >> 32) & 0xffff);
+}
+constexpr int AgentNumber(SubmapId id) {
+  return static_cast<int>((id.value >> 48) & 0x7fff);
+}
 
 // "agent:submap" (e.g. "0:3") for logs and people; ids stay int64 everywhere else.
 inline std::string SubmapName(SubmapId id) {

@@ -21,18 +21,26 @@ std::string& Tag() {
 
 const char* LevelLetter(LogLevel level) {
   switch (level) {
-    case LogLevel::kDebug: return "D";
-    case LogLevel::kInfo: return "I";
-    case LogLevel::kWarning: return "W";
-    case LogLevel::kError: return "E";
+    case LogLevel::kDebug:
+      return "D";
+    case LogLevel::kInfo:
+      return "I";
+    case LogLevel::kWarning:
+      return "W";
+    case LogLevel::kError:
+      return "E";
   }
   return "?";
 }
 
 }  // namespace
 
-void SetLogLevel(LogLevel level) { g_level = static_cast<int>(level); }
-LogLevel GetLogLevel() { return static_cast<LogLevel>(g_level.load()); }
+void SetLogLevel(LogLevel level) {
+  g_level = static_cast<int>(level);
+}
+LogLevel GetLogLevel() {
+  return static_cast<LogLevel>(g_level.load());
+}
 
 LogLevel ParseLogLevel(const std::string& name) {
   if (name == "debug") return LogLevel::kDebug;
@@ -52,8 +60,8 @@ LogLine::LogLine(LogLevel level, const char* /*file*/, int /*line*/) : level_(le
 LogLine::~LogLine() {
   const auto now = std::chrono::system_clock::now();
   const std::time_t seconds = std::chrono::system_clock::to_time_t(now);
-  const int millis = static_cast<int>(
-      std::chrono::duration_cast<std::chrono::milliseconds>(now.time_since_epoch()).count() % 1000);
+  const int millis =
+      static_cast<int>(std::chrono::duration_cast<std::chrono::milliseconds>(now.time_since_epoch()).count() % 1000);
   std::tm local{};
   localtime_r(&seconds, &local);
   char stamp[32];
@@ -64,8 +72,8 @@ LogLine::~LogLine() {
     tag = Tag();
   }
   // One fprintf per line keeps lines from different threads whole.
-  std::fprintf(stderr, "%s %s.%03d%s%s] %s\n", LevelLetter(level_), stamp, millis,
-               tag.empty() ? "" : " ", tag.c_str(), stream_.str().c_str());
+  std::fprintf(stderr, "%s %s.%03d%s%s] %s\n", LevelLetter(level_), stamp, millis, tag.empty() ? "" : " ", tag.c_str(),
+               stream_.str().c_str());
 }
 
 }  // namespace stitch

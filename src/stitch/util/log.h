@@ -34,7 +34,7 @@ class LogLine {
 #define STITCH_LOG_INFO ::stitch::LogLevel::kInfo
 #define STITCH_LOG_WARNING ::stitch::LogLevel::kWarning
 #define STITCH_LOG_ERROR ::stitch::LogLevel::kError
-#define STITCH_LOG(level)                                          \
-  if (STITCH_LOG_##level < ::stitch::GetLogLevel()) {              \
-  } else                                                           \
+#define STITCH_LOG(level)                             \
+  if (STITCH_LOG_##level < ::stitch::GetLogLevel()) { \
+  } else                                              \
     ::stitch::LogLine(STITCH_LOG_##level, __FILE__, __LINE__).stream()

@@ -9,8 +9,7 @@ YAML::Node LoadYamlFile(const std::string& path) {
   try {
     return YAML::LoadFile(path);
   } catch (const YAML::ParserException& e) {
-    throw Error(path + ": not valid YAML (line " + std::to_string(e.mark.line + 1) + ": " + e.msg +
-                ")");
+    throw Error(path + ": not valid YAML (line " + std::to_string(e.mark.line + 1) + ": " + e.msg + ")");
   } catch (const YAML::Exception& e) {
     throw Error(path + ": cannot read (" + std::string(e.what()) + ")");
   }

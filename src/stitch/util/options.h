@@ -34,14 +34,14 @@ struct NullVisitor {
 template <class T, class = void>
 struct HasVisitFields : std::false_type {};
 template <class T>
-struct HasVisitFields<T, std::void_t<decltype(std::declval<T&>().VisitFields(
-                             std::declval<NullVisitor&>()))>> : std::true_type {};
+struct HasVisitFields<T, std::void_t<decltype(std::declval<T&>().VisitFields(std::declval<NullVisitor&>()))>>
+    : std::true_type {};
 
 template <class T, class = void>
 struct HasCheck : std::false_type {};
 template <class T>
-struct HasCheck<T, std::void_t<decltype(std::declval<const T&>().Check(
-                       std::declval<std::string*>()))>> : std::true_type {};
+struct HasCheck<T, std::void_t<decltype(std::declval<const T&>().Check(std::declval<std::string*>()))>>
+    : std::true_type {};
 
 }  // namespace options_internal
 
@@ -56,8 +56,7 @@ void CheckOptions(const Options& options, const std::string& context) {
 
 class OptionsReader {
  public:
-  OptionsReader(const YAML::Node& node, std::string context)
-      : node_(node), context_(std::move(context)) {
+  OptionsReader(const YAML::Node& node, std::string context) : node_(node), context_(std::move(context)) {
     if (node_ && !node_.IsNull() && !node_.IsMap()) {
       throw Error(context_ + ": expected a map of settings");
     }
@@ -86,9 +85,7 @@ class OptionsReader {
   }
 
  private:
-  std::string Path(const char* name) const {
-    return context_.empty() ? std::string(name) : context_ + "." + name;
-  }
+  std::string Path(const char* name) const { return context_.empty() ? std::string(name) : context_ + "." + name; }
 
   template <class Field>
   static void Read(const YAML::Node& node, Field& field, const std::string& where) {
@@ -102,8 +99,7 @@ class OptionsReader {
       } catch (const YAML::Exception&) {
         YAML::Emitter shown;
         shown << node;
-        throw Error(where + ": cannot read '" + std::string(shown.c_str()) + "' as " +
-                    TypeName<Field>());
+        throw Error(where + ": cannot read '" + std::string(shown.c_str()) + "' as " + TypeName<Field>());
       }
     }
   }

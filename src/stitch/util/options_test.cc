@@ -8,9 +8,14 @@ namespace {
 struct Inner {
   double ratio = 0.5;
   template <class V>
-  void VisitFields(V& v) { v("ratio", ratio, "a ratio"); }
+  void VisitFields(V& v) {
+    v("ratio", ratio, "a ratio");
+  }
   bool Check(std::string* why) const {
-    if (ratio < 0 || ratio > 1) { *why = "ratio must be in [0, 1]"; return false; }
+    if (ratio < 0 || ratio > 1) {
+      *why = "ratio must be in [0, 1]";
+      return false;
+    }
     return true;
   }
 };

@@ -35,7 +35,7 @@ class ParallelRunner {
   const std::function<void(int)>* item_ = nullptr;
   int count_ = 0;
   std::atomic<int> next_{0};
-  int batch_ = 0;        // number of the current batch; helpers wait for a new one
+  int batch_ = 0;  // number of the current batch; helpers wait for a new one
   int helpers_busy_ = 0;
   bool stop_ = false;
 };

@@ -56,7 +56,10 @@ TEST(WorkerThread, RunsTasksInOrderOffTheCallingThreadAndDrains) {
     }
     worker.Drain();
     EXPECT_EQ(order.size(), 100u);
-    worker.Submit([&] { std::this_thread::sleep_for(std::chrono::milliseconds(20)); order.push_back(100); });
+    worker.Submit([&] {
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+      order.push_back(100);
+    });
   }  // the destructor runs what is queued
   ASSERT_EQ(order.size(), 101u);
   for (int i = 0; i <= 100; ++i) EXPECT_EQ(order[i], i);

@@ -22,9 +22,7 @@ class Rng {
   double Uniform() { return static_cast<double>(NextU64() >> 11) * 0x1.0p-53; }
   double Uniform(double lo, double hi) { return lo + (hi - lo) * Uniform(); }
   // Uniform integer in [lo, hi].
-  int UniformInt(int lo, int hi) {
-    return lo + static_cast<int>(NextU64() % static_cast<uint64_t>(hi - lo + 1));
-  }
+  int UniformInt(int lo, int hi) { return lo + static_cast<int>(NextU64() % static_cast<uint64_t>(hi - lo + 1)); }
   // Standard normal (Box-Muller, one value per call).
   double Normal() {
     const double u1 = 1.0 - Uniform();  // (0, 1]

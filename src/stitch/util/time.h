@@ -9,8 +9,7 @@ namespace stitch {
 
 // Wall clock, microseconds since the Unix epoch (for message headers).
 inline int64_t WallUtime() {
-  return std::chrono::duration_cast<std::chrono::microseconds>(
-             std::chrono::system_clock::now().time_since_epoch())
+  return std::chrono::duration_cast<std::chrono::microseconds>(std::chrono::system_clock::now().time_since_epoch())
       .count();
 }
 
