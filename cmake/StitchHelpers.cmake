@@ -30,9 +30,13 @@ function(stitch_add_test name)
     STITCH_SOURCE_DIR="${PROJECT_SOURCE_DIR}"
     STITCH_DATASETS_DIR="${STITCH_DATASETS_DIR}")
   set_target_properties(${name} PROPERTIES RUNTIME_OUTPUT_DIRECTORY ${CMAKE_BINARY_DIR}/bin/tests)
+  if(NOT ARG_LABELS)
+    set(ARG_LABELS unit)
+  endif()
+  # STITCH_SANITIZER_ENVIRONMENT: the sanitizer's runtime options (one variable), in sanitizer builds.
   gtest_discover_tests(${name}
-    DISCOVERY_TIMEOUT 30
-    PROPERTIES TIMEOUT ${ARG_TIMEOUT} LABELS "${ARG_LABELS}")
+    DISCOVERY_TIMEOUT 60
+    PROPERTIES TIMEOUT ${ARG_TIMEOUT} LABELS "${ARG_LABELS}" ENVIRONMENT "${STITCH_SANITIZER_ENVIRONMENT}")
 endfunction()
 
 # stitch_add_benchmark(name SOURCES ... LIBS ...): a Google Benchmark program in build/bin

@@ -153,7 +153,7 @@ class LinkBridge {
   sockaddr_in peer_address_{};
   lcm::Subscription* subscription_ = nullptr;
 
-  // Sender state.
+  // Sender state. Lock order: mutex_, then counts_mutex_ (never the other way).
   mutable std::mutex mutex_;
   std::condition_variable wake_;
   std::deque<Outgoing> small_queue_, large_queue_;
@@ -201,7 +201,7 @@ class LinkBridge {
   };
   Throttle too_large_log_, expired_log_, send_failed_log_, given_up_log_, refused_log_;
 
-  mutable std::mutex counts_mutex_;
+  mutable std::mutex counts_mutex_;  // taken after mutex_ when both are held
   LinkCounts counts_;
   std::atomic<double> last_repair_request_s_{0};
   std::atomic<double> last_heard_s_{-1};

@@ -194,7 +194,7 @@ void MapperService::Process(const stitch::keyframe_t& message) {
   const KeyframeId id = received.keyframe.id;
   MappedKeyframe mapped = mapping_->MapKeyframe(std::move(received.keyframe), received.new_points);
   const MappingReport& report = mapped.report;
-  ++mapped_;
+  if (!report.duplicate) ++mapped_;
   if (mapped.closed_final) PublishSubmapUpdate(*mapped.closed_final);
   if (report.reopened_submap) {
     STITCH_LOG(INFO) << "submap " << SubmapName(*report.reopened_submap) << " reopened (the tracker relocalized in it)";
@@ -286,8 +286,7 @@ void MapperService::WriteRecords() const {
   static const uint8_t kPalette[][3] = {{30, 90, 200}, {220, 40, 40}, {40, 160, 40}, {180, 40, 180},  {220, 150, 20},
                                         {0, 140, 140}, {160, 60, 90}, {200, 110, 0}, {100, 100, 100}, {180, 180, 60}};
   std::vector<ColouredPoint> cloud;
-  std::ofstream keyframes(std::filesystem::path(record_dir_) / "keyframes.tsv");
-  keyframes << KeyframeRecordHeader();
+  std::vector<KeyframeRecord> keyframes;
   for (size_t m = 0; m < maps.size(); ++m) {
     for (const auto& [id, point] : maps[m]->points()) {
       ColouredPoint p;
@@ -298,14 +297,15 @@ void MapperService::WriteRecords() const {
       cloud.push_back(p);
     }
     for (const auto& [id, keyframe] : maps[m]->keyframes()) {
-      keyframes << FormatKeyframeRecord({id.value, maps[m]->id().value, keyframe.frame_index, keyframe.t_ns,
-                                         /*culled=*/false, keyframe.cam_from_world.Inverse()});
+      keyframes.push_back({id.value, maps[m]->id().value, keyframe.frame_index, keyframe.t_ns, /*culled=*/false,
+                           keyframe.cam_from_world.Inverse()});
     }
   }
   for (const auto& culled : mapping_ ? mapping_->CulledKeyframePoses() : std::vector<CulledKeyframe>()) {
-    keyframes << FormatKeyframeRecord({culled.id.value, SubmapOf(culled.id).value, culled.frame_index, culled.t_ns,
-                                       /*culled=*/true, culled.cam_from_world.Inverse()});
+    keyframes.push_back({culled.id.value, SubmapOf(culled.id).value, culled.frame_index, culled.t_ns, /*culled=*/true,
+                         culled.cam_from_world.Inverse()});
   }
+  WriteKeyframeRecords((std::filesystem::path(record_dir_) / "keyframes.tsv").string(), keyframes);
   WritePly((std::filesystem::path(record_dir_) / "submaps.ply").string(), cloud);
   STITCH_LOG(INFO) << "wrote " << cloud.size() << " map points of " << maps.size() << " submaps to " << record_dir_;
 }

@@ -12,10 +12,7 @@
 namespace stitch {
 namespace {
 
-testing::RenderedViews& Shared() {
-  static testing::RenderedViews* views = new testing::RenderedViews();
-  return *views;
-}
+testing::RenderedViews& Shared() { return testing::SharedStrip(); }
 
 const Vocabulary& SharedVocabulary() {
   static const Vocabulary* v =

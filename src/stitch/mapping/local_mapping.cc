@@ -38,7 +38,9 @@ MappedKeyframe LocalMapping::MapKeyframe(Keyframe keyframe, const std::vector<Ma
   mapped.report = ProcessKeyframe(std::move(keyframe), new_points);
   if (mapped.report.closed_submap) mapped.closed_final = MakeFinalSubmapUpdate(*mapped.report.closed_submap);
   mapped.for_tracker = MakeUpdate(mapped.report.keyframe, 0);
-  mapped.for_merger = MakeSubmapUpdate(mapped.report.keyframe, mapped.for_tracker);
+  // A keyframe sent again (its update to the tracker was lost, or the mapper was slow to answer)
+  // is answered to the tracker; the merger has it already, or asks for what it lacks.
+  if (!mapped.report.duplicate) mapped.for_merger = MakeSubmapUpdate(mapped.report.keyframe, mapped.for_tracker);
   return mapped;
 }
 
@@ -54,7 +56,10 @@ MappingReport LocalMapping::ProcessKeyframe(Keyframe keyframe, const std::vector
       return std::find_if(closed_maps_.begin(), closed_maps_.end(), [&](const auto& m) { return m->id() == submap; });
     };
     const bool was_closed = find_closed() != closed_maps_.end();
-    if (was_closed && (*find_closed())->FindKeyframe(keyframe.id)) return report;
+    if (was_closed && (*find_closed())->FindKeyframe(keyframe.id)) {
+      report.duplicate = true;
+      return report;
+    }
     if (map_) report.closed_submap = CloseSubmap();
     if (was_closed) {
       const auto closed = find_closed();
@@ -72,7 +77,10 @@ MappingReport LocalMapping::ProcessKeyframe(Keyframe keyframe, const std::vector
     map_->EnableRemovalJournal();
     first_keyframe_ = keyframe.id;
   }
-  if (map_->FindKeyframe(keyframe.id)) return report;  // a re-sent keyframe
+  if (map_->FindKeyframe(keyframe.id)) {  // a re-sent keyframe
+    report.duplicate = true;
+    return report;
+  }
   const KeyframeId id = keyframe.id;
   InsertKeyframe(std::move(keyframe), new_points);
   report.culled_points = recent_points_.Cull(map_.get(), id, keyframes_processed_, geometry_,

@@ -28,6 +28,7 @@ namespace stitch {
 
 struct MappingReport {
   KeyframeId keyframe;
+  bool duplicate = false;                   // the mapper had this keyframe already: nothing was done
   std::optional<SubmapId> closed_submap;    // the keyframe began a new submap and closed this one
   std::optional<SubmapId> reopened_submap;  // the keyframe belongs to this closed submap, current again
   int new_points = 0;
@@ -43,7 +44,7 @@ struct MappedKeyframe {
   MappingReport report;
   std::optional<SubmapUpdate> closed_final;  // the final state of the submap the keyframe closed
   LocalMapUpdate for_tracker;                // the window's changes (queued_keyframes left to the caller)
-  SubmapUpdate for_merger;                   // the keyframe in full and the same changes
+  SubmapUpdate for_merger;                   // the keyframe in full and the same changes (empty for a duplicate)
 };
 
 class LocalMapping {

@@ -18,10 +18,8 @@ using testing::RenderedViews;
 using testing::RotationErrorDeg;
 using testing::TranslationError;
 
-RenderedViews& Strip() {
-  static RenderedViews* views = new RenderedViews();
-  return *views;
-}
+// The default flight's strip: 70 m above the terrain, 1 m a frame.
+RenderedViews& Strip() { return testing::SharedStrip(); }
 
 // A submap with keyframes at the given frames of the strip, each added at its true pose: its
 // features matching earlier points observe them, every `stride`-th other feature with depth
@@ -276,6 +274,13 @@ TEST(LocalMapping, EachKeyframeGivesTheTrackerAndTheMergerTheirUpdates) {
       EXPECT_GT(mapped.report.new_points, 50) << "keyframe " << i;
     }
   }
+  EXPECT_EQ(mapping.map()->num_keyframes(), 3u);
+  // A keyframe sent again (the tracker did not hear back in time): the tracker is answered, the
+  // merger is not sent it twice, nothing is mapped twice.
+  const MappedKeyframe again = mapping.MapKeyframe(*scene.map.FindKeyframe(scene.keyframes[1]), {});
+  EXPECT_TRUE(again.report.duplicate);
+  EXPECT_EQ(again.for_tracker.last_keyframe, scene.keyframes[1]);
+  EXPECT_FALSE(again.for_merger.submap.valid());
   EXPECT_EQ(mapping.map()->num_keyframes(), 3u);
   // A keyframe of another submap closes this one: its final state comes first.
   Keyframe next = *scene.map.FindKeyframe(scene.keyframes[2]);

@@ -39,7 +39,7 @@ InlineRun RunInline(ImageSequence& sequence, const PipelineOptions& options, con
             mapping.MapKeyframe(output.new_keyframes[k], k == 0 ? output.new_points : std::vector<MapPoint>());
         if (mapped.closed_final) send(*mapped.closed_final);
         tracking.ApplyUpdate(mapped.for_tracker);
-        send(mapped.for_merger);
+        if (mapped.for_merger.submap.valid()) send(mapped.for_merger);
         ++run.keyframes;
       }
       if (!output.new_keyframes.empty()) done.mapping_ms = mapping_clock.ElapsedMs();

@@ -18,6 +18,12 @@ std::string FormatKeyframeRecord(const KeyframeRecord& r) {
          std::to_string(r.t_ns) + (r.culled ? " 1 " : " 0 ") + FormatTumPose(r.world_from_cam) + "\n";
 }
 
+void WriteKeyframeRecords(const std::string& path, const std::vector<KeyframeRecord>& records) {
+  std::string text = KeyframeRecordHeader();
+  for (const KeyframeRecord& r : records) text += FormatKeyframeRecord(r);
+  WriteFileAtomically(path, text);
+}
+
 std::vector<KeyframeRecord> ReadKeyframeRecords(const std::string& path) {
   std::vector<KeyframeRecord> records;
   ForEachDataLine(path, [&](const std::string& line, int line_number) {

@@ -20,6 +20,8 @@ struct KeyframeRecord {
   Rigid3d world_from_cam;  // in the submap's frame
 };
 
+// The whole file, replaced as one act. Throws stitch::Error naming the file.
+void WriteKeyframeRecords(const std::string& path, const std::vector<KeyframeRecord>& records);
 std::string KeyframeRecordHeader();                              // "# ..." line, with newline
 std::string FormatKeyframeRecord(const KeyframeRecord& record);  // one line, with newline
 // Throws stitch::Error naming the file and line for a malformed record or an unreadable file.

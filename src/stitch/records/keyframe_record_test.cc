@@ -19,7 +19,7 @@ TEST(KeyframeRecord, RoundTripsThroughTheFile) {
   KeyframeRecord culled = kept;
   culled.keyframe_id = 4294967298;
   culled.culled = true;
-  std::ofstream(path) << KeyframeRecordHeader() << FormatKeyframeRecord(kept) << FormatKeyframeRecord(culled);
+  WriteKeyframeRecords(path, {kept, culled});
   const std::vector<KeyframeRecord> records = ReadKeyframeRecords(path);
   ASSERT_EQ(records.size(), 2u);
   EXPECT_EQ(records[0].keyframe_id, kept.keyframe_id);

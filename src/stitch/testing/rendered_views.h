@@ -147,6 +147,12 @@ class RenderedViews {
   OrbExtractor extractor_{OrbOptions{}};
 };
 
+// The default strip, rendered views of it shared by the tests of one program.
+inline RenderedViews& SharedStrip() {
+  static RenderedViews* views = new RenderedViews();
+  return *views;
+}
+
 // Distance between two poses: translation (same units) and rotation (degrees).
 inline double TranslationError(const Rigid3d& a, const Rigid3d& b) {
   return (a.CentreInWorld() - b.CentreInWorld()).norm();

@@ -23,10 +23,7 @@ using testing::RotationErrorDeg;
 using testing::TranslationError;
 
 // The default flight's strip: 70 m above the terrain, 1 m a frame.
-RenderedViews& Strip() {
-  static RenderedViews* views = new RenderedViews();
-  return *views;
-}
+RenderedViews& Strip() { return testing::SharedStrip(); }
 
 OrbExtractor& InitializationExtractor() {
   static OrbExtractor* extractor = new OrbExtractor([] {
