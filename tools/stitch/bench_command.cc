@@ -26,6 +26,7 @@
 #include "stitch/util/error.h"
 #include "stitch/util/time.h"
 #include "tools/stitch/commands.h"
+#include "tools/stitch/quality_gate.h"
 
 namespace stitch {
 namespace {
@@ -234,6 +235,9 @@ nlohmann::json BenchOptions(const BenchArgs& a) {
 }  // namespace
 
 int BenchCommand(int argc, char** argv) {
+  for (int i = 1; i < argc; ++i) {
+    if (std::string(argv[i]) == "--quality") return QualityCommand(argc, argv);
+  }
   BenchArgs a;
   bool options = false;
   ArgParser args("stitch bench",
@@ -241,7 +245,8 @@ int BenchCommand(int argc, char** argv) {
                  "per-frame time of feature extraction, frame-to-frame tracking (motion model, homography or reference "
                  "keyframe), local-map tracking, keyframe work, and the whole frame, over frames that were tracked; "
                  "tracking losses and accuracy. With --options, once per speed option switched, side by side. "
-                 "Without --dataset, the synthetic flight without gusts.");
+                 "Without --dataset, the synthetic flight without gusts. With --quality, the quality gate (see "
+                 "stitch bench --quality --help).");
   args.AddOption("--dataset", &a.dataset, "PATH", "sequence to time (default: the synthetic flight)");
   args.AddOption("--calib", &a.calibration, "FILE", "calibration overriding the dataset's own");
   args.AddOption("--config", &a.config_path, "FILE",

@@ -120,17 +120,8 @@ const char* StateName(int8_t state) {
   }
 }
 
-std::string Timestamp(const char* format) {
-  const std::time_t now = std::time(nullptr);
-  std::tm local{};
-  localtime_r(&now, &local);
-  char text[64];
-  std::strftime(text, sizeof(text), format, &local);
-  return text;
-}
-
 std::string NewRunFolder() {
-  const std::string base = "runs/" + Timestamp("%Y%m%d-%H%M%S");
+  const std::string base = "runs/" + LocalTimestamp("%Y%m%d-%H%M%S");
   std::string path = base;
   for (int n = 2; fs::exists(path); ++n) path = base + "-" + std::to_string(n);
   return path;
@@ -197,7 +188,7 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
   info.pacing = config.ingest.pacing;
   info.lcm_url = url;
   info.agent = a.agent;
-  info.started_at = Timestamp("%Y-%m-%dT%H:%M:%S%z");
+  info.started_at = LocalTimestamp("%Y-%m-%dT%H:%M:%S%z");
 
   std::unique_ptr<lcm::LCM> lcm;
   std::unique_ptr<SplitNetwork> network;

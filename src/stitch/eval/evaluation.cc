@@ -115,6 +115,16 @@ Evaluation Evaluate(const EvaluationInput& input) {
     }
     e.errors = CompareTrajectories(ToStamped(largest), input.ground_truth, input.max_association_gap_ns);
   }
+  if (e.has_ground_truth) {
+    Eigen::Vector3d lo = Eigen::Vector3d::Constant(1e18), hi = -lo;
+    for (const auto& p : input.poses) {
+      if (const auto truth = input.ground_truth.PoseAt(p.t_ns, input.max_association_gap_ns)) {
+        lo = lo.cwiseMin(truth->translation);
+        hi = hi.cwiseMax(truth->translation);
+      }
+    }
+    if (lo.x() <= hi.x()) e.ground_truth_extent_m = (hi - lo).norm();
+  }
   std::map<int64_t, std::vector<PoseRecord>> by_submap;
   for (const auto& p : input.poses) by_submap[p.submap_id].push_back(p);
   for (const auto& [submap, poses] : by_submap) {
@@ -139,6 +149,9 @@ Evaluation Evaluate(const EvaluationInput& input) {
         if (!errors.empty()) s.ate_in_map_m = Rms(errors);
       }
     }
+    s.wrong_merge = s.ate_rmse_m && s.ate_in_map_m && *s.ate_in_map_m > 3.0 * *s.ate_rmse_m &&
+                    *s.ate_in_map_m > 0.005 * e.ground_truth_extent_m;
+    e.wrong_merges += s.wrong_merge;
     e.per_submap.push_back(s);
   }
   if (!input.tracking_ms.empty()) {
@@ -167,6 +180,8 @@ nlohmann::json ToJson(const Evaluation& e) {
   j["rpe_rotation_rmse_deg"] = e.errors ? json(e.errors->rpe_rotation_rmse_deg) : json(nullptr);
   j["frames_with_ground_truth"] = e.errors ? e.errors->pairs : 0;
   if (e.errors) j["alignment_scale"] = e.errors->ground_truth_from_estimate.scale;
+  j["ground_truth_extent_m"] = e.ground_truth_extent_m;
+  j["wrong_merges"] = e.wrong_merges;
   j["tracking_ms_median"] = optional(e.tracking_ms_median);
   j["tracking_ms_p95"] = optional(e.tracking_ms_p95);
   json submaps = json::array();
@@ -176,10 +191,67 @@ nlohmann::json ToJson(const Evaluation& e) {
                        {"frames", s.frames},
                        {"frames_with_ground_truth", s.frames_with_ground_truth},
                        {"ate_rmse_m", optional(s.ate_rmse_m)},
-                       {"ate_in_map_m", optional(s.ate_in_map_m)}});
+                       {"ate_in_map_m", optional(s.ate_in_map_m)},
+                       {"wrong_merge", s.wrong_merge}});
   }
   j["per_submap"] = submaps;
   return j;
+}
+
+Evaluation EvaluationFromJson(const nlohmann::json& j) {
+  const auto optional = [](const nlohmann::json& v) { return v.is_null() ? std::optional<double>() : v.get<double>(); };
+  try {
+    Evaluation e;
+    e.frames_total = j.at("frames_total");
+    e.frames_unusable = j.at("frames_unusable");
+    e.frames_localized = j.at("frames_localized");
+    e.completeness = j.at("completeness");
+    e.keyframes = j.at("keyframes");
+    e.submaps = j.at("submaps");
+    e.submaps_merged = j.at("submaps_merged");
+    e.has_ground_truth = j.at("has_ground_truth");
+    if (!j.at("ate_rmse_m").is_null()) {
+      TrajectoryErrors errors;
+      errors.ate_rmse_m = j.at("ate_rmse_m");
+      errors.ate_median_m = j.at("ate_median_m");
+      errors.ate_max_m = j.at("ate_max_m");
+      errors.rpe_translation_rmse_m = j.at("rpe_translation_rmse_m");
+      errors.rpe_rotation_rmse_deg = j.at("rpe_rotation_rmse_deg");
+      errors.pairs = j.at("frames_with_ground_truth");
+      errors.ground_truth_from_estimate.scale = j.value("alignment_scale", 1.0);
+      e.errors = errors;
+    }
+    e.ground_truth_extent_m = j.value("ground_truth_extent_m", 0.0);
+    e.wrong_merges = j.value("wrong_merges", 0);
+    e.tracking_ms_median = optional(j.at("tracking_ms_median"));
+    e.tracking_ms_p95 = optional(j.at("tracking_ms_p95"));
+    for (const auto& s : j.at("per_submap")) {
+      SubmapEvaluation submap;
+      submap.submap_id = s.at("submap_id");
+      submap.component = s.at("component");
+      submap.frames = s.at("frames");
+      submap.frames_with_ground_truth = s.at("frames_with_ground_truth");
+      submap.ate_rmse_m = optional(s.at("ate_rmse_m"));
+      submap.ate_in_map_m = optional(s.at("ate_in_map_m"));
+      submap.wrong_merge = s.value("wrong_merge", false);
+      e.per_submap.push_back(submap);
+    }
+    return e;
+  } catch (const nlohmann::json::exception& error) {
+    throw Error(std::string("report: ") + error.what());
+  }
+}
+
+Evaluation ReadReport(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw Error(path + ": cannot open (is it a finished run folder?)");
+  try {
+    return EvaluationFromJson(nlohmann::json::parse(in));
+  } catch (const nlohmann::json::parse_error& error) {
+    throw Error(path + ": not valid JSON (" + error.what() + ")");
+  } catch (const Error& error) {
+    throw Error(path + ": " + error.what());
+  }
 }
 
 std::string Summarize(const Evaluation& e) {

@@ -38,6 +38,9 @@ struct SubmapEvaluation {
   // In the largest merged map: this submap's frames under the map's alignment. Far above
   // ate_rmse_m, the merge placed the submap badly.
   std::optional<double> ate_in_map_m;
+  // A wrong merge: in the largest map, ate_in_map_m is more than 3x ate_rmse_m and above 0.5% of
+  // the ground truth's extent.
+  bool wrong_merge = false;
 };
 
 struct TrajectoryErrors {
@@ -58,6 +61,8 @@ struct Evaluation {
   int submaps_merged = 0;  // submaps in the largest merged map
   int largest_component = -1;
   std::optional<TrajectoryErrors> errors;  // largest map vs ground truth
+  double ground_truth_extent_m = 0;        // diagonal of the box around the posed frames' true positions
+  int wrong_merges = 0;                    // submaps of the largest map with wrong_merge
   std::vector<SubmapEvaluation> per_submap;
   std::optional<double> tracking_ms_median, tracking_ms_p95;
   bool has_ground_truth = false;
@@ -70,7 +75,11 @@ std::optional<TrajectoryErrors> CompareTrajectories(const std::vector<StampedPos
                                                     int64_t max_association_gap_ns = 50'000'000);
 
 Evaluation Evaluate(const EvaluationInput& input);
+// report.json's figures (ToJson) and back (EvaluationFromJson, which throws stitch::Error naming
+// a missing key); ReadReport reads a run folder's report.json.
 nlohmann::json ToJson(const Evaluation& evaluation);
+Evaluation EvaluationFromJson(const nlohmann::json& json);
+Evaluation ReadReport(const std::string& path);
 // A few lines for the terminal.
 std::string Summarize(const Evaluation& evaluation);
 

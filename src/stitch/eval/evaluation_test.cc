@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include "stitch/testing/temp_dir.h"
+#include "stitch/util/error.h"
 #include "stitch/util/rng.h"
 
 namespace stitch {
@@ -117,6 +118,30 @@ TEST(Evaluation, AMisplacedSubmapShowsInItsAteInTheMergedMap) {
   }
   EXPECT_NE(Summarize(e).find("in the merged map"), std::string::npos);
   EXPECT_TRUE(ToJson(e)["per_submap"][0].contains("ate_in_map_m"));
+  // Each submap is exact alone and far off in the map, more than 0.5% of the extent: both count
+  // as wrong merges; and the figures survive report.json.
+  EXPECT_GT(e.ground_truth_extent_m, 0);
+  EXPECT_EQ(e.wrong_merges, 2);
+  const Evaluation back = EvaluationFromJson(ToJson(e));
+  EXPECT_EQ(back.wrong_merges, 2);
+  EXPECT_EQ(back.frames_localized, e.frames_localized);
+  ASSERT_TRUE(back.errors);
+  EXPECT_DOUBLE_EQ(back.errors->ate_rmse_m, e.errors->ate_rmse_m);
+}
+
+TEST(Evaluation, ASubmapPlacedWithinHalfAPercentOfTheExtentIsNoWrongMerge) {
+  const Trajectory gt = GroundTruth(100);
+  std::vector<PoseRecord> poses = Estimate(gt, kEstFromGt, 0.0, 0);
+  for (auto& p : poses) {
+    if (p.submap_id == 2) p.world_from_cam.translation += Eigen::Vector3d(1e-4, 0, 0);
+  }
+  EvaluationInput input;
+  input.frames_total = 100;
+  input.poses = poses;
+  input.ground_truth = gt;
+  const Evaluation e = Evaluate(input);
+  EXPECT_EQ(e.wrong_merges, 0);
+  EXPECT_THROW(EvaluationFromJson(nlohmann::json::object()), Error);
 }
 
 TEST(Evaluation, NoGroundTruthGivesNullAte) {

@@ -2,7 +2,10 @@
 
 #include <algorithm>
 #include <cmath>
+#include <set>
 
+#include "stitch/estimators/pnp.h"
+#include "stitch/estimators/pose_optimizer.h"
 #include "stitch/features/descriptor.h"
 #include "stitch/map/matcher.h"
 #include "stitch/merging/pose_graph.h"
@@ -26,6 +29,18 @@ double Median(std::vector<double> values) {
   const size_t middle = values.size() / 2;
   std::nth_element(values.begin(), values.begin() + middle, values.end());
   return values[middle];
+}
+
+// Shared-word counts as if each candidate had no more words than the query: a keyframe with twice
+// the features (a submap's first two, made by initialization) shares more words with anything,
+// and would otherwise win every query on its count alone.
+void CountWordsAtTheQuerysSize(std::vector<KeyframeDatabase::Candidate>* candidates, size_t query_words,
+                               const KeyframeDatabase& database) {
+  for (auto& c : *candidates) {
+    const BowVector* bow = database.Find(c.keyframe_id);
+    if (!bow || bow->size() <= query_words) continue;
+    c.common_words = static_cast<int>(std::lround(c.common_words * static_cast<double>(query_words) / bow->size()));
+  }
 }
 
 // The adaptive thresholds of docs/method.md on database candidates: at least k x the best
@@ -141,6 +156,7 @@ RetrievalRecord Merger::Retrieve(const SubmapReplica& replica, const Keyframe& k
   std::vector<KeyframeDatabase::Candidate> candidates =
       database_.Query(keyframe.bow, [own_submap](int64_t submap) { return submap != own_submap; });
   if (candidates.empty()) r.skipped = "no other submap shares a word";
+  CountWordsAtTheQuerysSize(&candidates, keyframe.bow.size(), database_);
   r.shared_word_candidates = ApplyAdaptiveThresholds(&candidates, r.k, r.l, options_.max_candidates);
   for (const auto& c : candidates) {
     const KeyframeId id(c.keyframe_id);
@@ -173,6 +189,7 @@ void Merger::RetrieveLoops(const SubmapReplica& replica, const Keyframe& keyfram
                                                static_cast<int64_t>(IndexOf(keyframe.id));
                                   }),
                    candidates.end());
+  CountWordsAtTheQuerysSize(&candidates, keyframe.bow.size(), database_);
   ApplyAdaptiveThresholds(&candidates, r->k, r->l, options_.max_candidates);
   for (const auto& c : candidates) {
     const KeyframeId id(c.keyframe_id);
@@ -190,11 +207,12 @@ void Merger::RetrieveLoops(const SubmapReplica& replica, const Keyframe& keyfram
 
 std::optional<ConnectedFrame> Merger::Verify(const SubmapReplica& a, const Keyframe& keyframe_a, const SubmapReplica& b,
                                              const Keyframe& keyframe_b, int* match_count, int* inlier_count) const {
+  const PinholeIntrinsics k = a.camera->Intrinsics();
   const auto matches = MatchKeyframesByBow(keyframe_a, a.map, keyframe_b, b.map, options_.match_ratio);
-  *match_count = static_cast<int>(matches.size());
-  if (static_cast<int>(matches.size()) < options_.min_matches) return std::nullopt;
   std::vector<Sim3Correspondence> pairs;
   std::vector<std::pair<MapPointId, MapPointId>> point_ids;
+  std::vector<char> used_a(keyframe_a.keypoints.size(), 0), used_b(keyframe_b.keypoints.size(), 0);
+  std::set<MapPointId> used_points_b;
   for (const auto& [i, j] : matches) {
     point_ids.push_back({keyframe_a.points[i], keyframe_b.points[j]});
     Sim3Correspondence c;
@@ -205,8 +223,40 @@ std::optional<ConnectedFrame> Merger::Verify(const SubmapReplica& a, const Keyfr
     c.sigma2_a = pyramid_.sigma2[keyframe_a.keypoints[i].octave];
     c.sigma2_b = pyramid_.sigma2[keyframe_b.keypoints[j].octave];
     pairs.push_back(c);
+    used_a[i] = used_b[j] = 1;
+    used_points_b.insert(keyframe_b.points[j]);
   }
-  const PinholeIntrinsics k = a.camera->Intrinsics();
+  if (static_cast<int>(pairs.size()) < options_.min_matches && options_.candidate_window > 0) {
+    // The candidate alone holds too few of the place's points (an initial keyframe, or one whose
+    // points the mapper moved to its neighbours): its best covisible keyframes see the same
+    // place, and their points count too. A point b's keyframe does not observe is compared where
+    // it projects in that keyframe.
+    for (KeyframeId id : b.map.BestCovisible(keyframe_b.id, options_.candidate_window)) {
+      const Keyframe* neighbour = b.map.FindKeyframe(id);
+      if (!neighbour || !prepared_.count(id)) continue;
+      for (const auto& [i, j] : MatchKeyframesByBow(keyframe_a, a.map, *neighbour, b.map, options_.match_ratio)) {
+        const MapPointId id_b = neighbour->points[j];
+        if (used_a[i] || used_points_b.count(id_b)) continue;
+        const MapPoint* point_b = b.map.FindPoint(id_b);
+        const Eigen::Vector3d in_b = keyframe_b.cam_from_world * point_b->position;
+        if (in_b.z() <= 0) continue;
+        Sim3Correspondence c;
+        c.point_a = a.map.FindPoint(keyframe_a.points[i])->position;
+        c.point_b = point_b->position;
+        c.pixel_a = keyframe_a.undistorted[i];
+        c.pixel_b = k.Project(in_b);
+        c.sigma2_a = pyramid_.sigma2[keyframe_a.keypoints[i].octave];
+        c.sigma2_b = pyramid_.sigma2[neighbour->keypoints[j].octave];
+        pairs.push_back(c);
+        point_ids.push_back({keyframe_a.points[i], id_b});
+        used_a[i] = 1;
+        used_points_b.insert(id_b);
+      }
+    }
+    for (size_t j = 0; j < keyframe_b.points.size(); ++j) used_b[j] |= used_points_b.count(keyframe_b.points[j]) > 0;
+  }
+  *match_count = static_cast<int>(pairs.size());
+  if (static_cast<int>(pairs.size()) < options_.min_matches) return std::nullopt;
   Sim3Options sim3;
   sim3.min_inliers = options_.sim3_min_inliers;
   sim3.seed = static_cast<uint64_t>(keyframe_a.id.value ^ (keyframe_b.id.value << 1));
@@ -215,7 +265,10 @@ std::optional<ConnectedFrame> Merger::Verify(const SubmapReplica& a, const Keyfr
     estimate = EstimateSim3(pairs, keyframe_a.cam_from_world, keyframe_b.cam_from_world, k, sim3, inlier_count);
   }
   if (!estimate && options_.match_by_projection) {
-    estimate = VerifyByProjection(a, keyframe_a, b, keyframe_b, matches, &pairs, &point_ids, inlier_count);
+    estimate = VerifyByProjection(a, keyframe_a, b, keyframe_b, &used_a, &used_b, &pairs, &point_ids, inlier_count);
+  }
+  if (!estimate && options_.relocalization_min_inliers > 0) {
+    estimate = VerifyByRelocalization(keyframe_a, k, pairs, inlier_count);
   }
   if (!estimate) return std::nullopt;
   ConnectedFrame connection;
@@ -243,7 +296,7 @@ std::optional<ConnectedFrame> Merger::Verify(const SubmapReplica& a, const Keyfr
 // from all of them, which must reach the full inlier count.
 std::optional<Sim3Estimate> Merger::VerifyByProjection(const SubmapReplica& a, const Keyframe& keyframe_a,
                                                        const SubmapReplica& b, const Keyframe& keyframe_b,
-                                                       const std::vector<std::pair<int, int>>& matches,
+                                                       std::vector<char>* matched_a, std::vector<char>* matched_b,
                                                        std::vector<Sim3Correspondence>* correspondences,
                                                        std::vector<std::pair<MapPointId, MapPointId>>* point_ids,
                                                        int* inlier_count) const {
@@ -255,11 +308,8 @@ std::optional<Sim3Estimate> Merger::VerifyByProjection(const SubmapReplica& a, c
   const auto guess =
       EstimateSim3(pairs, keyframe_a.cam_from_world, keyframe_b.cam_from_world, k, first_guess, inlier_count);
   if (!guess) return std::nullopt;
-  std::vector<char> used_a(keyframe_a.keypoints.size(), 0), used_b(keyframe_b.keypoints.size(), 0);
-  for (const auto& [i, j] : matches) {
-    used_a[i] = 1;
-    used_b[j] = 1;
-  }
+  std::vector<char>& used_a = *matched_a;
+  const std::vector<char>& used_b = *matched_b;
   const Sim3d a_from_b = guess->b_from_a.Inverse();
   for (size_t j = 0; j < keyframe_b.keypoints.size(); ++j) {
     const MapPoint* point_b = keyframe_b.points[j].valid() ? b.map.FindPoint(keyframe_b.points[j]) : nullptr;
@@ -294,6 +344,46 @@ std::optional<Sim3Estimate> Merger::VerifyByProjection(const SubmapReplica& a, c
   sim3.min_inliers = options_.sim3_min_inliers;
   sim3.seed = first_guess.seed;
   return EstimateSim3(pairs, keyframe_a.cam_from_world, keyframe_b.cam_from_world, k, sim3, inlier_count);
+}
+
+// The points of both submaps agree on where they are seen from, but not closely enough on where
+// they are in 3D (points triangulated with little parallax: a camera that mostly rotates) for a
+// similarity to reproject them in both keyframes. Relocalize keyframe a in submap b as the
+// tracker would (PnP RANSAC on its own pixels and b's points, then the pose optimized): a pose
+// that many points confirm is a verified connection; the scale between the submaps is the median
+// ratio of the points' distances from the camera in the two.
+std::optional<Sim3Estimate> Merger::VerifyByRelocalization(const Keyframe& keyframe_a, const PinholeIntrinsics& k,
+                                                           const std::vector<Sim3Correspondence>& pairs,
+                                                           int* inlier_count) const {
+  std::vector<PnpMatch> matches;
+  for (const Sim3Correspondence& c : pairs) matches.push_back({c.pixel_a, c.point_b, std::sqrt(c.sigma2_a)});
+  PnpOptions pnp_options;
+  pnp_options.min_inliers = options_.relocalization_min_inliers / 2;
+  const std::optional<PnpResult> pnp = EstimatePoseRansac(matches, k, pnp_options);
+  if (!pnp) return std::nullopt;
+  std::vector<PoseObservation> observations;
+  for (const Sim3Correspondence& c : pairs) observations.push_back({c.pixel_a, c.point_b, 1.0 / c.sigma2_a});
+  const PoseOptimizerResult optimized = OptimizePose(observations, pnp->cam_from_world, k);
+  *inlier_count = optimized.num_inliers;
+  if (!optimized.converged || optimized.num_inliers < options_.relocalization_min_inliers) return std::nullopt;
+  const Rigid3d& cam_from_b = optimized.cam_from_world;
+  const Rigid3d& cam_from_a = keyframe_a.cam_from_world;
+  std::vector<double> ratios;
+  for (size_t m = 0; m < pairs.size(); ++m) {
+    if (!optimized.inlier[m]) continue;
+    const double in_a = (cam_from_a * pairs[m].point_a).norm(), in_b = (cam_from_b * pairs[m].point_b).norm();
+    if (in_a > 0 && in_b > 0) ratios.push_back(in_b / in_a);
+  }
+  if (ratios.empty()) return std::nullopt;
+  const double scale = Median(ratios);  // b's units per a's
+  const Rigid3d b_from_cam = cam_from_b.Inverse();
+  Sim3Estimate estimate;
+  estimate.b_from_a = Sim3d(1.0, b_from_cam.rotation, b_from_cam.translation) *
+                      Sim3d(scale, Eigen::Quaterniond::Identity(), Eigen::Vector3d::Zero()) *
+                      Sim3d(1.0, cam_from_a.rotation, cam_from_a.translation);
+  estimate.inlier = optimized.inlier;
+  estimate.num_inliers = optimized.num_inliers;
+  return estimate;
 }
 
 Merger::Graph Merger::Solve(bool refine) const {

@@ -58,12 +58,18 @@ class Merger {
   // `matches` / `inliers` (optional) receive the counts whatever the outcome.
   std::optional<ConnectedFrame> Verify(const SubmapReplica& a, const Keyframe& keyframe_a, const SubmapReplica& b,
                                        const Keyframe& keyframe_b, int* matches, int* inliers) const;
+  // `matched_a` / `matched_b`: the features of each keyframe matched already (more are marked).
   std::optional<Sim3Estimate> VerifyByProjection(const SubmapReplica& a, const Keyframe& keyframe_a,
                                                  const SubmapReplica& b, const Keyframe& keyframe_b,
-                                                 const std::vector<std::pair<int, int>>& matches,
+                                                 std::vector<char>* matched_a, std::vector<char>* matched_b,
                                                  std::vector<Sim3Correspondence>* pairs,
                                                  std::vector<std::pair<MapPointId, MapPointId>>* point_ids,
                                                  int* inlier_count) const;
+  // Keyframe a relocalized among b's points of `pairs` (their pixels in a); the similarity from
+  // its two poses and the points' distances.
+  std::optional<Sim3Estimate> VerifyByRelocalization(const Keyframe& keyframe_a, const PinholeIntrinsics& k,
+                                                     const std::vector<Sim3Correspondence>& pairs,
+                                                     int* inlier_count) const;
   const Undistorter& UndistorterFor(const Camera& camera);
   std::map<KeyframeId, Sim3d> RefineKeyframePoses(const std::map<SubmapId, SubmapPlacement>& placement,
                                                   Graph* graph) const;

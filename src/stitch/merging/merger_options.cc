@@ -31,6 +31,10 @@ bool MergerOptions::Check(std::string* why) const {
   };
   if (!(min_connection_strength >= 0)) return fail("merger.min_connection_strength must be >= 0");
   if (max_candidates < 1) return fail("merger.max_candidates must be >= 1");
+  if (candidate_window < 0 || candidate_window > 50) return fail("merger.candidate_window must be in [0, 50]");
+  if (relocalization_min_inliers != 0 && relocalization_min_inliers < 12) {
+    return fail("merger.relocalization_min_inliers must be 0 (off) or at least 12");
+  }
   if (min_matches < 3 || sim3_min_inliers < 3)
     return fail("merger.min_matches and merger.sim3_min_inliers must be >= 3");
   if (!(match_ratio > 0 && match_ratio <= 1)) return fail("merger.match_ratio must be in (0, 1]");

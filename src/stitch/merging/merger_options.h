@@ -46,9 +46,11 @@ struct MergerOptions {
   ConnectionWeights connection_weights;   // the weights of F, M and theta^2 in C
   int max_candidates = 3;                 // connected-frame candidates verified per keyframe
   int min_matches = 12;                   // descriptor matches with map points to try a Sim3
+  int candidate_window = 5;               // covisible keyframes of a candidate whose points count when it has too few
   bool match_by_projection = true;        // when too few matches agree, look for more by projection (see merger.md)
   double match_ratio = 0.75;              // best / second-best descriptor distance
   int sim3_min_inliers = 20;              // map points agreeing with the Sim3 for a connected frame
+  int relocalization_min_inliers = 50;    // points that confirm a keyframe relocalized in the other submap (0: off)
   bool request_resends = true;            // ask the mapper again for what the link lost
   double resend_interval_s = 1.0;         // between two requests for one submap
   bool loop_closure = true;               // connected frames within a submap, away from the covisible window
@@ -63,10 +65,15 @@ struct MergerOptions {
       "weights of the connection strength C = frames F + points M + angle theta^2");
     v("max_candidates", max_candidates, "connected-frame candidates verified per keyframe");
     v("min_matches", min_matches, "descriptor matches between map points needed to try a Sim3");
+    v("candidate_window", candidate_window,
+      "when a candidate holds too few matching points, its best covisible keyframes whose points count too (0: none)");
     v("match_ratio", match_ratio, "best / second-best descriptor distance for a match");
     v("match_by_projection", match_by_projection,
       "when too few matches agree with a Sim3, search more by projecting with a first guess");
     v("sim3_min_inliers", sim3_min_inliers, "map points that must agree with the Sim3 of a connected frame");
+    v("relocalization_min_inliers", relocalization_min_inliers,
+      "when no Sim3 reprojects well (little parallax), points that must confirm the keyframe relocalized in the other "
+      "submap (0: off)");
     v("request_resends", request_resends,
       "ask the mapper (on <agent>/SUBMAP_REQUEST) for keyframes and final states the link lost");
     v("resend_interval_s", resend_interval_s, "seconds between two requests for one submap");

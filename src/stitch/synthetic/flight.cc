@@ -29,7 +29,12 @@ bool FlightOptions::Check(std::string* why) const {
   };
   if (num_frames < 2 || num_frames > 1000000) return fail("flight.num_frames must be in [2, 1000000]");
   if (!(fps > 0 && fps <= 1000)) return fail("flight.fps must be in (0, 1000]");
-  if (!(altitude_m >= 5 && altitude_m <= 5000)) return fail("flight.altitude_m must be in [5, 5000]");
+  if (!(altitude_m >= 1 && altitude_m <= 5000)) return fail("flight.altitude_m must be in [1, 5000]");
+  if (path != "survey" && path != "road") return fail("flight.path must be survey or road");
+  if (!(turn_radius_m >= 1 && turn_radius_m <= 10000)) return fail("flight.turn_radius_m must be in [1, 10000]");
+  if (!(camera_pitch_deg >= 0 && camera_pitch_deg <= 90)) return fail("flight.camera_pitch_deg must be in [0, 90]");
+  if (!(std::abs(turn_bank_deg) <= 60)) return fail("flight.turn_bank_deg must be in [-60, 60]");
+  if (!(view_distance_m >= 0 && view_distance_m <= 5000)) return fail("flight.view_distance_m must be in [0, 5000]");
   if (num_strips < 1 || num_strips > 100) return fail("flight.num_strips must be in [1, 100]");
   if (!(strip_length_m > 0 && strip_length_m <= 20000)) return fail("flight.strip_length_m must be in (0, 20000]");
   if (!(side_overlap >= 0 && side_overlap < 0.95)) return fail("flight.side_overlap must be in [0, 0.95)");
@@ -62,7 +67,10 @@ FlightPlan::FlightPlan(const FlightOptions& flight, const GustOptions& gust, con
   const double footprint_across = camera.width() * flight_.altitude_m / camera.fx();
   const double footprint_along = camera.height() * flight_.altitude_m / camera.fy();
   strip_spacing_ = (1.0 - flight_.side_overlap) * footprint_across;
-  path_length_ = flight_.num_strips * flight_.strip_length_m + (flight_.num_strips - 1) * M_PI * strip_spacing_ / 2;
+  path_length_ = flight_.path == "road" ? flight_.num_strips * flight_.strip_length_m +
+                                              (flight_.num_strips - 1) * M_PI / 2 * flight_.turn_radius_m
+                                        : flight_.num_strips * flight_.strip_length_m +
+                                              (flight_.num_strips - 1) * M_PI * strip_spacing_ / 2;
 
   Rng rng(seed);
   // Wind: two slow sinusoids per axis with random phases.
@@ -92,14 +100,16 @@ FlightPlan::FlightPlan(const FlightOptions& flight, const GustOptions& gust, con
   for (int i = 0; i < flight_.num_frames; ++i) {
     const double t = static_cast<double>(i) / flight_.fps;
     Eigen::Vector2d position;
-    double heading;
-    PathAt(path_length_ * i / (flight_.num_frames - 1), &position, &heading);
+    double heading, turning;
+    PathAt(path_length_ * i / (flight_.num_frames - 1), &position, &heading, &turning);
     double altitude = flight_.altitude_m + flight_.altitude_jitter_m * std::sin(2 * M_PI * frequency[0] * t + phase[0]);
     double roll = Deg(flight_.attitude_jitter_deg) * std::sin(2 * M_PI * frequency[1] * t + phase[1]) +
                   0.5 * Deg(flight_.attitude_jitter_deg) * std::sin(2 * M_PI * frequency[2] * t + phase[2]);
     double pitch = Deg(flight_.attitude_jitter_deg) * std::sin(2 * M_PI * frequency[3] * t + phase[3]) +
                    0.5 * Deg(flight_.attitude_jitter_deg) * std::sin(2 * M_PI * frequency[4] * t + phase[4]);
     double yaw = heading;
+    // Banking into a turn: a left turn rolls the aircraft to the left (negative about x forward).
+    if (turning != 0) roll -= turning * Deg(flight_.turn_bank_deg);
     // Gusts: ramp the offsets in during the gust, let them decay during recovery.
     for (size_t g = 0; g < gusts_.windows().size(); ++g) {
       const FailureWindow& w = gusts_.windows()[g];
@@ -118,7 +128,8 @@ FlightPlan::FlightPlan(const FlightOptions& flight, const GustOptions& gust, con
       altitude += strength * effects[g].altitude;
     }
     // Body: x forward, y left, z up. Camera: looks down (z_cam = -z_body), image top forward
-    // (y_cam = -x_body), image right to the right (x_cam = -y_body).
+    // (y_cam = -x_body), image right to the right (x_cam = -y_body); tilted forward by the
+    // camera's pitch about the body's y axis (at 90 degrees it looks ahead, image top up).
     const Eigen::Quaterniond world_from_body = Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()) *
                                                Eigen::AngleAxisd(pitch, Eigen::Vector3d::UnitY()) *
                                                Eigen::AngleAxisd(roll, Eigen::Vector3d::UnitX());
@@ -126,6 +137,9 @@ FlightPlan::FlightPlan(const FlightOptions& flight, const GustOptions& gust, con
     body_from_cam.col(0) = -Eigen::Vector3d::UnitY();
     body_from_cam.col(1) = -Eigen::Vector3d::UnitX();
     body_from_cam.col(2) = -Eigen::Vector3d::UnitZ();
+    if (flight_.camera_pitch_deg > 0) {
+      body_from_cam = Eigen::AngleAxisd(-Deg(flight_.camera_pitch_deg), Eigen::Vector3d::UnitY()) * body_from_cam;
+    }
     const Eigen::Quaterniond world_from_cam = (world_from_body * Eigen::Quaterniond(body_from_cam)).normalized();
     poses_.emplace_back(world_from_cam, Eigen::Vector3d(position.x(), position.y(), altitude));
     min_xy_ = min_xy_.cwiseMin(position);
@@ -134,13 +148,41 @@ FlightPlan::FlightPlan(const FlightOptions& flight, const GustOptions& gust, con
   }
   // Ground the camera may see: half the footprint diagonal at the highest altitude, with room
   // for the attitude (shaking tilts the view).
-  const double reach = 0.5 * std::hypot(footprint_across, footprint_along) * max_altitude / flight_.altitude_m +
-                       max_altitude * std::tan(Deg(gust_.shake_deg + 2 * flight_.attitude_jitter_deg)) + 10.0;
+  double reach = 0.5 * std::hypot(footprint_across, footprint_along) * max_altitude / flight_.altitude_m +
+                 max_altitude * std::tan(Deg(gust_.shake_deg + 2 * flight_.attitude_jitter_deg)) + 10.0;
+  if (flight_.camera_pitch_deg > 0 || flight_.turn_bank_deg != 0) {
+    // A tilted camera sees as far as its farthest image corner's ray (the half diagonal field of
+    // view beyond the tilt, with the bank and the shaking); at the horizon, the view distance.
+    const double half_diagonal = std::atan(0.5 * std::hypot(camera.width(), camera.height()) / camera.fx());
+    const double far = Deg(flight_.camera_pitch_deg + std::abs(flight_.turn_bank_deg) + gust_.shake_deg +
+                           2 * flight_.attitude_jitter_deg) +
+                       half_diagonal;
+    const double view_distance =
+        flight_.view_distance_m > 0 ? flight_.view_distance_m : std::clamp(25.0 * flight_.altitude_m, 150.0, 400.0);
+    reach = std::max(reach, far < Deg(85) ? max_altitude * std::tan(far) + 10.0 : view_distance);
+  }
   min_xy_ -= Eigen::Vector2d::Constant(reach);
   max_xy_ += Eigen::Vector2d::Constant(reach);
 }
 
-void FlightPlan::PathAt(double s, Eigen::Vector2d* position, double* heading) const {
+void FlightPlan::PathAt(double s, Eigen::Vector2d* position, double* heading, double* turning) const {
+  if (flight_.path == "road") {
+    RoadAt(s, position, heading, turning);
+  } else {
+    SurveyAt(s, position, heading, turning);
+  }
+}
+
+namespace {
+
+// How far into a turn, 0 at its ends, 1 over its middle half: the bank rolls in and out.
+double TurnWeight(double fraction) {
+  return SmoothStep(fraction / 0.25) * SmoothStep((1.0 - fraction) / 0.25);
+}
+
+}  // namespace
+
+void FlightPlan::SurveyAt(double s, Eigen::Vector2d* position, double* heading, double* turning) const {
   const double turn_length = M_PI * strip_spacing_ / 2;
   const double period = flight_.strip_length_m + turn_length;
   int strip = std::min(static_cast<int>(s / period), flight_.num_strips - 1);
@@ -148,18 +190,55 @@ void FlightPlan::PathAt(double s, Eigen::Vector2d* position, double* heading) co
   const double direction = strip % 2 == 0 ? 1.0 : -1.0;
   const double strip_y = strip * strip_spacing_;
   const double start_x = strip % 2 == 0 ? 0.0 : flight_.strip_length_m;
+  *turning = 0;
   if (along <= flight_.strip_length_m || strip == flight_.num_strips - 1) {
     *position = Eigen::Vector2d(start_x + direction * along, strip_y);
     *heading = direction > 0 ? 0.0 : M_PI;
     return;
   }
-  // Half-turn to the next strip, centred at the strip's end.
+  // Half-turn to the next strip, centred at the strip's end: left on even strips, right on odd.
   const double angle = (along - flight_.strip_length_m) / (strip_spacing_ / 2);  // 0 .. pi
   const double radius = strip_spacing_ / 2;
   const double end_x = start_x + direction * flight_.strip_length_m;
   const Eigen::Vector2d centre(end_x, strip_y + radius);
   *position = centre + radius * Eigen::Vector2d(direction * std::sin(angle), -std::cos(angle));
   *heading = direction > 0 ? angle : M_PI - angle;
+  *turning = direction * TurnWeight(angle / M_PI);
+}
+
+void FlightPlan::RoadAt(double s, Eigen::Vector2d* position, double* heading, double* turning) const {
+  const double radius = flight_.turn_radius_m;
+  const double turn_length = M_PI / 2 * radius;
+  Eigen::Vector2d start(0, 0);
+  double direction = 0;  // heading of the current leg
+  *turning = 0;
+  for (int leg = 0;; ++leg) {
+    const Eigen::Vector2d forward(std::cos(direction), std::sin(direction));
+    if (s <= flight_.strip_length_m || leg == flight_.num_strips - 1) {
+      *position = start + s * forward;
+      *heading = direction;
+      return;
+    }
+    s -= flight_.strip_length_m;
+    // A quarter turn, left after even legs and right after odd ones.
+    const double sign = leg % 2 == 0 ? 1.0 : -1.0;
+    const Eigen::Vector2d end = start + flight_.strip_length_m * forward;
+    const Eigen::Vector2d centre = end + sign * radius * Eigen::Vector2d(-forward.y(), forward.x());
+    const auto rotate = [](const Eigen::Vector2d& v, double angle) {
+      return Eigen::Vector2d(std::cos(angle) * v.x() - std::sin(angle) * v.y(),
+                             std::sin(angle) * v.x() + std::cos(angle) * v.y());
+    };
+    if (s <= turn_length) {
+      const double angle = s / radius;
+      *position = centre + rotate(end - centre, sign * angle);
+      *heading = direction + sign * angle;
+      *turning = sign * TurnWeight(angle / (M_PI / 2));
+      return;
+    }
+    s -= turn_length;
+    start = centre + rotate(end - centre, sign * M_PI / 2);
+    direction += sign * M_PI / 2;
+  }
 }
 
 int64_t FlightPlan::TimestampNs(int frame) const {

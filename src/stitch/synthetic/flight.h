@@ -20,9 +20,16 @@ struct FlightOptions {
   int num_frames = 1000;
   double fps = 20.0;
   double altitude_m = 70.0;  // above the terrain's mean height
-  int num_strips = 4;
-  double strip_length_m = 240.0;
-  double side_overlap = 0.6;         // fraction of the footprint shared by neighbouring strips
+  // survey: parallel strips joined by half-turns (an S-shaped lawnmower survey); road: straight
+  // legs joined by quarter turns, left and right in turn (a car or a low corridor flight).
+  std::string path = "survey";
+  int num_strips = 4;                // survey strips, or road legs
+  double strip_length_m = 240.0;     // length of each strip or leg
+  double side_overlap = 0.6;         // survey: fraction of the footprint shared by neighbouring strips
+  double turn_radius_m = 12.0;       // road: radius of its turns
+  double camera_pitch_deg = 0.0;     // 0: straight down (nadir); 90: straight ahead at the horizon
+  double turn_bank_deg = 0.0;        // roll into each turn (a banking aircraft), ramped in and out
+  double view_distance_m = 0.0;      // farthest ground drawn when the horizon is in view (0: 25 x altitude, 150-400 m)
   double attitude_jitter_deg = 1.0;  // wind: slow roll / pitch wobble
   double altitude_jitter_m = 1.0;
 
@@ -31,9 +38,15 @@ struct FlightOptions {
     v("num_frames", num_frames, "frames in the flight");
     v("fps", fps, "camera frame rate, Hz");
     v("altitude_m", altitude_m, "flight height above the mean terrain, metres");
-    v("num_strips", num_strips, "parallel survey strips");
-    v("strip_length_m", strip_length_m, "length of each strip, metres");
-    v("side_overlap", side_overlap, "fraction of the footprint shared by neighbouring strips");
+    v("path", path, "survey (parallel strips joined by half-turns) or road (legs joined by quarter turns)");
+    v("num_strips", num_strips, "survey strips, or road legs");
+    v("strip_length_m", strip_length_m, "length of each strip or leg, metres");
+    v("side_overlap", side_overlap, "survey: fraction of the footprint shared by neighbouring strips");
+    v("turn_radius_m", turn_radius_m, "road: radius of its turns, metres");
+    v("camera_pitch_deg", camera_pitch_deg, "camera tilt from straight down (0) towards straight ahead (90), degrees");
+    v("turn_bank_deg", turn_bank_deg, "roll into each turn, degrees (0: level turns)");
+    v("view_distance_m", view_distance_m,
+      "farthest ground drawn when the horizon is in view, metres (0: 25 x altitude, within 150-400)");
     v("attitude_jitter_deg", attitude_jitter_deg, "slow roll/pitch wobble amplitude, degrees");
     v("altitude_jitter_m", altitude_jitter_m, "slow altitude wobble amplitude, metres");
   }
@@ -81,8 +94,11 @@ class FlightPlan {
   Eigen::Vector2d max_ground_xy() const { return max_xy_; }
 
  private:
-  // Planned position and heading at arc length s along the S-path.
-  void PathAt(double s, Eigen::Vector2d* position, double* heading) const;
+  // Planned position and heading at arc length s along the path, and how far into a turn (signed:
+  // positive turning left; 0 on straight parts, +-1 in the middle of a turn).
+  void PathAt(double s, Eigen::Vector2d* position, double* heading, double* turning) const;
+  void SurveyAt(double s, Eigen::Vector2d* position, double* heading, double* turning) const;
+  void RoadAt(double s, Eigen::Vector2d* position, double* heading, double* turning) const;
 
   FlightOptions flight_;
   GustOptions gust_;

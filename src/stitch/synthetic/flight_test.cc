@@ -51,9 +51,72 @@ TEST(FlightPlan, GustsKnockTheUavOffCourseThenItRecovers) {
   EXPECT_EQ(windy.GustBlur(111).first, 0);
 }
 
+TEST(FlightPlan, TiltsTheCameraForwardByItsPitch) {
+  FlightOptions options;
+  options.attitude_jitter_deg = 0;
+  options.altitude_jitter_m = 0;
+  for (const double pitch : {0.0, 45.0, 80.0}) {
+    options.camera_pitch_deg = pitch;
+    const FlightPlan plan(options, GustOptions(), kCamera, FailureSchedule(), 1);
+    // On strip 0 (flying along +x) the optical axis leans from straight down towards +x.
+    const Eigen::Vector3d axis = plan.WorldFromCam(5).RotationMatrix().col(2);
+    EXPECT_NEAR(axis.z(), -std::cos(pitch * M_PI / 180), 1e-9) << pitch;
+    EXPECT_NEAR(axis.x(), std::sin(pitch * M_PI / 180), 1e-9) << pitch;
+    EXPECT_NEAR(axis.y(), 0, 1e-9) << pitch;
+    // Looking far ahead, the ground the camera may see reaches well beyond the footprint.
+    if (pitch == 80.0) EXPECT_GT(plan.max_ground_xy().x() - options.strip_length_m, 150);
+  }
+}
+
+TEST(FlightPlan, BanksIntoTurnsAndFliesLevelOnStraights) {
+  FlightOptions options;
+  options.attitude_jitter_deg = 0;
+  options.altitude_jitter_m = 0;
+  options.turn_bank_deg = 25;
+  const FlightPlan plan(options, GustOptions(), kCamera, FailureSchedule(), 1);
+  // Roll: the angle of the image's x axis out of the horizontal plane.
+  const auto roll_deg = [&](int frame) {
+    return std::asin(plan.WorldFromCam(frame).RotationMatrix().col(0).z()) * 180 / M_PI;
+  };
+  EXPECT_NEAR(roll_deg(10), 0, 1e-6);  // on strip 0
+  // The middle of the first half-turn: between the strips, at the path length's matching frame.
+  const double turn_middle_s = options.strip_length_m + M_PI * plan.strip_spacing_m() / 4;
+  const int frame = static_cast<int>(std::lround(turn_middle_s / plan.path_length_m() * (options.num_frames - 1)));
+  EXPECT_NEAR(std::abs(roll_deg(frame)), 25, 1.0);
+}
+
+TEST(FlightPlan, ARoadDrivesLegsJoinedByQuarterTurnsAtItsHeight) {
+  FlightOptions options;
+  options.path = "road";
+  options.num_strips = 3;
+  options.strip_length_m = 100;
+  options.turn_radius_m = 10;
+  options.altitude_m = 1.5;
+  options.camera_pitch_deg = 88;
+  options.attitude_jitter_deg = 0;
+  options.altitude_jitter_m = 0;
+  const FlightPlan plan(options, GustOptions(), kCamera, FailureSchedule(), 1);
+  EXPECT_NEAR(plan.path_length_m(), 300 + 2 * M_PI / 2 * 10, 1e-9);
+  // Left, then right: the last leg runs along +x again, offset by two turn radii in y.
+  const Eigen::Vector3d last = plan.WorldFromCam(options.num_frames - 1).translation;
+  EXPECT_NEAR(last.x(), 100 + 10 + 10 + 100, 1e-6);
+  EXPECT_NEAR(last.y(), 10 + 100 + 10, 1e-6);
+  EXPECT_NEAR(last.z(), 1.5, 1e-9);
+  // Looking ahead along +x, two degrees below the horizon.
+  const Eigen::Vector3d axis = plan.WorldFromCam(options.num_frames - 1).RotationMatrix().col(2);
+  EXPECT_NEAR(axis.x(), std::sin(88 * M_PI / 180), 1e-6);
+  EXPECT_NEAR(axis.z(), -std::cos(88 * M_PI / 180), 1e-6);
+}
+
 TEST(FlightPlan, RejectsBadOptions) {
   FlightOptions options;
   options.side_overlap = 1.2;
+  EXPECT_THROW(FlightPlan(options, GustOptions(), kCamera, FailureSchedule(), 1), Error);
+  options = FlightOptions();
+  options.path = "spiral";
+  EXPECT_THROW(FlightPlan(options, GustOptions(), kCamera, FailureSchedule(), 1), Error);
+  options = FlightOptions();
+  options.camera_pitch_deg = 95;
   EXPECT_THROW(FlightPlan(options, GustOptions(), kCamera, FailureSchedule(), 1), Error);
 }
 

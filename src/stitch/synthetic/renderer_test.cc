@@ -155,6 +155,30 @@ TEST(SyntheticSequence, ImagesHaveTextureEverywhere) {
   }
 }
 
+TEST(SyntheticSequence, HazeFadesTheFarGroundOfAForwardCamera) {
+  SyntheticOptions options = SmallFlight();
+  options.noise_sigma = 0;
+  options.flight.altitude_m = 15;
+  options.flight.camera_pitch_deg = 80;
+  const auto contrast = [](const cv::Mat& band) {
+    cv::Scalar mean, stddev;
+    cv::meanStdDev(band, mean, stddev);
+    return stddev[0];
+  };
+  SyntheticSequence clear(options, FailureSchedule());
+  options.world.visibility_m = 300;
+  SyntheticSequence hazy(options, FailureSchedule());
+  const cv::Mat clear_image = clear.RenderFrame(10), hazy_image = hazy.RenderFrame(10);
+  // The horizon is near row 160 (10 degrees above the optical axis). Near the camera (the bottom
+  // rows, about 25 m ahead) the haze keeps most of the contrast; just below the horizon (150-300 m
+  // ahead) it takes most of it.
+  const cv::Rect near(0, 420, 640, 60), far(0, 180, 640, 40);
+  EXPECT_LT(contrast(clear_image(cv::Rect(0, 0, 640, 100))), 1.0) << "plain sky above the horizon";
+  EXPECT_GT(contrast(hazy_image(near)), 0.6 * contrast(clear_image(near)));
+  EXPECT_GT(contrast(clear_image(far)), 5.0);
+  EXPECT_LT(contrast(hazy_image(far)), 0.4 * contrast(clear_image(far)));
+}
+
 TEST(SyntheticSequence, GustFramesAreBlurred) {
   SyntheticOptions options = SmallFlight();
   options.noise_sigma = 0;  // measure the blur, not the sensor noise

@@ -125,6 +125,7 @@ bool WorldOptions::Check(std::string* why) const {
   if (!(building_min_side_m > 0 && building_min_side_m <= building_max_side_m)) {
     return fail("world.building_min_side_m must be > 0 and <= building_max_side_m");
   }
+  if (!(visibility_m >= 0)) return fail("world.visibility_m must be >= 0");
   return true;
 }
 

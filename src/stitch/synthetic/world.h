@@ -22,6 +22,10 @@ struct WorldOptions {
   double building_max_height_m = 18.0;
   double building_min_side_m = 8.0;
   double building_max_side_m = 26.0;
+  // Haze: the distance at which the ground is barely told from the sky (contrast 2%, as
+  // meteorological visibility is defined); 0: a clear view. What a forward camera sees near the
+  // horizon fades into the sky instead of ending at the edge of the world.
+  double visibility_m = 0.0;
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
@@ -34,6 +38,7 @@ struct WorldOptions {
     v("building_max_height_m", building_max_height_m, "");
     v("building_min_side_m", building_min_side_m, "");
     v("building_max_side_m", building_max_side_m, "");
+    v("visibility_m", visibility_m, "haze: distance at which the ground fades into the sky, metres (0: clear)");
   }
   bool Check(std::string* why) const;
 };

@@ -1,6 +1,7 @@
 #include "stitch/util/child_process.h"
 
 #include <fcntl.h>
+#include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
 #include <csignal>
@@ -52,9 +53,11 @@ ChildProcess::~ChildProcess() {
 std::optional<int> ChildProcess::Poll() {
   if (status_ || pid_ <= 0) return status_;
   int raw = 0;
-  const pid_t done = waitpid(pid_, &raw, WNOHANG);
+  rusage usage{};
+  const pid_t done = wait4(pid_, &raw, WNOHANG, &usage);
   if (done == pid_) {
     status_ = WIFEXITED(raw) ? WEXITSTATUS(raw) : 128 + WTERMSIG(raw);
+    KeepUsage(usage);
   }
   return status_;
 }
@@ -69,9 +72,17 @@ int ChildProcess::Terminate(std::chrono::milliseconds grace) {
   }
   kill(pid_, SIGKILL);
   int raw = 0;
-  waitpid(pid_, &raw, 0);
+  rusage usage{};
+  wait4(pid_, &raw, 0, &usage);
   status_ = WIFEXITED(raw) ? WEXITSTATUS(raw) : 128 + WTERMSIG(raw);
+  KeepUsage(usage);
   return *status_;
+}
+
+void ChildProcess::KeepUsage(const rusage& usage) {
+  cpu_seconds_ = usage.ru_utime.tv_sec + usage.ru_utime.tv_usec * 1e-6 + usage.ru_stime.tv_sec +
+                 usage.ru_stime.tv_usec * 1e-6;
+  peak_memory_mb_ = usage.ru_maxrss / 1024.0;
 }
 
 std::string ChildProcess::LogTail(int lines) const {

@@ -6,6 +6,7 @@
 #include <string>
 #include <vector>
 
+#include <sys/resource.h>
 #include <sys/types.h>
 
 namespace stitch {
@@ -28,12 +29,19 @@ class ChildProcess {
   int Terminate(std::chrono::milliseconds grace);
   // The last `lines` lines of its log (for error messages).
   std::string LogTail(int lines) const;
+  // Once it has ended: the CPU seconds (user + system) it and the children it waited for used,
+  // and the largest resident set among them, MB.
+  double cpu_seconds() const { return cpu_seconds_; }
+  double peak_memory_mb() const { return peak_memory_mb_; }
 
  private:
+  void KeepUsage(const rusage& usage);
+
   std::string name_;
   std::string log_path_;
   pid_t pid_ = -1;
   std::optional<int> status_;
+  double cpu_seconds_ = 0, peak_memory_mb_ = 0;
 };
 
 // Folder of the running executable (to find the service programs beside `stitch`).

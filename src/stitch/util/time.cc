@@ -3,6 +3,7 @@
 #include <cctype>
 #include <cstdio>
 #include <cstdlib>
+#include <ctime>
 
 #include "stitch/util/error.h"
 
@@ -44,6 +45,15 @@ int64_t ParseSecondsToNs(const std::string& text) {
   for (int d = fraction_digits; d < 9; ++d) fraction *= 10;
   const int64_t ns = whole * 1000000000LL + fraction;
   return negative ? -ns : ns;
+}
+
+std::string LocalTimestamp(const char* format) {
+  const std::time_t now = std::time(nullptr);
+  std::tm local{};
+  localtime_r(&now, &local);
+  char text[64];
+  std::strftime(text, sizeof(text), format, &local);
+  return text;
 }
 
 }  // namespace stitch

@@ -29,6 +29,9 @@ class Stopwatch {
   double start_;
 };
 
+// The local time now, formatted with strftime's `format` (folder names, run records).
+std::string LocalTimestamp(const char* format);
+
 // Formats t_ns as seconds with nine decimals, exactly ("1403715273.262142976").
 std::string FormatSeconds(int64_t t_ns);
 // Parses decimal seconds ("1305031229.528748", "12", "1.5e-3" is rejected) into nanoseconds

@@ -1,0 +1,567 @@
+// stitch bench --quality: the quality gate (quality_gate.h).
+
+#include "tools/stitch/quality_gate.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+#include <set>
+#include <sstream>
+#include <thread>
+
+#include <yaml-cpp/yaml.h>
+
+#include "stitch/eval/evaluation.h"
+#include "stitch/records/frame_record.h"
+#include "stitch/records/keyframe_record.h"
+#include "stitch/tracking/tracking_result.h"
+#include "stitch/util/args.h"
+#include "stitch/util/child_process.h"
+#include "stitch/util/error.h"
+#include "stitch/util/text_file.h"
+#include "stitch/util/time.h"
+
+namespace fs = std::filesystem;
+
+namespace stitch {
+namespace {
+
+// The figures, in table order, with what a reader needs to know of each.
+struct Figure {
+  const char* key;
+  const char* heading;  // table column
+  const char* format;   // printf format of one value
+};
+const Figure kFigures[] = {
+    {"frames_in_largest_map", "frames in largest map", "%.0f"},
+    {"completeness", "completeness", "%.3f"},
+    {"submaps", "submaps", "%.0f"},
+    {"submaps_merged", "merged", "%.0f"},
+    {"ate_m", "ATE [m]", "%.4f"},
+    {"worst_submap_ate_in_map_m", "worst submap in map [m]", "%.4f"},
+    {"wrong_merges", "wrong merges", "%.0f"},
+    {"keyframes_created", "keyframes made", "%.0f"},
+    {"keyframes_kept", "kept", "%.0f"},
+    {"median_tracked_points", "tracked points (median)", "%.0f"},
+    {"cpu_s_per_frame", "CPU s/frame", "%.4f"},
+    {"wall_s", "wall [s]", "%.1f"},
+    {"dropped_frames", "dropped", "%.0f"},
+};
+
+bool KnownFigure(const std::string& key) {
+  return std::any_of(std::begin(kFigures), std::end(kFigures), [&](const Figure& f) { return key == f.key; });
+}
+
+std::string FormatFigure(const std::string& key, double value) {
+  for (const Figure& f : kFigures) {
+    if (key != f.key) continue;
+    char text[32];
+    std::snprintf(text, sizeof(text), f.format, value);
+    return text;
+  }
+  return std::to_string(value);
+}
+
+Tolerance ReadTolerance(const YAML::Node& node, const std::string& where, Tolerance tolerance) {
+  if (!node.IsMap()) throw Error(where + ": a tolerance is a map {relative, absolute, better}");
+  for (const auto& item : node) {
+    const std::string key = item.first.as<std::string>();
+    if (key == "relative") {
+      tolerance.relative = item.second.as<double>();
+    } else if (key == "absolute") {
+      tolerance.absolute = item.second.as<double>();
+    } else if (key == "better") {
+      const std::string better = item.second.as<std::string>();
+      if (better != "higher" && better != "lower") throw Error(where + ".better: higher or lower");
+      tolerance.higher_is_better = better == "higher";
+    } else {
+      throw Error(where + ": unknown key '" + key + "'");
+    }
+  }
+  if (!(tolerance.relative >= 0 && tolerance.absolute >= 0)) throw Error(where + ": slack must be >= 0");
+  return tolerance;
+}
+
+std::string Substitute(std::string text, const std::string& datasets_dir) {
+  const std::string marker = "${datasets}";
+  for (size_t at = text.find(marker); at != std::string::npos; at = text.find(marker, at + datasets_dir.size())) {
+    text.replace(at, marker.size(), datasets_dir);
+  }
+  return text;
+}
+
+double Median(std::vector<double> values) {
+  if (values.empty()) return 0;
+  std::sort(values.begin(), values.end());
+  return values[values.size() / 2];
+}
+
+std::string ReadWholeFile(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return "";
+  std::ostringstream text;
+  text << in.rdbuf();
+  return text.str();
+}
+
+std::string DefaultDatasetsDir() {
+  if (const char* env = std::getenv("STITCH_DATASETS")) return env;
+  return fs::path(STITCH_DATASETS_DIR).lexically_normal().string();
+}
+
+}  // namespace
+
+QualityMatrix LoadQualityMatrix(const std::string& path) {
+  YAML::Node root;
+  try {
+    root = YAML::LoadFile(path);
+  } catch (const YAML::Exception& e) {
+    throw Error(path + ": " + e.what());
+  }
+  QualityMatrix matrix;
+  try {
+    for (const auto& item : root) {
+      const std::string key = item.first.as<std::string>();
+      if (key != "tolerance" && key != "cases") throw Error("unknown key '" + key + "'");
+    }
+    for (const auto& item : root["tolerance"]) {
+      const std::string figure = item.first.as<std::string>();
+      if (!KnownFigure(figure)) throw Error("tolerance: unknown figure '" + figure + "'");
+      matrix.tolerance[figure] = ReadTolerance(item.second, "tolerance." + figure, Tolerance());
+    }
+    std::set<std::string> names;
+    for (const auto& node : root["cases"]) {
+      QualityCase c;
+      for (const auto& item : node) {
+        const std::string key = item.first.as<std::string>();
+        if (key == "name") {
+          c.name = item.second.as<std::string>();
+        } else if (key == "about") {
+          c.about = item.second.as<std::string>();
+        } else if (key == "run") {
+          c.run = item.second.as<std::vector<std::string>>();
+        } else if (key == "needs") {
+          c.needs = item.second.as<std::string>();
+        } else if (key == "alone") {
+          c.alone = item.second.as<bool>();
+        } else if (key == "ci") {
+          c.ci = item.second.as<bool>();
+        } else if (key == "expect") {
+          for (const auto& e : item.second) c.expect[e.first.as<std::string>()] = e.second.as<double>();
+        } else if (key == "tolerance") {
+          continue;  // read below, over the defaults
+        } else {
+          throw Error("case '" + c.name + "': unknown key '" + key + "'");
+        }
+      }
+      if (c.name.empty()) throw Error("a case without a name");
+      if (!names.insert(c.name).second) throw Error("two cases named '" + c.name + "'");
+      for (const auto& [figure, value] : c.expect) {
+        if (!KnownFigure(figure)) throw Error("case '" + c.name + "': unknown figure '" + figure + "'");
+        if (!matrix.tolerance.count(figure)) throw Error("case '" + c.name + "': no tolerance for '" + figure + "'");
+      }
+      // A case's own tolerances start from the defaults.
+      for (const auto& item : node["tolerance"]) {
+        const std::string figure = item.first.as<std::string>();
+        if (!matrix.tolerance.count(figure)) throw Error("case '" + c.name + "': no default tolerance for '" + figure + "'");
+        c.tolerance[figure] = ReadTolerance(item.second, c.name + ".tolerance." + figure, matrix.tolerance.at(figure));
+      }
+      matrix.cases.push_back(std::move(c));
+    }
+  } catch (const YAML::Exception& e) {
+    throw Error(path + ": " + e.what());
+  } catch (const Error& e) {
+    throw Error(path + ": " + e.what());
+  }
+  if (matrix.cases.empty()) throw Error(path + ": no cases");
+  return matrix;
+}
+
+void SaveQualityMatrix(const QualityMatrix& matrix, const std::string& path) {
+  const auto tolerance_text = [](const Tolerance& t) {
+    std::ostringstream out;
+    out << "{relative: " << t.relative << ", absolute: " << t.absolute
+        << ", better: " << (t.higher_is_better ? "higher" : "lower") << "}";
+    return out.str();
+  };
+  const auto quoted = [](const std::string& s) {
+    YAML::Emitter e;
+    e << YAML::DoubleQuoted << s;
+    return std::string(e.c_str());
+  };
+  std::ostringstream out;
+  out << "# The quality gate (`stitch bench --quality`, docs/testing.md): every case, what it must give\n"
+         "# (`expect`, measured on the machine docs/benchmarks.md names, written by --update), and how far\n"
+         "# each figure may move the worse way before `--check` calls it a regression. `run` holds\n"
+         "# `stitch run` arguments (${datasets}: the real sequences' folder); `needs`: the sequence a\n"
+         "# case plays (skipped where it is absent); `alone`: nothing runs beside it (CPU, real time,\n"
+         "# link timing); `ci`: in the subset ctest runs.\n";
+  out << "tolerance:\n";
+  for (const auto& [figure, t] : matrix.tolerance) out << "  " << figure << ": " << tolerance_text(t) << "\n";
+  out << "cases:\n";
+  for (const QualityCase& c : matrix.cases) {
+    out << "  - name: " << c.name << "\n";
+    if (!c.about.empty()) out << "    about: " << quoted(c.about) << "\n";
+    out << "    run: [";
+    for (size_t i = 0; i < c.run.size(); ++i) out << (i ? ", " : "") << quoted(c.run[i]);
+    out << "]\n";
+    if (!c.needs.empty()) out << "    needs: " << quoted(c.needs) << "\n";
+    if (c.alone) out << "    alone: true\n";
+    if (c.ci) out << "    ci: true\n";
+    if (!c.tolerance.empty()) {
+      out << "    tolerance:\n";
+      for (const auto& [figure, t] : c.tolerance) out << "      " << figure << ": " << tolerance_text(t) << "\n";
+    }
+    if (!c.expect.empty()) {
+      out << "    expect: {";
+      bool first = true;
+      for (const Figure& f : kFigures) {
+        const auto it = c.expect.find(f.key);
+        if (it == c.expect.end()) continue;
+        out << (first ? "" : ", ") << f.key << ": " << FormatFigure(f.key, it->second);
+        first = false;
+      }
+      out << "}\n";
+    }
+  }
+  WriteFileAtomically(path, out.str());
+}
+
+std::map<std::string, double> MeasureRun(const std::string& run_dir, double cpu_seconds, double wall_seconds) {
+  const fs::path dir(run_dir);
+  const Evaluation e = ReadReport((dir / "report.json").string());
+  std::map<std::string, double> m;
+  m["frames_in_largest_map"] = e.frames_localized;
+  m["completeness"] = e.completeness;
+  m["submaps"] = e.submaps;
+  m["submaps_merged"] = e.submaps_merged;
+  if (e.errors) m["ate_m"] = e.errors->ate_rmse_m;
+  double worst = -1;
+  for (const SubmapEvaluation& s : e.per_submap) {
+    if (s.ate_in_map_m) worst = std::max(worst, *s.ate_in_map_m);
+  }
+  if (worst >= 0) m["worst_submap_ate_in_map_m"] = worst;
+  m["wrong_merges"] = e.wrong_merges;
+  std::vector<FrameRecord> frames;
+  if (fs::exists(dir / "frames.tsv")) frames = ReadFrameRecords((dir / "frames.tsv").string());
+  int created = 0, dropped = 0;
+  std::vector<double> tracked;
+  for (const FrameRecord& f : frames) {
+    created += f.is_keyframe;
+    dropped += f.reason == static_cast<int>(TrackingReason::kDropped);
+    if (f.state == "OK") tracked.push_back(f.tracked_points);
+  }
+  // Every keyframe the mapper received, culled or not (frames.tsv marks no keyframe on the
+  // reference frame of an initialization, which becomes one); the tracker's count without a mapper.
+  int kept = 0;
+  if (fs::exists(dir / "keyframes.tsv")) {
+    const std::vector<KeyframeRecord> keyframes = ReadKeyframeRecords((dir / "keyframes.tsv").string());
+    for (const KeyframeRecord& k : keyframes) kept += !k.culled;
+    created = std::max(created, static_cast<int>(keyframes.size()));
+  }
+  m["keyframes_created"] = created;
+  m["keyframes_kept"] = kept;
+  m["median_tracked_points"] = Median(tracked);
+  m["cpu_s_per_frame"] = e.frames_total > 0 ? cpu_seconds / e.frames_total : 0;
+  m["wall_s"] = wall_seconds;
+  m["dropped_frames"] = dropped;
+  return m;
+}
+
+std::string PlaceMarkdownTable(const std::string& document, const std::string& table) {
+  const size_t begin = document.find(kMarkdownBegin);
+  const size_t end = begin == std::string::npos ? std::string::npos : document.find(kMarkdownEnd, begin);
+  if (end == std::string::npos) return table;
+  const size_t after_begin = document.find('\n', begin);
+  return document.substr(0, after_begin + 1) + table + document.substr(end);
+}
+
+std::string Regression::Describe() const {
+  char text[256];
+  std::snprintf(text, sizeof(text), "%s %s, expected %s (limit %s)", figure.c_str(),
+                std::isnan(measured) ? "missing" : FormatFigure(figure, measured).c_str(),
+                FormatFigure(figure, expected).c_str(), FormatFigure(figure, limit).c_str());
+  return text;
+}
+
+std::vector<Regression> CheckCase(const QualityMatrix& matrix, const QualityCase& c,
+                                  const std::map<std::string, double>& measured,
+                                  const std::set<std::string>& only) {
+  std::vector<Regression> regressions;
+  for (const auto& [figure, expected] : c.expect) {
+    if (!only.empty() && !only.count(figure)) continue;
+    const auto own = c.tolerance.find(figure);
+    const Tolerance& t = own != c.tolerance.end() ? own->second : matrix.tolerance.at(figure);
+    const double slack = t.relative * std::abs(expected) + t.absolute;
+    const double limit = t.higher_is_better ? expected - slack : expected + slack;
+    const auto it = measured.find(figure);
+    if (it == measured.end()) {
+      regressions.push_back({figure, NAN, expected, limit});
+      continue;
+    }
+    const bool worse = t.higher_is_better ? it->second < limit : it->second > limit;
+    if (worse) regressions.push_back({figure, it->second, expected, limit});
+  }
+  return regressions;
+}
+
+std::string ReproduceCommand(const QualityCase& c, const std::string& datasets_dir,
+                             const std::vector<std::string>& settings) {
+  std::vector<std::string> args;
+  for (const std::string& arg : c.run) args.push_back(Substitute(arg, datasets_dir));
+  for (const std::string& setting : settings) {
+    args.push_back("--set");
+    args.push_back(setting);
+  }
+  std::string command = "build/bin/stitch run";
+  for (const std::string& a : args) {
+    const bool plain = !a.empty() && a.find_first_of(" \t'\"$*?()[]{};&|<>") == std::string::npos;
+    command += " " + (plain ? a : "'" + a + "'");
+  }
+  return command;
+}
+
+namespace {
+
+struct Result {
+  const QualityCase* c = nullptr;
+  bool skipped = false;
+  std::string why;  // skipped or failed: why
+  bool failed = false;
+  std::map<std::string, double> figures;
+  std::vector<Regression> regressions;
+};
+
+// One running case.
+struct Running {
+  const QualityCase* c;
+  size_t index;
+  std::unique_ptr<ChildProcess> process;
+  Stopwatch clock;
+  std::string run_dir;
+};
+
+void PrintTable(const std::vector<Result>& results, bool markdown, std::FILE* out) {
+  const std::string separator = markdown ? " | " : "  ";
+  std::string header = markdown ? "| case" : "case";
+  std::string rule = markdown ? "|---" : "";
+  for (const Figure& f : kFigures) {
+    header += separator + f.heading;
+    rule += "|---";
+  }
+  std::fprintf(out, "%s%s\n", header.c_str(), markdown ? " |" : "");
+  if (markdown) std::fprintf(out, "%s|\n", rule.c_str());
+  for (const Result& r : results) {
+    std::string row = (markdown ? "| " : "") + r.c->name;
+    for (const Figure& f : kFigures) {
+      const auto it = r.figures.find(f.key);
+      std::string cell = r.skipped ? "-" : it == r.figures.end() ? "n/a" : FormatFigure(f.key, it->second);
+      const bool regressed =
+          std::any_of(r.regressions.begin(), r.regressions.end(), [&](const Regression& g) { return g.figure == f.key; });
+      if (regressed) cell = markdown ? "**" + cell + "**" : cell + "!";
+      row += separator + cell;
+    }
+    if (r.skipped) row += separator + "(skipped: " + r.why + ")";
+    std::fprintf(out, "%s%s\n", row.c_str(), markdown && !r.skipped ? " |" : "");
+  }
+}
+
+}  // namespace
+
+int QualityCommand(int argc, char** argv) {
+  std::string expected_path = std::string(STITCH_SOURCE_DIR) + "/benchmarks/quality.yaml";
+  std::string cases_list, figures_list, out_dir, markdown_path, datasets_dir = DefaultDatasetsDir();
+  std::vector<std::string> settings;
+  int jobs = 1;
+  bool check = false, update = false, ci_only = false, quality = false;
+  ArgParser args("stitch bench --quality",
+                 "The quality gate: runs each case of the matrix (stitch run, as separate processes) and prints one "
+                 "table: frames in the largest map, completeness, submaps and how many merged, ATE, the worst "
+                 "submap's ATE in the merged map, wrong merges (a submap whose ATE in the merged map is more than 3x "
+                 "its own and above 0.5% of the extent), keyframes made and kept, median tracked points per frame, "
+                 "CPU seconds of all services per frame, wall time, frames dropped. With --check, exits 1 on any "
+                 "figure worse than its expectation beyond its tolerance, naming it and the command that "
+                 "reproduces it.");
+  args.AddFlag("--quality", &quality, "(this mode of stitch bench)");
+  args.AddOption("--expected", &expected_path, "FILE", "the matrix and its expected figures");
+  args.AddOption("--cases", &cases_list, "A,B,...", "only these cases (default: all)");
+  args.AddFlag("--ci", &ci_only, "only the cases marked ci (the subset ctest runs)");
+  args.AddFlag("--check", &check, "exit 1 when a figure regressed beyond its tolerance");
+  args.AddOption("--figures", &figures_list, "A,B,...",
+                 "check only these figures (default: all; e.g. leave out cpu_s_per_frame and dropped_frames on "
+                 "a machine other than the one the expectations were measured on)");
+  args.AddFlag("--update", &update, "write the measured figures into --expected as the new expectations");
+  args.AddOption("--out", &out_dir, "DIR", "where the cases' run folders go (default: runs/quality-<time>)");
+  args.AddOption("--markdown", &markdown_path, "FILE",
+                 "also write the table as Markdown: in place of the lines between the markers "
+                 "<!-- quality-gate --> and <!-- /quality-gate --> where FILE has them (docs/benchmarks.md), "
+                 "else as the whole file");
+  args.AddOption("--jobs", &jobs, "N", "cases run side by side (those marked alone always run alone)");
+  args.AddOption("--set", &settings, "KEY=VALUE",
+                 "a setting for every case's run (to try a change against the expectations)");
+  args.AddOption("--datasets", &datasets_dir, "DIR", "the real sequences' folder (default: $STITCH_DATASETS or ../shared/datasets)");
+  if (!args.Parse(argc, argv)) return args.exit_code();
+  try {
+    if (jobs < 1 || jobs > 64) throw Error("--jobs must be in [1, 64]");
+    QualityMatrix matrix = LoadQualityMatrix(expected_path);
+    std::vector<const QualityCase*> chosen;
+    std::set<std::string> wanted;
+    std::stringstream list(cases_list);
+    for (std::string name; std::getline(list, name, ',');) {
+      if (!name.empty()) wanted.insert(name);
+    }
+    std::set<std::string> figures;
+    std::stringstream figure_list(figures_list);
+    for (std::string figure; std::getline(figure_list, figure, ',');) {
+      if (figure.empty()) continue;
+      if (!KnownFigure(figure)) throw Error("--figures: no figure named '" + figure + "'");
+      figures.insert(figure);
+    }
+    for (const std::string& name : wanted) {
+      if (std::none_of(matrix.cases.begin(), matrix.cases.end(), [&](const QualityCase& c) { return c.name == name; })) {
+        throw Error("--cases: no case named '" + name + "' in " + expected_path);
+      }
+    }
+    for (const QualityCase& c : matrix.cases) {
+      if ((wanted.empty() || wanted.count(c.name)) && (!ci_only || c.ci)) chosen.push_back(&c);
+    }
+    if (chosen.empty()) throw Error("no case chosen");
+    if (out_dir.empty()) out_dir = "runs/quality-" + LocalTimestamp("%Y%m%d-%H%M%S");
+    if (fs::exists(out_dir) && !fs::is_empty(out_dir)) throw Error(out_dir + " exists and is not empty; give a new --out");
+    fs::create_directories(out_dir);
+    const std::string stitch = ExecutableDir() + "/stitch";
+
+    std::vector<Result> results(chosen.size());
+    std::vector<Running> running;
+    size_t next = 0, done = 0;
+    const Stopwatch total;
+    const auto progress = [&]() {
+      std::string line = "\r[" + std::to_string(done) + "/" + std::to_string(chosen.size()) + "] ";
+      for (const Running& r : running) {
+        line += r.c->name + " " + std::to_string(static_cast<int>(r.clock.ElapsedSeconds())) + " s  ";
+      }
+      std::printf("%-110s", line.c_str());
+      std::fflush(stdout);
+    };
+    while (done < chosen.size()) {
+      // Start what may start: a case marked alone only when nothing runs, nothing beside it.
+      while (next < chosen.size()) {
+        const QualityCase& c = *chosen[next];
+        const bool alone_running =
+            std::any_of(running.begin(), running.end(), [](const Running& r) { return r.c->alone; });
+        if (alone_running || static_cast<int>(running.size()) >= jobs || (c.alone && !running.empty())) break;
+        Result& result = results[next];
+        result.c = &c;
+        if (!c.needs.empty() && !fs::exists(fs::path(datasets_dir) / c.needs)) {
+          result.skipped = true;
+          result.why = c.needs + " is not in " + datasets_dir;
+          ++next;
+          ++done;
+          continue;
+        }
+        Running r{&c, next, nullptr, Stopwatch(), (fs::path(out_dir) / c.name).string()};
+        std::vector<std::string> run_args{"run", "--quiet", "--out", r.run_dir};
+        for (const std::string& a : c.run) run_args.push_back(Substitute(a, datasets_dir));
+        for (const std::string& setting : settings) {
+          run_args.push_back("--set");
+          run_args.push_back(setting);
+        }
+        r.process = std::make_unique<ChildProcess>(c.name, stitch, run_args, r.run_dir + ".log");
+        running.push_back(std::move(r));
+        ++next;
+      }
+      progress();
+      std::this_thread::sleep_for(std::chrono::milliseconds(200));
+      for (auto it = running.begin(); it != running.end();) {
+        const std::optional<int> status = it->process->Poll();
+        if (!status) {
+          ++it;
+          continue;
+        }
+        Result& result = results[it->index];
+        const double wall = it->clock.ElapsedSeconds();
+        if (*status != 0) {
+          result.failed = true;
+          result.why = "stitch run exited with status " + std::to_string(*status) + ":\n" + it->process->LogTail(8);
+        } else {
+          try {
+            result.figures = MeasureRun(it->run_dir, it->process->cpu_seconds(), wall);
+            result.regressions = CheckCase(matrix, *result.c, result.figures, figures);
+          } catch (const Error& e) {
+            result.failed = true;
+            result.why = e.what();
+          }
+        }
+        std::printf("\r%-110s\r", "");
+        std::printf("[%zu/%zu] %-26s %5.0f s  %s\n", done + 1, chosen.size(), result.c->name.c_str(), wall,
+                    result.failed                ? "FAILED"
+                    : !result.regressions.empty() ? (std::to_string(result.regressions.size()) + " regressed").c_str()
+                                                  : "ok");
+        ++done;
+        it = running.erase(it);
+      }
+    }
+    std::printf("\r%-110s\r", "");
+    std::printf("\nquality gate: %zu cases in %.0f s (%s)\n\n", chosen.size(), total.ElapsedSeconds(), out_dir.c_str());
+    PrintTable(results, /*markdown=*/false, stdout);
+
+    nlohmann::json json = nlohmann::json::array();
+    int regressed = 0, failed = 0;
+    for (const Result& r : results) {
+      nlohmann::json j{{"case", r.c->name}, {"skipped", r.skipped}, {"failed", r.failed}, {"why", r.why},
+                       {"figures", r.figures}, {"command", ReproduceCommand(*r.c, datasets_dir, settings)}};
+      for (const Regression& g : r.regressions) j["regressions"].push_back(g.Describe());
+      json.push_back(j);
+      if (r.failed) {
+        ++failed;
+        std::printf("\nFAILED %s: %s\n  reproduce: %s\n", r.c->name.c_str(), r.why.c_str(),
+                    ReproduceCommand(*r.c, datasets_dir, settings).c_str());
+      } else if (!r.regressions.empty()) {
+        ++regressed;
+        std::printf("\nREGRESSION %s:\n", r.c->name.c_str());
+        for (const Regression& g : r.regressions) std::printf("  %s\n", g.Describe().c_str());
+        std::printf("  reproduce: %s\n", ReproduceCommand(*r.c, datasets_dir, settings).c_str());
+      }
+    }
+    WriteFileAtomically((fs::path(out_dir) / "quality.json").string(), json.dump(2) + "\n");
+    if (!markdown_path.empty()) {
+      char* text = nullptr;
+      size_t size = 0;
+      std::FILE* md = open_memstream(&text, &size);
+      if (!md) throw Error("out of memory for the Markdown table");
+      std::fprintf(md, "`build/bin/stitch bench --quality`, %s:\n\n", LocalTimestamp("%Y-%m-%d").c_str());
+      PrintTable(results, /*markdown=*/true, md);
+      std::fclose(md);
+      const std::string table(text, size);
+      std::free(text);
+      WriteFileAtomically(markdown_path, PlaceMarkdownTable(ReadWholeFile(markdown_path), table));
+    }
+    if (update) {
+      for (const Result& r : results) {
+        if (r.skipped || r.failed) continue;
+        for (QualityCase& c : matrix.cases) {
+          if (c.name != r.c->name) continue;
+          for (const auto& [figure, value] : r.figures) {
+            if (matrix.tolerance.count(figure)) c.expect[figure] = value;
+          }
+        }
+      }
+      SaveQualityMatrix(matrix, expected_path);
+      std::printf("\nwrote the measured figures to %s\n", expected_path.c_str());
+    }
+    const int skipped = static_cast<int>(std::count_if(results.begin(), results.end(), [](const Result& r) { return r.skipped; }));
+    std::printf("\n%d ok, %d regressed, %d failed, %d skipped\n",
+                static_cast<int>(results.size()) - regressed - failed - skipped, regressed, failed, skipped);
+    return check && (regressed > 0 || failed > 0) ? 1 : 0;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "stitch bench --quality: %s\n", e.what());
+    return 2;
+  }
+}
+
+}  // namespace stitch

@@ -1,0 +1,75 @@
+#pragma once
+// The quality gate (`stitch bench --quality`): a fixed matrix of `stitch run` cases, each
+// measured the same way (accuracy, merges, keyframes, tracked points, CPU of all services, wall
+// time, frames dropped), compared against committed expectations with tolerances
+// (benchmarks/quality.yaml). docs/testing.md, "The quality gate".
+
+#include <map>
+#include <optional>
+#include <set>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+namespace stitch {
+
+// How much a figure may move before it is a regression, and which way is worse.
+struct Tolerance {
+  double relative = 0;  // of the expected value
+  double absolute = 0;
+  bool higher_is_better = false;
+};
+
+struct QualityCase {
+  std::string name;
+  std::string about;
+  std::vector<std::string> run;  // `stitch run` arguments; ${datasets} is the datasets folder
+  std::string needs;             // a folder under the datasets folder the case plays ("" = none)
+  bool alone = false;            // runs with nothing beside it (CPU, real time, link timing)
+  bool ci = false;               // part of the subset ctest runs
+  std::map<std::string, double> expect;            // figure -> expected value
+  std::map<std::string, Tolerance> tolerance;      // this case's own slack (over the defaults)
+};
+
+struct QualityMatrix {
+  std::map<std::string, Tolerance> tolerance;  // the defaults, per figure
+  std::vector<QualityCase> cases;
+};
+
+// Reads and checks benchmarks/quality.yaml; throws stitch::Error naming the file and what is wrong.
+QualityMatrix LoadQualityMatrix(const std::string& path);
+// Writes it back (the case definitions and `expect` as given in `matrix`).
+void SaveQualityMatrix(const QualityMatrix& matrix, const std::string& path);
+
+// One case's figures, from its run folder (report.json, frames.tsv, keyframes.tsv) and the
+// run's CPU and wall time. Keys: frames_in_largest_map, completeness, submaps, submaps_merged,
+// ate_m, worst_submap_ate_in_map_m, wrong_merges, keyframes_created, keyframes_kept,
+// median_tracked_points, cpu_s_per_frame, wall_s, dropped_frames.
+std::map<std::string, double> MeasureRun(const std::string& run_dir, double cpu_seconds, double wall_seconds);
+
+// A regression: the figure, what was measured, what was expected, and the limit it crossed.
+struct Regression {
+  std::string figure;
+  double measured = 0, expected = 0, limit = 0;
+  std::string Describe() const;
+};
+// Every expected figure of `c` outside its tolerance (missing figures count: a case that used to
+// have an ATE and now has none has regressed); only the figures in `only` when it is not empty.
+std::vector<Regression> CheckCase(const QualityMatrix& matrix, const QualityCase& c,
+                                  const std::map<std::string, double>& measured,
+                                  const std::set<std::string>& only = {});
+
+// The `stitch run` command line that reproduces a case (with `settings` added to it).
+std::string ReproduceCommand(const QualityCase& c, const std::string& datasets_dir,
+                             const std::vector<std::string>& settings = {});
+
+// `document` with the lines between its markers replaced by `table`; `table` alone when the
+// document lacks them (a new file).
+constexpr const char* kMarkdownBegin = "<!-- quality-gate -->";
+constexpr const char* kMarkdownEnd = "<!-- /quality-gate -->";
+std::string PlaceMarkdownTable(const std::string& document, const std::string& table);
+
+int QualityCommand(int argc, char** argv);  // stitch bench --quality
+
+}  // namespace stitch

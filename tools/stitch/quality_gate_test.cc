@@ -1,0 +1,119 @@
+// The quality gate's rules on constructed figures: its file read and refused, regressions found
+// in the worse direction only, beyond the tolerance only, and a missing figure counted.
+
+#include "tools/stitch/quality_gate.h"
+
+#include <cmath>
+#include <fstream>
+
+#include <gtest/gtest.h>
+
+#include "stitch/testing/temp_dir.h"
+#include "stitch/util/error.h"
+
+namespace stitch {
+namespace {
+
+const char kMatrix[] = R"(tolerance:
+  frames_in_largest_map: {relative: 0.02, absolute: 2, better: higher}
+  ate_m: {relative: 0.15, absolute: 0.005, better: lower}
+  wrong_merges: {relative: 0, absolute: 0, better: lower}
+cases:
+  - name: tum
+    run: ["--dataset", "${datasets}/tum/rgbd_dataset_freiburg1_rpy", "--failures", "300:10,500:10"]
+    needs: tum/rgbd_dataset_freiburg1_rpy
+    alone: true
+    tolerance:
+      ate_m: {relative: 0.5}
+    expect: {frames_in_largest_map: 697, ate_m: 0.048, wrong_merges: 0}
+  - name: short
+    run: ["--max-frames", "300"]
+    ci: true
+)";
+
+QualityMatrix WriteAndLoad(const testing::TempDir& dir, const std::string& text) {
+  const std::string path = dir / "quality.yaml";
+  std::ofstream(path) << text;
+  return LoadQualityMatrix(path);
+}
+
+TEST(QualityGate, ReadsTheMatrixAndACasesOwnTolerance) {
+  testing::TempDir dir;
+  const QualityMatrix matrix = WriteAndLoad(dir, kMatrix);
+  ASSERT_EQ(matrix.cases.size(), 2u);
+  const QualityCase& tum = matrix.cases[0];
+  EXPECT_EQ(tum.name, "tum");
+  EXPECT_TRUE(tum.alone);
+  EXPECT_FALSE(tum.ci);
+  EXPECT_EQ(tum.expect.at("frames_in_largest_map"), 697);
+  EXPECT_DOUBLE_EQ(tum.tolerance.at("ate_m").relative, 0.5);
+  EXPECT_DOUBLE_EQ(tum.tolerance.at("ate_m").absolute, 0.005) << "the rest from the defaults";
+  EXPECT_TRUE(matrix.cases[1].ci);
+  EXPECT_EQ(ReproduceCommand(tum, "/data"),
+            "build/bin/stitch run --dataset /data/tum/rgbd_dataset_freiburg1_rpy --failures 300:10,500:10");
+  // Written back and read again: the same matrix.
+  SaveQualityMatrix(matrix, dir / "again.yaml");
+  const QualityMatrix again = LoadQualityMatrix(dir / "again.yaml");
+  ASSERT_EQ(again.cases.size(), 2u);
+  EXPECT_EQ(again.cases[0].run, tum.run);
+  EXPECT_EQ(again.cases[0].expect, tum.expect);
+  EXPECT_DOUBLE_EQ(again.cases[0].tolerance.at("ate_m").relative, 0.5);
+}
+
+TEST(QualityGate, RefusesAMatrixItCannotCheck) {
+  testing::TempDir dir;
+  const auto refused = [&](const std::string& text, const std::string& what) {
+    try {
+      WriteAndLoad(dir, text);
+      ADD_FAILURE() << "accepted: " << what;
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find(what), std::string::npos) << e.what();
+    }
+  };
+  refused("tolerance: {}\ncases:\n  - name: a\n    expect: {ate_m: 1}\n", "no tolerance for 'ate_m'");
+  refused("tolerance: {}\ncases:\n  - name: a\n    expect: {speed: 1}\n", "unknown figure 'speed'");
+  refused("tolerance: {}\ncases:\n  - name: a\n    colour: red\n", "unknown key 'colour'");
+  refused("tolerance: {}\ncases:\n  - name: a\n  - name: a\n", "two cases named 'a'");
+  refused("tolerance: {ate_m: {relative: -1}}\ncases:\n  - name: a\n", "slack must be >= 0");
+  refused("tolerance: {}\ncases: [\n", "quality.yaml");
+}
+
+TEST(QualityGate, ARegressionIsAFigureWorseThanItsToleranceAllows) {
+  testing::TempDir dir;
+  const QualityMatrix matrix = WriteAndLoad(dir, kMatrix);
+  const QualityCase& tum = matrix.cases[0];
+  // Within tolerance (697 - 2% - 2 = 681.06; 0.048 + 50% + 0.005 = 0.077), and better: none.
+  EXPECT_TRUE(CheckCase(matrix, tum, {{"frames_in_largest_map", 682}, {"ate_m", 0.076}, {"wrong_merges", 0}}).empty());
+  EXPECT_TRUE(CheckCase(matrix, tum, {{"frames_in_largest_map", 723}, {"ate_m", 0.01}, {"wrong_merges", 0}}).empty());
+  // Worse beyond it: each named, with its limit.
+  const auto regressions =
+      CheckCase(matrix, tum, {{"frames_in_largest_map", 546}, {"ate_m", 0.078}, {"wrong_merges", 1}});
+  ASSERT_EQ(regressions.size(), 3u);
+  EXPECT_EQ(regressions[0].figure, "ate_m");
+  EXPECT_NEAR(regressions[0].limit, 0.077, 1e-12);
+  EXPECT_EQ(regressions[1].figure, "frames_in_largest_map");
+  EXPECT_NE(regressions[1].Describe().find("546, expected 697"), std::string::npos) << regressions[1].Describe();
+  EXPECT_EQ(regressions[2].figure, "wrong_merges");
+  // A figure the run no longer gives (no ATE: the map was lost) is a regression too.
+  const auto missing = CheckCase(matrix, tum, {{"frames_in_largest_map", 697}, {"wrong_merges", 0}});
+  ASSERT_EQ(missing.size(), 1u);
+  EXPECT_TRUE(std::isnan(missing[0].measured));
+  EXPECT_NE(missing[0].Describe().find("missing"), std::string::npos);
+  // --figures: only those figures are compared.
+  const auto only_ate = CheckCase(matrix, tum, {{"frames_in_largest_map", 546}, {"ate_m", 0.078}}, {"ate_m"});
+  ASSERT_EQ(only_ate.size(), 1u);
+  EXPECT_EQ(only_ate[0].figure, "ate_m");
+}
+
+TEST(QualityGate, TheMarkdownTableReplacesOnlyWhatLiesBetweenItsMarkers) {
+  const std::string document =
+      "# Benchmarks\n\ntext before\n<!-- quality-gate -->\nold table\nold row\n<!-- /quality-gate -->\ntext after\n";
+  EXPECT_EQ(PlaceMarkdownTable(document, "new table\n"),
+            "# Benchmarks\n\ntext before\n<!-- quality-gate -->\nnew table\n<!-- /quality-gate -->\ntext after\n");
+  // Without both markers (or a new, empty file): the table is the whole file.
+  EXPECT_EQ(PlaceMarkdownTable("", "new table\n"), "new table\n");
+  EXPECT_EQ(PlaceMarkdownTable("<!-- quality-gate -->\nno end\n", "t\n"), "t\n");
+}
+
+}  // namespace
+}  // namespace stitch
