@@ -37,7 +37,19 @@ TEST(QualityGate, TheCiSubsetMeetsItsExpectations) {
                                  600);
   EXPECT_EQ(result.exit_code, 0) << result.output;
   EXPECT_NE(result.output.find("0 regressed, 0 failed"), std::string::npos) << result.output;
-  EXPECT_TRUE(std::filesystem::exists(dir / "gate/quality.json"));
+  ASSERT_TRUE(std::filesystem::exists(dir / "gate/quality.json"));
+  // The same figures tabled again without running anything, against themselves: nothing moved.
+  const auto again = RunProgram({Bin("stitch"), "bench", "--quality", "--ci", "--check", "--figures",
+                                 kMachineIndependentFigures, "--from", dir / "gate/quality.json", "--before",
+                                 dir / "gate/quality.json", "--markdown", dir / "table.md"},
+                                60);
+  EXPECT_EQ(again.exit_code, 0) << again.output;
+  EXPECT_EQ(again.output.find("->"), std::string::npos) << again.output;
+  EXPECT_TRUE(std::filesystem::exists(dir / "table.md"));
+  // A file that is not a gate's output is refused, and said to be.
+  const auto refused = RunProgram({Bin("stitch"), "bench", "--quality", "--from", dir / "table.md"}, 60);
+  EXPECT_EQ(refused.exit_code, 2) << refused.output;
+  EXPECT_NE(refused.output.find("not a quality.json"), std::string::npos) << refused.output;
 }
 
 TEST(QualityGate, ALostMergeFailsTheCheckAndSaysWhy) {

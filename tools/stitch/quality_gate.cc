@@ -346,7 +346,27 @@ struct Running {
   std::string run_dir;
 };
 
-void PrintTable(const std::vector<Result>& results, bool markdown, std::FILE* out) {
+// Figures of an earlier run (its quality.json): case -> figure -> value.
+using Figures = std::map<std::string, std::map<std::string, double>>;
+
+Figures ReadFigures(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw Error(path + ": cannot open (give the quality.json of an earlier run)");
+  Figures figures;
+  try {
+    const nlohmann::json json = nlohmann::json::parse(in);
+    for (const auto& c : json) {
+      if (c.at("skipped").get<bool>() || c.at("failed").get<bool>()) continue;
+      figures[c.at("case").get<std::string>()] = c.at("figures").get<std::map<std::string, double>>();
+    }
+  } catch (const nlohmann::json::exception& e) {
+    throw Error(path + ": not a quality.json (" + e.what() + ")");
+  }
+  return figures;
+}
+
+// One table; with `before`, a figure that moved shows as "before -> now".
+void PrintTable(const std::vector<Result>& results, bool markdown, std::FILE* out, const Figures& before = {}) {
   const std::string separator = markdown ? " | " : "  ";
   std::string header = markdown ? "| case" : "case";
   std::string rule = markdown ? "|---" : "";
@@ -361,6 +381,12 @@ void PrintTable(const std::vector<Result>& results, bool markdown, std::FILE* ou
     for (const Figure& f : kFigures) {
       const auto it = r.figures.find(f.key);
       std::string cell = r.skipped ? "-" : it == r.figures.end() ? "n/a" : FormatFigure(f.key, it->second);
+      if (!r.skipped && before.count(r.c->name)) {
+        const auto& was = before.at(r.c->name);
+        const auto old = was.find(f.key);
+        const std::string old_cell = old == was.end() ? "n/a" : FormatFigure(f.key, old->second);
+        if (old_cell != cell) cell = old_cell + " -> " + cell;
+      }
       const bool regressed =
           std::any_of(r.regressions.begin(), r.regressions.end(), [&](const Regression& g) { return g.figure == f.key; });
       if (regressed) cell = markdown ? "**" + cell + "**" : cell + "!";
@@ -375,7 +401,8 @@ void PrintTable(const std::vector<Result>& results, bool markdown, std::FILE* ou
 
 int QualityCommand(int argc, char** argv) {
   std::string expected_path = std::string(STITCH_SOURCE_DIR) + "/benchmarks/quality.yaml";
-  std::string cases_list, figures_list, out_dir, markdown_path, datasets_dir = DefaultDatasetsDir();
+  std::string cases_list, figures_list, out_dir, markdown_path, before_path, from_path,
+      datasets_dir = DefaultDatasetsDir();
   std::vector<std::string> settings;
   int jobs = 1;
   bool check = false, update = false, ci_only = false, quality = false;
@@ -401,6 +428,10 @@ int QualityCommand(int argc, char** argv) {
                  "also write the table as Markdown: in place of the lines between the markers "
                  "<!-- quality-gate --> and <!-- /quality-gate --> where FILE has them (docs/benchmarks.md), "
                  "else as the whole file");
+  args.AddOption("--before", &before_path, "FILE",
+                 "the quality.json of an earlier run: the tables show each figure that moved as before -> now");
+  args.AddOption("--from", &from_path, "FILE",
+                 "run nothing: table (and --check) the figures of an earlier run's quality.json");
   args.AddOption("--jobs", &jobs, "N", "cases run side by side (those marked alone always run alone)");
   args.AddOption("--set", &settings, "KEY=VALUE",
                  "a setting for every case's run (to try a change against the expectations)");
@@ -409,6 +440,7 @@ int QualityCommand(int argc, char** argv) {
   try {
     if (jobs < 1 || jobs > 64) throw Error("--jobs must be in [1, 64]");
     QualityMatrix matrix = LoadQualityMatrix(expected_path);
+    const Figures before = before_path.empty() ? Figures() : ReadFigures(before_path);
     std::vector<const QualityCase*> chosen;
     std::set<std::string> wanted;
     std::stringstream list(cases_list);
@@ -431,14 +463,35 @@ int QualityCommand(int argc, char** argv) {
       if ((wanted.empty() || wanted.count(c.name)) && (!ci_only || c.ci)) chosen.push_back(&c);
     }
     if (chosen.empty()) throw Error("no case chosen");
-    if (out_dir.empty()) out_dir = "runs/quality-" + LocalTimestamp("%Y%m%d-%H%M%S");
-    if (fs::exists(out_dir) && !fs::is_empty(out_dir)) throw Error(out_dir + " exists and is not empty; give a new --out");
-    fs::create_directories(out_dir);
-    const std::string stitch = ExecutableDir() + "/stitch";
-
     std::vector<Result> results(chosen.size());
     std::vector<Running> running;
     size_t next = 0, done = 0;
+    if (!from_path.empty()) {
+      // Nothing runs: the figures of an earlier run, tabled and checked as if just measured.
+      if (update) throw Error("--update takes figures just measured, not --from");
+      const Figures earlier = ReadFigures(from_path);
+      for (size_t i = 0; i < chosen.size(); ++i) {
+        results[i].c = chosen[i];
+        const auto it = earlier.find(chosen[i]->name);
+        if (it == earlier.end()) {
+          results[i].skipped = true;
+          results[i].why = "not in " + from_path;
+          continue;
+        }
+        results[i].figures = it->second;
+        results[i].regressions = CheckCase(matrix, *chosen[i], it->second, figures);
+      }
+      next = done = chosen.size();
+      out_dir = fs::path(from_path).parent_path().string();
+    } else {
+      if (out_dir.empty()) out_dir = "runs/quality-" + LocalTimestamp("%Y%m%d-%H%M%S");
+      if (fs::exists(out_dir) && !fs::is_empty(out_dir)) {
+        throw Error(out_dir + " exists and is not empty; give a new --out");
+      }
+      fs::create_directories(out_dir);
+    }
+    const std::string stitch = ExecutableDir() + "/stitch";
+
     const Stopwatch total;
     const auto progress = [&]() {
       std::string line = "\r[" + std::to_string(done) + "/" + std::to_string(chosen.size()) + "] ";
@@ -508,7 +561,7 @@ int QualityCommand(int argc, char** argv) {
     }
     std::printf("\r%-110s\r", "");
     std::printf("\nquality gate: %zu cases in %.0f s (%s)\n\n", chosen.size(), total.ElapsedSeconds(), out_dir.c_str());
-    PrintTable(results, /*markdown=*/false, stdout);
+    PrintTable(results, /*markdown=*/false, stdout, before);
 
     nlohmann::json json = nlohmann::json::array();
     int regressed = 0, failed = 0;
@@ -528,14 +581,14 @@ int QualityCommand(int argc, char** argv) {
         std::printf("  reproduce: %s\n", ReproduceCommand(*r.c, datasets_dir, settings).c_str());
       }
     }
-    WriteFileAtomically((fs::path(out_dir) / "quality.json").string(), json.dump(2) + "\n");
+    if (from_path.empty()) WriteFileAtomically((fs::path(out_dir) / "quality.json").string(), json.dump(2) + "\n");
     if (!markdown_path.empty()) {
       char* text = nullptr;
       size_t size = 0;
       std::FILE* md = open_memstream(&text, &size);
       if (!md) throw Error("out of memory for the Markdown table");
       std::fprintf(md, "`build/bin/stitch bench --quality`, %s:\n\n", LocalTimestamp("%Y-%m-%d").c_str());
-      PrintTable(results, /*markdown=*/true, md);
+      PrintTable(results, /*markdown=*/true, md, before);
       std::fclose(md);
       const std::string table(text, size);
       std::free(text);

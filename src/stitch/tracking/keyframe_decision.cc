@@ -1,6 +1,8 @@
 #include "stitch/tracking/keyframe_decision.h"
 
+#include <algorithm>
 #include <cmath>
+#include <vector>
 
 namespace stitch {
 
@@ -14,12 +16,40 @@ int ReferencePoints(const Map& map, const Keyframe& reference) {
   return count;
 }
 
+double MedianParallaxDeg(const Map& map, const Keyframe& reference, const Frame& frame) {
+  if (!frame.cam_from_world) return -1;
+  const Eigen::Vector3d from_reference = reference.cam_from_world.CentreInWorld();
+  const Eigen::Vector3d from_frame = frame.cam_from_world->CentreInWorld();
+  std::vector<double> cosines;
+  cosines.reserve(frame.points.size());
+  for (size_t i = 0; i < frame.points.size(); ++i) {
+    if (!frame.points[i].valid() || frame.outlier[i]) continue;
+    const MapPoint* point = map.FindPoint(frame.points[i]);
+    if (!point) continue;
+    const Eigen::Vector3d a = point->position - from_reference, b = point->position - from_frame;
+    const double norms = a.norm() * b.norm();
+    if (norms > 0) cosines.push_back(a.dot(b) / norms);
+  }
+  if (cosines.empty()) return -1;
+  // The median angle is the median cosine's angle (the cosine falls as the angle grows).
+  const auto middle = cosines.begin() + static_cast<std::ptrdiff_t>(cosines.size() / 2);
+  std::nth_element(cosines.begin(), middle, cosines.end());
+  return std::acos(std::clamp(*middle, -1.0, 1.0)) * 180.0 / M_PI;
+}
+
 bool NeedKeyframe(const KeyframeDecisionInput& input, const TrackingOptions& options, double fps) {
   if (!input.has_reference) return true;
   const int max_gap = options.max_keyframe_gap > 0 ? options.max_keyframe_gap : static_cast<int>(std::lround(fps));
   const bool long_gap = input.frames_since_keyframe >= max_gap;
-  const bool few_tracked =
+  bool few_tracked =
       input.tracked_points < options.keyframe_ratio * input.reference_points && input.tracked_points > 15;
+  // A frame that moved too little from its reference to triangulate anything new (a camera that
+  // mostly rotates) becomes a keyframe only when it sees much new ground: it tracks fewer than
+  // keyframe_ratio_without_parallax of the reference's points.
+  if (few_tracked && options.keyframe_min_parallax_deg > 0 && input.parallax_deg >= 0 &&
+      input.parallax_deg < options.keyframe_min_parallax_deg) {
+    few_tracked = input.tracked_points < options.keyframe_ratio_without_parallax * input.reference_points;
+  }
   // As built: a long gap alone never makes a keyframe while the mapper is busy, and with the
   // mapper ready the gap does not matter, so the decision is few_tracked && mapper_ready.
   return (long_gap || input.mapper_ready) && few_tracked && input.mapper_ready;

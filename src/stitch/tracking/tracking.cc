@@ -254,6 +254,9 @@ void Tracking::OnTracked(Frame* frame, Output* output, bool may_make_keyframe) {
     const Keyframe* reference = map.FindKeyframe(reference_keyframe_);
     decision.has_reference = reference != nullptr;
     decision.reference_points = reference ? ReferencePoints(map, *reference) : 0;
+    if (reference && options_.keyframe_min_parallax_deg > 0) {
+      decision.parallax_deg = MedianParallaxDeg(map, *reference, *frame);
+    }
     decision.frames_since_keyframe = frame->frame_index - last_keyframe_frame_index_;
     decision.mapper_ready = MapperCaughtUp() || !mapper_connected_;
     if (NeedKeyframe(decision, options_, fps_)) {

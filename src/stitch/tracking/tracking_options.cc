@@ -18,6 +18,12 @@ bool TrackingOptions::Check(std::string* why) const {
   }
   if (lost_after_frames < 1) return fail("tracker.tracking.lost_after_frames must be >= 1");
   if (!(keyframe_ratio > 0 && keyframe_ratio < 1)) return fail("tracker.tracking.keyframe_ratio must be in (0, 1)");
+  if (!(keyframe_min_parallax_deg >= 0 && keyframe_min_parallax_deg <= 90)) {
+    return fail("tracker.tracking.keyframe_min_parallax_deg must be in [0, 90]");
+  }
+  if (!(keyframe_ratio_without_parallax > 0 && keyframe_ratio_without_parallax <= keyframe_ratio)) {
+    return fail("tracker.tracking.keyframe_ratio_without_parallax must be in (0, keyframe_ratio]");
+  }
   if (max_keyframe_gap < 0) return fail("tracker.tracking.max_keyframe_gap must be >= 0");
   if (!(min_relative_sharpness >= 0 && min_relative_sharpness < 1))
     return fail("tracker.tracking.min_relative_sharpness must be in [0, 1)");

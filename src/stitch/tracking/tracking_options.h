@@ -20,6 +20,11 @@ struct TrackingOptions {
   int lost_after_frames = 3;           // consecutive untracked frames that make tracking lost
   double keyframe_ratio = 0.9;         // new keyframe when the frame tracks fewer than this x reference's points
   int max_keyframe_gap = 0;            // frames between keyframes at most (0: one second of frames)
+  // Below this median parallax with the reference keyframe (degrees), a frame needs to track
+  // fewer than keyframe_ratio_without_parallax of its points to become a keyframe (0: off; off by
+  // default until it loses no merge in the quality gate: docs/benchmarks.md).
+  double keyframe_min_parallax_deg = 0.0;
+  double keyframe_ratio_without_parallax = 0.7;
   // Frames sharper than this x the recent tracked frames are tracked; others are blurred.
   double min_relative_sharpness = 0.45;
   int relocalization_candidates = 8;  // keyframes tried per frame when relocalizing
@@ -60,6 +65,12 @@ struct TrackingOptions {
     v("keyframe_ratio", keyframe_ratio,
       "new keyframe when tracking fewer than this fraction of the reference keyframe's points");
     v("max_keyframe_gap", max_keyframe_gap, "frames between keyframes at most (0: one second)");
+    v("keyframe_min_parallax_deg", keyframe_min_parallax_deg,
+      "below this median parallax with the reference keyframe, degrees, a keyframe needs "
+      "keyframe_ratio_without_parallax (0: off)");
+    v("keyframe_ratio_without_parallax", keyframe_ratio_without_parallax,
+      "a frame with little parallax becomes a keyframe when tracking fewer than this fraction of the reference's "
+      "points");
     v("min_relative_sharpness", min_relative_sharpness,
       "a frame less sharp than this fraction of recent tracked frames is skipped as motion-blurred (0: off)");
     v("relocalize_closed_after_frames", relocalize_closed_after_frames,

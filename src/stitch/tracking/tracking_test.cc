@@ -334,7 +334,7 @@ TEST(FramePlacer, PlacesInTheStatedOrder) {
 // ---------------------------------------------------------------- keyframe decision
 
 TEST(KeyframeDecision, AKeyframeWhenTheFrameTracksFewOfItsReferencesPoints) {
-  const TrackingOptions options;  // keyframe_ratio 0.9
+  const TrackingOptions options;  // keyframe_ratio 0.9; parallax not measured here
   KeyframeDecisionInput input;
   input.reference_points = 300;
   input.frames_since_keyframe = 5;
@@ -363,6 +363,46 @@ TEST(KeyframeDecision, ReferencePointsCountPointsSeenOften) {
   }
   EXPECT_GT(seen_three_times, 50);
   EXPECT_EQ(ReferencePoints(scene.map, middle), seen_three_times);
+}
+
+TEST(KeyframeDecision, LittleParallaxNeedsMuchNewGround) {
+  TrackingOptions options;
+  options.keyframe_min_parallax_deg = 2;
+  options.keyframe_ratio_without_parallax = 0.6;
+  KeyframeDecisionInput input;
+  input.reference_points = 300;
+  input.frames_since_keyframe = 5;
+  input.tracked_points = 250;  // under 0.9 x 300
+  input.parallax_deg = 5;
+  EXPECT_TRUE(NeedKeyframe(input, options, 20)) << "moved enough to triangulate";
+  input.parallax_deg = 0.5;
+  EXPECT_FALSE(NeedKeyframe(input, options, 20)) << "a rotation that still sees most of the reference";
+  input.tracked_points = 150;  // under 0.6 x 300: much new ground
+  EXPECT_TRUE(NeedKeyframe(input, options, 20));
+  input.tracked_points = 250;
+  input.parallax_deg = -1;
+  EXPECT_TRUE(NeedKeyframe(input, options, 20)) << "not measured: the plain ratio";
+  options.keyframe_min_parallax_deg = 0;
+  input.parallax_deg = 0.5;
+  EXPECT_TRUE(NeedKeyframe(input, options, 20)) << "off";
+}
+
+TEST(KeyframeDecision, ParallaxIsTheAngleTheCamerasMotionOpensAtThePoints) {
+  const OneKeyframe scene = MakeOneKeyframe(0);
+  const Keyframe& reference = *scene.map.FindKeyframe(scene.keyframe);
+  Frame frame = scene.last;  // tracks every point of the keyframe
+  // The same place: no parallax; turned in place: still none.
+  EXPECT_NEAR(MedianParallaxDeg(scene.map, reference, frame), 0, 1e-6);
+  const Eigen::Quaterniond turn(Eigen::AngleAxisd(0.2, Eigen::Vector3d::UnitX()));
+  frame.cam_from_world = Rigid3d(turn, Eigen::Vector3d::Zero()) * *frame.cam_from_world;  // the same centre
+  EXPECT_NEAR(MedianParallaxDeg(scene.map, reference, frame), 0, 1e-6);
+  // Moved 7 m sideways about 70 m above the ground: about atan(7 / 70) = 5.7 degrees.
+  Rigid3d world_from_cam = reference.cam_from_world.Inverse();
+  world_from_cam.translation += Eigen::Vector3d(0, 7, 0);
+  frame.cam_from_world = world_from_cam.Inverse();
+  EXPECT_NEAR(MedianParallaxDeg(scene.map, reference, frame), 5.7, 1.0);
+  frame.points.assign(frame.points.size(), MapPointId());
+  EXPECT_EQ(MedianParallaxDeg(scene.map, reference, frame), -1) << "no point tracked";
 }
 
 // ---------------------------------------------------------------- relocalization
