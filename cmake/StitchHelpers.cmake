@@ -23,6 +23,10 @@ function(stitch_add_test name)
   if(NOT ARG_TIMEOUT)
     set(ARG_TIMEOUT 120)
   endif()
+  # Sanitizer builds run slower: their timeouts scale (STITCH_TEST_TIMEOUT_SCALE, set with the sanitizer).
+  if(STITCH_TEST_TIMEOUT_SCALE)
+    math(EXPR ARG_TIMEOUT "${ARG_TIMEOUT} * ${STITCH_TEST_TIMEOUT_SCALE}")
+  endif()
   add_executable(${name} ${ARG_SOURCES})
   target_link_libraries(${name} PRIVATE ${ARG_LIBS} GTest::gtest GTest::gtest_main)
   target_compile_definitions(${name} PRIVATE
