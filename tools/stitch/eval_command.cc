@@ -58,7 +58,7 @@ int EvalCommand(int argc, char** argv) {
     std::printf("%s", Summarize(evaluation).c_str());
     if (!out_dir.empty()) {
       fs::create_directories(out_dir);
-      std::ofstream(fs::path(out_dir) / "report.json") << ToJson(evaluation).dump(2) << "\n";
+      WriteReport((fs::path(out_dir) / "report.json").string(), evaluation);
       WriteTrajectoryPlot((fs::path(out_dir) / "trajectory.png").string(), input, evaluation, estimate_path);
       std::printf("wrote %s/report.json and trajectory.png\n", out_dir.c_str());
     }

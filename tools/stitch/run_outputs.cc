@@ -148,11 +148,7 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
                           " frames never reached the tracker");
   }
 
-  nlohmann::json report = ToJson(evaluation);
-  report["run"] = info->ToJson();
-  std::ofstream out(dir / "report.json");
-  if (!out) throw Error(run_dir + "/report.json: cannot write");
-  out << report.dump(2) << "\n";
+  WriteReport((dir / "report.json").string(), evaluation, info->ToJson());
   WriteTrajectoryPlot((dir / "trajectory.png").string(), input, evaluation, info->source);
   return evaluation;
 }

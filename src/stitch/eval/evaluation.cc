@@ -254,6 +254,12 @@ Evaluation ReadReport(const std::string& path) {
   }
 }
 
+void WriteReport(const std::string& path, const Evaluation& evaluation, const nlohmann::json& run) {
+  nlohmann::json report = ToJson(evaluation);
+  if (!run.is_null()) report["run"] = run;
+  WriteFileAtomically(path, report.dump(2) + "\n");
+}
+
 std::string Summarize(const Evaluation& e) {
   char line[256];
   std::string text;
@@ -278,10 +284,18 @@ std::string Summarize(const Evaluation& e) {
   if (e.submaps_merged > 1) {
     for (const auto& s : e.per_submap) {
       if (s.component != e.largest_component || !s.ate_in_map_m || !s.ate_rmse_m) continue;
-      std::snprintf(line, sizeof(line), "    submap %-6s %4d frames, ATE %.4f m on its own, %.4f m in the merged map\n",
-                    SubmapName(SubmapId(s.submap_id)).c_str(), s.frames, *s.ate_rmse_m, *s.ate_in_map_m);
+      std::snprintf(line, sizeof(line), "    submap %-6s %4d frames, ATE %.4f m on its own, %.4f m in the merged map%s\n",
+                    SubmapName(SubmapId(s.submap_id)).c_str(), s.frames, *s.ate_rmse_m, *s.ate_in_map_m,
+                    s.wrong_merge ? "  WRONG MERGE?" : "");
       text += line;
     }
+  }
+  if (e.wrong_merges > 0) {
+    std::snprintf(line, sizeof(line),
+                  "  wrong merges      %d (a submap more than 3x its own ATE in the merged map, and above 0.5%% of "
+                  "the %.1f m extent)\n",
+                  e.wrong_merges, e.ground_truth_extent_m);
+    text += line;
   }
   if (e.tracking_ms_median) {
     std::snprintf(line, sizeof(line), "  tracking time     %.1f ms median, %.1f ms p95\n", *e.tracking_ms_median,

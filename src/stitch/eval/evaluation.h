@@ -80,6 +80,8 @@ Evaluation Evaluate(const EvaluationInput& input);
 nlohmann::json ToJson(const Evaluation& evaluation);
 Evaluation EvaluationFromJson(const nlohmann::json& json);
 Evaluation ReadReport(const std::string& path);
+// Writes report.json (ToJson, with `run` under "run" when given) atomically: the one writer.
+void WriteReport(const std::string& path, const Evaluation& evaluation, const nlohmann::json& run = nullptr);
 // A few lines for the terminal.
 std::string Summarize(const Evaluation& evaluation);
 

@@ -122,7 +122,11 @@ TEST(Evaluation, AMisplacedSubmapShowsInItsAteInTheMergedMap) {
   // as wrong merges; and the figures survive report.json.
   EXPECT_GT(e.ground_truth_extent_m, 0);
   EXPECT_EQ(e.wrong_merges, 2);
-  const Evaluation back = EvaluationFromJson(ToJson(e));
+  EXPECT_NE(Summarize(e).find("wrong merges      2"), std::string::npos) << Summarize(e);
+  EXPECT_NE(Summarize(e).find("WRONG MERGE?"), std::string::npos);
+  testing::TempDir dir;
+  WriteReport(dir / "report.json", e, nlohmann::json{{"source", "test"}});
+  const Evaluation back = ReadReport(dir / "report.json");
   EXPECT_EQ(back.wrong_merges, 2);
   EXPECT_EQ(back.frames_localized, e.frames_localized);
   ASSERT_TRUE(back.errors);

@@ -254,7 +254,9 @@ void Tracking::OnTracked(Frame* frame, Output* output, bool may_make_keyframe) {
     const Keyframe* reference = map.FindKeyframe(reference_keyframe_);
     decision.has_reference = reference != nullptr;
     decision.reference_points = reference ? ReferencePoints(map, *reference) : 0;
-    if (reference && options_.keyframe_min_parallax_deg > 0) {
+    // Parallax matters only to a frame that would otherwise become a keyframe.
+    if (reference && options_.keyframe_min_parallax_deg > 0 &&
+        decision.tracked_points < options_.keyframe_ratio * decision.reference_points) {
       decision.parallax_deg = MedianParallaxDeg(map, *reference, *frame);
     }
     decision.frames_since_keyframe = frame->frame_index - last_keyframe_frame_index_;

@@ -82,7 +82,6 @@ int ChildProcess::Terminate(std::chrono::milliseconds grace) {
 void ChildProcess::KeepUsage(const rusage& usage) {
   cpu_seconds_ = usage.ru_utime.tv_sec + usage.ru_utime.tv_usec * 1e-6 + usage.ru_stime.tv_sec +
                  usage.ru_stime.tv_usec * 1e-6;
-  peak_memory_mb_ = usage.ru_maxrss / 1024.0;
 }
 
 std::string ChildProcess::LogTail(int lines) const {

@@ -29,10 +29,8 @@ class ChildProcess {
   int Terminate(std::chrono::milliseconds grace);
   // The last `lines` lines of its log (for error messages).
   std::string LogTail(int lines) const;
-  // Once it has ended: the CPU seconds (user + system) it and the children it waited for used,
-  // and the largest resident set among them, MB.
+  // Once it has ended: the CPU seconds (user + system) it and the children it waited for used.
   double cpu_seconds() const { return cpu_seconds_; }
-  double peak_memory_mb() const { return peak_memory_mb_; }
 
  private:
   void KeepUsage(const rusage& usage);
@@ -41,7 +39,7 @@ class ChildProcess {
   std::string log_path_;
   pid_t pid_ = -1;
   std::optional<int> status_;
-  double cpu_seconds_ = 0, peak_memory_mb_ = 0;
+  double cpu_seconds_ = 0;
 };
 
 // Folder of the running executable (to find the service programs beside `stitch`).
