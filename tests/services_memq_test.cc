@@ -260,6 +260,41 @@ TEST(ServicesInProcess, TrackerWithoutAMapperKeepsTrackingAndSaysSo) {
   EXPECT_FALSE(statuses.back().mapper_connected);
 }
 
+// Frames from a live source never wait for the mapper: with none answering, the tracker takes
+// every frame as it comes (a tracker that waited its mapper_timeout_s after the first keyframe
+// would drop some ten of them), reports the mapper absent once its keyframes went unanswered for
+// that long, and goes on making keyframes.
+TEST(ServicesInProcess, LiveFramesNeverWaitForTheMapper) {
+  InProcessStack stack(
+      [](StitchConfig* c) {
+        c->tracker.mapper_timeout_s = 2.0;
+        c->ingest.pacing = "realtime";
+        c->ingest.speed = 0.25;  // 5 frames a second: time to spare even under a sanitizer
+      },
+      /*with_mapper=*/false, "");
+  std::mutex mutex;
+  std::vector<stitch::tracking_status_t> statuses;
+  bus::Subscriber subscriber(stack.lcm.get());
+  subscriber.Subscribe<stitch::tracking_status_t>(
+      bus::Channel("uav0", bus::kTrackingStatus),
+      [&](std::unique_ptr<stitch::tracking_status_t> s, const std::string&) {
+        std::lock_guard<std::mutex> lock(mutex);
+        statuses.push_back(*s);
+      });
+  stack.Play("none", 30);
+  std::lock_guard<std::mutex> lock(mutex);
+  ASSERT_FALSE(statuses.empty());
+  int dropped = 0, ok = 0;
+  for (const auto& s : statuses) {
+    dropped += s.reason == stitch::tracking_status_t::REASON_DROPPED;
+    ok += s.state == stitch::tracking_status_t::STATE_OK;
+  }
+  EXPECT_LE(dropped, 3);
+  EXPECT_GT(ok, 15);
+  EXPECT_FALSE(statuses.back().mapper_connected);
+  EXPECT_GT(stack.tracker.keyframes_published(), 2);  // more than initialization's two
+}
+
 TEST(ServicesInProcess, ALossClosesTheSubmapForTheMergerBeforeTheNextOneStarts) {
   InProcessStack stack(nullptr, /*with_mapper=*/true, "");
   std::vector<std::pair<SubmapId, bool>> events;  // (submap, closed) per update, in arrival order

@@ -103,6 +103,7 @@ IngestSummary IngestService::Play(ImageSequence& sequence, const FailureSchedule
   stitch::frame_t message{};
   message.camera = ToMessage(sequence.camera());
   message.camera_id = 0;
+  message.pacing = lockstep ? stitch::frame_t::PACING_LOCKSTEP : stitch::frame_t::PACING_LIVE;
   while (!stop.load() && sequence.Next(&frame)) {
     if (first) {
       first_t_ns = frame.t_ns;

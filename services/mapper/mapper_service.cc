@@ -111,6 +111,10 @@ void MapperService::Stop() {
     STITCH_LOG(INFO) << "left " << points_thinned_ << " point refinements under "
                      << options_.submap_point_resend_fraction << " of their distance out of the submap updates";
   }
+  if (keyframes_hurried_ > 0) {
+    STITCH_LOG(INFO) << keyframes_hurried_ << " of " << mapped_.load()
+                     << " keyframes had their adjustment cut short or left to the next keyframe, which was waiting";
+  }
   if (points_held_back_ > 0) {
     STITCH_LOG(INFO) << "held back " << points_held_back_ << " point refinements while the link had a backlog";
   }
@@ -192,9 +196,17 @@ void MapperService::Process(const stitch::keyframe_t& message) {
     STITCH_LOG(INFO) << "camera " << received.camera.Describe();
   }
   const KeyframeId id = received.keyframe.id;
-  MappedKeyframe mapped = mapping_->MapKeyframe(std::move(received.keyframe), received.new_points);
+  MappingHooks hooks;
+  // A keyframe waiting behind this one cuts its adjustment short (the tracker is ahead).
+  hooks.next_waiting = [this] { return queue_.size() > 0; };
+  // The tracker gets the new points before the adjustment (it may not be waiting for it).
+  hooks.new_points_made = [this](const LocalMapUpdate& update) {
+    for (auto& part : ToMessages(update)) publisher_->Publish(bus::Channel(publisher_->agent(), bus::kLocalMap), &part);
+  };
+  MappedKeyframe mapped = mapping_->MapKeyframe(std::move(received.keyframe), received.new_points, hooks);
   const MappingReport& report = mapped.report;
   if (!report.duplicate) ++mapped_;
+  if (report.deferred || report.bundle_adjustment.interrupted) ++keyframes_hurried_;
   if (mapped.closed_final) PublishSubmapUpdate(*mapped.closed_final);
   if (report.reopened_submap) {
     STITCH_LOG(INFO) << "submap " << SubmapName(*report.reopened_submap) << " reopened (the tracker relocalized in it)";

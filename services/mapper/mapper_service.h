@@ -87,6 +87,7 @@ class MapperService {
   std::atomic<double> link_backlog_s_{0}, link_status_at_{-1e9};
   bool link_congested_ = false;
   int64_t points_held_back_ = 0;
+  int64_t keyframes_hurried_ = 0;  // adjustments cut short or left to the next keyframe (it was waiting)
 };
 
 }  // namespace stitch

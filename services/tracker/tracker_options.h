@@ -10,7 +10,7 @@ namespace stitch {
 struct TrackerOptions {
   int max_queued_frames = 2;       // realtime: frames waiting beyond this are dropped, oldest first
   std::string on_loss = "submap";  // submap: close the map and start a new one; relocalize: ORB-SLAM2-like
-  bool wait_for_mapper = true;     // after a keyframe, wait for the mapper's update before the next frame
+  bool wait_for_mapper = true;     // lockstep frames: after a keyframe, wait for the mapper's update first
   double mapper_timeout_s = 5.0;   // ...for at most this long; then track on without it and say so
   std::string state_file;          // keeps the next submap number across restarts ("" = none)
   TrackingOptions tracking;
@@ -20,7 +20,7 @@ struct TrackerOptions {
     v("max_queued_frames", max_queued_frames, "frames that may wait for the tracker; older ones are dropped");
     v("on_loss", on_loss, "after tracking loss: submap (stitch) or relocalize (ORB-SLAM2-like baseline)");
     v("wait_for_mapper", wait_for_mapper,
-      "after a keyframe, wait for the mapper before the next frame (reproducible runs)");
+      "lockstep frames: after a keyframe, wait for the mapper before the next frame (reproducible runs; live frames never wait)");
     v("mapper_timeout_s", mapper_timeout_s, "longest wait for the mapper, seconds; then track on without it");
     v("state_file", state_file,
       "file keeping the next submap number, so submap ids stay unique across tracker restarts (empty: none)");

@@ -154,6 +154,7 @@ void TrackerService::ApplyUpdates(std::chrono::milliseconds wait) {
         // Only the last part of an update says the keyframe is done.
         if ((*update)->part != (*update)->num_parts - 1) core.last_keyframe = KeyframeId();
         tracking_->ApplyUpdate(core);
+        mapper_heard_at_ = MonotonicSeconds();
       } catch (const Error& e) {
         STITCH_LOG(WARNING) << "ignored a local map update: " << e.what();
       }
@@ -163,7 +164,9 @@ void TrackerService::ApplyUpdates(std::chrono::milliseconds wait) {
 }
 
 void TrackerService::WaitForMapper() {
-  if (!tracking_ || !options_.wait_for_mapper || tracking_->MapperCaughtUp() || !tracking_->mapper_connected()) return;
+  if (!tracking_ || !options_.wait_for_mapper || live_ || tracking_->MapperCaughtUp() ||
+      !tracking_->mapper_connected())
+    return;
   // Lockstep with the mapper: the next frame sees the map the mapper made from the last keyframe.
   for (int attempt = 0; attempt < 2 && !tracking_->MapperCaughtUp(); ++attempt) {
     const double deadline = MonotonicSeconds() + options_.mapper_timeout_s / 2;
@@ -185,10 +188,25 @@ void TrackerService::WaitForMapper() {
   }
 }
 
+void TrackerService::WatchMapper() {
+  if (!tracking_ || !live_) return;
+  const double now = MonotonicSeconds();
+  if (tracking_->MapperCaughtUp()) {
+    mapper_heard_at_ = now;  // nothing asked of it: silence says nothing
+    return;
+  }
+  if (tracking_->mapper_connected() && now - mapper_heard_at_ > options_.mapper_timeout_s) {
+    STITCH_LOG(WARNING) << "no answer from the mapper for " << tracking_->KeyframesInFlight() << " keyframe(s) within "
+                        << options_.mapper_timeout_s << " s; making keyframes without it";
+    tracking_->SetMapperConnected(false);
+  }
+}
+
 void TrackerService::Work() {
   while (true) {
     ApplyUpdates(std::chrono::milliseconds(0));
     WaitForMapper();
+    WatchMapper();
     if (tracking_ && tracking_->MapperCaughtUp()) {
       std::lock_guard<std::mutex> lock(unacknowledged_mutex_);
       unacknowledged_keyframes_.clear();
@@ -204,6 +222,7 @@ void TrackerService::Work() {
 
 void TrackerService::Process(const stitch::frame_t& frame) {
   const Stopwatch watch;
+  live_ = frame.pacing != stitch::frame_t::PACING_LOCKSTEP;
   Tracking::Output output;
   try {
     const cv::Mat image = DecodeImage(frame);

@@ -50,6 +50,8 @@ class TrackerService {
   void Work();
   void ApplyUpdates(std::chrono::milliseconds wait);
   void WaitForMapper();
+  // Live frames: a mapper silent for mapper_timeout_s with keyframes unanswered is reported absent.
+  void WatchMapper();
   void Process(const stitch::frame_t& frame);
   void Report(const stitch::frame_t& frame, const TrackResult& result, float tracking_ms);
   void Ack(const stitch::frame_t& frame);
@@ -76,6 +78,10 @@ class TrackerService {
   std::ofstream record_;
   bool record_failed_ = false;  // said once
   std::thread worker_;
+  // The last frame came from a live source (frame_t::pacing): the tracker never waits for the
+  // mapper then; it makes keyframes as the mapper takes them. Worker thread only.
+  bool live_ = false;
+  double mapper_heard_at_ = 0;  // the last update applied, or the first keyframe it left unanswered
   std::atomic<bool> running_{false};
   std::atomic<int64_t> received_{0}, tracked_{0}, dropped_{0}, keyframes_{0};
   std::atomic<int> highest_received_{-1}, highest_processed_{-1};  // frame numbers of...

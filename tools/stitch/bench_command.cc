@@ -78,13 +78,34 @@ nlohmann::json BenchOnce(const BenchArgs& a) {
     }
   });
   std::printf("\r  %d frames in %.1f s\n", done, clock.ElapsedSeconds());
-  std::vector<double> extraction, frame_to_frame, local_map, keyframe, total, all_frames, mapping;
+  std::vector<double> extraction, frame_to_frame, local_map, keyframe, total, all_frames, mapping, merger;
+  std::vector<double> insert, cull_points, triangulate, fuse, bundle_adjustment, cull_keyframes;
+  std::vector<double> window_free, window_fixed, window_points, window_observations;  // local bundle adjustments
   std::map<std::string, int> tracked_by;
   int losses = 0;  // changes into the LOST state
   TrackingState previous = TrackingState::kNotTracked;
   for (const InlineFrame& f : run.frames) {
     all_frames.push_back(f.result.timings.total);
-    if (f.mapping_ms > 0) mapping.push_back(f.mapping_ms);
+    if (f.mapping_ms > 0) {
+      mapping.push_back(f.mapping_ms);
+      merger.push_back(f.merger_ms);
+    }
+    for (const MappingReport& report : f.mapped) {
+      if (report.duplicate) continue;
+      const MappingStageTimes& stage = report.stage_ms;
+      insert.push_back(stage.insert);
+      cull_points.push_back(stage.cull_points);
+      triangulate.push_back(stage.triangulate);
+      fuse.push_back(stage.fuse);
+      bundle_adjustment.push_back(stage.bundle_adjustment);
+      cull_keyframes.push_back(stage.cull_keyframes);
+      const BundleAdjustmentReport& window = report.bundle_adjustment;
+      if (window.points == 0) continue;
+      window_free.push_back(window.keyframes_free);
+      window_fixed.push_back(window.keyframes_fixed);
+      window_points.push_back(window.points);
+      window_observations.push_back(window.observations);
+    }
     losses += f.result.state == TrackingState::kLost && previous != TrackingState::kLost;
     previous = f.result.state;
     if (f.result.state != TrackingState::kOk || f.result.timings.local_map == 0) continue;
@@ -117,11 +138,28 @@ nlohmann::json BenchOnce(const BenchArgs& a) {
                                                                      {"keyframe decision", &keyframe},
                                                                      {"whole frame", &total},
                                                                      {"every frame (any state)", &all_frames},
-                                                                     {"mapping, per keyframe", &mapping}};
+                                                                     {"mapping, per keyframe", &mapping},
+                                                                     {"  insertion", &insert},
+                                                                     {"  point culling", &cull_points},
+                                                                     {"  triangulation", &triangulate},
+                                                                     {"  fusion", &fuse},
+                                                                     {"  local bundle adjustment", &bundle_adjustment},
+                                                                     {"  keyframe culling", &cull_keyframes},
+                                                                     {"merger, per keyframe", &merger}};
   for (const auto& [name, values] : rows) {
     const Stat s = Summarize(*values);
     std::printf("  %-32s %7.2f %7.2f %7.2f\n", name, s.median, s.p95, s.mean);
     json["ms"][name] = {{"median", s.median}, {"p95", s.p95}, {"mean", s.mean}, {"count", s.count}};
+  }
+  std::printf("  local bundle adjustment window   median     p95    mean\n");
+  const std::pair<const char*, const std::vector<double>*> window_rows[] = {{"keyframes free", &window_free},
+                                                                            {"keyframes fixed", &window_fixed},
+                                                                            {"points", &window_points},
+                                                                            {"observations", &window_observations}};
+  for (const auto& [name, values] : window_rows) {
+    const Stat s = Summarize(*values);
+    std::printf("  %-32s %7.0f %7.0f %7.0f\n", name, s.median, s.p95, s.mean);
+    json["local_bundle_adjustment"][name] = {{"median", s.median}, {"p95", s.p95}, {"mean", s.mean}};
   }
   const Stat frame_stat = Summarize(all_frames);
   const double fps = frame_stat.mean > 0 ? 1000.0 / frame_stat.mean : 0;

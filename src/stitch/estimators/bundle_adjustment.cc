@@ -11,11 +11,6 @@
 namespace stitch {
 namespace {
 
-struct PoseBlock {
-  double rotation[4];  // x, y, z, w (Eigen's memory order), cam_from_world
-  double translation[3];
-};
-
 struct ObservationRecord {
   KeyframeId keyframe;
   MapPointId point;
@@ -33,8 +28,25 @@ std::pair<double, double> Errors(const Keyframe& keyframe, int feature, const Ei
   return {e2, e2 * pyramid.inverse_sigma2[keyframe.keypoints[feature].octave]};
 }
 
-ceres::Solver::Summary Solve(ceres::Problem* problem, int iterations) {
+// Stops the solver when the caller's interruption says so.
+class InterruptionCallback : public ceres::IterationCallback {
+ public:
+  explicit InterruptionCallback(const Interruption& interrupted) : interrupted_(interrupted) {}
+  ceres::CallbackReturnType operator()(const ceres::IterationSummary&) override {
+    if (!interrupted_ || !interrupted_()) return ceres::SOLVER_CONTINUE;
+    stopped_ = true;
+    return ceres::SOLVER_TERMINATE_SUCCESSFULLY;
+  }
+  bool stopped() const { return stopped_; }
+
+ private:
+  const Interruption& interrupted_;
+  bool stopped_ = false;
+};
+
+ceres::Solver::Summary Solve(ceres::Problem* problem, int iterations, InterruptionCallback* callback) {
   ceres::Solver::Options options;
+  options.callbacks.push_back(callback);
   options.linear_solver_type = ceres::DENSE_SCHUR;
   options.max_num_iterations = iterations;
   options.num_threads = 1;
@@ -48,8 +60,9 @@ ceres::Solver::Summary Solve(ceres::Problem* problem, int iterations) {
 }  // namespace
 
 bool BundleAdjustmentOptions::Check(std::string* why) const {
-  if (iterations < 1 || refine_iterations < 0 || !(chi2_threshold > 0)) {
-    if (why) *why = "bundle_adjustment: iterations >= 1, refine_iterations >= 0, chi2_threshold > 0";
+  if (iterations < 1 || refine_iterations < 0 || !(chi2_threshold > 0) || max_free_keyframes < 0) {
+    if (why)
+      *why = "bundle_adjustment: iterations >= 1, refine_iterations >= 0, chi2_threshold > 0, max_free_keyframes >= 0";
     return false;
   }
   return true;
@@ -57,7 +70,7 @@ bool BundleAdjustmentOptions::Check(std::string* why) const {
 
 BundleAdjustmentReport BundleAdjust(Map* map, const std::vector<KeyframeId>& free_keyframes,
                                     const std::vector<KeyframeId>& fixed_keyframes, const PinholeIntrinsics& k,
-                                    const BundleAdjustmentOptions& options) {
+                                    const BundleAdjustmentOptions& options, const Interruption& interrupted) {
   BundleAdjustmentReport report;
   const ScalePyramid& pyramid = map->pyramid();
   std::set<KeyframeId> free, fixed;
@@ -90,23 +103,15 @@ BundleAdjustmentReport BundleAdjust(Map* map, const std::vector<KeyframeId>& fre
   report.points = static_cast<int>(point_ids.size());
   if (free.empty() || point_ids.empty()) return report;
 
-  std::unordered_map<KeyframeId, PoseBlock> poses;
+  std::unordered_map<KeyframeId, PoseParameters> poses;
   for (const std::set<KeyframeId>* group : {&free, &fixed}) {
-    for (KeyframeId id : *group) {
-      const Rigid3d& pose = map->FindKeyframe(id)->cam_from_world;
-      PoseBlock& block = poses[id];
-      block.rotation[0] = pose.rotation.x();
-      block.rotation[1] = pose.rotation.y();
-      block.rotation[2] = pose.rotation.z();
-      block.rotation[3] = pose.rotation.w();
-      for (int i = 0; i < 3; ++i) block.translation[i] = pose.translation[i];
-    }
+    for (KeyframeId id : *group) poses.emplace(id, PoseParameters(map->FindKeyframe(id)->cam_from_world));
   }
   std::unordered_map<MapPointId, Eigen::Vector3d> positions;
   for (MapPointId p : point_ids) positions[p] = map->FindPoint(p)->position;
 
   ceres::Problem problem;
-  ceres::Manifold* quaternion_manifold = new ceres::EigenQuaternionManifold;
+  ceres::Manifold* pose_manifold = new PoseManifold;
   ceres::LossFunction* huber = new ceres::HuberLoss(std::sqrt(options.chi2_threshold));
   std::vector<ObservationRecord> records;
   double initial_sq = 0;
@@ -119,7 +124,7 @@ BundleAdjustmentReport BundleAdjust(Map* map, const std::vector<KeyframeId>& fre
       ceres::CostFunction* cost =
           ReprojectionError::Create(keyframe->undistorted[feature], sqrt_information, k.fx, k.fy, k.cx, k.cy);
       const ceres::ResidualBlockId residual =
-          problem.AddResidualBlock(cost, huber, pose->second.rotation, pose->second.translation, positions[p].data());
+          problem.AddResidualBlock(cost, huber, pose->second.data(), positions[p].data());
       records.push_back({kf, p, feature, residual});
       initial_sq += std::min(1e6, Errors(*keyframe, feature, positions[p], k, pyramid).first);
     }
@@ -129,21 +134,15 @@ BundleAdjustmentReport BundleAdjust(Map* map, const std::vector<KeyframeId>& fre
   for (auto& [id, block] : poses) {
     // A keyframe none of whose points take part (all of them lost, or not yet received by a
     // replica) is not in the problem: it keeps its pose.
-    if (!problem.HasParameterBlock(block.rotation)) continue;
-    problem.SetManifold(block.rotation, quaternion_manifold);
-    if (fixed.count(id)) {
-      problem.SetParameterBlockConstant(block.rotation);
-      problem.SetParameterBlockConstant(block.translation);
-    }
+    if (!problem.HasParameterBlock(block.data())) continue;
+    problem.SetManifold(block.data(), pose_manifold);
+    if (fixed.count(id)) problem.SetParameterBlockConstant(block.data());
   }
 
-  ceres::Solver::Summary summary = Solve(&problem, options.iterations);
+  InterruptionCallback callback(interrupted);
+  ceres::Solver::Summary summary = Solve(&problem, options.iterations, &callback);
   // Second pass without the observations that are outliers at the first pass's solution.
-  const auto pose_of = [&](KeyframeId id) {
-    const PoseBlock& b = poses.at(id);
-    return Rigid3d(Eigen::Quaterniond(b.rotation[3], b.rotation[0], b.rotation[1], b.rotation[2]).normalized(),
-                   Eigen::Vector3d(b.translation[0], b.translation[1], b.translation[2]));
-  };
+  const auto pose_of = [&](KeyframeId id) { return poses.at(id).ToRigid(); };
   const auto chi2_now = [&](const ObservationRecord& r) {
     const Keyframe* keyframe = map->FindKeyframe(r.keyframe);
     const Eigen::Vector3d p = pose_of(r.keyframe) * positions[r.point];
@@ -151,12 +150,13 @@ BundleAdjustmentReport BundleAdjust(Map* map, const std::vector<KeyframeId>& fre
     return (keyframe->undistorted[r.feature] - k.Project(p)).squaredNorm() *
            pyramid.inverse_sigma2[keyframe->keypoints[r.feature].octave];
   };
-  if (options.refine_iterations > 0) {
+  if (options.refine_iterations > 0 && !callback.stopped()) {
     for (const auto& r : records) {
       if (chi2_now(r) > options.chi2_threshold) problem.RemoveResidualBlock(r.residual);
     }
-    summary = Solve(&problem, options.refine_iterations);
+    summary = Solve(&problem, options.refine_iterations, &callback);
   }
+  report.interrupted = callback.stopped();
   report.converged = summary.IsSolutionUsable();
   if (!report.converged) return report;
 
@@ -186,12 +186,16 @@ BundleAdjustmentReport BundleAdjust(Map* map, const std::vector<KeyframeId>& fre
 }
 
 BundleAdjustmentReport LocalBundleAdjustment(Map* map, KeyframeId keyframe, const PinholeIntrinsics& k,
-                                             const BundleAdjustmentOptions& options) {
+                                             const BundleAdjustmentOptions& options,
+                                             const Interruption& interrupted) {
   std::vector<KeyframeId> window{keyframe};
   if (const Keyframe* kf = map->FindKeyframe(keyframe)) {
-    for (const auto& [weight, other] : kf->ordered) window.push_back(other);
+    for (const auto& [weight, other] : kf->ordered) {
+      if (options.max_free_keyframes > 0 && static_cast<int>(window.size()) >= options.max_free_keyframes) break;
+      window.push_back(other);
+    }
   }
-  return BundleAdjust(map, window, {}, k, options);
+  return BundleAdjust(map, window, {}, k, options, interrupted);
 }
 
 }  // namespace stitch

@@ -4,6 +4,7 @@
 // level), with chosen keyframes held fixed. Used for the local window (mapper) and for the whole
 // initial map.
 
+#include <functional>
 #include <vector>
 
 #include "stitch/map/map.h"
@@ -15,12 +16,17 @@ struct BundleAdjustmentOptions {
   int refine_iterations = 10;     // second pass, after removing outliers
   double chi2_threshold = 5.991;  // observations above this (normalized, 2 DoF) are outliers
   bool remove_outliers = true;    // erase outlier observations from the map after the passes
+  // Local window only: keyframes free to move, the new one and its best covisible ones (0: every
+  // covisible keyframe, as ORB-SLAM). The others that see their points are held fixed.
+  int max_free_keyframes = 0;
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
     v("iterations", iterations, "iterations of the first (robust) pass");
     v("refine_iterations", refine_iterations, "iterations after setting outliers aside");
     v("chi2_threshold", chi2_threshold, "normalized squared reprojection error that makes an outlier");
+    v("max_free_keyframes", max_free_keyframes,
+      "local window: keyframes free to move, the new one and its most covisible (0: all covisible ones)");
   }
   bool Check(std::string* why) const;
 };
@@ -30,17 +36,24 @@ struct BundleAdjustmentReport {
   double initial_rms_px = 0, final_rms_px = 0;  // over all observations, before / after
   int outliers_removed = 0;
   bool converged = false;
+  bool interrupted = false;  // stopped early (`interrupted` said so): fewer iterations, no second pass
 };
+
+// Asked between iterations; true stops the adjustment with what it has reached (the mapper's
+// next keyframe is waiting). Empty: never.
+using Interruption = std::function<bool()>;
 
 // Optimizes the poses of `free_keyframes` and every point they observe; other keyframes that
 // observe those points, and any in `fixed_keyframes`, constrain the solution without moving.
 BundleAdjustmentReport BundleAdjust(Map* map, const std::vector<KeyframeId>& free_keyframes,
                                     const std::vector<KeyframeId>& fixed_keyframes, const PinholeIntrinsics& intrinsics,
-                                    const BundleAdjustmentOptions& options);
+                                    const BundleAdjustmentOptions& options, const Interruption& interrupted = {});
 
-// The window ORB-SLAM's local mapping optimizes: `keyframe` and its covisible keyframes are free;
-// keyframes seeing their points but outside the window are fixed.
+// The window ORB-SLAM's local mapping optimizes: `keyframe` and its covisible keyframes (at most
+// options.max_free_keyframes in all, the most covisible first) are free; keyframes seeing their
+// points but outside the window are fixed.
 BundleAdjustmentReport LocalBundleAdjustment(Map* map, KeyframeId keyframe, const PinholeIntrinsics& intrinsics,
-                                             const BundleAdjustmentOptions& options);
+                                             const BundleAdjustmentOptions& options,
+                                             const Interruption& interrupted = {});
 
 }  // namespace stitch

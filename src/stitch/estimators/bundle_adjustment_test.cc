@@ -54,20 +54,25 @@ Scene MakeScene() {
   return scene;
 }
 
-TEST(BundleAdjustment, ReducesReprojectionErrorAndKeepsFixedKeyframesFixed) {
-  Scene scene = MakeScene();
+// Moves keyframes `first`.. 4 off their poses and every point off its position.
+void Perturb(Scene* scene, int first) {
   Rng rng(9);
-  // Perturb the free keyframes (2, 3, 4) and every point.
-  for (int k = 2; k < 5; ++k) {
-    Keyframe* kf = scene.map.FindKeyframe(MakeKeyframeId(scene.map.id(), k));
+  for (int k = first; k < 5; ++k) {
+    Keyframe* kf = scene->map.FindKeyframe(MakeKeyframeId(scene->map.id(), k));
     kf->cam_from_world = Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(
                                      0.02, Eigen::Vector3d(rng.Normal(), rng.Normal(), rng.Normal()).normalized())),
                                  Eigen::Vector3d(0.05 * rng.Normal(), 0.05 * rng.Normal(), 0.05 * rng.Normal())) *
                          kf->cam_from_world;
   }
-  for (auto& [id, point] : scene.map.points()) {
-    scene.map.FindPoint(id)->position += 0.05 * Eigen::Vector3d(rng.Normal(), rng.Normal(), rng.Normal());
+  for (auto& [id, point] : scene->map.points()) {
+    scene->map.FindPoint(id)->position += 0.05 * Eigen::Vector3d(rng.Normal(), rng.Normal(), rng.Normal());
   }
+}
+
+TEST(BundleAdjustment, ReducesReprojectionErrorAndKeepsFixedKeyframesFixed) {
+  Scene scene = MakeScene();
+  // Perturb the free keyframes (2, 3, 4) and every point.
+  Perturb(&scene, 2);
   const Rigid3d fixed0 = scene.map.FindKeyframe(MakeKeyframeId(scene.map.id(), 0))->cam_from_world;
   const Rigid3d fixed1 = scene.map.FindKeyframe(MakeKeyframeId(scene.map.id(), 1))->cam_from_world;
   std::vector<KeyframeId> free{MakeKeyframeId(scene.map.id(), 2), MakeKeyframeId(scene.map.id(), 3),
@@ -124,17 +129,68 @@ TEST(BundleAdjustment, KeyframesWithoutPointsKeepTheirPoses) {
             empty_free.translation);
 }
 
+// The mapper's next keyframe is waiting: the adjustment stops at the next iteration with what it
+// has reached, and skips its second pass.
+TEST(BundleAdjustment, AnInterruptionStopsItWithWhatItHasReached) {
+  Scene scene = MakeScene();
+  Perturb(&scene, 2);
+  const std::vector<KeyframeId> free{MakeKeyframeId(scene.map.id(), 2), MakeKeyframeId(scene.map.id(), 3),
+                                     MakeKeyframeId(scene.map.id(), 4)};
+  const std::vector<KeyframeId> fixed{MakeKeyframeId(scene.map.id(), 0), MakeKeyframeId(scene.map.id(), 1)};
+  int asked = 0;
+  // Iteration 0 (the start) and iteration 1 go by; the waiting keyframe stops it after that.
+  const BundleAdjustmentReport report =
+      BundleAdjust(&scene.map, free, fixed, kCamera, BundleAdjustmentOptions(), [&] { return ++asked >= 2; });
+  EXPECT_TRUE(report.interrupted);
+  EXPECT_EQ(asked, 2);  // not asked again: no second pass
+  ASSERT_TRUE(report.converged);
+  EXPECT_LT(report.final_rms_px, report.initial_rms_px / 2);  // one iteration's progress is kept
+
+  Scene again = MakeScene();
+  Perturb(&again, 2);
+  const BundleAdjustmentReport whole =
+      BundleAdjust(&again.map, free, fixed, kCamera, BundleAdjustmentOptions(), [] { return false; });
+  EXPECT_FALSE(whole.interrupted);
+  EXPECT_LT(whole.final_rms_px, report.final_rms_px);
+}
+
+// The local window frees the new keyframe and its most covisible keyframes, at most
+// max_free_keyframes; the others seeing the same points hold still.
+TEST(BundleAdjustment, TheLocalWindowFreesAtMostMaxFreeKeyframes) {
+  Scene scene = MakeScene();
+  for (int k = 0; k < 5; ++k) scene.map.UpdateConnections(MakeKeyframeId(scene.map.id(), k));
+  Perturb(&scene, 0);
+  std::vector<Rigid3d> before;
+  for (int k = 0; k < 5; ++k) before.push_back(scene.map.FindKeyframe(MakeKeyframeId(scene.map.id(), k))->cam_from_world);
+  BundleAdjustmentOptions options;
+  options.max_free_keyframes = 3;
+  const KeyframeId newest = MakeKeyframeId(scene.map.id(), 4);
+  const BundleAdjustmentReport report = LocalBundleAdjustment(&scene.map, newest, kCamera, options);
+  ASSERT_TRUE(report.converged);
+  EXPECT_EQ(report.keyframes_free, 3);
+  EXPECT_EQ(report.keyframes_fixed, 2);
+  int moved = 0;
+  for (int k = 0; k < 5; ++k) {
+    const Rigid3d& now = scene.map.FindKeyframe(MakeKeyframeId(scene.map.id(), k))->cam_from_world;
+    moved += now.translation != before[k].translation;
+  }
+  EXPECT_EQ(moved, 3);
+  EXPECT_NE(scene.map.FindKeyframe(newest)->cam_from_world.translation, before[4].translation);
+
+  options.max_free_keyframes = 0;  // every covisible keyframe (all five see every point; one holds the gauge)
+  EXPECT_EQ(LocalBundleAdjustment(&scene.map, newest, kCamera, options).keyframes_free, 4);
+}
+
 TEST(BundleAdjustment, ReprojectionJacobiansMatchNumericDifferentiation) {
   std::unique_ptr<ceres::CostFunction> cost(ReprojectionError::Create({300.5, 200.25}, 0.8, 450, 440, 319.5, 239.5));
-  ceres::EigenQuaternionManifold quaternion;
-  std::vector<const ceres::Manifold*> manifolds{&quaternion, nullptr, nullptr};
+  PoseManifold pose_manifold;
+  std::vector<const ceres::Manifold*> manifolds{&pose_manifold, nullptr};
   ceres::NumericDiffOptions numeric;
   ceres::GradientChecker checker(cost.get(), &manifolds, numeric);
   const Eigen::Quaterniond q(Eigen::AngleAxisd(0.3, Eigen::Vector3d(1, 2, -1).normalized()));
-  double rotation[4] = {q.x(), q.y(), q.z(), q.w()};
-  double translation[3] = {0.2, -0.4, 1.5};
+  PoseParameters pose(Rigid3d(q, Eigen::Vector3d(0.2, -0.4, 1.5)));
   double point[3] = {1.0, 0.5, 6.0};
-  const double* parameters[3] = {rotation, translation, point};
+  const double* parameters[2] = {pose.data(), point};
   ceres::GradientChecker::ProbeResults results;
   EXPECT_TRUE(checker.Probe(parameters, 1e-7, &results)) << results.error_log;
 }

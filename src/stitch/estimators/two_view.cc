@@ -116,11 +116,7 @@ double ScoreFundamental(const Eigen::Matrix3d& f, const std::vector<Eigen::Vecto
 // degree with realistic noise; this brings it to the accuracy the data allows.
 Rigid3d Refine(const Candidate& c, const std::vector<Eigen::Vector2d>& p1, const std::vector<Eigen::Vector2d>& p2,
                const PinholeIntrinsics& k, double sigma, double* final_cost = nullptr) {
-  double identity_rotation[4] = {0, 0, 0, 1}, zero[3] = {0, 0, 0};
-  const Eigen::Quaterniond& q = c.cam2_from_cam1.rotation;
-  double rotation[4] = {q.x(), q.y(), q.z(), q.w()};
-  double translation[3] = {c.cam2_from_cam1.translation.x(), c.cam2_from_cam1.translation.y(),
-                           c.cam2_from_cam1.translation.z()};
+  PoseParameters camera1((Rigid3d())), camera2(c.cam2_from_cam1);
   std::vector<Eigen::Vector3d> points = c.points;
   ceres::Problem problem;
   ceres::LossFunction* huber = new ceres::HuberLoss(std::sqrt(kChi2TwoDof));
@@ -128,17 +124,17 @@ Rigid3d Refine(const Candidate& c, const std::vector<Eigen::Vector2d>& p1, const
   for (size_t i = 0; i < points.size(); ++i) {
     if (!c.good[i]) continue;
     problem.AddResidualBlock(ReprojectionError::Create(p1[i], 1.0 / sigma, k.fx, k.fy, k.cx, k.cy), huber,
-                             identity_rotation, zero, points[i].data());
-    problem.AddResidualBlock(ReprojectionError::Create(p2[i], 1.0 / sigma, k.fx, k.fy, k.cx, k.cy), huber, rotation,
-                             translation, points[i].data());
+                             camera1.data(), points[i].data());
+    problem.AddResidualBlock(ReprojectionError::Create(p2[i], 1.0 / sigma, k.fx, k.fy, k.cx, k.cy), huber,
+                             camera2.data(), points[i].data());
     ++used;
   }
   if (final_cost) *final_cost = 1e300;
   if (used < 8) return c.cam2_from_cam1;
-  problem.SetParameterBlockConstant(identity_rotation);
-  problem.SetParameterBlockConstant(zero);
-  problem.SetManifold(rotation, new ceres::EigenQuaternionManifold);
-  problem.SetManifold(translation, new ceres::SphereManifold<3>);
+  problem.SetParameterBlockConstant(camera1.data());
+  // The translation's scale is not observable: it stays of unit length.
+  problem.SetManifold(camera2.data(),
+                      new ceres::ProductManifold<ceres::EigenQuaternionManifold, ceres::SphereManifold<3>>);
   ceres::Solver::Options options;
   options.linear_solver_type = ceres::DENSE_SCHUR;
   options.max_num_iterations = 20;
@@ -148,8 +144,9 @@ Rigid3d Refine(const Candidate& c, const std::vector<Eigen::Vector2d>& p1, const
   ceres::Solve(options, &problem, &summary);
   if (final_cost) *final_cost = summary.IsSolutionUsable() ? summary.final_cost : 1e300;
   if (!summary.IsSolutionUsable()) return c.cam2_from_cam1;
-  return Rigid3d(Eigen::Quaterniond(rotation[3], rotation[0], rotation[1], rotation[2]).normalized(),
-                 Eigen::Vector3d(translation[0], translation[1], translation[2]).normalized());
+  Rigid3d refined = camera2.ToRigid();
+  refined.translation.normalize();
+  return refined;
 }
 
 Rigid3d ToRigid(const cv::Mat& r, const cv::Mat& t) {

@@ -36,6 +36,26 @@ LocalMapUpdate MakeLocalMapUpdate(Map* map, KeyframeId keyframe, int revision, i
   return update;
 }
 
+LocalMapUpdate MakeNewPointsUpdate(const Map& map, KeyframeId keyframe, const std::vector<MapPointId>& created,
+                                   int revision) {
+  LocalMapUpdate update;
+  update.submap = map.id();
+  update.revision = revision;
+  std::set<KeyframeId> observers{keyframe};
+  for (MapPointId p : created) {
+    const MapPoint* point = map.FindPoint(p);
+    if (!point) continue;
+    for (const auto& [observer, feature] : point->observations) observers.insert(observer);
+    MapPoint copy = *point;
+    copy.observations.clear();
+    update.points.push_back(std::move(copy));
+  }
+  for (KeyframeId id : observers) {
+    if (const Keyframe* observer = map.FindKeyframe(id)) update.associations.push_back({id, observer->points});
+  }
+  return update;
+}
+
 std::vector<KeyframeId> ApplyLocalMapUpdate(const LocalMapUpdate& update, Map* map) {
   std::vector<KeyframeId> changed;
   if (update.submap != map->id()) return changed;

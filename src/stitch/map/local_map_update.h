@@ -28,6 +28,12 @@ struct LocalMapUpdate {
 // journaled as removed since the last call.
 LocalMapUpdate MakeLocalMapUpdate(Map* map, KeyframeId keyframe, int revision, int queued_keyframes);
 
+// The points just made for `keyframe` (`created`), before the rest of its mapping: them, and the
+// associations of the keyframes that observe them. last_keyframe stays unset (the keyframe is not
+// done) and nothing is taken from the removal journal (the update after the keyframe carries it).
+LocalMapUpdate MakeNewPointsUpdate(const Map& map, KeyframeId keyframe, const std::vector<MapPointId>& created,
+                                   int revision);
+
 // Applies an update to a copy of the submap: removals first, then points, associations and
 // poses; keyframes the copy does not have are ignored (they may have been culled here already).
 // Returns the keyframes whose associations changed.

@@ -33,9 +33,10 @@ std::optional<SubmapId> LocalMapping::CloseSubmap() {
   return id;
 }
 
-MappedKeyframe LocalMapping::MapKeyframe(Keyframe keyframe, const std::vector<MapPoint>& new_points) {
+MappedKeyframe LocalMapping::MapKeyframe(Keyframe keyframe, const std::vector<MapPoint>& new_points,
+                                         const MappingHooks& hooks) {
   MappedKeyframe mapped;
-  mapped.report = ProcessKeyframe(std::move(keyframe), new_points);
+  mapped.report = ProcessKeyframe(std::move(keyframe), new_points, hooks);
   if (mapped.report.closed_submap) mapped.closed_final = MakeFinalSubmapUpdate(*mapped.report.closed_submap);
   mapped.for_tracker = MakeUpdate(mapped.report.keyframe, 0);
   // A keyframe sent again (its update to the tracker was lost, or the mapper was slow to answer)
@@ -44,7 +45,9 @@ MappedKeyframe LocalMapping::MapKeyframe(Keyframe keyframe, const std::vector<Ma
   return mapped;
 }
 
-MappingReport LocalMapping::ProcessKeyframe(Keyframe keyframe, const std::vector<MapPoint>& new_points) {
+MappingReport LocalMapping::ProcessKeyframe(Keyframe keyframe, const std::vector<MapPoint>& new_points,
+                                            const MappingHooks& hooks) {
+  const Interruption& next_waiting = hooks.next_waiting;
   const Stopwatch clock;
   MappingReport report;
   report.keyframe = keyframe.id;
@@ -82,25 +85,44 @@ MappingReport LocalMapping::ProcessKeyframe(Keyframe keyframe, const std::vector
     return report;
   }
   const KeyframeId id = keyframe.id;
+  MappingStageTimes& times = report.stage_ms;
+  Stopwatch stage;
+  const auto lap = [&stage](double* ms) {
+    *ms = stage.ElapsedMs();
+    stage.Restart();
+  };
   InsertKeyframe(std::move(keyframe), new_points);
+  lap(&times.insert);
   report.culled_points = recent_points_.Cull(map_.get(), id, keyframes_processed_, geometry_,
                                              options_.point_min_found_ratio, options_.point_min_observations);
+  lap(&times.cull_points);
   const std::vector<MapPointId> created =
       TriangulateNewPoints(map_.get(), id, geometry_, options_.triangulation_neighbours, options_.min_baseline_ratio);
   for (MapPointId point : created) recent_points_.Add(point, keyframes_processed_);
   report.new_points = static_cast<int>(created.size());
-  report.fused = FuseWithNeighbours(map_.get(), id, geometry_, options_.fuse_neighbours);
-  if (map_->num_keyframes() > 2) {
-    report.bundle_adjustment =
-        LocalBundleAdjustment(map_.get(), id, geometry_.intrinsics, options_.local_bundle_adjustment);
+  lap(&times.triangulate);
+  if (hooks.new_points_made && !created.empty()) hooks.new_points_made(MakeNewPointsUpdate(*map_, id, created, ++revision_));
+  if (next_waiting && next_waiting()) {
+    report.deferred = true;
+    ++keyframes_processed_;
+    report.milliseconds = clock.ElapsedMs();
+    return report;
   }
-  if (options_.cull_keyframes) {
+  report.fused = FuseWithNeighbours(map_.get(), id, geometry_, options_.fuse_neighbours);
+  lap(&times.fuse);
+  if (map_->num_keyframes() > 2) {
+    report.bundle_adjustment = LocalBundleAdjustment(map_.get(), id, geometry_.intrinsics,
+                                                     options_.local_bundle_adjustment, next_waiting);
+  }
+  lap(&times.bundle_adjustment);
+  if (options_.cull_keyframes && !report.bundle_adjustment.interrupted) {
     for (const CulledKeyframe& culled :
          CullRedundantKeyframes(map_.get(), id, first_keyframe_, options_.keyframe_redundancy)) {
       culled_.push_back(culled);
       report.culled_keyframes.push_back(culled.id);
     }
   }
+  lap(&times.cull_keyframes);
   ++keyframes_processed_;
   report.milliseconds = clock.ElapsedMs();
   return report;

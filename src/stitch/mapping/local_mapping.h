@@ -7,9 +7,15 @@
 //   4. fuse duplicates with the neighbourhood (new_points.h);
 //   5. local bundle adjustment (estimators/bundle_adjustment.h);
 //   6. cull redundant keyframes (culling.h).
+// When the next keyframe is already waiting (as ORB-SLAM's local mapping does), stages 4-6 are
+// left to the next keyframe and a running bundle adjustment stops at its next iteration: the
+// mapper keeps up with the tracker rather than polishing a window the next keyframe reopens.
+// The new points can go to the tracker as soon as they are made (MappingHooks), before the
+// slower stages: a tracker that does not wait for the mapper tracks them a few frames sooner.
 // It holds the authoritative copy of the current submap (and the closed ones), and makes what
 // the tracker and the merger are told after each keyframe (MapKeyframe). One owner thread.
 
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -26,6 +32,11 @@
 
 namespace stitch {
 
+// Milliseconds spent in each stage of one keyframe (0 for a stage that did not run).
+struct MappingStageTimes {
+  double insert = 0, cull_points = 0, triangulate = 0, fuse = 0, bundle_adjustment = 0, cull_keyframes = 0;
+};
+
 struct MappingReport {
   KeyframeId keyframe;
   bool duplicate = false;                   // the mapper had this keyframe already: nothing was done
@@ -36,7 +47,9 @@ struct MappingReport {
   int culled_points = 0;
   std::vector<KeyframeId> culled_keyframes;
   BundleAdjustmentReport bundle_adjustment;
+  bool deferred = false;  // the next keyframe was waiting: fusion, adjustment and culling left to it
   double milliseconds = 0;
+  MappingStageTimes stage_ms;
 };
 
 // What one keyframe gives the mapper's receivers, in the order they are to be sent.
@@ -45,6 +58,13 @@ struct MappedKeyframe {
   std::optional<SubmapUpdate> closed_final;  // the final state of the submap the keyframe closed
   LocalMapUpdate for_tracker;                // the window's changes (queued_keyframes left to the caller)
   SubmapUpdate for_merger;                   // the keyframe in full and the same changes (empty for a duplicate)
+};
+
+// What the caller of MapKeyframe may give (each optional).
+struct MappingHooks {
+  Interruption next_waiting;  // whether another keyframe waits to be mapped
+  // The new points and their associations (MakeNewPointsUpdate), as soon as they are made.
+  std::function<void(const LocalMapUpdate&)> new_points_made;
 };
 
 class LocalMapping {
@@ -56,12 +76,14 @@ class LocalMapping {
   // The per-keyframe protocol, the same over the bus and inline: processes the keyframe
   // (ProcessKeyframe), then makes the closed submap's final state, the tracker's update and the
   // merger's update, in the order they are to be sent.
-  MappedKeyframe MapKeyframe(Keyframe keyframe, const std::vector<MapPoint>& new_points);
+  MappedKeyframe MapKeyframe(Keyframe keyframe, const std::vector<MapPoint>& new_points,
+                             const MappingHooks& hooks = {});
 
   // Processes one keyframe from the tracker, with the points it created (the initial map).
   // A keyframe of another submap than the current one closes the current submap first; one of
   // a closed submap reopens that submap.
-  MappingReport ProcessKeyframe(Keyframe keyframe, const std::vector<MapPoint>& new_points);
+  MappingReport ProcessKeyframe(Keyframe keyframe, const std::vector<MapPoint>& new_points,
+                                const MappingHooks& hooks = {});
   // What the tracker needs to know after the last keyframe.
   LocalMapUpdate MakeUpdate(KeyframeId keyframe, int queued_keyframes);
   // What the merger needs to know after the last keyframe: the keyframe in full and `changes`

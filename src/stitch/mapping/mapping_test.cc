@@ -246,23 +246,34 @@ TEST(KeyframeCulling, KeepsKeyframesThatSeeTheirOwnPartOfTheGround) {
 
 // ---------------------------------------------------------------- the per-keyframe protocol
 
+// The tracker's initial map: the points keyframe 0 made, as the tracker sends them.
+std::vector<MapPoint> InitialPoints(const Scene& scene) {
+  std::vector<MapPoint> initial;
+  for (const auto& [id, point] : scene.map.points()) {
+    if (point.first_keyframe != scene.keyframes[0]) continue;
+    initial.push_back(point);
+    initial.back().observations.clear();
+  }
+  return initial;
+}
+
+// What the tracker sends for keyframe `i`: its features and associations with the points it knows.
+Keyframe AsTheTrackerSendsIt(const Scene& scene, size_t i) {
+  Keyframe keyframe = *scene.map.FindKeyframe(scene.keyframes[i]);
+  for (MapPointId& p : keyframe.points) {
+    if (p.valid() && scene.map.FindPoint(p)->first_keyframe != scene.keyframes[0]) p = MapPointId();
+  }
+  return keyframe;
+}
+
 TEST(LocalMapping, EachKeyframeGivesTheTrackerAndTheMergerTheirUpdates) {
   // The tracker's initial map holds a point for every 4th feature of keyframe 0; the rest is left
   // for the mapper to triangulate.
   const Scene scene = MakeScene({0, 6, 12}, /*stride=*/4);
   LocalMapping mapping(MappingOptions(), Strip().sequence().camera(), OrbOptions(), &testing::DefaultVocabulary());
-  std::vector<MapPoint> initial;
-  for (const auto& [id, point] : scene.map.points()) {
-    if (point.first_keyframe != scene.keyframes[0]) continue;
-    initial.push_back(point);
-    initial.back().observations.clear();  // as the tracker sends them
-  }
+  const std::vector<MapPoint> initial = InitialPoints(scene);
   for (size_t i = 0; i < scene.keyframes.size(); ++i) {
-    Keyframe keyframe = *scene.map.FindKeyframe(scene.keyframes[i]);
-    // What the tracker sends: the keyframe's features and associations with points it knows.
-    for (MapPointId& p : keyframe.points) {
-      if (p.valid() && scene.map.FindPoint(p)->first_keyframe != scene.keyframes[0]) p = MapPointId();
-    }
+    const Keyframe keyframe = AsTheTrackerSendsIt(scene, i);
     const MappedKeyframe mapped = mapping.MapKeyframe(keyframe, i == 0 ? initial : std::vector<MapPoint>());
     EXPECT_EQ(mapped.report.keyframe, keyframe.id);
     EXPECT_FALSE(mapped.closed_final);
@@ -290,6 +301,36 @@ TEST(LocalMapping, EachKeyframeGivesTheTrackerAndTheMergerTheirUpdates) {
   EXPECT_TRUE(mapped.closed_final->closed);
   EXPECT_EQ(mapped.closed_final->submap, scene.map.id());
   EXPECT_EQ(mapping.closed_maps().size(), 1u);
+}
+
+// A tracker that does not wait gets the new points as soon as they are made; when the next
+// keyframe already waits, fusion, adjustment and culling are left to it.
+TEST(LocalMapping, NewPointsGoOutFirstAndAWaitingKeyframeDefersTheRest) {
+  const Scene scene = MakeScene({0, 6, 12}, /*stride=*/4);
+  LocalMapping mapping(MappingOptions(), Strip().sequence().camera(), OrbOptions(), &testing::DefaultVocabulary());
+  std::vector<LocalMapUpdate> early;
+  MappingHooks hooks;
+  hooks.new_points_made = [&](const LocalMapUpdate& update) { early.push_back(update); };
+  mapping.MapKeyframe(AsTheTrackerSendsIt(scene, 0), InitialPoints(scene), hooks);
+  const MappedKeyframe second = mapping.MapKeyframe(AsTheTrackerSendsIt(scene, 1), {}, hooks);
+  EXPECT_FALSE(second.report.deferred);
+  ASSERT_EQ(early.size(), 1u);  // keyframe 0 made no point of its own
+  EXPECT_EQ(static_cast<int>(early[0].points.size()), second.report.new_points);
+  EXPECT_FALSE(early[0].last_keyframe.valid());  // the keyframe is not done yet
+
+  hooks.next_waiting = [] { return true; };
+  const MappedKeyframe third = mapping.MapKeyframe(AsTheTrackerSendsIt(scene, 2), {}, hooks);
+  EXPECT_TRUE(third.report.deferred);
+  EXPECT_GT(third.report.new_points, 50);
+  EXPECT_EQ(third.report.fused, 0);
+  EXPECT_EQ(third.report.bundle_adjustment.points, 0);
+  EXPECT_TRUE(third.report.culled_keyframes.empty());
+  EXPECT_EQ(third.for_tracker.last_keyframe, scene.keyframes[2]);  // still answered
+  ASSERT_EQ(early.size(), 2u);
+  EXPECT_EQ(static_cast<int>(early[1].points.size()), third.report.new_points);
+  bool has_keyframe = false;
+  for (const auto& [id, points] : early[1].associations) has_keyframe |= id == scene.keyframes[2];
+  EXPECT_TRUE(has_keyframe);
 }
 
 }  // namespace

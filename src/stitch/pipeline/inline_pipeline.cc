@@ -33,16 +33,19 @@ InlineRun RunInline(ImageSequence& sequence, const PipelineOptions& options, con
     } else {
       Tracking::Output output = tracking.Track(frame.image, frame.index, frame.t_ns);
       if (output.closed_submap && mapping.map() && mapping.map()->id() == *output.closed_submap) close_submap();
-      const Stopwatch mapping_clock;
       for (size_t k = 0; k < output.new_keyframes.size(); ++k) {
+        const Stopwatch mapping_clock;
         MappedKeyframe mapped =
             mapping.MapKeyframe(output.new_keyframes[k], k == 0 ? output.new_points : std::vector<MapPoint>());
+        done.mapping_ms += mapping_clock.ElapsedMs();
+        done.mapped.push_back(mapped.report);
+        const Stopwatch merger_clock;
         if (mapped.closed_final) send(*mapped.closed_final);
         tracking.ApplyUpdate(mapped.for_tracker);
         if (mapped.for_merger.submap.valid()) send(mapped.for_merger);
+        done.merger_ms += merger_clock.ElapsedMs();
         ++run.keyframes;
       }
-      if (!output.new_keyframes.empty()) done.mapping_ms = mapping_clock.ElapsedMs();
       done.result = std::move(output.result);
     }
     if (done.result.state == TrackingState::kOk && done.result.cam_from_submap) {

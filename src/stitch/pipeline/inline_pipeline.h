@@ -22,7 +22,9 @@ struct InlineFrame {
   int frame_index = -1;
   int64_t t_ns = 0;
   TrackResult result;
-  double mapping_ms = 0;  // mapping the keyframe this frame made (0 if none)
+  double mapping_ms = 0;                 // mapping the keyframes this frame made (0 if none), in all
+  std::vector<MappingReport> mapped;     // ...one by one
+  double merger_ms = 0;                  // the merger taking them, and the tracker their updates
 };
 
 struct InlineRun {

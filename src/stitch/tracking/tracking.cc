@@ -146,7 +146,8 @@ Tracking::Output Tracking::Initialize(Frame frame) {
     copy_without_observations.observations.clear();
     output.new_points.push_back(copy_without_observations);
   }
-  last_keyframe_sent_ = id1;
+  NoteKeyframeSent(id0);
+  NoteKeyframeSent(id1);
 
   result.state = TrackingState::kOk;
   result.submap = submap;
@@ -260,7 +261,7 @@ void Tracking::OnTracked(Frame* frame, Output* output, bool may_make_keyframe) {
       decision.parallax_deg = MedianParallaxDeg(map, *reference, *frame);
     }
     decision.frames_since_keyframe = frame->frame_index - last_keyframe_frame_index_;
-    decision.mapper_ready = MapperCaughtUp() || !mapper_connected_;
+    decision.mapper_ready = KeyframesInFlight() < options_.keyframes_in_flight || !mapper_connected_;
     if (NeedKeyframe(decision, options_, fps_)) {
       output->new_keyframes.push_back(CreateKeyframe(*frame));
       result.is_keyframe = true;
@@ -318,8 +319,19 @@ Keyframe Tracking::CreateKeyframe(const Frame& frame) {
   map.UpdateConnections(id);
   reference_keyframe_ = id;
   last_keyframe_frame_index_ = frame.frame_index;
-  last_keyframe_sent_ = id;
+  NoteKeyframeSent(id);
   return *keyframe;
+}
+
+void Tracking::NoteKeyframeSent(KeyframeId id) {
+  keyframes_sent_.push_back(id);
+  if (keyframes_sent_.size() > 16) keyframes_sent_.pop_front();
+}
+
+int Tracking::KeyframesInFlight() const {
+  int count = 0;
+  for (KeyframeId id : keyframes_sent_) count += id.value > mapper_processed_.value;
+  return count;
 }
 
 void Tracking::ApplyUpdate(const LocalMapUpdate& update) {

@@ -21,6 +21,7 @@
 // relocalizes in it (docs/tracking-loss.md).
 
 #include <cstdint>
+#include <deque>
 #include <memory>
 #include <optional>
 #include <string>
@@ -64,10 +65,12 @@ class Tracking {
   std::optional<SubmapId> CloseSubmap();
 
   // The mapper has processed every keyframe sent so far.
-  bool MapperCaughtUp() const {
-    return !last_keyframe_sent_.valid() || mapper_processed_.value >= last_keyframe_sent_.value;
+  bool MapperCaughtUp() const { return KeyframesInFlight() == 0; }
+  // Keyframes sent that the mapper has not answered yet (counted up to the last 16 sent).
+  int KeyframesInFlight() const;
+  KeyframeId last_keyframe_sent() const {
+    return keyframes_sent_.empty() ? KeyframeId() : keyframes_sent_.back();
   }
-  KeyframeId last_keyframe_sent() const { return last_keyframe_sent_; }
   void SetMapperConnected(bool connected) { mapper_connected_ = connected; }
   bool mapper_connected() const { return mapper_connected_; }
   int submaps_closed() const { return submaps_closed_; }
@@ -127,7 +130,8 @@ class Tracking {
   double typical_sharpness_ = 0;  // running average over tracked frames
 
   // What the mapper has taken.
-  KeyframeId last_keyframe_sent_;
+  void NoteKeyframeSent(KeyframeId id);
+  std::deque<KeyframeId> keyframes_sent_;  // the last ones, oldest first
   KeyframeId mapper_processed_;
   bool mapper_connected_ = true;
 };

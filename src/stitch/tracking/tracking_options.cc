@@ -21,6 +21,9 @@ bool TrackingOptions::Check(std::string* why) const {
   if (!(keyframe_min_parallax_deg >= 0 && keyframe_min_parallax_deg <= 90)) {
     return fail("tracker.tracking.keyframe_min_parallax_deg must be in [0, 90]");
   }
+  if (keyframes_in_flight < 1 || keyframes_in_flight > 8) {
+    return fail("tracker.tracking.keyframes_in_flight must be in [1, 8]");
+  }
   if (!(keyframe_ratio_without_parallax > 0 && keyframe_ratio_without_parallax <= keyframe_ratio)) {
     return fail("tracker.tracking.keyframe_ratio_without_parallax must be in (0, keyframe_ratio]");
   }

@@ -25,6 +25,10 @@ struct TrackingOptions {
   // default until it loses no merge in the quality gate: docs/benchmarks.md).
   double keyframe_min_parallax_deg = 0.0;
   double keyframe_ratio_without_parallax = 0.7;
+  // A new keyframe is made while fewer than this many sent ones wait for the mapper (1: only
+  // when it has caught up). In lockstep the tracker waits for the mapper, so this matters to
+  // live frames: a keyframe sent while the mapper adjusts the last one cuts that adjustment short.
+  int keyframes_in_flight = 2;
   // Frames sharper than this x the recent tracked frames are tracked; others are blurred.
   double min_relative_sharpness = 0.45;
   int relocalization_candidates = 8;  // keyframes tried per frame when relocalizing
@@ -71,6 +75,8 @@ struct TrackingOptions {
     v("keyframe_ratio_without_parallax", keyframe_ratio_without_parallax,
       "a frame with little parallax becomes a keyframe when tracking fewer than this fraction of the reference's "
       "points");
+    v("keyframes_in_flight", keyframes_in_flight,
+      "a keyframe is made while fewer than this many sent ones wait for the mapper (1: only when it caught up)");
     v("min_relative_sharpness", min_relative_sharpness,
       "a frame less sharp than this fraction of recent tracked frames is skipped as motion-blurred (0: off)");
     v("relocalize_closed_after_frames", relocalize_closed_after_frames,

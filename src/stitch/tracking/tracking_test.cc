@@ -13,6 +13,7 @@
 #include "stitch/tracking/keyframe_decision.h"
 #include "stitch/tracking/relocalizer.h"
 #include "stitch/tracking/submap_store.h"
+#include "stitch/tracking/tracking.h"
 
 namespace stitch {
 namespace {
@@ -351,6 +352,37 @@ TEST(KeyframeDecision, AKeyframeWhenTheFrameTracksFewOfItsReferencesPoints) {
   EXPECT_FALSE(NeedKeyframe(input, options, 20)) << "a long gap does not overrule a busy mapper";
   input.has_reference = false;
   EXPECT_TRUE(NeedKeyframe(input, options, 20)) << "a culled reference always gives a keyframe";
+}
+
+// A tracker that does not wait for its mapper (live frames) makes a keyframe only while fewer
+// than keyframes_in_flight of those it sent are unanswered; an answer lets it go on.
+TEST(KeyframeDecision, KeyframesWaitWhileKeyframesInFlightAreUnanswered) {
+  const auto keyframes_made = [](int in_flight, int answer_after) {
+    TrackingOptions options;
+    options.keyframes_in_flight = in_flight;
+    Tracking tracking(options, Strip().sequence().camera(), &testing::DefaultVocabulary(), 20);
+    int made = 0;
+    // Frames 0-14: without its mapper's points the tracker loses the strip at frame 15.
+    for (int i = 0; i < 15; ++i) {
+      const cv::Mat image = Strip().sequence().RenderFrame(i);
+      Tracking::Output output = tracking.Track(image, i, Strip().sequence().flight().TimestampNs(i));
+      for (const Keyframe& keyframe : output.new_keyframes) {
+        if (++made == answer_after) {  // the mapper answers this one (and those before it)
+          LocalMapUpdate answer;
+          answer.submap = SubmapOf(keyframe.id);
+          answer.last_keyframe = keyframe.id;
+          tracking.ApplyUpdate(answer);
+        }
+      }
+    }
+    EXPECT_TRUE(tracking.mapper_connected());
+    return made;
+  };
+  // Initialization sends two keyframes at once; nobody answers.
+  EXPECT_EQ(keyframes_made(3, -1), 3);
+  EXPECT_EQ(keyframes_made(4, -1), 4);
+  // The answer to the third frees three more places.
+  EXPECT_EQ(keyframes_made(3, 3), 6);
 }
 
 TEST(KeyframeDecision, ReferencePointsCountPointsSeenOften) {
