@@ -10,4 +10,5 @@ $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recomme
   libopencv-dev libeigen3-dev libceres-dev \
   libyaml-cpp-dev nlohmann-json3-dev \
   libgtest-dev libgmock-dev libbenchmark-dev \
+  gstreamer1.0-plugins-base gstreamer1.0-plugins-good \
   iproute2 procps

@@ -6,18 +6,25 @@
 namespace stitch {
 
 struct IngestOptions {
+  // A live camera (stitch-ingest --live takes precedence): a V4L2 device, a GStreamer pipeline or
+  // a stream URL. Here rather than on the command line where a pipeline's spaces would not survive
+  // (a systemd unit's arguments).
+  std::string live;
   std::string pacing = "lockstep";  // lockstep: wait for the tracker's ack; realtime: camera rate
   double speed = 1.0;               // realtime: playback speed factor (2 = twice as fast)
   std::string encoding = "auto";    // gray8 (raw), jpeg, or auto (see ChooseFrameEncoding)
   int jpeg_quality = 92;
   double ack_timeout_s = 0.25;         // lockstep: re-send a frame not acknowledged within this
   int max_resends = 40;                // lockstep: then give up on that frame and go on (10 s by default)
-  double wait_for_tracker_s = 30.0;    // lockstep: how long to wait for a tracker at start
+  double wait_for_tracker_s = 30.0;    // lockstep and live sources: how long to wait for a tracker at start
   std::string failure_style = "blur";  // datasets: black, or blur (heavy blur and a jump)
   int failure_seed = 1;
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
+    v("live", live,
+      "a live camera when --live is not given: V4L2 device, GStreamer pipeline ('... ! appsink') or stream URL "
+      "(empty: none)");
     v("pacing", pacing, "lockstep (reproducible: waits for the tracker) or realtime (drops if it lags)");
     v("speed", speed, "realtime playback speed factor");
     v("encoding", encoding,
@@ -26,7 +33,8 @@ struct IngestOptions {
     v("jpeg_quality", jpeg_quality, "JPEG quality, 1-100");
     v("ack_timeout_s", ack_timeout_s, "lockstep: re-send a frame not acknowledged within this, seconds");
     v("max_resends", max_resends, "lockstep: re-sends before giving up on a frame");
-    v("wait_for_tracker_s", wait_for_tracker_s, "lockstep: how long to wait for a tracker at start, seconds");
+    v("wait_for_tracker_s", wait_for_tracker_s,
+      "lockstep and live sources: how long to wait for a tracker at start, seconds (live ones then go on anyway)");
     v("failure_style", failure_style, "how induced failures spoil dataset frames: black or blur");
     v("failure_seed", failure_seed, "seed of the spoiled frames");
   }

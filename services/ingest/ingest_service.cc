@@ -78,14 +78,24 @@ void IngestService::PublishSequenceInfo(const ImageSequence& sequence, const Ing
 
 IngestSummary IngestService::Play(ImageSequence& sequence, const FailureSchedule& spoil,
                                   const std::atomic<bool>& stop) {
-  const bool lockstep = options_.pacing == "lockstep";
+  // A live camera does not wait for anyone: its frames go out as they come.
+  const bool live = sequence.live();
+  const bool lockstep = options_.pacing == "lockstep" && !live;
+  if (live && options_.pacing == "lockstep") {
+    STITCH_LOG(INFO) << "a live source is played as it comes (lockstep pacing does not apply)";
+  }
   const ImageEncoding encoding = ParseImageEncoding(options_.encoding);
   const FailureStyle failure_style = ParseFailureStyle(options_.failure_style);
   const std::string frame_channel = bus::Channel(publisher_->agent(), bus::kFrame);
   IngestSummary summary;
-  STITCH_LOG(INFO) << "playing " << sequence.description() << ", " << options_.pacing << " pacing, "
+  STITCH_LOG(INFO) << "playing " << sequence.description() << ", " << (live ? "live" : options_.pacing) << " pacing, "
                    << options_.encoding << " frames"
                    << (spoil.empty() ? std::string() : ", spoiling frames " + spoil.ToString());
+  if (live && !WaitForTracker(stop) && !stop.load()) {
+    // The camera will not wait: frames go out whether anyone listens or not.
+    STITCH_LOG(WARNING) << "no tracker answered within " << options_.wait_for_tracker_s
+                        << " s on this bus; sending the live frames anyway";
+  }
   if (lockstep && !WaitForTracker(stop)) {
     if (stop.load()) {
       summary.stopped = true;
@@ -109,7 +119,7 @@ IngestSummary IngestService::Play(ImageSequence& sequence, const FailureSchedule
       first_t_ns = frame.t_ns;
       first = false;
     }
-    if (!lockstep) {
+    if (!lockstep && !live) {
       // The camera does not wait: each frame goes out at its time, whatever the consumers do.
       const double due = (frame.t_ns - first_t_ns) * 1e-9 / options_.speed;
       const double wait = due - clock.ElapsedSeconds();
@@ -158,6 +168,7 @@ IngestSummary IngestService::Play(ImageSequence& sequence, const FailureSchedule
   }
   summary.stopped = stop.load();
   summary.seconds = clock.ElapsedSeconds();
+  summary.frames_dropped_at_source = sequence.dropped_at_source();
   // The end of the sequence is state that matters: say it a few times (UDP may lose one).
   for (int i = 0; i < 3; ++i) {
     PublishSequenceInfo(sequence, summary, true);
@@ -165,7 +176,11 @@ IngestSummary IngestService::Play(ImageSequence& sequence, const FailureSchedule
   }
   STITCH_LOG(INFO) << "published " << summary.frames_published << " frames in " << summary.seconds << " s ("
                    << summary.frames_replaced << " spoiled, " << summary.frames_unreadable << " unreadable, "
-                   << summary.frames_unacked << " unacknowledged, " << summary.resends << " re-sends)";
+                   << summary.frames_unacked << " unacknowledged, " << summary.resends << " re-sends"
+                   << (live ? ", " + std::to_string(summary.frames_dropped_at_source) +
+                                  " captured but replaced by a newer one before they could be sent"
+                            : std::string())
+                   << ")";
   return summary;
 }
 

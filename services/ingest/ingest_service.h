@@ -23,6 +23,7 @@ struct IngestSummary {
   int frames_unreadable = 0;  // the source could not read them; sent empty so they are counted
   int frames_unacked = 0;     // lockstep: given up on after max_resends
   int resends = 0;
+  int64_t frames_dropped_at_source = 0;  // live: captured, but a newer frame came before it could be sent
   double seconds = 0;
   bool stopped = false;  // ended by the stop flag, not by the end of the sequence
 };
@@ -44,11 +45,14 @@ class IngestService {
   // lockstep finds no tracker.
   IngestSummary Play(ImageSequence& sequence, const FailureSchedule& spoil, const std::atomic<bool>& stop);
 
+  // Waits (at most options.wait_for_tracker_s) for a tracker on the bus; true once one runs. A
+  // live camera is best opened after it: its frames do not wait.
+  bool WaitForTracker(const std::atomic<bool>& stop);
+
   int64_t frames_published() const { return published_.load(); }
   int64_t rejected() const { return subscriber_.rejected(); }
 
  private:
-  bool WaitForTracker(const std::atomic<bool>& stop);
   bool WaitForAck(int frame_index, const std::atomic<bool>& stop);
   void PublishSequenceInfo(const ImageSequence& sequence, const IngestSummary& summary, bool finished);
 

@@ -1,4 +1,5 @@
-// stitch-ingest: publishes frames from a dataset, a video or the synthetic flight on the bus.
+// stitch-ingest: publishes frames from a live camera, a dataset, a video or the synthetic flight
+// on the bus.
 
 #include <cstdio>
 
@@ -15,11 +16,14 @@ int main(int argc, char** argv) {
   SourceSpec source;
   std::string pacing, encoding;
   ArgParser args("stitch-ingest",
-                 "Publishes camera frames on <agent>/FRAME: from a dataset (TUM RGB-D, EuRoC, KITTI, an image "
-                 "folder, a video) or, without --dataset, the synthetic UAV survey flight.");
+                 "Publishes camera frames on <agent>/FRAME: from a live camera (--live), a dataset (TUM RGB-D, "
+                 "EuRoC, KITTI, an image folder, a video) or, without either, the synthetic UAV survey flight.");
   common.Register(&args);
+  args.AddOption("--live", &source.live_uri, "URI",
+                 "a live camera: a V4L2 device (/dev/video0), a GStreamer pipeline ('... ! appsink') or a stream URL "
+                 "(rtsp://, udp://); needs --calib. Frames go out as they come, the newest when the tracker lags");
   args.AddOption("--dataset", &source.dataset_path, "PATH", "dataset folder or video file (default: synthetic flight)");
-  args.AddOption("--calib", &source.calibration_path, "FILE", "calibration overriding the dataset's own");
+  args.AddOption("--calib", &source.calibration_path, "FILE", "calibration overriding the dataset's own (required with --live)");
   args.AddOption("--failures", &source.failures, "SPEC",
                  "frames to make unusable: FRAME:LENGTH,... or none; 'default' = 3 gusts on the synthetic flight, none "
                  "on datasets");
@@ -35,9 +39,7 @@ int main(int argc, char** argv) {
     if (args.Given("--encoding")) settings.push_back(TextSetting("ingest.encoding", encoding));
     const StitchConfig config = LoadStitchConfig(common.config_path, settings);
     source.synthetic = config.synthetic;
-    FailureSchedule spoil;
-    auto sequence = OpenSource(source, &spoil);
-
+    if (source.live_uri.empty() && source.dataset_path.empty()) source.live_uri = config.ingest.live;
     const auto& stop = InstallStopSignals();
     auto lcm = bus::OpenLcm(common.lcm_url);
     bus::Publisher publisher(lcm.get(), common.agent);
@@ -48,6 +50,10 @@ int main(int argc, char** argv) {
     bus::Dispatcher dispatcher(lcm.get());
     dispatcher.Start();
     heartbeat.Start();
+    // A live camera's frames do not wait: open it once a tracker listens (or the wait is over).
+    if (!source.live_uri.empty()) ingest.WaitForTracker(stop);
+    FailureSchedule spoil;
+    auto sequence = OpenSource(source, &spoil);
     heartbeat.SetState(stitch::service_status_t::STATE_RUNNING, sequence->description());
     const IngestSummary summary = ingest.Play(*sequence, spoil, stop);
     heartbeat.SetState(stitch::service_status_t::STATE_FINISHED);

@@ -34,6 +34,7 @@ namespace {
 
 struct RunArgs {
   std::string dataset;
+  std::string live;  // a live camera's URI (stitch-ingest --live)
   std::string out;
   std::string failures = "default";
   std::string on_loss;
@@ -150,6 +151,7 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
     if (a.link_budget >= 0) settings.push_back(NumberSetting("link.budget_bytes_per_s", a.link_budget));
     config = LoadStitchConfig(a.config_path, settings);
     spec.dataset_path = a.dataset;
+    spec.live_uri = a.live.empty() && a.dataset.empty() ? config.ingest.live : a.live;  // the config may name it
     spec.calibration_path = a.calibration;
     spec.failures = a.failures;
     spec.max_frames = a.max_frames;
@@ -182,10 +184,10 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
   info.source = source.description;
   info.dataset = a.dataset;
   info.frames_total = source.num_frames;
-  info.frames_unusable = source.failures.CountWithin(source.num_frames);
+  info.frames_unusable = source.num_frames < 0 ? 0 : source.failures.CountWithin(source.num_frames);
   info.failures = source.failures.ToString();
   info.on_loss = config.tracker.on_loss;
-  info.pacing = config.ingest.pacing;
+  info.pacing = spec.live_uri.empty() ? config.ingest.pacing : "live";
   info.lcm_url = url;
   info.agent = a.agent;
   info.started_at = LocalTimestamp("%Y-%m-%dT%H:%M:%S%z");
@@ -273,6 +275,7 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
     std::vector<std::string> ingest_args =
         with(common, {"--failures", a.failures, "--max-frames", std::to_string(a.max_frames)});
     if (!a.dataset.empty()) ingest_args = with(ingest_args, {"--dataset", a.dataset});
+    if (!spec.live_uri.empty()) ingest_args = with(ingest_args, {"--live", spec.live_uri});
     if (!a.calibration.empty()) ingest_args = with(ingest_args, {"--calib", a.calibration});
     ingest = start("ingest", "stitch-ingest", ingest_args);
   } catch (const std::exception& e) {
@@ -429,6 +432,9 @@ int RunCommand(int argc, char** argv) {
                  "evaluates the result. Without --dataset it flies the embedded "
                  "synthetic UAV survey with 3 scheduled gusts.");
   args.AddOption("--dataset", &a.dataset, "PATH", "TUM RGB-D / EuRoC / KITTI folder, image folder or video (detected)");
+  args.AddOption("--live", &a.live, "URI",
+                 "a live camera instead: V4L2 device, GStreamer pipeline or stream URL (with --calib; runs until the "
+                 "stream ends, --max-frames or Ctrl-C)");
   args.AddOption("--out", &a.out, "DIR", "output folder, new or empty (default: a new folder under runs/)");
   args.AddOption("--failures", &a.failures, "SPEC",
                  "induced failures: none, FRAME:LENGTH,... or default (synthetic: 3 gusts; datasets: none)");
@@ -436,7 +442,7 @@ int RunCommand(int argc, char** argv) {
   args.AddOption("--config", &a.config_path, "FILE", "YAML settings (print the defaults with `stitch config`)");
   args.AddOption("--set", &a.settings, "KEY=VALUE",
                  "a setting over the file, e.g. tracker.tracking.orb.num_features=1500");
-  args.AddOption("--calib", &a.calibration, "FILE", "calibration overriding the dataset's own");
+  args.AddOption("--calib", &a.calibration, "FILE", "calibration overriding the dataset's own (required with --live)");
   args.AddOption("--max-frames", &a.max_frames, "N", "play at most N frames");
   args.AddOption("--pacing", &a.pacing, "MODE", "lockstep (reproducible, default) or realtime");
   args.AddOption("--lcm-url", &a.lcm_url, "URL", "bus for the services (default: a random local port, ttl=0)");

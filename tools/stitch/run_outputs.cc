@@ -27,6 +27,13 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
 
   std::vector<FrameRecord> records;
   if (fs::exists(dir / "frames.tsv")) records = ReadFrameRecords((dir / "frames.tsv").string());
+  if (info->frames_total < 0) {
+    // A live source: as many frames as the tracker heard of (dropped ones are reported too).
+    int highest = -1;
+    for (const auto& r : records) highest = std::max(highest, r.frame_index);
+    info->frames_total = highest + 1;
+    input.frames_total = info->frames_total;
+  }
   // Final keyframe poses from the mapper (culled keyframes placed through their parents).
   std::map<int64_t, Rigid3d> keyframe_cam_from_world;
   std::map<int64_t, int> keyframe_frame_index;

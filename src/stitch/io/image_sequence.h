@@ -35,6 +35,10 @@ class ImageSequence {
   // The next frame in order; false at the end. A frame whose image cannot be read is returned
   // with an empty image and `error` set, so the caller can count it and go on.
   virtual bool Next(SequenceFrame* frame) = 0;
+  // A live camera: frames come at its rate, whatever the consumer does (it is not to be paced).
+  virtual bool live() const { return false; }
+  // Frames a live source captured but replaced by a newer one before Next() took them.
+  virtual int64_t dropped_at_source() const { return 0; }
 };
 
 struct SequenceOptions {

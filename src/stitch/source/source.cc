@@ -1,5 +1,8 @@
 #include "stitch/source/source.h"
 
+#include "stitch/io/calibration.h"
+#include "stitch/io/live_capture.h"
+
 #include "stitch/util/error.h"
 #include "stitch/util/options.h"
 
@@ -60,6 +63,15 @@ std::unique_ptr<ImageSequence> OpenSource(const SourceSpec& spec, FailureSchedul
     if (spec.start_frame == 0 && spec.max_frames < 0) return sequence;
     return std::make_unique<ClippedSequence>(std::move(sequence), spec.start_frame, spec.max_frames);
   }
+  if (!spec.live_uri.empty()) {
+    if (!spec.dataset_path.empty()) throw Error("give a live source or a dataset, not both");
+    if (spec.start_frame > 0) throw Error("a live source has no frames to skip (--start-frame)");
+    *spoil = ResolveFailures(spec, -1);
+    LiveCaptureOptions options;
+    options.calibration_path = spec.calibration_path;
+    options.max_frames = spec.max_frames;
+    return std::make_unique<LiveCapture>(spec.live_uri, options);
+  }
   SequenceOptions options;
   options.calibration_path = spec.calibration_path;
   options.start_frame = spec.start_frame;
@@ -90,6 +102,15 @@ SourceSummary SummarizeSource(const SourceSpec& spec) {
     summary.fps = options.flight.fps;
     summary.description = Str() << "synthetic UAV survey (seed " << options.seed << ", " << played << " frames, gusts "
                                 << summary.failures.ToString() << ")";
+    return summary;
+  }
+  if (!spec.live_uri.empty()) {
+    LiveSourceKind(spec.live_uri);  // throws for what is no live source
+    if (spec.calibration_path.empty()) throw Error("a live camera needs its calibration (--calib FILE)");
+    summary.camera = LoadCalibration(spec.calibration_path);
+    summary.description = "live " + spec.live_uri;
+    summary.num_frames = spec.max_frames >= 0 ? spec.max_frames : -1;
+    summary.failures = ResolveFailures(spec, -1);
     return summary;
   }
   FailureSchedule spoil;

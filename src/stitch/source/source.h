@@ -11,14 +11,15 @@
 namespace stitch {
 
 struct SourceSpec {
-  std::string dataset_path;          // empty: the synthetic flight
+  std::string live_uri;              // a live camera (LiveCapture): a V4L2 device, GStreamer pipeline or stream URL
+  std::string dataset_path;          // empty (and no live_uri): the synthetic flight
   std::string calibration_path;      // overrides the dataset's calibration
   std::string failures = "default";  // "default" (synthetic: 3 gusts; datasets: none), "none", or FRAME:LENGTH,...
   int max_frames = -1;               // -1: all
   int start_frame = 0;
   SyntheticOptions synthetic;  // used when dataset_path is empty
 
-  bool synthetic_source() const { return dataset_path.empty(); }
+  bool synthetic_source() const { return dataset_path.empty() && live_uri.empty(); }
 };
 
 // The failure schedule the spec means for a sequence of `num_frames` frames.
@@ -29,7 +30,8 @@ FailureSchedule ResolveFailures(const SourceSpec& spec, int num_frames);
 std::unique_ptr<ImageSequence> OpenSource(const SourceSpec& spec, FailureSchedule* spoil);
 
 // Ground truth and length without rendering or reading images where avoidable (the launcher
-// needs them; ingest does the playing).
+// needs them; ingest does the playing). A live source is not opened here (a device may be
+// opened once only): its camera comes from the calibration file, its length is unknown (-1).
 struct SourceSummary {
   std::string description;
   int num_frames = -1;

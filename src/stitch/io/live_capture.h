@@ -1,0 +1,74 @@
+#pragma once
+// A live camera as an ImageSequence: a V4L2 device, a GStreamer pipeline or a network stream
+// (RTSP, UDP, HTTP) read through OpenCV's VideoCapture by a capture thread of its own. Each frame
+// is stamped with the wall clock when it was captured; only the newest frame is kept, so a
+// consumer that falls behind gets the latest one and the frames it missed are counted
+// (dropped_at_source()), never queued. The calibration file is required: a live source has none
+// of its own.
+
+#include <atomic>
+#include <condition_variable>
+#include <mutex>
+#include <string>
+#include <thread>
+
+#include <opencv2/videoio.hpp>
+
+#include "stitch/io/image_sequence.h"
+
+namespace stitch {
+
+struct LiveCaptureOptions {
+  std::string calibration_path;   // required
+  int max_frames = -1;            // stop after this many frames (-1: until the stream ends)
+  double frame_timeout_s = 10.0;  // no frame for this long: the stream is taken as ended
+};
+
+// How VideoCapture is to open `uri`: "v4l2" (/dev/videoN, or "v4l2:/dev/videoN"), "gstreamer"
+// (a pipeline: elements joined by " ! "; "gst:PIPELINE" too), "stream" (rtsp://, udp://,
+// http(s)://, tcp://). Throws stitch::Error for anything else.
+std::string LiveSourceKind(const std::string& uri);
+
+class LiveCapture : public ImageSequence {
+ public:
+  // Opens the source and waits for its first frame (at most options.frame_timeout_s). Throws
+  // stitch::Error when it cannot be opened, gives no frame, or the calibration does not fit it.
+  LiveCapture(const std::string& uri, const LiveCaptureOptions& options);
+  ~LiveCapture() override;
+  LiveCapture(const LiveCapture&) = delete;
+  LiveCapture& operator=(const LiveCapture&) = delete;
+
+  std::string description() const override;
+  int size() const override { return -1; }
+  const Camera& camera() const override { return camera_; }
+  double nominal_fps() const override { return fps_; }
+  const Trajectory& ground_truth() const override { return ground_truth_; }
+  bool live() const override { return true; }
+  // The newest frame not yet returned, waiting for one if need be; false when the stream ended
+  // (or gave nothing for options.frame_timeout_s), or after max_frames.
+  bool Next(SequenceFrame* frame) override;
+  // Frames captured but replaced by a newer one before Next() took them.
+  int64_t dropped_at_source() const override { return dropped_.load(); }
+
+ private:
+  void Capture();
+
+  std::string uri_, kind_;
+  LiveCaptureOptions options_;
+  cv::VideoCapture capture_;
+  Camera camera_;
+  Trajectory ground_truth_;
+  double fps_ = 30.0;
+  int emitted_ = 0;
+
+  std::mutex mutex_;
+  std::condition_variable changed_;
+  cv::Mat latest_;          // newest captured frame, gray; empty once taken
+  int64_t latest_t_ns_ = 0;
+  bool ended_ = false;
+  std::atomic<bool> stop_{false};
+  std::atomic<int64_t> dropped_{0};
+  std::thread thread_;
+};
+
+}  // namespace stitch
