@@ -1,5 +1,6 @@
 // Ingest, tracker and mapper services on one in-process bus (memq://), as in a single process.
 
+#include <future>
 #include <map>
 #include <mutex>
 #include <optional>
@@ -64,8 +65,24 @@ struct InProcessStack {
     const IngestSummary summary = ingest.Play(*sequence, spoil, stop);
     tracker.Stop();
     if (mapper) mapper->Stop();
+    WaitUntilDispatched();
     dispatcher.Stop();
     return summary;
+  }
+
+  // memq:// delivers in order: once a marker published now is handled, so is everything the
+  // services published before it (their final states included), however far behind the
+  // dispatcher runs (a sanitizer build on a loaded machine).
+  void WaitUntilDispatched() {
+    std::promise<void> handled;
+    auto* subscription = lcm->subscribeFunction(
+        "TEST_DISPATCHED",
+        +[](const lcm::ReceiveBuffer*, const std::string&, std::promise<void>* p) { p->set_value(); }, &handled);
+    const uint8_t marker = 0;
+    lcm->publish("TEST_DISPATCHED", &marker, 1);
+    EXPECT_EQ(handled.get_future().wait_for(std::chrono::seconds(120)), std::future_status::ready)
+        << "the bus did not deliver what was published within 2 minutes";
+    lcm->unsubscribe(subscription);
   }
 
   StitchConfig config;
@@ -181,18 +198,28 @@ struct MergerSide {
           bytes += message->getEncodedSize();
           const SubmapUpdate update = FromMessage(*message, this->pyramid);
           auto it = replicas.try_emplace(update.submap, update.submap, this->pyramid).first;
+          if (!update.closed) {
+            for (const MapPoint& point : update.changes.points)
+              points_sent_again += it->second.map.FindPoint(point.id) != nullptr;
+          }
           ApplySubmapUpdate(update, &it->second);
         });
   }
   ScalePyramid pyramid;
   bus::Subscriber subscriber;
   int64_t bytes = 0;
+  int64_t points_sent_again = 0;  // before the final (closed) state: refinements of points sent before
   std::map<SubmapId, SubmapReplica> replicas;
+};
+
+struct SubmapBytes {
+  int64_t all = 0;
+  int64_t points_sent_again = 0;  // MergerSide::points_sent_again
 };
 
 // Flies the default short flight; returns the SUBMAP bytes the merger side received. `thin`:
 // the default thinning; `link_behind`: a link bridge reports a 10 s backlog all along.
-int64_t FlyAndCountSubmapBytes(bool thin, bool link_behind) {
+SubmapBytes FlyAndCountSubmapBytes(bool thin, bool link_behind) {
   testing::TempDir dir;
   InProcessStack stack(
       [thin](StitchConfig* c) {
@@ -221,21 +248,28 @@ int64_t FlyAndCountSubmapBytes(bool thin, bool link_behind) {
     // The final state brings the replica to the mapper's submap whatever was left out before.
     ExpectReplicaIsTheMappersSubmap(merger.replicas.begin()->second, dir / "keyframes.tsv");
   }
-  return merger.bytes;
+  return {merger.bytes, merger.points_sent_again};
 }
 
 TEST(ServicesInProcess, ThinnedSubmapUpdatesCostLessAndStillEndInTheMappersExactSubmap) {
-  const int64_t full_bytes = FlyAndCountSubmapBytes(false, false), thin_bytes = FlyAndCountSubmapBytes(true, false);
+  const int64_t full_bytes = FlyAndCountSubmapBytes(false, false).all,
+                thin_bytes = FlyAndCountSubmapBytes(true, false).all;
   std::printf("SUBMAP bytes: %lld with every refinement, %lld thinned\n", static_cast<long long>(full_bytes),
               static_cast<long long>(thin_bytes));
   EXPECT_LT(thin_bytes, full_bytes * 6 / 10);
 }
 
+// The final state carries every point whatever was held back, so only what came before it shows
+// the refinements held back.
 TEST(ServicesInProcess, WhileTheLinkIsBehindTheMapperHoldsRefinementsBackAndTheFinalStateCatchesUp) {
-  const int64_t thin_bytes = FlyAndCountSubmapBytes(true, false), behind_bytes = FlyAndCountSubmapBytes(true, true);
-  std::printf("SUBMAP bytes: %lld thinned, %lld with the link behind\n", static_cast<long long>(thin_bytes),
-              static_cast<long long>(behind_bytes));
-  EXPECT_LT(behind_bytes, thin_bytes * 95 / 100);
+  const SubmapBytes thin = FlyAndCountSubmapBytes(true, false), behind = FlyAndCountSubmapBytes(true, true);
+  std::printf(
+      "SUBMAP bytes (points sent again before the final state): %lld (%lld) thinned, %lld (%lld) with the link "
+      "behind\n",
+      static_cast<long long>(thin.all), static_cast<long long>(thin.points_sent_again),
+      static_cast<long long>(behind.all), static_cast<long long>(behind.points_sent_again));
+  EXPECT_LT(behind.all, thin.all);
+  EXPECT_LT(behind.points_sent_again, thin.points_sent_again / 4);
 }
 
 TEST(ServicesInProcess, TrackerWithoutAMapperKeepsTrackingAndSaysSo) {
@@ -258,18 +292,19 @@ TEST(ServicesInProcess, TrackerWithoutAMapperKeepsTrackingAndSaysSo) {
   for (const auto& s : statuses) ok += s.state == stitch::tracking_status_t::STATE_OK;
   EXPECT_GT(ok, 15);
   EXPECT_FALSE(statuses.back().mapper_connected);
+  EXPECT_EQ(stack.tracker.mapper_waits(), 1);  // lockstep frames wait, once: then it is absent
 }
 
 // Frames from a live source never wait for the mapper: with none answering, the tracker takes
-// every frame as it comes (a tracker that waited its mapper_timeout_s after the first keyframe
-// would drop some ten of them), reports the mapper absent once its keyframes went unanswered for
-// that long, and goes on making keyframes.
+// every frame as it comes (how many it drops depends on the machine: a sanitizer build on a
+// loaded one drops most), reports the mapper absent once its keyframes went unanswered for
+// mapper_timeout_s, and goes on making keyframes. Lockstep frames wait (the test above).
 TEST(ServicesInProcess, LiveFramesNeverWaitForTheMapper) {
   InProcessStack stack(
       [](StitchConfig* c) {
         c->tracker.mapper_timeout_s = 2.0;
         c->ingest.pacing = "realtime";
-        c->ingest.speed = 0.25;  // 5 frames a second: time to spare even under a sanitizer
+        c->ingest.speed = 0.25;  // 5 frames a second
       },
       /*with_mapper=*/false, "");
   std::mutex mutex;
@@ -282,15 +317,9 @@ TEST(ServicesInProcess, LiveFramesNeverWaitForTheMapper) {
         statuses.push_back(*s);
       });
   stack.Play("none", 30);
+  EXPECT_EQ(stack.tracker.mapper_waits(), 0);
   std::lock_guard<std::mutex> lock(mutex);
   ASSERT_FALSE(statuses.empty());
-  int dropped = 0, ok = 0;
-  for (const auto& s : statuses) {
-    dropped += s.reason == stitch::tracking_status_t::REASON_DROPPED;
-    ok += s.state == stitch::tracking_status_t::STATE_OK;
-  }
-  EXPECT_LE(dropped, 3);
-  EXPECT_GT(ok, 15);
   EXPECT_FALSE(statuses.back().mapper_connected);
   EXPECT_GT(stack.tracker.keyframes_published(), 2);  // more than initialization's two
 }

@@ -164,10 +164,10 @@ void TrackerService::ApplyUpdates(std::chrono::milliseconds wait) {
 }
 
 void TrackerService::WaitForMapper() {
-  if (!tracking_ || !options_.wait_for_mapper || live_ || tracking_->MapperCaughtUp() ||
-      !tracking_->mapper_connected())
+  if (!tracking_ || !options_.wait_for_mapper || live_ || tracking_->MapperCaughtUp() || !tracking_->mapper_connected())
     return;
   // Lockstep with the mapper: the next frame sees the map the mapper made from the last keyframe.
+  ++mapper_waits_;
   for (int attempt = 0; attempt < 2 && !tracking_->MapperCaughtUp(); ++attempt) {
     const double deadline = MonotonicSeconds() + options_.mapper_timeout_s / 2;
     while (!tracking_->MapperCaughtUp() && MonotonicSeconds() < deadline && running_.load()) {
@@ -191,8 +191,8 @@ void TrackerService::WaitForMapper() {
 void TrackerService::WatchMapper() {
   if (!tracking_ || !live_) return;
   const double now = MonotonicSeconds();
-  if (tracking_->MapperCaughtUp()) {
-    mapper_heard_at_ = now;  // nothing asked of it: silence says nothing
+  if (tracking_->MapperCaughtUp() || mapper_heard_at_ == 0) {
+    mapper_heard_at_ = now;  // nothing asked of it (yet): silence says nothing
     return;
   }
   if (tracking_->mapper_connected() && now - mapper_heard_at_ > options_.mapper_timeout_s) {

@@ -44,6 +44,8 @@ class TrackerService {
   int64_t frames_received() const { return received_.load(); }
   int64_t frames_tracked() const { return tracked_.load(); }
   int64_t keyframes_published() const { return keyframes_.load(); }
+  // Times the worker held a frame back to wait for the mapper (lockstep frames only).
+  int64_t mapper_waits() const { return mapper_waits_.load(); }
 
  private:
   void OnFrame(std::unique_ptr<stitch::frame_t> frame);
@@ -83,7 +85,7 @@ class TrackerService {
   bool live_ = false;
   double mapper_heard_at_ = 0;  // the last update applied, or the first keyframe it left unanswered
   std::atomic<bool> running_{false};
-  std::atomic<int64_t> received_{0}, tracked_{0}, dropped_{0}, keyframes_{0};
+  std::atomic<int64_t> received_{0}, tracked_{0}, dropped_{0}, keyframes_{0}, mapper_waits_{0};
   std::atomic<int> highest_received_{-1}, highest_processed_{-1};  // frame numbers of...
   std::atomic<int64_t> ingest_session_{0};                         // ...this ingest's frames
   int saved_submap_number_ = -1;

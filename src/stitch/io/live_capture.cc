@@ -51,36 +51,46 @@ LiveCapture::LiveCapture(const std::string& uri, const LiveCaptureOptions& optio
     throw Error("live source " + uri_ + ": a live camera needs its calibration (--calib FILE)");
   }
   if (!(options_.frame_timeout_s > 0)) throw Error("live source: frame_timeout_s must be > 0");
+  cv::VideoCapture& capture = shared_->capture;
   bool opened = false;
   if (kind_ == "v4l2") {
-    opened = capture_.open(StartsWith(uri_, "v4l2:") ? uri_.substr(5) : uri_, cv::CAP_V4L2);
+    opened = capture.open(StartsWith(uri_, "v4l2:") ? uri_.substr(5) : uri_, cv::CAP_V4L2);
   } else if (kind_ == "gstreamer") {
     std::string pipeline = StartsWith(uri_, "gst:") ? uri_.substr(4) : uri_;
     // OpenCV takes frames from an appsink at the pipeline's end.
     if (pipeline.find("appsink") == std::string::npos) pipeline += " ! videoconvert ! appsink";
-    opened = capture_.open(pipeline, cv::CAP_GSTREAMER);
+    opened = capture.open(pipeline, cv::CAP_GSTREAMER);
   } else {
-    opened = capture_.open(uri_, cv::CAP_ANY);
+    opened = capture.open(uri_, cv::CAP_ANY);
   }
-  if (!opened || !capture_.isOpened()) {
+  if (!opened || !capture.isOpened()) {
     throw Error("live source " + uri_ + " (" + kind_ +
                 "): cannot open it (a missing device or GStreamer plugin, a wrong pipeline, an unreachable stream)");
   }
-  const double fps = capture_.get(cv::CAP_PROP_FPS);
+  const double fps = capture.get(cv::CAP_PROP_FPS);
   if (fps > 0 && fps < 1000) fps_ = fps;
   // The first frame, here: the image size to check the calibration against.
   cv::Mat first;
-  if (!capture_.read(first) || first.empty()) throw Error("live source " + uri_ + ": it gave no frame");
-  latest_t_ns_ = WallClockNs();
-  latest_ = ToGray(first);
-  camera_ = LoadCalibration(options_.calibration_path, latest_.cols, latest_.rows);
-  thread_ = std::thread([this] { Capture(); });
+  if (!capture.read(first) || first.empty()) throw Error("live source " + uri_ + ": it gave no frame");
+  shared_->latest_t_ns = WallClockNs();
+  shared_->latest = ToGray(first);
+  camera_ = LoadCalibration(options_.calibration_path, shared_->latest.cols, shared_->latest.rows);
+  thread_ = std::thread(&LiveCapture::Capture, shared_);
 }
 
 LiveCapture::~LiveCapture() {
-  stop_ = true;
-  // The capture thread notices between two frames (a read returns at the camera's next frame).
-  if (thread_.joinable()) thread_.join();
+  shared_->stop = true;
+  // The capture thread notices between two frames (a read returns at the camera's next frame);
+  // one that a stalled stream holds in its read is left to finish on its own.
+  std::unique_lock<std::mutex> lock(shared_->mutex);
+  const bool ended = shared_->changed.wait_for(lock, std::chrono::seconds(2), [&] { return shared_->ended; });
+  lock.unlock();
+  if (ended) {
+    thread_.join();
+  } else {
+    STITCH_LOG(WARNING) << "live source " << uri_ << ": the capture is stuck in a read; leaving it behind";
+    thread_.detach();
+  }
 }
 
 std::string LiveCapture::description() const {
@@ -88,29 +98,29 @@ std::string LiveCapture::description() const {
          std::to_string(camera_.height()) + ", " + std::to_string(static_cast<int>(fps_ + 0.5)) + " fps)";
 }
 
-void LiveCapture::Capture() {
+void LiveCapture::Capture(std::shared_ptr<Shared> shared) {
   cv::Mat image;
-  while (!stop_.load()) {
-    if (!capture_.read(image) || image.empty()) break;
+  while (!shared->stop.load()) {
+    if (!shared->capture.read(image) || image.empty()) break;
     const int64_t t_ns = WallClockNs();
     cv::Mat gray = ToGray(image);
-    std::lock_guard<std::mutex> lock(mutex_);
-    if (!latest_.empty()) ++dropped_;  // the consumer did not take the last one in time
-    latest_ = std::move(gray);
-    latest_t_ns_ = t_ns;
-    changed_.notify_all();
+    std::lock_guard<std::mutex> lock(shared->mutex);
+    if (!shared->latest.empty()) ++shared->dropped;  // the consumer did not take the last one in time
+    shared->latest = std::move(gray);
+    shared->latest_t_ns = t_ns;
+    shared->changed.notify_all();
   }
-  std::lock_guard<std::mutex> lock(mutex_);
-  ended_ = true;
-  changed_.notify_all();
+  std::lock_guard<std::mutex> lock(shared->mutex);
+  shared->ended = true;
+  shared->changed.notify_all();
 }
 
 bool LiveCapture::Next(SequenceFrame* frame) {
   if (options_.max_frames >= 0 && emitted_ >= options_.max_frames) return false;
-  std::unique_lock<std::mutex> lock(mutex_);
-  const bool ready = changed_.wait_for(lock, std::chrono::duration<double>(options_.frame_timeout_s),
-                                       [&] { return !latest_.empty() || ended_; });
-  if (latest_.empty()) {
+  std::unique_lock<std::mutex> lock(shared_->mutex);
+  const bool ready = shared_->changed.wait_for(lock, std::chrono::duration<double>(options_.frame_timeout_s),
+                                               [&] { return !shared_->latest.empty() || shared_->ended; });
+  if (shared_->latest.empty()) {
     if (!ready) {
       STITCH_LOG(WARNING) << "live source " << uri_ << ": no frame for " << options_.frame_timeout_s
                           << " s; taking the stream as ended";
@@ -118,10 +128,10 @@ bool LiveCapture::Next(SequenceFrame* frame) {
     return false;
   }
   frame->index = emitted_++;
-  frame->t_ns = latest_t_ns_;
-  frame->image = std::move(latest_);
+  frame->t_ns = shared_->latest_t_ns;
+  frame->image = std::move(shared_->latest);
   frame->error.clear();
-  latest_ = cv::Mat();
+  shared_->latest = cv::Mat();
   return true;
 }
 

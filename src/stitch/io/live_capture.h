@@ -8,6 +8,7 @@
 
 #include <atomic>
 #include <condition_variable>
+#include <memory>
 #include <mutex>
 #include <string>
 #include <thread>
@@ -48,26 +49,30 @@ class LiveCapture : public ImageSequence {
   // (or gave nothing for options.frame_timeout_s), or after max_frames.
   bool Next(SequenceFrame* frame) override;
   // Frames captured but replaced by a newer one before Next() took them.
-  int64_t dropped_at_source() const override { return dropped_.load(); }
+  int64_t dropped_at_source() const override { return shared_->dropped.load(); }
 
  private:
-  void Capture();
+  // What the capture thread shares with the reader. Held by both: a thread blocked in a stalled
+  // stream's read is left to end on its own (detached) rather than hang the destructor.
+  struct Shared {
+    cv::VideoCapture capture;
+    std::mutex mutex;
+    std::condition_variable changed;
+    cv::Mat latest;  // newest captured frame, gray; empty once taken
+    int64_t latest_t_ns = 0;
+    bool ended = false;
+    std::atomic<bool> stop{false};
+    std::atomic<int64_t> dropped{0};
+  };
+  static void Capture(std::shared_ptr<Shared> shared);
 
   std::string uri_, kind_;
   LiveCaptureOptions options_;
-  cv::VideoCapture capture_;
+  std::shared_ptr<Shared> shared_ = std::make_shared<Shared>();
   Camera camera_;
   Trajectory ground_truth_;
   double fps_ = 30.0;
   int emitted_ = 0;
-
-  std::mutex mutex_;
-  std::condition_variable changed_;
-  cv::Mat latest_;          // newest captured frame, gray; empty once taken
-  int64_t latest_t_ns_ = 0;
-  bool ended_ = false;
-  std::atomic<bool> stop_{false};
-  std::atomic<int64_t> dropped_{0};
   std::thread thread_;
 };
 
