@@ -17,6 +17,7 @@
 
 #include "services/common/bus.h"
 #include "services/common/map_convert.h"
+#include "services/common/update_journal.h"
 #include "services/config/stitch_config.h"
 #include "stitch/pipeline/inline_pipeline.h"
 #include "stitch/records/merger_records.h"
@@ -150,6 +151,57 @@ TEST(MergerRestart, AMergerKilledHalfwayResumesFromItsJournalAndLosesNothing) {
   int merged = 0;
   for (const SubmapRecord& r : ReadSubmapRecords(dir / "resumed/submaps.tsv")) merged += r.component == 0;
   EXPECT_EQ(merged, 2) << "both submaps in merged map 0";
+}
+
+// The security issue's journal rows: a length field set to 0x7fffffff (every start of the merger
+// crashed in liblcm's reader, and `stitch map` too) and 4 zeroed bytes mid-file (the restarted
+// merger deleted everything after them). Each costs the record it hits and nothing else.
+TEST(MergerRestart, ADamagedJournalCostsOnlyTheDamagedRecords) {
+  std::vector<stitch::submap_update_t> messages = GustStripUpdates();
+  ASSERT_GT(messages.size(), 20u);
+  testing::TempDir dir;
+  const std::string journal_path = dir / "state/submap_updates.lcmlog";
+  std::vector<int64_t> offsets;
+  {
+    UpdateJournal journal(dir / "state", {"uav0/SUBMAP"});
+    journal.Recover([](const stitch::submap_update_t&) {});
+    for (stitch::submap_update_t& message : messages) {
+      offsets.push_back(static_cast<int64_t>(std::filesystem::file_size(journal_path)));
+      message.header.agent = "uav0";  // as the mapper's publisher sets it
+      journal.Append(message);
+    }
+  }
+  {
+    std::fstream file(journal_path, std::ios::binary | std::ios::in | std::ios::out);
+    file.seekp(offsets[messages.size() / 3] + 24);  // the data length
+    file.write("\x7f\xff\xff\xff", 4);
+    file.seekp(offsets[2 * messages.size() / 3]);  // the sync word
+    file.write("\0\0\0\0", 4);
+  }
+  const int64_t kept = static_cast<int64_t>(messages.size()) - 2;
+
+  // `stitch map` makes the map from every intact record, says what it lacks, and fails.
+  std::filesystem::copy_file(journal_path, dir / "damaged.lcmlog");
+  const testing::CommandResult map =
+      testing::RunProgram({Bin("stitch"), "map", dir / "damaged.lcmlog", "--out", dir / "map"});
+  EXPECT_EQ(map.exit_code, 3) << map.output;
+  EXPECT_NE(map.output.find("2 damaged stretches"), std::string::npos) << map.output;
+  EXPECT_NE(map.output.find("merged " + std::to_string(kept) + " submap updates"), std::string::npos) << map.output;
+  EXPECT_FALSE(MergedKeyframes(dir / "map/keyframes_merged.tsv").empty());
+
+  // The merger starts on it (no crash loop), keeps every intact record and sets the damage aside.
+  const std::string url = bus::LocalUdpUrl(7800 + (getpid() + 45) % 90);
+  {
+    MergerProcess merger(url, dir / "state", dir / "resumed", dir / "resumed.log");
+    EXPECT_EQ(merger.process().Terminate(30s), 0) << merger.process().LogTail(10);
+  }
+  std::ifstream log(dir / "resumed.log");
+  const std::string text((std::istreambuf_iterator<char>(log)), std::istreambuf_iterator<char>());
+  EXPECT_NE(text.find("resumed from " + journal_path + ": " + std::to_string(kept) + " submap updates"),
+            std::string::npos)
+      << text;
+  EXPECT_TRUE(std::filesystem::exists(journal_path + ".damaged"));
+  EXPECT_EQ(JournalRecords(journal_path), kept);  // liblcm's reader reads the mended journal through
 }
 
 }  // namespace

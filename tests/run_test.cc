@@ -1,8 +1,12 @@
 // `stitch run` end to end: the real service processes over UDP multicast.
 
+#include <signal.h>
+
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
+#include <sstream>
+#include <thread>
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -12,6 +16,7 @@
 #include "stitch/io/trajectory.h"
 #include "stitch/records/frame_record.h"
 #include "stitch/testing/temp_dir.h"
+#include "stitch/util/child_process.h"
 #include "tests/test_process.h"
 
 namespace fs = std::filesystem;
@@ -158,9 +163,9 @@ TEST(StitchRender, WritesAFolderThatRunsAsADataset) {
 TEST(StitchRun, TracksALiveGStreamerSource) {
   testing::TempDir dir;
   const std::string images = dir / "flight";
-  const auto render = RunProgram({Bin("stitch"), "render", "--config", kShortFlight, "--out", images, "--failures",
-                                  "none", "--max-frames", "60"},
-                                 60);
+  const auto render = RunProgram(
+      {Bin("stitch"), "render", "--config", kShortFlight, "--out", images, "--failures", "none", "--max-frames", "60"},
+      60);
   ASSERT_EQ(render.exit_code, 0) << render.output;
   // multifilesrc reads numbered files: the frames in time order as 00000.png, 00001.png, ...
   std::vector<fs::path> frames;
@@ -177,8 +182,9 @@ TEST(StitchRun, TracksALiveGStreamerSource) {
     std::snprintf(name, sizeof(name), "%05zu.png", i);
     fs::rename(frames[i], fs::path(numbered) / name);
   }
-  const std::string pipeline = "multifilesrc location=" + numbered +
-                               "/%05d.png index=0 caps=image/png,framerate=20/1 ! pngdec ! videoconvert ! appsink sync=true";
+  const std::string pipeline =
+      "multifilesrc location=" + numbered +
+      "/%05d.png index=0 caps=image/png,framerate=20/1 ! pngdec ! videoconvert ! appsink sync=true";
   {
     cv::VideoCapture probe(pipeline, cv::CAP_GSTREAMER);
     cv::Mat frame;
@@ -187,8 +193,8 @@ TEST(StitchRun, TracksALiveGStreamerSource) {
     }
   }
   const std::string out = dir / "run";
-  const auto run = RunProgram(
-      {Bin("stitch"), "run", "--live", pipeline, "--calib", images + "/camera.yaml", "--out", out}, 120);
+  const auto run =
+      RunProgram({Bin("stitch"), "run", "--live", pipeline, "--calib", images + "/camera.yaml", "--out", out}, 120);
   ASSERT_EQ(run.exit_code, 0) << run.output;
   EXPECT_NE(run.output.find("live pacing"), std::string::npos) << run.output;
   const auto report = ReadJson(out + "/report.json");
@@ -205,6 +211,51 @@ TEST(StitchRun, TracksALiveGStreamerSource) {
   const double span_s = (records.back().t_ns - records.front().t_ns) * 1e-9;
   EXPECT_GT(span_s, 0.035 * static_cast<double>(records.size() - 1));
   EXPECT_GT(records.front().t_ns, 1'600'000'000'000'000'000);  // after 2020: the wall clock
+}
+
+// The processes whose parent is `parent` (from /proc).
+std::vector<pid_t> ChildrenOf(pid_t parent) {
+  std::vector<pid_t> children;
+  for (const auto& entry : fs::directory_iterator("/proc")) {
+    const std::string name = entry.path().filename().string();
+    if (name.find_first_not_of("0123456789") != std::string::npos) continue;
+    std::ifstream stat(entry.path() / "stat");
+    std::string line;
+    if (!std::getline(stat, line) || line.rfind(')') == std::string::npos) continue;
+    std::istringstream fields(line.substr(line.rfind(')') + 2));
+    char state = 0;
+    pid_t ppid = 0;
+    if (fields >> state >> ppid && ppid == parent) children.push_back(std::stoi(name));
+  }
+  return children;
+}
+
+// Running: /proc has it and it is not a zombie waiting to be reaped.
+bool Running(pid_t pid) {
+  std::ifstream stat("/proc/" + std::to_string(pid) + "/stat");
+  std::string line;
+  if (!std::getline(stat, line) || line.rfind(')') == std::string::npos) return false;
+  return line[line.rfind(')') + 2] != 'Z';
+}
+
+// The security issue's row: SIGKILL of the `stitch run` launcher left tracker, mapper and merger
+// running as orphans.
+TEST(StitchRun, ItsServicesEndWhenTheLauncherIsKilled) {
+  testing::TempDir dir;
+  ChildProcess launcher("run", Bin("stitch"), {"run", "--quiet", "--out", dir / "run"}, dir / "run.log");
+  std::vector<pid_t> services;
+  for (int i = 0; i < 600 && services.size() < 4; ++i) {  // ingest, tracker, mapper, merger
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    services = ChildrenOf(launcher.pid());
+  }
+  ASSERT_GE(services.size(), 4u) << launcher.LogTail(10);
+  ASSERT_EQ(kill(launcher.pid(), SIGKILL), 0);
+  EXPECT_EQ(launcher.Terminate(std::chrono::milliseconds(5000)), 128 + SIGKILL);
+  for (pid_t service : services) {
+    for (int i = 0; i < 300 && Running(service); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    EXPECT_FALSE(Running(service)) << "service " << service << " still runs 15 s after the launcher was killed";
+    if (Running(service)) kill(service, SIGKILL);
+  }
 }
 
 }  // namespace

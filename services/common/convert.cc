@@ -1,5 +1,8 @@
 #include "services/common/convert.h"
 
+#include <optional>
+#include <utility>
+
 #include <opencv2/imgcodecs.hpp>
 
 #include "stitch/util/error.h"
@@ -97,6 +100,35 @@ void EncodeImage(const cv::Mat& gray, ImageEncoding encoding, int jpeg_quality, 
   frame->num_bytes = static_cast<int32_t>(frame->data.size());
 }
 
+std::optional<std::pair<int, int>> JpegSize(const std::vector<uint8_t>& data) {
+  const size_t n = data.size();
+  if (n < 4 || data[0] != 0xFF || data[1] != 0xD8) return std::nullopt;
+  size_t at = 2;
+  while (at + 4 <= n) {
+    if (data[at] != 0xFF) return std::nullopt;
+    const uint8_t marker = data[at + 1];
+    if (marker == 0xFF) {  // fill byte
+      ++at;
+      continue;
+    }
+    if (marker == 0x01 || (marker >= 0xD0 && marker <= 0xD7)) {  // no length
+      at += 2;
+      continue;
+    }
+    if (marker == 0xD9 || marker == 0xDA) return std::nullopt;  // end, or scan data before any frame header
+    const size_t length = (static_cast<size_t>(data[at + 2]) << 8) | data[at + 3];
+    if (length < 2 || at + 2 + length > n) return std::nullopt;
+    const bool frame_header = marker >= 0xC0 && marker <= 0xCF && marker != 0xC4 && marker != 0xC8 && marker != 0xCC;
+    if (frame_header) {
+      if (length < 7) return std::nullopt;
+      const int height = (data[at + 5] << 8) | data[at + 6], width = (data[at + 7] << 8) | data[at + 8];
+      return std::make_pair(width, height);
+    }
+    at += 2 + length;
+  }
+  return std::nullopt;
+}
+
 cv::Mat DecodeImage(const stitch::frame_t& frame) {
   if (frame.width <= 0 || frame.height <= 0 || frame.width > 16384 || frame.height > 16384) {
     throw Error("frame " + std::to_string(frame.frame_index) + ": image size " + std::to_string(frame.width) + "x" +
@@ -112,6 +144,15 @@ cv::Mat DecodeImage(const stitch::frame_t& frame) {
     return cv::Mat(frame.height, frame.width, CV_8UC1, const_cast<uint8_t*>(frame.data.data())).clone();
   }
   if (frame.encoding == stitch::frame_t::ENCODING_JPEG) {
+    // The size its header claims, before anything is decoded: a few hundred bytes may claim
+    // 32000x32000 (a gigabyte decoded).
+    const std::optional<std::pair<int, int>> size = JpegSize(frame.data);
+    if (!size) throw Error("frame " + std::to_string(frame.frame_index) + ": JPEG data names no image size");
+    if (size->first != frame.width || size->second != frame.height) {
+      throw Error("frame " + std::to_string(frame.frame_index) + ": JPEG header says " + std::to_string(size->first) +
+                  "x" + std::to_string(size->second) + " but the frame says " + std::to_string(frame.width) + "x" +
+                  std::to_string(frame.height) + "; not decoded");
+    }
     cv::Mat image;
     try {
       image = cv::imdecode(frame.data, cv::IMREAD_GRAYSCALE);

@@ -1,6 +1,10 @@
 #pragma once
 // Translation between core types and LCM messages. The SLAM core never sees LCM types.
 
+#include <optional>
+#include <utility>
+#include <vector>
+
 #include <opencv2/core.hpp>
 
 #include "stitch/camera_t.hpp"
@@ -30,5 +34,8 @@ void EncodeImage(const cv::Mat& gray, ImageEncoding encoding, int jpeg_quality, 
 // The frame's image as CV_8UC1. Throws stitch::Error saying what is wrong with a frame whose
 // bytes do not make the image it claims (size mismatch, undecodable JPEG, unknown encoding).
 cv::Mat DecodeImage(const stitch::frame_t& frame);
+// The (width, height) a JPEG's frame header (SOFn) claims, read without decoding; nullopt when
+// the bytes hold no frame header before the scan data.
+std::optional<std::pair<int, int>> JpegSize(const std::vector<uint8_t>& data);
 
 }  // namespace stitch

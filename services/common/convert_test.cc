@@ -68,5 +68,33 @@ TEST(Convert, MalformedFramesAreRejectedWithAReason) {
   EXPECT_THROW(DecodeImage(frame), Error);
 }
 
+// The security issue's row: a 332-byte JPEG claiming 32000x32000 grew the tracker by a gigabyte
+// before it was refused. Its header is read first; the image is never decoded.
+TEST(Convert, AJpegIsRefusedBeforeDecodingWhenItsHeaderClaimsAnotherSize) {
+  cv::Mat image(48, 64, CV_8U, cv::Scalar(7));
+  stitch::frame_t frame{};
+  EncodeImage(image, ImageEncoding::kJpeg, 90, &frame);
+  ASSERT_EQ(JpegSize(frame.data), std::make_pair(64, 48));
+  for (size_t at = 2; at + 9 < frame.data.size(); ++at) {
+    if (frame.data[at] == 0xFF && frame.data[at + 1] == 0xC0) {  // baseline frame header: 32000x32000
+      frame.data[at + 5] = frame.data[at + 7] = 0x7D;
+      frame.data[at + 6] = frame.data[at + 8] = 0x00;
+    }
+  }
+  ASSERT_EQ(JpegSize(frame.data), std::make_pair(32000, 32000));
+  try {
+    DecodeImage(frame);
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("JPEG header says 32000x32000 but the frame says 64x48; not decoded"),
+              std::string::npos)
+        << e.what();
+  }
+  // No frame header at all (cut before it, or not a JPEG).
+  EXPECT_EQ(JpegSize(std::vector<uint8_t>(frame.data.begin(), frame.data.begin() + 20)), std::nullopt);
+  EXPECT_EQ(JpegSize(std::vector<uint8_t>(100, 0xFF)), std::nullopt);
+  EXPECT_EQ(JpegSize({}), std::nullopt);
+}
+
 }  // namespace
 }  // namespace stitch

@@ -18,37 +18,50 @@ UpdateJournal::UpdateJournal(const std::string& dir, std::set<std::string> chann
   if (error) throw Error("merger state folder " + dir + ": " + error.message());
 }
 
-int64_t ReadSubmapUpdateLog(const std::string& path, const std::set<std::string>& channels,
-                            const std::function<void(const stitch::submap_update_t&)>& each, long* whole_end) {
-  lcm::LogFile reader(path, "r");
-  if (!reader.good()) throw Error(path + ": cannot read this LCM log");
-  int64_t count = 0, undecodable = 0;
-  while (const lcm::LogEvent* event = reader.readNextEvent()) {
-    if (whole_end) *whole_end = std::ftell(reader.getFilePtr());
-    if (!channels.count(event->channel)) continue;
+SubmapUpdateLogRead ReadSubmapUpdateLog(const std::string& path, const std::set<std::string>& channels,
+                                        const std::function<void(const stitch::submap_update_t&)>& each) {
+  LcmLogReader reader(path);
+  SubmapUpdateLogRead read;
+  while (std::optional<LcmLogRecord> record = reader.Next()) {
+    if (!channels.count(record->channel)) continue;
     stitch::submap_update_t update;
-    if (update.decode(event->data, 0, static_cast<int>(event->datalen)) != static_cast<int>(event->datalen)) {
-      ++undecodable;
+    const int length = static_cast<int>(record->data.size());
+    if (update.decode(record->data.data(), 0, length) != length) {
+      ++read.undecodable;
       continue;
     }
     each(update);
-    ++count;
+    ++read.updates;
   }
-  if (undecodable > 0) {
-    STITCH_LOG(WARNING) << path << ": skipped " << undecodable << " submap update records that do not decode";
+  read.damage = reader.damage();
+  read.damaged_bytes = reader.damaged_bytes();
+  if (read.undecodable > 0) {
+    STITCH_LOG(WARNING) << path << ": skipped " << read.undecodable << " submap update records that do not decode";
   }
-  return count;
+  return read;
 }
 
 int64_t UpdateJournal::Recover(const std::function<void(const stitch::submap_update_t&)>& each) {
   int64_t count = 0;
   if (std::filesystem::exists(path_)) {
-    long whole_end = 0;  // file offset after the last whole record
-    count = ReadSubmapUpdateLog(path_, channels_, each, &whole_end);
-    const auto size = std::filesystem::file_size(path_);
-    if (static_cast<uintmax_t>(whole_end) < size) {
-      STITCH_LOG(WARNING) << path_ << ": cut " << size - whole_end << " bytes of a record left unfinished";
-      std::filesystem::resize_file(path_, static_cast<uintmax_t>(whole_end));
+    const SubmapUpdateLogRead read = ReadSubmapUpdateLog(path_, channels_, each);
+    count = read.updates;
+    if (!read.damage.empty()) {
+      const std::string aside = path_ + ".damaged";
+      const LcmLogDamage& last = read.damage.back();
+      const bool only_an_unfinished_tail =
+          read.damage.size() == 1 &&
+          last.offset + last.length == static_cast<int64_t>(std::filesystem::file_size(path_));
+      SetDamageAside(path_, read.damage, aside);
+      if (only_an_unfinished_tail) {
+        STITCH_LOG(WARNING) << path_ << ": cut " << last.length << " bytes of a record left unfinished (moved to "
+                            << aside << ")";
+      } else {
+        STITCH_LOG(WARNING) << path_ << ": " << read.damage.size() << " damaged stretches, " << read.damaged_bytes
+                            << " bytes, the first at offset " << read.damage.front().offset
+                            << "; the intact records around them kept (" << count
+                            << " submap updates), the damaged bytes moved to " << aside;
+      }
     }
   }
   writer_ = std::make_unique<lcm::LogFile>(path_, "a");

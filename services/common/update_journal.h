@@ -9,19 +9,30 @@
 #include <memory>
 #include <set>
 #include <string>
+#include <vector>
 
 #include <lcm/lcm-cpp.hpp>
 
+#include "services/common/lcm_log_reader.h"
 #include "stitch/submap_update_t.hpp"
 
 namespace stitch {
 
+// What reading a log of submap updates found.
+struct SubmapUpdateLogRead {
+  int64_t updates = 0;               // passed on
+  int64_t undecodable = 0;           // records on the channels that do not decode (skipped)
+  std::vector<LcmLogDamage> damage;  // stretches of the file that hold no whole record
+  int64_t damaged_bytes = 0;
+  bool lost_anything() const { return undecodable > 0 || !damage.empty(); }
+};
+
 // Reads the submap updates on `channels` (<agent>/SUBMAP of each aircraft) from an LCM log (the
 // journal, or an lcm-logger recording of a flight, whose other channels are passed over) and
-// calls `each` with them in order; returns how many. `whole_end` (optional) receives the file
-// offset after the last whole record. Throws stitch::Error when the file cannot be read.
-int64_t ReadSubmapUpdateLog(const std::string& path, const std::set<std::string>& channels,
-                            const std::function<void(const stitch::submap_update_t&)>& each, long* whole_end = nullptr);
+// calls `each` with them in order. Damaged stretches are stepped over (LcmLogReader): every
+// intact record after them is read. Throws stitch::Error when the file cannot be read.
+SubmapUpdateLogRead ReadSubmapUpdateLog(const std::string& path, const std::set<std::string>& channels,
+                                        const std::function<void(const stitch::submap_update_t&)>& each);
 
 class UpdateJournal {
  public:
@@ -30,8 +41,11 @@ class UpdateJournal {
   UpdateJournal(const std::string& dir, std::set<std::string> channels);
 
   // Calls `each` with every update already in the journal, in order, and returns how many. A
-  // record cut short by a kill mid-write is dropped and the file cut back to the last whole one;
-  // a record that does not decode is skipped with a warning.
+  // record cut short by a kill mid-write, or any other damaged stretch (a disk's error, an
+  // overwritten length), is stepped over with every intact record after it kept: the damaged
+  // bytes are moved to `path()`.damaged (appended, never deleted) and the journal rewritten
+  // without them, so appending goes on after its last whole record. A record that does not
+  // decode is skipped with a warning.
   int64_t Recover(const std::function<void(const stitch::submap_update_t&)>& each);
 
   // Appends one update (on <its header's agent>/SUBMAP) and flushes it to the operating system. Throws stitch::Error on

@@ -1,6 +1,7 @@
 #include "services/common/update_journal.h"
 
 #include <filesystem>
+#include <fstream>
 
 #include <gtest/gtest.h>
 
@@ -53,6 +54,66 @@ TEST(UpdateJournal, ARecordCutShortByAKillIsDroppedAndTheJournalGoesOn) {
   }
   UpdateJournal again(dir.path().string(), {"uav0/SUBMAP"});
   EXPECT_EQ(Revisions(&again), (std::vector<int>{1, 2, 3, 5}));
+}
+
+// Each record of the journal: where it starts (the file's size before it was appended).
+std::vector<int64_t> AppendRevisions(UpdateJournal* journal, int from, int to) {
+  std::vector<int64_t> offsets;
+  for (int r = from; r <= to; ++r) {
+    offsets.push_back(static_cast<int64_t>(std::filesystem::file_size(journal->path())));
+    journal->Append(Update(r));
+  }
+  return offsets;
+}
+
+void Overwrite(const std::string& path, int64_t offset, const std::string& bytes) {
+  std::fstream file(path, std::ios::binary | std::ios::in | std::ios::out);
+  file.seekp(offset);
+  file.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+}
+
+// The security issue's row: 4 zeroed bytes mid-file made the restarted merger delete the intact
+// second half as "a record left unfinished".
+TEST(UpdateJournal, FourZeroedBytesMidFileCostOneRecordAndEveryRecordAfterThemIsKept) {
+  testing::TempDir dir;
+  std::string path;
+  std::vector<int64_t> offsets;
+  {
+    UpdateJournal journal(dir.path().string(), {"uav0/SUBMAP"});
+    Revisions(&journal);
+    offsets = AppendRevisions(&journal, 1, 8);
+    path = journal.path();
+  }
+  const auto size = std::filesystem::file_size(path);
+  Overwrite(path, offsets[3], std::string(4, '\0'));
+  {
+    UpdateJournal journal(dir.path().string(), {"uav0/SUBMAP"});
+    EXPECT_EQ(Revisions(&journal), (std::vector<int>{1, 2, 3, 5, 6, 7, 8}));
+    journal.Append(Update(9));
+  }
+  // The damaged record is set aside, not deleted; the journal goes on without it.
+  const auto record = static_cast<uintmax_t>(offsets[4] - offsets[3]);
+  EXPECT_EQ(std::filesystem::file_size(path + ".damaged"), record);
+  EXPECT_EQ(std::filesystem::file_size(path), size);  // without record 4, with record 9 (the same size)
+  UpdateJournal again(dir.path().string(), {"uav0/SUBMAP"});
+  EXPECT_EQ(Revisions(&again), (std::vector<int>{1, 2, 3, 5, 6, 7, 8, 9}));
+}
+
+// The security issue's row: a length field set to 0x7fffffff crashed every start of the merger
+// (and `stitch map`) in liblcm's reader.
+TEST(UpdateJournal, ALengthFieldOfTwoGigabytesNeitherCrashesNorLosesTheOtherRecords) {
+  testing::TempDir dir;
+  std::string path;
+  std::vector<int64_t> offsets;
+  {
+    UpdateJournal journal(dir.path().string(), {"uav0/SUBMAP"});
+    Revisions(&journal);
+    offsets = AppendRevisions(&journal, 1, 5);
+    path = journal.path();
+  }
+  Overwrite(path, offsets[1] + 24, "\x7f\xff\xff\xff");
+  UpdateJournal journal(dir.path().string(), {"uav0/SUBMAP"});
+  EXPECT_EQ(Revisions(&journal), (std::vector<int>{1, 3, 4, 5}));
 }
 
 TEST(UpdateJournal, OtherChannelsOfARecordingArePassedOver) {

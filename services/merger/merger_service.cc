@@ -52,12 +52,12 @@ MergerService::~MergerService() {
   Stop();
 }
 
-int64_t MergerService::Replay(const std::string& log_path) {
+SubmapUpdateLogRead MergerService::Replay(const std::string& log_path) {
   recovering_ = true;
-  const int64_t count = ReadSubmapUpdateLog(log_path, submap_channels_,
-                                            [this](const stitch::submap_update_t& update) { Process(update); });
+  const SubmapUpdateLogRead read = ReadSubmapUpdateLog(
+      log_path, submap_channels_, [this](const stitch::submap_update_t& update) { Process(update); });
   recovering_ = false;
-  return count;
+  return read;
 }
 
 void MergerService::Start() {

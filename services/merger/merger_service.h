@@ -36,8 +36,9 @@ class MergerService {
   ~MergerService();
 
   // Feeds the submap updates recorded in an LCM log (a journal or an lcm-logger recording) through
-  // the merger, as if they had arrived; call before Start(). Returns how many.
-  int64_t Replay(const std::string& log_path);
+  // the merger, as if they had arrived; call before Start(). Returns what the reading found (how
+  // many, and the damage stepped over).
+  SubmapUpdateLogRead Replay(const std::string& log_path);
   void Start();
   // Merges what is queued, writes the records, stops the worker.
   void Stop();

@@ -225,6 +225,11 @@ void TrackerService::Process(const stitch::frame_t& frame) {
   live_ = frame.pacing != stitch::frame_t::PACING_LOCKSTEP;
   Tracking::Output output;
   try {
+    if (tracking_ && (frame.width != tracking_->camera().width() || frame.height != tracking_->camera().height())) {
+      throw Error("a " + std::to_string(frame.width) + "x" + std::to_string(frame.height) + " frame for a " +
+                  std::to_string(tracking_->camera().width()) + "x" + std::to_string(tracking_->camera().height()) +
+                  " camera; not decoded");
+    }
     const cv::Mat image = DecodeImage(frame);
     if (!tracking_) {
       const Camera camera = FromMessage(frame.camera);

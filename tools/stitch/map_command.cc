@@ -25,7 +25,8 @@ int MapCommand(int argc, char** argv) {
       "(RUN/merger/submap_updates.lcmlog, kept by `stitch run --journal` and by `stitch-merger --state`) or an "
       "lcm-logger recording that holds <agent>/SUBMAP. Runs the merger over them as they were received and "
       "writes its outputs to --out: map.ply, submaps.tsv, keyframes_merged.tsv, connections.tsv, graph.dot, "
-      "graph.png, merge_log.tsv, retrieval.tsv.");
+      "graph.png, merge_log.tsv, retrieval.tsv. A damaged log is read around its damage (every intact record), "
+      "with a warning and exit status 3.");
   args.AddPositional(&logs, "LOG", "an LCM log with submap updates");
   args.AddOption("--out", &out, "DIR", "where to write the merged map (created; must not hold one already)");
   args.AddOption("--config", &config_path, "FILE",
@@ -47,12 +48,22 @@ int MapCommand(int argc, char** argv) {
     MergerService merger(lcm.get(), &publisher, config.merger, config.tracker.tracking.orb, &vocabulary, out, "",
                          agent_list);
     const Stopwatch clock;
-    const int64_t count = merger.Replay(logs[0]);
-    if (count == 0) throw Error(logs[0] + ": no submap update of " + agents);
+    const SubmapUpdateLogRead read = merger.Replay(logs[0]);
+    if (read.updates == 0) throw Error(logs[0] + ": no submap update of " + agents);
     merger.Start();
     merger.Stop();
-    std::printf("merged %lld submap updates from %s in %.1f s; outputs in %s\n", static_cast<long long>(count),
+    std::printf("merged %lld submap updates from %s in %.1f s; outputs in %s\n", static_cast<long long>(read.updates),
                 logs[0].c_str(), clock.ElapsedMs() / 1000.0, out.c_str());
+    if (read.lost_anything()) {
+      // The map is made of what was intact; say what it lacks and fail, so no script takes it as whole.
+      std::fprintf(stderr,
+                   "stitch map: warning: %s is damaged: %zu damaged stretches (%lld bytes, the first at offset %lld) "
+                   "and %lld records that do not decode were stepped over; the map lacks what they held\n",
+                   logs[0].c_str(), read.damage.size(), static_cast<long long>(read.damaged_bytes),
+                   static_cast<long long>(read.damage.empty() ? -1 : read.damage.front().offset),
+                   static_cast<long long>(read.undecodable));
+      return 3;
+    }
     return 0;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "stitch map: %s\n", e.what());

@@ -1,6 +1,7 @@
 #include "stitch/util/child_process.h"
 
 #include <fcntl.h>
+#include <sys/prctl.h>
 #include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -27,13 +28,17 @@ ChildProcess::ChildProcess(std::string name, const std::string& program, const s
   std::vector<char*> argv;
   for (auto& a : argv_storage) argv.push_back(a.data());
   argv.push_back(nullptr);
+  const pid_t launcher = getpid();
   pid_ = fork();
   if (pid_ < 0) {
     close(log_fd);
     throw Error("cannot start " + program + ": " + std::strerror(errno));
   }
   if (pid_ == 0) {
-    // Child: output to the log, default signal dispositions, then the program.
+    // Child: ends with the launcher (SIGTERM, so a service still writes its outputs) even when the
+    // launcher is killed outright; then output to the log, default signal dispositions, the program.
+    prctl(PR_SET_PDEATHSIG, SIGTERM);
+    if (getppid() != launcher) _exit(128 + SIGTERM);  // it died before the line above
     dup2(log_fd, STDOUT_FILENO);
     dup2(log_fd, STDERR_FILENO);
     signal(SIGINT, SIG_DFL);
@@ -80,8 +85,8 @@ int ChildProcess::Terminate(std::chrono::milliseconds grace) {
 }
 
 void ChildProcess::KeepUsage(const rusage& usage) {
-  cpu_seconds_ = usage.ru_utime.tv_sec + usage.ru_utime.tv_usec * 1e-6 + usage.ru_stime.tv_sec +
-                 usage.ru_stime.tv_usec * 1e-6;
+  cpu_seconds_ =
+      usage.ru_utime.tv_sec + usage.ru_utime.tv_usec * 1e-6 + usage.ru_stime.tv_sec + usage.ru_stime.tv_usec * 1e-6;
 }
 
 std::string ChildProcess::LogTail(int lines) const {

@@ -1,5 +1,7 @@
 #pragma once
-// Child processes of the launcher: one per service, output to a log file.
+// Child processes of the launcher: one per service, output to a log file. Each gets SIGTERM when
+// the thread that started it ends (PR_SET_PDEATHSIG: start them from the launcher's main
+// thread), so a launcher killed outright leaves no service running.
 
 #include <chrono>
 #include <optional>
@@ -23,6 +25,7 @@ class ChildProcess {
 
   const std::string& name() const { return name_; }
   const std::string& log_path() const { return log_path_; }
+  pid_t pid() const { return pid_; }
   // The exit status once the process has ended: its exit code, or 128 + signal number.
   std::optional<int> Poll();
   // SIGTERM, then SIGKILL if it has not ended after `grace`. Returns the exit status.
