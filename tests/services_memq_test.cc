@@ -218,8 +218,8 @@ struct SubmapBytes {
 };
 
 // Flies the default short flight; returns the SUBMAP bytes the merger side received. `thin`:
-// the default thinning; `link_behind`: a link bridge reports a 10 s backlog all along.
-SubmapBytes FlyAndCountSubmapBytes(bool thin, bool link_behind) {
+// the default thinning; `link_backlog_s` > 0: a link bridge reports that backlog all along.
+SubmapBytes FlyAndCountSubmapBytes(bool thin, double link_backlog_s = 0) {
   testing::TempDir dir;
   InProcessStack stack(
       [thin](StitchConfig* c) {
@@ -231,10 +231,10 @@ SubmapBytes FlyAndCountSubmapBytes(bool thin, bool link_behind) {
   std::atomic<bool> flying{true};
   std::thread bridge([&] {
     bus::Publisher publisher(stack.lcm.get(), "uav0");
-    while (link_behind && flying.load()) {
+    while (link_backlog_s > 0 && flying.load()) {
       stitch::link_status_t status{};
       status.budget_bytes_per_s = 100000;
-      status.backlog_s = 10;
+      status.backlog_s = link_backlog_s;
       publisher.Publish(bus::Channel("uav0", bus::kLinkStatus), &status);
       std::this_thread::sleep_for(std::chrono::milliseconds(200));
     }
@@ -252,8 +252,7 @@ SubmapBytes FlyAndCountSubmapBytes(bool thin, bool link_behind) {
 }
 
 TEST(ServicesInProcess, ThinnedSubmapUpdatesCostLessAndStillEndInTheMappersExactSubmap) {
-  const int64_t full_bytes = FlyAndCountSubmapBytes(false, false).all,
-                thin_bytes = FlyAndCountSubmapBytes(true, false).all;
+  const int64_t full_bytes = FlyAndCountSubmapBytes(false).all, thin_bytes = FlyAndCountSubmapBytes(true).all;
   std::printf("SUBMAP bytes: %lld with every refinement, %lld thinned\n", static_cast<long long>(full_bytes),
               static_cast<long long>(thin_bytes));
   EXPECT_LT(thin_bytes, full_bytes * 6 / 10);
@@ -262,7 +261,7 @@ TEST(ServicesInProcess, ThinnedSubmapUpdatesCostLessAndStillEndInTheMappersExact
 // The final state carries every point whatever was held back, so only what came before it shows
 // the refinements held back.
 TEST(ServicesInProcess, WhileTheLinkIsBehindTheMapperHoldsRefinementsBackAndTheFinalStateCatchesUp) {
-  const SubmapBytes thin = FlyAndCountSubmapBytes(true, false), behind = FlyAndCountSubmapBytes(true, true);
+  const SubmapBytes thin = FlyAndCountSubmapBytes(true), behind = FlyAndCountSubmapBytes(true, 10);
   std::printf(
       "SUBMAP bytes (points sent again before the final state): %lld (%lld) thinned, %lld (%lld) with the link "
       "behind\n",
@@ -270,6 +269,13 @@ TEST(ServicesInProcess, WhileTheLinkIsBehindTheMapperHoldsRefinementsBackAndTheF
       static_cast<long long>(behind.all), static_cast<long long>(behind.points_sent_again));
   EXPECT_LT(behind.all, thin.all);
   EXPECT_LT(behind.points_sent_again, thin.points_sent_again / 4);
+}
+
+// The security issue's row: a forged LINK_STATUS saying the link was 1e9 s behind made the mapper
+// hold every refinement back (and the merged map 7 m off). A backlog beyond a day is refused.
+TEST(ServicesInProcess, AnImplausibleLinkBacklogIsRefused) {
+  const SubmapBytes forged = FlyAndCountSubmapBytes(true, 1e9);
+  EXPECT_GT(forged.points_sent_again, 500);  // as without a bridge (2288 here); 0 when believed
 }
 
 TEST(ServicesInProcess, TrackerWithoutAMapperKeepsTrackingAndSaysSo) {

@@ -133,6 +133,9 @@ class Subscriber {
 
   // Messages dropped as malformed or foreign so far.
   int64_t rejected() const { return rejected_.load(); }
+  // Counts a message a handler refuses for its content (a forged or implausible value) like a
+  // malformed one, and logs why at most once a second.
+  void Reject(const std::string& channel, const std::string& why);
 
  private:
   struct RawHandler {
@@ -141,7 +144,6 @@ class Subscriber {
     void OnMessage(const lcm::ReceiveBuffer* buffer, const std::string& channel) { function(buffer, channel); }
     std::function<void(const lcm::ReceiveBuffer*, const std::string&)> function;
   };
-  void Reject(const std::string& channel, const std::string& why);
 
   lcm::LCM* lcm_;
   std::vector<lcm::Subscription*> subscriptions_;

@@ -49,6 +49,13 @@ Eigen::Quaterniond WxyzToQuaternion(const double* wxyz, const char* type) {
   return q.normalized();
 }
 
+// Throws stitch::Error for a translation with a non-finite component (a corrupt or forged message).
+Eigen::Vector3d FiniteTranslation(const double* xyz, const char* type) {
+  const Eigen::Vector3d t(xyz[0], xyz[1], xyz[2]);
+  if (!t.allFinite()) throw Error(std::string(type) + " message: translation is not finite");
+  return t;
+}
+
 }  // namespace
 
 stitch::rigid3_t ToMessage(const Rigid3d& transform) {
@@ -59,8 +66,7 @@ stitch::rigid3_t ToMessage(const Rigid3d& transform) {
 }
 
 Rigid3d FromMessage(const stitch::rigid3_t& message) {
-  return Rigid3d(WxyzToQuaternion(message.rotation_wxyz, "rigid3"),
-                 Eigen::Map<const Eigen::Vector3d>(message.translation));
+  return Rigid3d(WxyzToQuaternion(message.rotation_wxyz, "rigid3"), FiniteTranslation(message.translation, "rigid3"));
 }
 
 stitch::sim3_t ToMessage(const Sim3d& transform) {
@@ -74,7 +80,7 @@ stitch::sim3_t ToMessage(const Sim3d& transform) {
 Sim3d FromMessage(const stitch::sim3_t& message) {
   if (!(message.scale > 0 && std::isfinite(message.scale))) throw Error("sim3 message: scale is not positive");
   return Sim3d(message.scale, WxyzToQuaternion(message.rotation_wxyz, "sim3"),
-               Eigen::Map<const Eigen::Vector3d>(message.translation));
+               FiniteTranslation(message.translation, "sim3"));
 }
 
 ImageEncoding ParseImageEncoding(const std::string& name) {

@@ -1,5 +1,8 @@
 #include "services/common/convert.h"
 
+#include <cmath>
+#include <limits>
+
 #include <gtest/gtest.h>
 #include <opencv2/imgproc.hpp>
 
@@ -31,6 +34,20 @@ TEST(Convert, TransformsRoundTrip) {
   EXPECT_DOUBLE_EQ(FromMessage(ToMessage(s)).scale, 3.0);
   stitch::rigid3_t zero{};
   EXPECT_THROW(FromMessage(zero), Error);
+}
+
+// The security issue's row: a forged closed-submap state with NaN translations was accepted and
+// keyframes_merged.tsv held -nan. Every pose of every message goes through these.
+TEST(Convert, NonFiniteTranslationsAreRefused) {
+  const Rigid3d r(Eigen::Quaterniond::Identity(), Eigen::Vector3d(1, 2, 3));
+  for (double bad : {std::nan(""), std::numeric_limits<double>::infinity()}) {
+    stitch::rigid3_t rigid = ToMessage(r);
+    rigid.translation[1] = bad;
+    EXPECT_THROW(FromMessage(rigid), Error);
+    stitch::sim3_t sim = ToMessage(Sim3d(2.0, r.rotation, r.translation));
+    sim.translation[2] = bad;
+    EXPECT_THROW(FromMessage(sim), Error);
+  }
 }
 
 TEST(Convert, ImagesRoundTripInBothEncodings) {

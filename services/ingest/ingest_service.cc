@@ -34,6 +34,10 @@ IngestService::IngestService(lcm::LCM* lcm, const std::string& lcm_url, bus::Pub
                                                if (ack->frame_session != publisher_->session())
                                                  return;  // another ingest's (or an earlier run's) frame
                                                std::lock_guard<std::mutex> lock(mutex_);
+                                               if (ack->frame_index > highest_sent_) {
+                                                 ++acks_refused_;  // for a frame not sent yet: forged
+                                                 return;
+                                               }
                                                highest_acked_ = std::max(highest_acked_, ack->frame_index);
                                                changed_.notify_all();
                                              });
@@ -144,6 +148,10 @@ IngestSummary IngestService::Play(ImageSequence& sequence, const FailureSchedule
       }
       EncodeImage(frame.image, encoding, options_.jpeg_quality, &message);
     }
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      highest_sent_ = std::max(highest_sent_, frame.index);
+    }
     publisher_->Publish(frame_channel, &message);
     ++summary.frames_published;
     ++published_;
@@ -169,6 +177,14 @@ IngestSummary IngestService::Play(ImageSequence& sequence, const FailureSchedule
   summary.stopped = stop.load();
   summary.seconds = clock.ElapsedSeconds();
   summary.frames_dropped_at_source = sequence.dropped_at_source();
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    summary.acks_refused = acks_refused_;
+  }
+  if (summary.acks_refused > 0) {
+    STITCH_LOG(WARNING) << "refused " << summary.acks_refused
+                        << " acks for frames not sent yet (forged, or from another ingest with this session)";
+  }
   // The end of the sequence is state that matters: say it a few times (UDP may lose one).
   for (int i = 0; i < 3; ++i) {
     PublishSequenceInfo(sequence, summary, true);

@@ -24,6 +24,7 @@ struct IngestSummary {
   int frames_unacked = 0;     // lockstep: given up on after max_resends
   int resends = 0;
   int64_t frames_dropped_at_source = 0;  // live: captured, but a newer frame came before it could be sent
+  int64_t acks_refused = 0;              // acks for frames not sent yet (forged)
   double seconds = 0;
   bool stopped = false;  // ended by the stop flag, not by the end of the sequence
 };
@@ -62,6 +63,8 @@ class IngestService {
   std::mutex mutex_;
   std::condition_variable changed_;
   int highest_acked_ = -1;
+  int highest_sent_ = -1;  // acks for frames after it are refused
+  int64_t acks_refused_ = 0;
   bool tracker_running_ = false;
   std::atomic<int64_t> published_{0};
 };

@@ -7,7 +7,12 @@
 
 #include <fstream>
 #include <functional>
+#include <limits>
+#include <map>
+#include <mutex>
 #include <optional>
+#include <set>
+#include <thread>
 
 #include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
@@ -306,6 +311,25 @@ TEST(Ingest, AcksOfAnotherIngestsFramesDoNotCount) {
   EXPECT_EQ(summary.frames_unacked, 0);
 }
 
+// The security issue's row: forged acks (any sender can publish on FRAME_ACK, and the frames'
+// session is on the bus for all to read) made a lockstep ingest skip its waits, 126 frames
+// dropped by the tracker, and report "0 unacknowledged". An ack for a frame not sent yet is refused.
+TEST(Ingest, AnAckForAFrameNotSentYetIsRefused) {
+  // The first copy of frame 0 is answered only by a forged ack for frame 2^31-1; the first copy
+  // of every other frame goes unanswered (a busy tracker); re-sends get their real acks.
+  const IngestSummary summary = PlayAgainstAStandIn([](const stitch::frame_t& f, int copy) {
+    if (copy >= 2) return std::optional(AckOf(f, f.header.sender_session));
+    if (f.frame_index != 0) return std::optional<stitch::frame_ack_t>();
+    stitch::frame_ack_t forged = AckOf(f, f.header.sender_session);
+    forged.frame_index = std::numeric_limits<int32_t>::max();
+    return std::optional(forged);
+  });
+  EXPECT_EQ(summary.frames_published, 4);
+  EXPECT_EQ(summary.resends, 4);  // each frame waited for its own ack
+  EXPECT_EQ(summary.frames_unacked, 0);
+  EXPECT_EQ(summary.acks_refused, 1);
+}
+
 TEST(Tracker, DuplicateFramesAreAckedAgainButTrackedOnce) {
   auto lcm = bus::OpenLcm("memq://");
   bus::Publisher publisher(lcm.get(), "uav0");
@@ -335,6 +359,61 @@ TEST(Tracker, DuplicateFramesAreAckedAgainButTrackedOnce) {
   EXPECT_EQ(tracker.frames_tracked(), 3);
   std::lock_guard<std::mutex> lock(mutex);
   EXPECT_EQ(acks, 5);
+}
+
+// The security issue's row: one forged 0-byte FRAME numbered 2^31-1 in the ingest's session made
+// the tracker acknowledge every later real frame as "already tracked" and record none of them. A
+// frame far ahead of the session's newest is refused, and a frame of another size than the
+// camera's is not decoded.
+TEST(Tracker, AFrameFarAheadOfItsSessionOrOfAnotherSizeIsRefused) {
+  auto lcm = bus::OpenLcm("memq://");
+  bus::Publisher publisher(lcm.get(), "uav0");
+  TrackerService tracker(lcm.get(), &publisher, TrackerAlone(), &TestVocabulary(), "");
+  std::mutex mutex;
+  std::set<int> acked;
+  std::map<int, std::string> details;
+  bus::Subscriber subscriber(lcm.get());
+  subscriber.Subscribe<stitch::frame_ack_t>(bus::Channel("uav0", bus::kFrameAck),
+                                            [&](std::unique_ptr<stitch::frame_ack_t> ack, const std::string&) {
+                                              std::lock_guard<std::mutex> lock(mutex);
+                                              acked.insert(ack->frame_index);
+                                            });
+  subscriber.Subscribe<stitch::tracking_status_t>(
+      bus::Channel("uav0", bus::kTrackingStatus),
+      [&](std::unique_ptr<stitch::tracking_status_t> status, const std::string&) {
+        std::lock_guard<std::mutex> lock(mutex);
+        details[status->frame_index] = status->detail;
+      });
+  bus::Dispatcher dispatcher(lcm.get());
+  dispatcher.Start();
+  tracker.Start();
+  stitch::frame_t frame{};
+  frame.camera = ToMessage(Camera::Pinhole(64, 48, 50, 50, 31.5, 23.5));
+  EncodeImage(cv::Mat(48, 64, CV_8U, cv::Scalar(9)), ImageEncoding::kGray8, 90, &frame);
+  stitch::frame_t forged = frame;
+  forged.frame_index = std::numeric_limits<int32_t>::max();
+  forged.data.clear();
+  forged.num_bytes = 0;
+  stitch::frame_t wrong_size = frame;
+  EncodeImage(cv::Mat(480, 640, CV_8U, cv::Scalar(9)), ImageEncoding::kGray8, 90, &wrong_size);
+  wrong_size.frame_index = 1;
+  for (stitch::frame_t* f : {&frame, &forged, &wrong_size}) {
+    publisher.Publish(bus::Channel("uav0", bus::kFrame), f);
+    std::this_thread::sleep_for(30ms);
+  }
+  for (int index : {2, 3}) {
+    frame.frame_index = index;
+    publisher.Publish(bus::Channel("uav0", bus::kFrame), &frame);
+    std::this_thread::sleep_for(30ms);
+  }
+  std::this_thread::sleep_for(100ms);
+  tracker.Stop();
+  dispatcher.Stop();
+  EXPECT_EQ(tracker.frames_tracked(), 4);  // 0, 2, 3 and 1, skipped
+  std::lock_guard<std::mutex> lock(mutex);
+  EXPECT_EQ(acked, (std::set<int>{0, 1, 2, 3}));  // never the forged one
+  EXPECT_NE(details[1].find("a 640x480 frame for a 64x48 camera; not decoded"), std::string::npos) << details[1];
+  EXPECT_EQ(details.count(std::numeric_limits<int32_t>::max()), 0u);
 }
 
 }  // namespace

@@ -23,7 +23,8 @@ int main(int argc, char** argv) {
                  "a live camera: a V4L2 device (/dev/video0), a GStreamer pipeline ('... ! appsink') or a stream URL "
                  "(rtsp://, udp://); needs --calib. Frames go out as they come, the newest when the tracker lags");
   args.AddOption("--dataset", &source.dataset_path, "PATH", "dataset folder or video file (default: synthetic flight)");
-  args.AddOption("--calib", &source.calibration_path, "FILE", "calibration overriding the dataset's own (required with --live)");
+  args.AddOption("--calib", &source.calibration_path, "FILE",
+                 "calibration overriding the dataset's own (required with --live)");
   args.AddOption("--failures", &source.failures, "SPEC",
                  "frames to make unusable: FRAME:LENGTH,... or none; 'default' = 3 gusts on the synthetic flight, none "
                  "on datasets");

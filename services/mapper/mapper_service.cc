@@ -18,6 +18,11 @@
 
 namespace stitch {
 
+namespace {
+// A link bridge's backlog beyond a day is not a backlog but a forged or corrupt LINK_STATUS.
+constexpr double kMaxLinkBacklogS = 86400;
+}  // namespace
+
 MapperService::MapperService(lcm::LCM* lcm, bus::Publisher* publisher, MapperOptions options, const OrbOptions& orb,
                              const Vocabulary* vocabulary, std::string record_dir)
     : publisher_(publisher),
@@ -60,7 +65,12 @@ MapperService::MapperService(lcm::LCM* lcm, bus::Publisher* publisher, MapperOpt
   // The aircraft's link bridge says how far behind it is.
   subscriber_.Subscribe<stitch::link_status_t>(
       bus::Channel(publisher_->agent(), bus::kLinkStatus),
-      [this](std::unique_ptr<stitch::link_status_t> status, const std::string&) {
+      [this](std::unique_ptr<stitch::link_status_t> status, const std::string& channel) {
+        if (!(status->backlog_s >= 0 && status->backlog_s <= kMaxLinkBacklogS)) {
+          subscriber_.Reject(channel, "says the link is " + std::to_string(status->backlog_s) + " s behind (0-" +
+                                          std::to_string(static_cast<int>(kMaxLinkBacklogS)) + " s is plausible)");
+          return;
+        }
         link_backlog_s_ = status->backlog_s;
         link_status_at_ = MonotonicSeconds();
       });

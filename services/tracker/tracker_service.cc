@@ -13,7 +13,10 @@
 #include "stitch/util/time.h"
 
 namespace stitch {
+
 namespace {
+// Frames a session may skip at once (lost on the network, dropped at a live source): a minute at 30 fps.
+constexpr int kMaxFrameIndexJump = 1800;
 
 int8_t ToMessageState(TrackingState state) {
   switch (state) {
@@ -116,6 +119,15 @@ void TrackerService::OnFrame(std::unique_ptr<stitch::frame_t> frame) {
     ingest_session_ = frame->header.sender_session;
     highest_received_ = -1;
     highest_processed_ = -1;
+  }
+  // Within a session frames are numbered in order; a frame far ahead of the newest one (a forged
+  // 2^31-1 made every later real frame look "already tracked") is refused, not acknowledged.
+  if (frame->frame_index < 0 ||
+      (highest_received_.load() >= 0 && frame->frame_index > highest_received_.load() + kMaxFrameIndexJump)) {
+    subscriber_.Reject(
+        bus::Channel(publisher_->agent(), bus::kFrame),
+        "jumps to frame " + std::to_string(frame->frame_index) + " from " + std::to_string(highest_received_.load()));
+    return;
   }
   if (frame->frame_index <= highest_processed_.load()) {
     Ack(*frame);  // a re-send of a frame already tracked: the ack was lost
