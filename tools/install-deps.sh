@@ -8,7 +8,7 @@ $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recomme
   build-essential cmake pkg-config \
   liblcm-dev liblcm-bin libglib2.0-dev \
   libopencv-dev libeigen3-dev libceres-dev \
-  libyaml-cpp-dev nlohmann-json3-dev \
+  libyaml-cpp-dev nlohmann-json3-dev libsodium-dev \
   libgtest-dev libgmock-dev libbenchmark-dev \
   gstreamer1.0-plugins-base gstreamer1.0-plugins-good \
   iproute2 procps

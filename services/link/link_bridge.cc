@@ -59,6 +59,17 @@ LinkBridge::LinkBridge(lcm::LCM* lcm, LinkOptions options)
       impairment_rng_(static_cast<uint64_t>(options_.seed) * 0x9E3779B97F4A7C15ULL + 1) {
   std::string why;
   if (!options_.Check(&why)) throw Error(why);
+  if (!options_.key_file.empty()) {
+    const link::LinkKey key = link::LoadKeyFile(options_.key_file);
+    sealer_.emplace(key, session_);
+    opener_.emplace(key);
+    seal_overhead_ = link::kSealOverheadBytes;
+  } else if (!options_.insecure) {
+    throw Error(
+        "the link needs a key both bridges share: make one with `stitch link keygen FILE`, copy it to "
+        "both sides and give it as link.key_file (or set link.insecure: true to run unauthenticated)");
+  }
+  datagram_bytes_ = options_.max_datagram_bytes - seal_overhead_;
   const sockaddr_in listen = ResolveIpv4(options_.listen, "link.listen");
   const sockaddr_in peer = ResolveIpv4(options_.peer, "link.peer");
   peer_address_ = peer;
@@ -86,6 +97,10 @@ LinkBridge::LinkBridge(lcm::LCM* lcm, LinkOptions options)
                    << (options_.budget_bytes_per_s > 0
                            ? ", budget " + std::to_string(static_cast<int64_t>(options_.budget_bytes_per_s)) + " B/s"
                            : ", no budget");
+  if (!sealer_) {
+    STITCH_LOG(WARNING) << "link: insecure: datagrams are not authenticated; anyone who reaches " << options_.listen
+                        << " from the peer's address is believed";
+  }
   if (options_.loss > 0 || options_.delay_ms > 0 || options_.jitter_ms > 0) {
     STITCH_LOG(WARNING) << "link: injecting impairments: loss " << options_.loss << ", delay " << options_.delay_ms
                         << " ms, jitter " << options_.jitter_ms << " ms";
@@ -156,6 +171,9 @@ stitch::link_status_t LinkBridge::Status(double rate_bytes_per_s) const {
   status.messages_received = c.messages_delivered;
   status.messages_given_up = c.messages_given_up;
   status.datagrams_refused = c.datagrams_refused;
+  status.datagrams_unauthenticated = c.datagrams_unauthenticated;
+  status.datagrams_replayed = c.datagrams_replayed;
+  status.authenticated = sealer_.has_value();
   status.seconds_since_peer = c.seconds_since_peer;
   return status;
 }
@@ -171,7 +189,10 @@ std::string LinkBridge::Describe() const {
   text << "; repaired " << c.fragments_repaired << " fragments, asked " << c.repair_requests_sent << " times; received "
        << c.messages_delivered << " messages";
   if (c.messages_given_up > 0) text << ", gave up on " << c.messages_given_up;
-  if (c.datagrams_refused > 0) text << ", refused " << c.datagrams_refused << " datagrams";
+  if (c.datagrams_refused > 0) {
+    text << ", refused " << c.datagrams_refused << " datagrams (" << c.datagrams_unauthenticated << " unauthenticated, "
+         << c.datagrams_replayed << " replayed)";
+  }
   return text.str();
 }
 
@@ -196,8 +217,7 @@ void LinkBridge::OnLocalMessage(const lcm::ReceiveBuffer* buffer, const std::str
       return;
     }
   }
-  if (buffer->data_size > kMaxMessageBytes ||
-      link::FragmentCount(channel, buffer->data_size, options_.max_datagram_bytes) == 0) {
+  if (buffer->data_size > kMaxMessageBytes || link::FragmentCount(channel, buffer->data_size, datagram_bytes_) == 0) {
     if (too_large_log_.Allow()) {
       STITCH_LOG(WARNING) << "link: a message of " << buffer->data_size << " bytes on " << channel
                           << " is too large to send (or its channel name too long); dropped";
@@ -268,15 +288,15 @@ std::optional<std::string> LinkBridge::NextDatagramLocked(double now) {
     std::lock_guard<std::mutex> counts_lock(counts_mutex_);
     ++counts_.fragments_repaired;
     return link::Encode(link::MakeFragment(session_, message, retained->second.channel, retained->second.bytes,
-                                           options_.max_datagram_bytes, index));
+                                           datagram_bytes_, index));
   }
   for (auto [queue, sending] : {std::pair(&small_queue_, &small_sending_), std::pair(&large_queue_, &large_sending_)}) {
     if (!*sending && !queue->empty()) {
       Outgoing outgoing = std::move(queue->front());
       queue->pop_front();
       queued_bytes_ -= outgoing.bytes.size();
-      *sending = Sending{next_message_,
-                         link::FragmentCount(outgoing.channel, outgoing.bytes.size(), options_.max_datagram_bytes), 0};
+      *sending =
+          Sending{next_message_, link::FragmentCount(outgoing.channel, outgoing.bytes.size(), datagram_bytes_), 0};
       retained_bytes_ += outgoing.bytes.size();
       retained_[next_message_++] = Retained{std::move(outgoing.channel), std::move(outgoing.bytes), false, 0};
     }
@@ -288,8 +308,8 @@ std::optional<std::string> LinkBridge::NextDatagramLocked(double now) {
 std::string LinkBridge::NextFragmentLocked(std::optional<Sending>* sending, double now) {
   Sending& s = **sending;
   Retained& message = retained_[s.message];
-  std::string datagram = link::Encode(
-      link::MakeFragment(session_, s.message, message.channel, message.bytes, options_.max_datagram_bytes, s.next));
+  std::string datagram =
+      link::Encode(link::MakeFragment(session_, s.message, message.channel, message.bytes, datagram_bytes_, s.next));
   if (++s.next == s.count) {
     message.sent = true;
     message.sent_at = now;
@@ -309,6 +329,7 @@ uint64_t LinkBridge::SentEndLocked() const {
 }
 
 void LinkBridge::Transmit(std::string datagram, double now) {
+  if (sealer_) datagram = sealer_->Seal(datagram);
   {
     std::lock_guard<std::mutex> counts_lock(counts_mutex_);
     ++counts_.datagrams_sent;
@@ -366,7 +387,7 @@ void LinkBridge::SendLoop() {
       ExpireLocked(now);
       if (!pending_) pending_ = NextDatagramLocked(now);
       if (pending_) {
-        const double cost = static_cast<double>(pending_->size() + link::kUdpIpHeaderBytes);
+        const double cost = static_cast<double>(pending_->size() + seal_overhead_ + link::kUdpIpHeaderBytes);
         if (options_.budget_bytes_per_s <= 0) {
           datagram = std::move(pending_);
         } else {
@@ -414,10 +435,24 @@ void LinkBridge::ReceiveLoop() {
       if (size < 0) break;
       std::string why;
       link::Datagram datagram;
-      if (peer.sin_addr.s_addr != INADDR_ANY && from.sin_addr.s_addr != peer.sin_addr.s_addr) {
+      std::string opened;
+      const uint8_t* bytes = buffer.data();
+      size_t length = static_cast<size_t>(size);
+      link::Opener::Verdict verdict = link::Opener::Verdict::kOpened;
+      if (peer.sin_addr.s_addr != INADDR_ANY &&
+          (from.sin_addr.s_addr != peer.sin_addr.s_addr || from.sin_port != peer.sin_port)) {
         why = "comes from " + FormatAddress(from) + ", not the peer " + options_.peer;
-      } else if (!link::Decode(buffer.data(), static_cast<size_t>(size), &datagram, &why)) {
-        why += " (" + std::to_string(size) + " bytes from " + FormatAddress(from) + ")";
+      } else if (opener_ && (verdict = opener_->Open(bytes, length, &opened)) != link::Opener::Verdict::kOpened) {
+        why = verdict == link::Opener::Verdict::kReplayed ? "was accepted before (replayed) or is an earlier run's"
+                                                          : "fails authentication (forged, or sealed with another key)";
+      } else {
+        if (opener_) {
+          bytes = reinterpret_cast<const uint8_t*>(opened.data());
+          length = opened.size();
+        }
+        if (!link::Decode(bytes, length, &datagram, &why)) {
+          why += " (" + std::to_string(size) + " bytes from " + FormatAddress(from) + ")";
+        }
       }
       if (!why.empty()) {
         if (refused_log_.Allow()) {
@@ -425,6 +460,8 @@ void LinkBridge::ReceiveLoop() {
         }
         std::lock_guard<std::mutex> counts_lock(counts_mutex_);
         ++counts_.datagrams_refused;
+        counts_.datagrams_unauthenticated += verdict == link::Opener::Verdict::kUnauthenticated;
+        counts_.datagrams_replayed += verdict == link::Opener::Verdict::kReplayed;
         continue;
       }
       last_heard_s_ = MonotonicSeconds();
@@ -617,7 +654,7 @@ void LinkBridge::RequestRepairs(double now) {
     counts_.messages_given_up += given_up;
   }
   if (request.wanted.empty()) return;
-  const auto parts = link::SplitRepair(request, options_.max_datagram_bytes);
+  const auto parts = link::SplitRepair(request, datagram_bytes_);
   for (const auto& part : parts) QueueControl(link::Encode(part));
   std::lock_guard<std::mutex> counts_lock(counts_mutex_);
   counts_.repair_requests_sent += static_cast<int64_t>(parts.size());
@@ -631,8 +668,7 @@ void LinkBridge::OnRepair(const link::RepairRequest& request) {
     for (const auto& wanted : request.wanted) {
       const auto retained = retained_.find(wanted.message);
       if (retained == retained_.end() || !retained->second.sent) continue;
-      const int count =
-          link::FragmentCount(retained->second.channel, retained->second.bytes.size(), options_.max_datagram_bytes);
+      const int count = link::FragmentCount(retained->second.channel, retained->second.bytes.size(), datagram_bytes_);
       const auto ask = [&](int index) {
         if (index < count && repairs_waiting_.insert({wanted.message, static_cast<uint16_t>(index)}).second) {
           repairs_.emplace_back(wanted.message, static_cast<uint16_t>(index));

@@ -32,6 +32,7 @@
 
 #include <lcm/lcm-cpp.hpp>
 
+#include "services/link/link_auth.h"
 #include "services/link/link_options.h"
 #include "services/link/link_wire.h"
 #include "stitch/link_status_t.hpp"
@@ -50,13 +51,15 @@ struct LinkCounts {
   int64_t datagrams_lost_injected = 0;
   int64_t fragments_repaired = 0;  // sent again because the other side asked
   int64_t repair_requests_sent = 0;
-  int64_t messages_delivered = 0;  // from the other side, published here
-  int64_t messages_given_up = 0;   // from the other side, never completed
-  int64_t datagrams_refused = 0;   // malformed or foreign
-  int64_t echoes_suppressed = 0;   // our own publications, not sent back
-  int64_t queued_bytes = 0;        // waiting now
-  double oldest_wait_s = 0;        // how long the oldest waiting message has waited
-  double seconds_since_peer = -1;  // since anything came from the other side; -1: never
+  int64_t messages_delivered = 0;         // from the other side, published here
+  int64_t messages_given_up = 0;          // from the other side, never completed
+  int64_t datagrams_refused = 0;          // malformed or foreign, unauthenticated and replayed included
+  int64_t datagrams_unauthenticated = 0;  // failed authentication (forged, another key, not sealed)
+  int64_t datagrams_replayed = 0;         // authentic, but accepted before (or an earlier run's)
+  int64_t echoes_suppressed = 0;          // our own publications, not sent back
+  int64_t queued_bytes = 0;               // waiting now
+  double oldest_wait_s = 0;               // how long the oldest waiting message has waited
+  double seconds_since_peer = -1;         // since anything came from the other side; -1: never
 };
 
 class LinkBridge {
@@ -148,6 +151,12 @@ class LinkBridge {
   lcm::LCM* lcm_;
   const LinkOptions options_;
   const uint64_t session_;
+  // With a key: what is sent is sealed (sender thread only) and what arrives opened (receiver
+  // thread only); fragments leave room for the seal.
+  std::optional<link::Sealer> sealer_;
+  std::optional<link::Opener> opener_;
+  int seal_overhead_ = 0;
+  int datagram_bytes_ = 0;  // options_.max_datagram_bytes less the seal
   int socket_ = -1;
   int local_port_ = 0;
   sockaddr_in peer_address_{};

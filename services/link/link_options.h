@@ -23,6 +23,11 @@ struct LinkOptions {
   double report_interval_s = 10;        // log the link's figures this often (0: never)
   // Injected impairments, for tests and rehearsals: each datagram sent is dropped with
   // probability `loss` and held for `delay_ms` (+ uniform jitter, which reorders).
+  // Every datagram is authenticated (link_auth.h) with the key both sides share, made by
+  // `stitch link keygen FILE` (mode 0600); without one the bridge refuses to start unless
+  // `insecure` says to run unauthenticated (a closed network, a tunnel that authenticates).
+  std::string key_file;
+  bool insecure = false;
   double loss = 0;
   double delay_ms = 0;
   double jitter_ms = 0;
@@ -43,6 +48,8 @@ struct LinkOptions {
     v("repair_rounds", repair_rounds, "requests for one message's datagrams before giving up on it");
     v("status_interval_s", status_interval_s, "how often each side says how far it has sent, seconds");
     v("report_interval_s", report_interval_s, "log the link's figures this often, seconds (0: never)");
+    v("key_file", key_file, "key both bridges share, from `stitch link keygen FILE` (every datagram authenticated)");
+    v("insecure", insecure, "run without a key: datagrams unauthenticated, anyone who reaches the port is believed");
     v("loss", loss, "injected: probability that a datagram sent is dropped (tests, rehearsals)");
     v("delay_ms", delay_ms, "injected: delay of every datagram sent, ms");
     v("jitter_ms", jitter_ms, "injected: extra uniform delay in [0, jitter_ms], which reorders datagrams");

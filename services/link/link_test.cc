@@ -5,7 +5,9 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <cerrno>
 #include <chrono>
+#include <cstring>
 #include <map>
 #include <mutex>
 #include <thread>
@@ -13,8 +15,10 @@
 #include <gtest/gtest.h>
 
 #include "services/common/bus.h"
+#include "services/link/link_auth.h"
 #include "services/link/link_bridge.h"
 #include "services/link/link_wire.h"
+#include "stitch/testing/temp_dir.h"
 #include "stitch/util/rng.h"
 #include "stitch/util/time.h"
 
@@ -197,8 +201,15 @@ class Collector {
 
 // Two buses (the aircraft's and the ground's), a bridge on each, joined over loopback.
 struct TwoSides {
+  // Authenticated as deployed: both sides share a new key, unless the options name one or say insecure.
   explicit TwoSides(LinkOptions aircraft_options = {}, LinkOptions ground_options = {}) {
-    const int aircraft_port = FreeUdpPort(), ground_port = FreeUdpPort();
+    key_file = (key_dir.path() / "link.key").string();
+    link::GenerateKeyFile(key_file);
+    for (LinkOptions* o : {&aircraft_options, &ground_options}) {
+      if (o->key_file.empty() && !o->insecure) o->key_file = key_file;
+    }
+    aircraft_port = FreeUdpPort();
+    const int ground_port = FreeUdpPort();
     aircraft_options.forward = "uav0/(SUBMAP|SEQUENCE)";
     aircraft_options.listen = "127.0.0.1:" + std::to_string(aircraft_port);
     aircraft_options.peer = "127.0.0.1:" + std::to_string(ground_port);
@@ -215,6 +226,7 @@ struct TwoSides {
     aircraft = std::make_unique<LinkBridge>(aircraft_bus.get(), aircraft_options);
     ground = std::make_unique<LinkBridge>(ground_bus.get(), ground_options);
     ground_settings = ground_options;
+    aircraft_settings = aircraft_options;
     aircraft_dispatcher = std::make_unique<bus::Dispatcher>(aircraft_bus.get());
     ground_dispatcher = std::make_unique<bus::Dispatcher>(ground_bus.get());
     aircraft_dispatcher->Start();
@@ -238,7 +250,19 @@ struct TwoSides {
     ground_dispatcher->Start();
     ground->Start();
   }
-  LinkOptions ground_settings;
+  void StopAircraft() {
+    aircraft_dispatcher->Stop();
+    aircraft.reset();
+  }
+  void StartAircraft() {
+    aircraft = std::make_unique<LinkBridge>(aircraft_bus.get(), aircraft_settings);
+    aircraft_dispatcher->Start();
+    aircraft->Start();
+  }
+  testing::TempDir key_dir;
+  std::string key_file;
+  int aircraft_port = 0;
+  LinkOptions ground_settings, aircraft_settings;
   std::unique_ptr<lcm::LCM> aircraft_bus, ground_bus;
   std::unique_ptr<Collector> aircraft_seen, ground_seen;
   std::unique_ptr<LinkBridge> aircraft, ground;
@@ -380,6 +404,56 @@ TEST(LinkBridge, RefusesGarbageAndForeignDatagramsAndKeepsWorking) {
   EXPECT_EQ(sides.ground_seen->Get("uav0/SUBMAP")[0], "after the garbage");
 }
 
+// The security issue's rows, against the ground's bridge, from the aircraft's own address and
+// port (its bridge down meanwhile, as if an attacker spoofed it): a 30-byte STATUS with session
+// 2^64-1 (it made the ground ignore every real datagram), datagrams sealed with another key, and
+// authentic datagrams sent again (replayed) or from an earlier run. None is acted on; each is
+// counted; the real aircraft is heard again after.
+TEST(LinkBridge, RefusesForgedAndReplayedDatagramsEvenFromThePeersAddress) {
+  TwoSides sides;
+  Publish(sides.aircraft_bus.get(), "uav0/SUBMAP", "before");
+  ASSERT_TRUE(sides.ground_seen->WaitFor("uav0/SUBMAP", 1, 5s));
+  sides.StopAircraft();
+  const int s = socket(AF_INET, SOCK_DGRAM, 0);
+  sockaddr_in from{}, to{};
+  from.sin_family = to.sin_family = AF_INET;
+  from.sin_addr.s_addr = to.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  from.sin_port = htons(static_cast<uint16_t>(sides.aircraft_port));
+  to.sin_port = htons(static_cast<uint16_t>(sides.ground->local_port()));
+  ASSERT_EQ(bind(s, reinterpret_cast<sockaddr*>(&from), sizeof(from)), 0) << std::strerror(errno);
+  const auto send = [&](const std::string& d) {
+    sendto(s, d.data(), d.size(), 0, reinterpret_cast<sockaddr*>(&to), sizeof(to));
+  };
+  const link::LinkKey key = link::LoadKeyFile(sides.key_file);
+  link::LinkKey wrong = key;
+  wrong[0] ^= 1;
+  const uint64_t now = static_cast<uint64_t>(WallUtime());
+  send(link::Encode(link::LinkStatus{~uint64_t{0}, 0, 0}));  // unsealed
+  link::Sealer forger(wrong, ~uint64_t{0});
+  send(forger.Seal(link::Encode(link::LinkStatus{~uint64_t{0}, 0, 0})));
+  send(forger.Seal(link::Encode(link::Fragment(~uint64_t{0}, 0, "uav0/SUBMAP", "forged", 1100)[0])));
+  // With the key (a datagram recorded off the air): taken once, refused when sent again.
+  link::Sealer recorded(key, now);
+  const std::string authentic = recorded.Seal(link::Encode(link::Fragment(now, 0, "uav0/SUBMAP", "once", 1100)[0]));
+  send(authentic);
+  send(authentic);
+  link::Sealer earlier_run(key, now - 1000000);  // a run of the aircraft before this one
+  send(earlier_run.Seal(link::Encode(link::Fragment(now - 1000000, 0, "uav0/SUBMAP", "earlier run", 1100)[0])));
+  std::this_thread::sleep_for(300ms);
+  close(s);
+  const LinkCounts counts = sides.ground->counts();
+  EXPECT_EQ(counts.datagrams_unauthenticated, 3);
+  EXPECT_EQ(counts.datagrams_replayed, 2);
+  const auto got = sides.ground_seen->Get("uav0/SUBMAP");
+  EXPECT_EQ(got, (std::vector<std::string>{"before", "once"}));
+  // The real aircraft comes back (a newer run) and is heard.
+  sides.StartAircraft();
+  Publish(sides.aircraft_bus.get(), "uav0/SUBMAP", "after");
+  ASSERT_TRUE(sides.ground_seen->WaitFor("uav0/SUBMAP", 3, 5s));
+  EXPECT_EQ(sides.ground_seen->Get("uav0/SUBMAP").back(), "after");
+  EXPECT_TRUE(sides.ground->Status(0).authenticated);
+}
+
 TEST(LinkBridge, BadSettingsAreRefusedWithTheReason) {
   auto lcm = bus::OpenLcm("memq://");
   const auto refused = [&](LinkOptions options) {
@@ -391,17 +465,24 @@ TEST(LinkBridge, BadSettingsAreRefusedWithTheReason) {
     }
   };
   LinkOptions options;
+  options.listen = "127.0.0.1:" + std::to_string(FreeUdpPort());
+  EXPECT_NE(refused(options).find("stitch link keygen"), std::string::npos);  // no key, not insecure
+  options.key_file = "/nonexistent/link.key";
+  EXPECT_NE(refused(options).find("no link key file"), std::string::npos);
+  options = LinkOptions();
   options.peer = "nowhere";
   EXPECT_NE(refused(options).find("ADDRESS:PORT"), std::string::npos);
   options = LinkOptions();
   options.loss = 1.5;
   EXPECT_NE(refused(options).find("link.loss"), std::string::npos);
   options = LinkOptions();
+  options.insecure = true;
   options.listen = "127.0.0.1:" + std::to_string(FreeUdpPort());
   options.peer = "no-such-host.invalid:7000";
   EXPECT_NE(refused(options).find("does not resolve"), std::string::npos);
   // Two bridges cannot listen on one port.
   options = LinkOptions();
+  options.insecure = true;
   options.listen = "127.0.0.1:" + std::to_string(FreeUdpPort());
   LinkBridge first(lcm.get(), options);
   EXPECT_NE(refused(options).find("cannot listen"), std::string::npos);

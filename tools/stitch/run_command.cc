@@ -17,6 +17,7 @@
 #include "services/common/bus.h"
 #include "services/common/service.h"
 #include "services/config/stitch_config.h"
+#include "services/link/link_auth.h"
 #include "stitch/sequence_info_t.hpp"
 #include "stitch/source/source.h"
 #include "stitch/tracking_status_t.hpp"
@@ -179,7 +180,9 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
                       ? (std::to_string(static_cast<int64_t>(config.link.budget_bytes_per_s)) + " B/s").c_str()
                       : "none",
                   a.netns ? ", two network namespaces" : ", loopback");
-    info.link = text;
+    info.link =
+        std::string(text) +
+        (config.link.insecure && config.link.key_file.empty() ? ", unauthenticated (insecure)" : ", authenticated");
   }
   info.source = source.description;
   info.dataset = a.dataset;
@@ -257,14 +260,25 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
       const std::string ground = network ? SplitNetwork::kGroundAddress : "127.0.0.1";
       const std::string air_port = std::to_string(RandomPort()), ground_port = std::to_string(RandomPort());
       merger = start("merger", "stitch-merger", merger_args);
+      // Authenticated as deployed: the config's key, else one made for this run (beside its outputs).
+      std::vector<std::string> key;
+      if (!config.link.key_file.empty()) {
+        key = {"--key", config.link.key_file};
+      } else if (!config.link.insecure) {
+        const std::string run_key = (fs::path(out) / "link.key").string();
+        link::GenerateKeyFile(run_key);
+        key = {"--key", run_key};
+      }
       std::vector<std::string> ground_link =
-          with(ground_common, {"--forward", a.agent + "/" + bus::kSubmapRequest, "--listen", ground + ":" + ground_port,
-                               "--peer", air + ":" + air_port});
+          with(with(ground_common, {"--forward", a.agent + "/" + bus::kSubmapRequest, "--listen",
+                                    ground + ":" + ground_port, "--peer", air + ":" + air_port}),
+               key);
       links.push_back(start("link-ground", "stitch-link", ground_link));
       if (network) network->EnterAircraft();
       links.push_back(start("link-aircraft", "stitch-link",
-                            with(common, {"--forward", a.agent + "/(SUBMAP|SEQUENCE|TRACKING_STATUS|SERVICE)",
-                                          "--listen", air + ":" + air_port, "--peer", ground + ":" + ground_port})));
+                            with(with(common, {"--forward", a.agent + "/(SUBMAP|SEQUENCE|TRACKING_STATUS|SERVICE)",
+                                               "--listen", air + ":" + air_port, "--peer", ground + ":" + ground_port}),
+                                 key)));
     } else {
       merger = start("merger", "stitch-merger", merger_args);
     }

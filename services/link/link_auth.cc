@@ -1,0 +1,152 @@
+#include "services/link/link_auth.h"
+
+#include <fcntl.h>
+#include <sodium.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstring>
+#include <fstream>
+
+#include "stitch/util/error.h"
+
+namespace stitch::link {
+namespace {
+
+constexpr uint8_t kSealMagic[4] = {'S', 'T', 'A', '1'};
+constexpr size_t kClearBytes = 4 + 8 + 8;
+
+void InitSodium() {
+  if (sodium_init() < 0) throw Error("libsodium cannot be initialized");
+}
+
+void PutLittleEndian(uint64_t value, uint8_t* out) {
+  for (int i = 0; i < 8; ++i) out[i] = static_cast<uint8_t>(value >> (8 * i));
+}
+
+uint64_t GetLittleEndian(const uint8_t* in) {
+  uint64_t value = 0;
+  for (int i = 7; i >= 0; --i) value = (value << 8) | in[i];
+  return value;
+}
+
+// The nonce of (session, counter): unique under one key while sessions are.
+void MakeNonce(uint64_t session, uint64_t counter, uint8_t* nonce) {
+  std::memset(nonce, 0, crypto_aead_xchacha20poly1305_ietf_NPUBBYTES);
+  PutLittleEndian(session, nonce);
+  PutLittleEndian(counter, nonce + 8);
+}
+
+}  // namespace
+
+void GenerateKeyFile(const std::string& path) {
+  InitSodium();
+  LinkKey key;
+  randombytes_buf(key.data(), key.size());
+  char hex[2 * 32 + 1];
+  sodium_bin2hex(hex, sizeof(hex), key.data(), key.size());
+  sodium_memzero(key.data(), key.size());
+  const int fd = open(path.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0600);
+  if (fd < 0) {
+    throw Error(path + ": cannot create the key file (" + std::strerror(errno) +
+                (errno == EEXIST ? "; a key is never overwritten: remove it first if you mean to" : "") + ")");
+  }
+  const std::string text = std::string(hex) + "\n";
+  const bool written = write(fd, text.data(), text.size()) == static_cast<ssize_t>(text.size()) && fsync(fd) == 0;
+  const int write_error = errno;
+  close(fd);
+  sodium_memzero(hex, sizeof(hex));
+  if (!written) {
+    unlink(path.c_str());
+    throw Error(path + ": writing the key failed (" + std::strerror(write_error) + ")");
+  }
+}
+
+LinkKey LoadKeyFile(const std::string& path) {
+  InitSodium();
+  struct stat info {};
+  if (stat(path.c_str(), &info) != 0) throw Error(path + ": no link key file (make one with `stitch link keygen`)");
+  if ((info.st_mode & 077) != 0) {
+    throw Error(path +
+                ": the link key is readable by others; chmod 600 it (and give both sides a new one if it "
+                "may have leaked)");
+  }
+  std::ifstream file(path);
+  std::string hex;
+  if (!(file >> hex)) throw Error(path + ": cannot read the link key");
+  LinkKey key;
+  size_t length = 0;
+  if (hex.size() != 64 ||
+      sodium_hex2bin(key.data(), key.size(), hex.data(), hex.size(), nullptr, &length, nullptr) != 0 ||
+      length != key.size()) {
+    throw Error(path + ": not a link key (64 hex digits, as `stitch link keygen` writes)");
+  }
+  return key;
+}
+
+Sealer::Sealer(const LinkKey& key, uint64_t session) : key_(key), session_(session) {
+  InitSodium();
+}
+
+std::string Sealer::Seal(const std::string& datagram) {
+  std::string sealed(kClearBytes + datagram.size() + crypto_aead_xchacha20poly1305_ietf_ABYTES, '\0');
+  auto* out = reinterpret_cast<uint8_t*>(sealed.data());
+  std::memcpy(out, kSealMagic, 4);
+  PutLittleEndian(session_, out + 4);
+  PutLittleEndian(counter_, out + 12);
+  uint8_t nonce[crypto_aead_xchacha20poly1305_ietf_NPUBBYTES];
+  MakeNonce(session_, counter_, nonce);
+  ++counter_;
+  unsigned long long length = 0;
+  crypto_aead_xchacha20poly1305_ietf_encrypt(out + kClearBytes, &length,
+                                             reinterpret_cast<const uint8_t*>(datagram.data()), datagram.size(), out,
+                                             kClearBytes, nullptr, nonce, key_.data());
+  return sealed;
+}
+
+Opener::Opener(const LinkKey& key) : key_(key) {
+  InitSodium();
+}
+
+Opener::Verdict Opener::Open(const uint8_t* bytes, size_t size, std::string* datagram) {
+  if (size < static_cast<size_t>(kSealOverheadBytes) || std::memcmp(bytes, kSealMagic, 4) != 0) {
+    return Verdict::kUnauthenticated;
+  }
+  const uint64_t session = GetLittleEndian(bytes + 4), counter = GetLittleEndian(bytes + 12);
+  uint8_t nonce[crypto_aead_xchacha20poly1305_ietf_NPUBBYTES];
+  MakeNonce(session, counter, nonce);
+  std::string plain(size - kClearBytes - crypto_aead_xchacha20poly1305_ietf_ABYTES, '\0');
+  unsigned long long length = 0;
+  if (crypto_aead_xchacha20poly1305_ietf_decrypt(reinterpret_cast<uint8_t*>(plain.data()), &length, nullptr,
+                                                 bytes + kClearBytes, size - kClearBytes, bytes, kClearBytes, nonce,
+                                                 key_.data()) != 0) {
+    return Verdict::kUnauthenticated;
+  }
+  // Authentic: now the session and the counter can be believed.
+  if (session < session_) return Verdict::kReplayed;  // an earlier run of the other side
+  if (session > session_) {
+    session_ = session;
+    any_ = false;
+    seen_.assign(kWindow, false);
+  }
+  if (any_) {
+    if (counter + kWindow <= newest_) return Verdict::kReplayed;  // fell out of the window
+    if (counter <= newest_ && seen_[counter % kWindow]) return Verdict::kReplayed;
+  }
+  if (!any_ || counter > newest_) {
+    if (!any_ || counter - newest_ >= kWindow) {
+      seen_.assign(kWindow, false);
+    } else {
+      for (uint64_t c = newest_ + 1; c < counter; ++c) seen_[c % kWindow] = false;
+    }
+    newest_ = counter;
+    any_ = true;
+  }
+  seen_[counter % kWindow] = true;
+  plain.resize(length);
+  *datagram = std::move(plain);
+  return Verdict::kOpened;
+}
+
+}  // namespace stitch::link
