@@ -70,6 +70,11 @@ LinkBridge::LinkBridge(lcm::LCM* lcm, LinkOptions options)
         "both sides and give it as link.key_file (or set link.insecure: true to run unauthenticated)");
   }
   datagram_bytes_ = options_.max_datagram_bytes - seal_overhead_;
+  try {
+    accept_ = std::regex(options_.accept, std::regex::extended);
+  } catch (const std::regex_error& e) {
+    throw Error("link.accept '" + options_.accept + "' is not a regular expression: " + e.what());
+  }
   const sockaddr_in listen = ResolveIpv4(options_.listen, "link.listen");
   const sockaddr_in peer = ResolveIpv4(options_.peer, "link.peer");
   peer_address_ = peer;
@@ -551,6 +556,9 @@ void LinkBridge::OnData(const link::DataFragment& fragment, double now) {
   if (fragment.message_bytes > kMaxMessageBytes)
     why = "a message of " + std::to_string(fragment.message_bytes) + " bytes";
   if (fragment.message > floor_ + 1000000) why = "message number far ahead of the rest";
+  if (!std::regex_match(fragment.channel, accept_)) {
+    why = "a message on " + fragment.channel + ", which this side does not take from the other (link.accept)";
+  }
   Partial* partial = nullptr;
   if (why.empty()) {
     partial = &incomplete_[fragment.message];
@@ -566,6 +574,9 @@ void LinkBridge::OnData(const link::DataFragment& fragment, double now) {
     }
   }
   if (!why.empty()) {
+    if (refused_log_.Allow()) {
+      STITCH_LOG(WARNING) << "link: refused " << why;
+    }
     std::lock_guard<std::mutex> counts_lock(counts_mutex_);
     ++counts_.datagrams_refused;
     return;

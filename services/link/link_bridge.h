@@ -24,6 +24,7 @@
 #include <mutex>
 #include <optional>
 #include <queue>
+#include <regex>
 #include <set>
 #include <string>
 #include <thread>
@@ -157,6 +158,7 @@ class LinkBridge {
   std::optional<link::Opener> opener_;
   int seal_overhead_ = 0;
   int datagram_bytes_ = 0;  // options_.max_datagram_bytes less the seal
+  std::regex accept_;       // options_.accept
   int socket_ = -1;
   int local_port_ = 0;
   sockaddr_in peer_address_{};

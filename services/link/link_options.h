@@ -10,6 +10,10 @@ struct LinkOptions {
   // LCM channels (a regular expression, as LCM subscribes) sent to the peer. The aircraft sends
   // its features and state down; the ground sends the merger's requests up.
   std::string forward = "uav0/(SUBMAP|SEQUENCE|TRACKING_STATUS|SERVICE)";
+  // LCM channels (a regular expression) this bridge publishes from the other side: what the
+  // other side's `forward` names, so a datagram for any other channel (a FRAME sent up to the
+  // aircraft) is refused. ".*": whatever the other side sends.
+  std::string accept = ".*";
   std::string listen = "0.0.0.0:7720";  // UDP address this bridge receives on
   std::string peer = "127.0.0.1:7721";  // UDP address of the bridge on the other side
   double budget_bytes_per_s = 0;        // 0: no limit; else datagrams (with UDP/IP headers) are paced to it
@@ -36,6 +40,7 @@ struct LinkOptions {
   template <class Visitor>
   void VisitFields(Visitor& v) {
     v("forward", forward, "LCM channels sent to the other side (regular expression)");
+    v("accept", accept, "LCM channels published from the other side (regular expression: the other side's forward)");
     v("listen", listen, "UDP address:port this bridge receives the other side on");
     v("peer", peer, "UDP address:port of the other side's bridge");
     v("budget_bytes_per_s", budget_bytes_per_s,
@@ -62,6 +67,7 @@ struct LinkOptions {
       return false;
     };
     if (forward.empty()) return fail("link.forward must name at least one channel");
+    if (accept.empty()) return fail("link.accept must name at least one channel (.* for any)");
     if (listen.find(':') == std::string::npos) return fail("link.listen must be ADDRESS:PORT");
     if (peer.find(':') == std::string::npos) return fail("link.peer must be ADDRESS:PORT");
     if (!(budget_bytes_per_s >= 0)) return fail("link.budget_bytes_per_s must be >= 0");

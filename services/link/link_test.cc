@@ -214,7 +214,9 @@ struct TwoSides {
     aircraft_options.listen = "127.0.0.1:" + std::to_string(aircraft_port);
     aircraft_options.peer = "127.0.0.1:" + std::to_string(ground_port);
     aircraft_options.report_interval_s = 0;
-    ground_options.forward = "uav0/(SUBMAP_REQUEST|SEQUENCE)";  // SEQUENCE both ways: no echo allowed
+    if (ground_options.forward == LinkOptions().forward) {
+      ground_options.forward = "uav0/(SUBMAP_REQUEST|SEQUENCE)";  // SEQUENCE both ways: no echo allowed
+    }
     ground_options.listen = "127.0.0.1:" + std::to_string(ground_port);
     ground_options.peer = "127.0.0.1:" + std::to_string(aircraft_port);
     ground_options.report_interval_s = 0;
@@ -454,6 +456,22 @@ TEST(LinkBridge, RefusesForgedAndReplayedDatagramsEvenFromThePeersAddress) {
   EXPECT_TRUE(sides.ground->Status(0).authenticated);
 }
 
+// The security issue's row: a FRAME sent up to the aircraft's bridge was published on the
+// aircraft's bus (and the tracker dropped the rest of the flight). Each side publishes only what
+// the other is meant to send (link.accept).
+TEST(LinkBridge, PublishesOnlyTheChannelsItAcceptsFromTheOtherSide) {
+  LinkOptions aircraft, ground;
+  aircraft.accept = "uav0/(SUBMAP_REQUEST|SEQUENCE)";
+  ground.forward = "uav0/(SUBMAP_REQUEST|SEQUENCE|FRAME)";  // a ground that sends what it should not
+  TwoSides sides(aircraft, ground);
+  Publish(sides.ground_bus.get(), "uav0/FRAME", "a frame from the ground");
+  Publish(sides.ground_bus.get(), "uav0/SUBMAP_REQUEST", "ask");
+  ASSERT_TRUE(sides.aircraft_seen->WaitFor("uav0/SUBMAP_REQUEST", 1, 5s));
+  std::this_thread::sleep_for(300ms);
+  EXPECT_TRUE(sides.aircraft_seen->Get("uav0/FRAME").empty());
+  EXPECT_EQ(sides.aircraft->counts().datagrams_refused, 1);
+}
+
 TEST(LinkBridge, BadSettingsAreRefusedWithTheReason) {
   auto lcm = bus::OpenLcm("memq://");
   const auto refused = [&](LinkOptions options) {
@@ -472,6 +490,11 @@ TEST(LinkBridge, BadSettingsAreRefusedWithTheReason) {
   options = LinkOptions();
   options.peer = "nowhere";
   EXPECT_NE(refused(options).find("ADDRESS:PORT"), std::string::npos);
+  options = LinkOptions();
+  options.accept = "uav0/(SUBMAP";
+  options.insecure = true;
+  options.listen = "127.0.0.1:" + std::to_string(FreeUdpPort());
+  EXPECT_NE(refused(options).find("link.accept"), std::string::npos);
   options = LinkOptions();
   options.loss = 1.5;
   EXPECT_NE(refused(options).find("link.loss"), std::string::npos);

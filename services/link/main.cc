@@ -49,6 +49,8 @@ int main(int argc, char** argv) {
                  "budget paces what is sent. Run one on each side of the link. Runs until SIGINT or SIGTERM.");
   common.Register(&args);
   args.AddOption("--forward", &given.forward, "REGEX", "channels to send to the other side (overrides link.forward)");
+  args.AddOption("--accept", &given.accept, "REGEX",
+                 "channels published from the other side: its --forward (overrides link.accept)");
   args.AddOption("--listen", &given.listen, "ADDR:PORT", "UDP address to receive on (overrides link.listen)");
   args.AddOption("--peer", &given.peer, "ADDR:PORT", "the other side's bridge (overrides link.peer)");
   args.AddOption("--budget", &given.budget_bytes_per_s, "BYTES/S",
@@ -64,15 +66,16 @@ int main(int argc, char** argv) {
       "Example, the aircraft (10.0.0.2) and the ground station (10.0.0.1), with a key made once by\n"
       "`stitch-link keygen uav0.key` and copied to both:\n"
       "  aircraft$ stitch-link --forward 'uav0/(SUBMAP|SEQUENCE|TRACKING_STATUS|SERVICE)' --key uav0.key \\\n"
-      "              --listen 0.0.0.0:7720 --peer 10.0.0.1:7721 --budget 250000\n"
+      "              --accept 'uav0/SUBMAP_REQUEST' --listen 0.0.0.0:7720 --peer 10.0.0.1:7721 --budget 250000\n"
       "  ground$   stitch-link --forward 'uav0/SUBMAP_REQUEST' --key uav0.key --listen 0.0.0.0:7721 \\\n"
-      "              --peer 10.0.0.2:7720\n"
+      "              --accept 'uav0/(SUBMAP|SEQUENCE|TRACKING_STATUS|SERVICE)' --peer 10.0.0.2:7720\n"
       "Every 10 s the log says what was sent, repaired and received.\n");
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {
     common.Apply("link");
     std::vector<std::string> settings = common.settings;
     if (args.Given("--forward")) settings.push_back(TextSetting("link.forward", given.forward));
+    if (args.Given("--accept")) settings.push_back(TextSetting("link.accept", given.accept));
     if (args.Given("--listen")) settings.push_back(TextSetting("link.listen", given.listen));
     if (args.Given("--peer")) settings.push_back(TextSetting("link.peer", given.peer));
     if (args.Given("--budget")) settings.push_back(NumberSetting("link.budget_bytes_per_s", given.budget_bytes_per_s));

@@ -260,6 +260,7 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
       const std::string ground = network ? SplitNetwork::kGroundAddress : "127.0.0.1";
       const std::string air_port = std::to_string(RandomPort()), ground_port = std::to_string(RandomPort());
       merger = start("merger", "stitch-merger", merger_args);
+      const std::string aircraft_sends = a.agent + "/(SUBMAP|SEQUENCE|TRACKING_STATUS|SERVICE)";
       // Authenticated as deployed: the config's key, else one made for this run (beside its outputs).
       std::vector<std::string> key;
       if (!config.link.key_file.empty()) {
@@ -270,15 +271,16 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
         key = {"--key", run_key};
       }
       std::vector<std::string> ground_link =
-          with(with(ground_common, {"--forward", a.agent + "/" + bus::kSubmapRequest, "--listen",
-                                    ground + ":" + ground_port, "--peer", air + ":" + air_port}),
+          with(with(ground_common, {"--forward", a.agent + "/" + bus::kSubmapRequest, "--accept", aircraft_sends,
+                                    "--listen", ground + ":" + ground_port, "--peer", air + ":" + air_port}),
                key);
       links.push_back(start("link-ground", "stitch-link", ground_link));
       if (network) network->EnterAircraft();
-      links.push_back(start("link-aircraft", "stitch-link",
-                            with(with(common, {"--forward", a.agent + "/(SUBMAP|SEQUENCE|TRACKING_STATUS|SERVICE)",
-                                               "--listen", air + ":" + air_port, "--peer", ground + ":" + ground_port}),
-                                 key)));
+      links.push_back(
+          start("link-aircraft", "stitch-link",
+                with(with(common, {"--forward", aircraft_sends, "--accept", a.agent + "/" + bus::kSubmapRequest,
+                                   "--listen", air + ":" + air_port, "--peer", ground + ":" + ground_port}),
+                     key)));
     } else {
       merger = start("merger", "stitch-merger", merger_args);
     }
