@@ -434,6 +434,10 @@ TEST(LinkBridge, RefusesForgedAndReplayedDatagramsEvenFromThePeersAddress) {
   link::Sealer forger(wrong, ~uint64_t{0});
   send(forger.Seal(link::Encode(link::LinkStatus{~uint64_t{0}, 0, 0})));
   send(forger.Seal(link::Encode(link::Fragment(~uint64_t{0}, 0, "uav0/SUBMAP", "forged", 1100)[0])));
+  // 30 forged repair requests for everything the ground sent (each answered, 1,350x amplification).
+  Publish(sides.ground_bus.get(), "uav0/SUBMAP_REQUEST", RandomBytes(50000, 77));
+  std::this_thread::sleep_for(200ms);
+  for (int i = 0; i < 30; ++i) send(link::Encode(link::RepairRequest{0, {{0, {}}, {1, {}}, {2, {}}}}));
   // With the key (a datagram recorded off the air): taken once, refused when sent again.
   link::Sealer recorded(key, now);
   const std::string authentic = recorded.Seal(link::Encode(link::Fragment(now, 0, "uav0/SUBMAP", "once", 1100)[0]));
@@ -444,8 +448,9 @@ TEST(LinkBridge, RefusesForgedAndReplayedDatagramsEvenFromThePeersAddress) {
   std::this_thread::sleep_for(300ms);
   close(s);
   const LinkCounts counts = sides.ground->counts();
-  EXPECT_EQ(counts.datagrams_unauthenticated, 3);
+  EXPECT_EQ(counts.datagrams_unauthenticated, 33);
   EXPECT_EQ(counts.datagrams_replayed, 2);
+  EXPECT_EQ(counts.fragments_repaired, 0);
   const auto got = sides.ground_seen->Get("uav0/SUBMAP");
   EXPECT_EQ(got, (std::vector<std::string>{"before", "once"}));
   // The real aircraft comes back (a newer run) and is heard.
