@@ -556,7 +556,8 @@ void LinkBridge::OnData(const link::DataFragment& fragment, double now) {
   if (fragment.message_bytes > kMaxMessageBytes)
     why = "a message of " + std::to_string(fragment.message_bytes) + " bytes";
   if (fragment.message > floor_ + 1000000) why = "message number far ahead of the rest";
-  if (!std::regex_match(fragment.channel, accept_)) {
+  const bool refused_channel = !std::regex_match(fragment.channel, accept_);
+  if (refused_channel) {
     why = "a message on " + fragment.channel + ", which this side does not take from the other (link.accept)";
   }
   Partial* partial = nullptr;
@@ -577,8 +578,11 @@ void LinkBridge::OnData(const link::DataFragment& fragment, double now) {
     if (refused_log_.Allow()) {
       STITCH_LOG(WARNING) << "link: refused " << why;
     }
-    std::lock_guard<std::mutex> counts_lock(counts_mutex_);
-    ++counts_.datagrams_refused;
+    {
+      std::lock_guard<std::mutex> counts_lock(counts_mutex_);
+      ++counts_.datagrams_refused;
+    }
+    if (refused_channel && fragment.message <= floor_ + 1000000) Finish(fragment.message);  // never asked for again
     return;
   }
   if (partial->have[fragment.index]) return;
