@@ -109,9 +109,9 @@ std::optional<LcmLogRecord> LcmLogReader::Next() {
   return std::nullopt;
 }
 
-int64_t LcmLogReader::damaged_bytes() const {
+int64_t DamagedBytes(const std::vector<LcmLogDamage>& damage) {
   int64_t total = 0;
-  for (const LcmLogDamage& d : damage_) total += d.length;
+  for (const LcmLogDamage& d : damage) total += d.length;
   return total;
 }
 

@@ -6,9 +6,9 @@
 // into another record: the bytes after it start the next record's sync word or end the file, or
 // (that sync word damaged) no record that checks out starts inside it. Anything else is a
 // damaged stretch, stepped over to the next record that checks out and reported, so the intact
-// records after damage are all read. No length is allocated before it is checked against the bytes that remain, and nothing
-// is read past the file's end. (liblcm's own reader stops at the first bad header and trusts the
-// data length it reads.)
+// records after damage are all read. No length is allocated before it is checked against the bytes that remain, and
+// nothing is read past the file's end. (liblcm's own reader stops at the first bad header and trusts the data length it
+// reads.)
 
 #include <cstdint>
 #include <fstream>
@@ -32,6 +32,9 @@ struct LcmLogDamage {
   int64_t length = 0;
 };
 
+// Bytes in all of `damage`.
+int64_t DamagedBytes(const std::vector<LcmLogDamage>& damage);
+
 class LcmLogReader {
  public:
   // Throws stitch::Error when the file cannot be opened.
@@ -42,7 +45,6 @@ class LcmLogReader {
 
   // The damaged stretches met so far, in file order.
   const std::vector<LcmLogDamage>& damage() const { return damage_; }
-  int64_t damaged_bytes() const;
   int64_t size() const { return size_; }
   const std::string& path() const { return path_; }
 

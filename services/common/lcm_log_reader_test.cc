@@ -101,7 +101,7 @@ TEST(LcmLogReader, ALengthOfTwoGigabytesIsNeitherTrustedNorAllocated) {
   const std::vector<LcmLogRecord> records = ReadAll(&reader);
   ASSERT_EQ(records.size(), 4u);
   EXPECT_EQ(records[1].data, written[2].data);
-  EXPECT_EQ(reader.damaged_bytes(), written[1].end - written[1].offset);
+  EXPECT_EQ(DamagedBytes(reader.damage()), written[1].end - written[1].offset);
 }
 
 TEST(LcmLogReader, ALengthThatRunsIntoTheNextRecordsIsCaught) {
@@ -140,7 +140,7 @@ TEST(LcmLogReader, AFileThatIsNoLogIsAllDamageAndAMissingOneIsAnError) {
   std::ofstream(path) << std::string(5000, 'x');
   LcmLogReader reader(path);
   EXPECT_TRUE(ReadAll(&reader).empty());
-  EXPECT_EQ(reader.damaged_bytes(), 5000);
+  EXPECT_EQ(DamagedBytes(reader.damage()), 5000);
   EXPECT_THROW(LcmLogReader((dir / "absent")), Error);
 }
 
@@ -179,7 +179,7 @@ TEST(LcmLogReader, DamagedLogsGiveBackEveryIntactRecord) {
     }
     LcmLogReader reader(path);
     const std::vector<LcmLogRecord> records = ReadAll(&reader);
-    int64_t covered = reader.damaged_bytes();
+    int64_t covered = DamagedBytes(reader.damage());
     std::set<int64_t> offsets;
     for (const LcmLogRecord& r : records) {
       covered += r.end - r.offset;

@@ -34,7 +34,6 @@ SubmapUpdateLogRead ReadSubmapUpdateLog(const std::string& path, const std::set<
     ++read.updates;
   }
   read.damage = reader.damage();
-  read.damaged_bytes = reader.damaged_bytes();
   if (read.undecodable > 0) {
     STITCH_LOG(WARNING) << path << ": skipped " << read.undecodable << " submap update records that do not decode";
   }
@@ -57,8 +56,8 @@ int64_t UpdateJournal::Recover(const std::function<void(const stitch::submap_upd
         STITCH_LOG(WARNING) << path_ << ": cut " << last.length << " bytes of a record left unfinished (moved to "
                             << aside << ")";
       } else {
-        STITCH_LOG(WARNING) << path_ << ": " << read.damage.size() << " damaged stretches, " << read.damaged_bytes
-                            << " bytes, the first at offset " << read.damage.front().offset
+        STITCH_LOG(WARNING) << path_ << ": " << read.damage.size() << " damaged stretches, "
+                            << DamagedBytes(read.damage) << " bytes, the first at offset " << read.damage.front().offset
                             << "; the intact records around them kept (" << count
                             << " submap updates), the damaged bytes moved to " << aside;
       }

@@ -23,7 +23,6 @@ struct SubmapUpdateLogRead {
   int64_t updates = 0;               // passed on
   int64_t undecodable = 0;           // records on the channels that do not decode (skipped)
   std::vector<LcmLogDamage> damage;  // stretches of the file that hold no whole record
-  int64_t damaged_bytes = 0;
   bool lost_anything() const { return undecodable > 0 || !damage.empty(); }
 };
 

@@ -56,13 +56,16 @@ TEST(UpdateJournal, ARecordCutShortByAKillIsDroppedAndTheJournalGoesOn) {
   EXPECT_EQ(Revisions(&again), (std::vector<int>{1, 2, 3, 5}));
 }
 
-// Each record of the journal: where it starts (the file's size before it was appended).
-std::vector<int64_t> AppendRevisions(UpdateJournal* journal, int from, int to) {
+// A journal in `dir` holding revisions 1..last; where each record starts, and the journal's path.
+std::vector<int64_t> JournalOfRevisions(const testing::TempDir& dir, int last, std::string* path) {
+  UpdateJournal journal(dir.path().string(), {"uav0/SUBMAP"});
+  Revisions(&journal);
   std::vector<int64_t> offsets;
-  for (int r = from; r <= to; ++r) {
-    offsets.push_back(static_cast<int64_t>(std::filesystem::file_size(journal->path())));
-    journal->Append(Update(r));
+  for (int r = 1; r <= last; ++r) {
+    offsets.push_back(static_cast<int64_t>(std::filesystem::file_size(journal.path())));
+    journal.Append(Update(r));
   }
+  *path = journal.path();
   return offsets;
 }
 
@@ -77,13 +80,7 @@ void Overwrite(const std::string& path, int64_t offset, const std::string& bytes
 TEST(UpdateJournal, FourZeroedBytesMidFileCostOneRecordAndEveryRecordAfterThemIsKept) {
   testing::TempDir dir;
   std::string path;
-  std::vector<int64_t> offsets;
-  {
-    UpdateJournal journal(dir.path().string(), {"uav0/SUBMAP"});
-    Revisions(&journal);
-    offsets = AppendRevisions(&journal, 1, 8);
-    path = journal.path();
-  }
+  const std::vector<int64_t> offsets = JournalOfRevisions(dir, 8, &path);
   const auto size = std::filesystem::file_size(path);
   Overwrite(path, offsets[3], std::string(4, '\0'));
   {
@@ -104,13 +101,7 @@ TEST(UpdateJournal, FourZeroedBytesMidFileCostOneRecordAndEveryRecordAfterThemIs
 TEST(UpdateJournal, ALengthFieldOfTwoGigabytesNeitherCrashesNorLosesTheOtherRecords) {
   testing::TempDir dir;
   std::string path;
-  std::vector<int64_t> offsets;
-  {
-    UpdateJournal journal(dir.path().string(), {"uav0/SUBMAP"});
-    Revisions(&journal);
-    offsets = AppendRevisions(&journal, 1, 5);
-    path = journal.path();
-  }
+  const std::vector<int64_t> offsets = JournalOfRevisions(dir, 5, &path);
   Overwrite(path, offsets[1] + 24, "\x7f\xff\xff\xff");
   UpdateJournal journal(dir.path().string(), {"uav0/SUBMAP"});
   EXPECT_EQ(Revisions(&journal), (std::vector<int>{1, 3, 4, 5}));

@@ -7,6 +7,7 @@
 
 #include <fstream>
 #include <functional>
+#include <initializer_list>
 #include <limits>
 #include <map>
 #include <mutex>
@@ -330,6 +331,15 @@ TEST(Ingest, AnAckForAFrameNotSentYetIsRefused) {
   EXPECT_EQ(summary.acks_refused, 1);
 }
 
+// Publishes `frame` numbered each of `indices` in turn, 30 ms apart.
+void PublishAs(bus::Publisher* publisher, stitch::frame_t* frame, std::initializer_list<int> indices) {
+  for (int index : indices) {
+    frame->frame_index = index;
+    publisher->Publish(bus::Channel("uav0", bus::kFrame), frame);
+    std::this_thread::sleep_for(30ms);
+  }
+}
+
 TEST(Tracker, DuplicateFramesAreAckedAgainButTrackedOnce) {
   auto lcm = bus::OpenLcm("memq://");
   bus::Publisher publisher(lcm.get(), "uav0");
@@ -348,11 +358,7 @@ TEST(Tracker, DuplicateFramesAreAckedAgainButTrackedOnce) {
   stitch::frame_t frame{};
   frame.camera = ToMessage(Camera::Pinhole(64, 48, 50, 50, 31.5, 23.5));
   EncodeImage(cv::Mat(48, 64, CV_8U, cv::Scalar(9)), ImageEncoding::kGray8, 90, &frame);
-  for (int index : {0, 1, 1, 2, 1}) {  // a re-send of 1, then a late copy of 1
-    frame.frame_index = index;
-    publisher.Publish(bus::Channel("uav0", bus::kFrame), &frame);
-    std::this_thread::sleep_for(30ms);
-  }
+  PublishAs(&publisher, &frame, {0, 1, 1, 2, 1});  // a re-send of 1, then a late copy of 1
   std::this_thread::sleep_for(100ms);
   tracker.Stop();
   dispatcher.Stop();
@@ -391,21 +397,14 @@ TEST(Tracker, AFrameFarAheadOfItsSessionOrOfAnotherSizeIsRefused) {
   frame.camera = ToMessage(Camera::Pinhole(64, 48, 50, 50, 31.5, 23.5));
   EncodeImage(cv::Mat(48, 64, CV_8U, cv::Scalar(9)), ImageEncoding::kGray8, 90, &frame);
   stitch::frame_t forged = frame;
-  forged.frame_index = std::numeric_limits<int32_t>::max();
   forged.data.clear();
   forged.num_bytes = 0;
   stitch::frame_t wrong_size = frame;
   EncodeImage(cv::Mat(480, 640, CV_8U, cv::Scalar(9)), ImageEncoding::kGray8, 90, &wrong_size);
-  wrong_size.frame_index = 1;
-  for (stitch::frame_t* f : {&frame, &forged, &wrong_size}) {
-    publisher.Publish(bus::Channel("uav0", bus::kFrame), f);
-    std::this_thread::sleep_for(30ms);
-  }
-  for (int index : {2, 3}) {
-    frame.frame_index = index;
-    publisher.Publish(bus::Channel("uav0", bus::kFrame), &frame);
-    std::this_thread::sleep_for(30ms);
-  }
+  PublishAs(&publisher, &frame, {0});
+  PublishAs(&publisher, &forged, {std::numeric_limits<int32_t>::max()});
+  PublishAs(&publisher, &wrong_size, {1});
+  PublishAs(&publisher, &frame, {2, 3});
   std::this_thread::sleep_for(100ms);
   tracker.Stop();
   dispatcher.Stop();

@@ -59,7 +59,7 @@ int MapCommand(int argc, char** argv) {
       std::fprintf(stderr,
                    "stitch map: warning: %s is damaged: %zu damaged stretches (%lld bytes, the first at offset %lld) "
                    "and %lld records that do not decode were stepped over; the map lacks what they held\n",
-                   logs[0].c_str(), read.damage.size(), static_cast<long long>(read.damaged_bytes),
+                   logs[0].c_str(), read.damage.size(), static_cast<long long>(DamagedBytes(read.damage)),
                    static_cast<long long>(read.damage.empty() ? -1 : read.damage.front().offset),
                    static_cast<long long>(read.undecodable));
       return 3;
