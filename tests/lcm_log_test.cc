@@ -4,15 +4,20 @@
 #include <unistd.h>
 
 #include <filesystem>
+#include <fstream>
 #include <map>
+#include <sstream>
 #include <thread>
 
 #include <gtest/gtest.h>
 
 #include "services/common/bus.h"
 #include "stitch/frame_t.hpp"
+#include "stitch/link_status_t.hpp"
+#include "stitch/submap_request_t.hpp"
 #include "stitch/submap_update_t.hpp"
 #include "stitch/testing/temp_dir.h"
+#include "stitch/util/child_process.h"
 #include "stitch/util/ids.h"
 #include "tests/test_process.h"
 
@@ -93,6 +98,93 @@ TEST(LcmLog, StitchRecordKeepsWhatCrossesToTheGroundAndNoImages) {
   const auto again = RunProgram({Bin("stitch"), "record", "--lcm-url", url, log}, 10);
   EXPECT_EQ(again.exit_code, 1);
   EXPECT_NE(again.output.find("exists"), std::string::npos) << again.output;
+}
+
+// What lcm-spy shows of a run: every channel a run publishes decodes with stitch's Java types,
+// by fingerprint as lcm-spy finds them (`stitch spy --log` on a recording of the whole bus).
+TEST(LcmLog, StitchSpyDecodesEveryChannelOfARecordedRun) {
+  if (!testing::OnPath("lcm-logger")) GTEST_SKIP() << "lcm-logger not installed (Debian package liblcm-bin)";
+  if (!std::filesystem::exists(std::filesystem::path(Bin("stitch")).parent_path() / ".." / "share" / "java" /
+                               "stitch-lcmtypes.jar")) {
+    GTEST_SKIP() << "stitch was built without its Java types (Debian packages default-jdk-headless, liblcm-java)";
+  }
+  testing::TempDir dir;
+  const std::string url = bus::LocalUdpUrl(7700 + getpid() % 90);
+  const std::string log = dir / "run.lcmlog";
+  ChildProcess recorder("recorder", Bin("stitch"), {"record", "--all", "--lcm-url", url, log}, dir / "record.log");
+  std::this_thread::sleep_for(1s);
+  const auto run = RunProgram(
+      {Bin("stitch"), "run", "--lcm-url", url, "--config", std::string(STITCH_SOURCE_DIR) + "/tests/short_flight.yaml",
+       "--failures", "none", "--out", dir / "run", "--quiet"},
+      150);
+  {
+    // The two channels a run on one bus does not use: the link bridges' status, and a request
+    // for what the link lost (the merger asks only when something is missing).
+    auto lcm = bus::OpenLcm(url);
+    bus::Publisher publisher(lcm.get(), "uav0");
+    stitch::link_status_t status{};
+    publisher.Publish(bus::Channel("uav0", bus::kLinkStatus), &status);
+    stitch::submap_request_t request{};
+    request.submap_id = MakeSubmapId(0, 1).value;
+    publisher.Publish(bus::Channel("uav0", bus::kSubmapRequest), &request);
+  }
+  std::this_thread::sleep_for(500ms);  // the logger writes the last messages
+  recorder.Terminate(std::chrono::seconds(10));
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  const auto spy = RunProgram({Bin("stitch"), "spy", "--log", log}, 60);
+  ASSERT_EQ(spy.exit_code, 0) << spy.output;
+  // channel, type, messages, decoded, undecodable
+  std::map<std::string, std::string> types;
+  std::istringstream lines(spy.output);
+  for (std::string line; std::getline(lines, line);) {
+    std::istringstream fields(line);
+    std::string channel, type;
+    long long messages = -1, decoded = -1, undecodable = -1;
+    if (!(fields >> channel >> type >> messages >> decoded >> undecodable)) continue;
+    types[channel] = type;
+    EXPECT_GT(messages, 0) << line;
+    EXPECT_EQ(decoded, messages) << line;
+    EXPECT_EQ(undecodable, 0) << line;
+  }
+  const std::map<std::string, std::string> expected = {{"uav0/FRAME", "stitch.frame_t"},
+                                                       {"uav0/FRAME_ACK", "stitch.frame_ack_t"},
+                                                       {"uav0/SEQUENCE", "stitch.sequence_info_t"},
+                                                       {"uav0/TRACKING_STATUS", "stitch.tracking_status_t"},
+                                                       {"uav0/KEYFRAME", "stitch.keyframe_t"},
+                                                       {"uav0/LOCAL_MAP", "stitch.local_map_update_t"},
+                                                       {"uav0/SUBMAP", "stitch.submap_update_t"},
+                                                       {"uav0/GLOBAL_MAP", "stitch.global_map_t"},
+                                                       {"uav0/SERVICE", "stitch.service_status_t"},
+      {"uav0/LINK_STATUS", "stitch.link_status_t"},
+      {"uav0/SUBMAP_REQUEST", "stitch.submap_request_t"}};
+  for (const auto& [channel, type] : expected) EXPECT_EQ(types[channel], type) << channel << "\n" << spy.output;
+  // The same log decoded in Lua with the generated Lua types (Debian's liblcm-lua).
+  if (testing::OnPath("lua5.2") && std::filesystem::exists("/usr/lib/lua/5.2/lcm.so")) {
+    const std::string lua_path =
+        (std::filesystem::path(Bin("stitch")).parent_path() / ".." / "share" / "lua").lexically_normal().string();
+    const auto lua = RunProgram({"/usr/bin/env", "LUA_PATH=" + lua_path + "/?.lua;;", "lua5.2",
+                                 std::string(STITCH_SOURCE_DIR) + "/tools/spy/decode_log.lua", log},
+                                60);
+    ASSERT_EQ(lua.exit_code, 0) << lua.output;
+    for (const auto& [channel, type] : expected) {
+      // "channel<TAB>type<TAB>messages<TAB>decoded<TAB>0": the Java line, decoded the same.
+      const size_t java = spy.output.find(channel + "\t" + type + "\t");
+      ASSERT_NE(java, std::string::npos) << channel;
+      const std::string line = spy.output.substr(java, spy.output.find('\n', java) - java);
+      EXPECT_NE(lua.output.find(line), std::string::npos) << line << "\nnot in Lua's\n" << lua.output.substr(0, 2000);
+    }
+  } else {
+    std::printf("lua5.2 or liblcm-lua not installed: the Lua decoding is not checked\n");
+  }
+  // A file that is no log is said to be none.
+  std::ofstream(dir / "garbage.lcmlog") << "not an LCM log at all";
+  const auto garbage = RunProgram({Bin("stitch"), "spy", "--log", dir / "garbage.lcmlog"}, 60);
+  EXPECT_NE(garbage.exit_code, 0);
+  EXPECT_NE(garbage.output.find("not an LCM log"), std::string::npos) << garbage.output;
+  // Without a display the live view says what to do instead.
+  const auto live = RunProgram({"/usr/bin/env", "-u", "DISPLAY", "-u", "WAYLAND_DISPLAY", Bin("stitch"), "spy"}, 30);
+  EXPECT_NE(live.exit_code, 0);
+  EXPECT_NE(live.output.find("--log FILE"), std::string::npos) << live.output;
 }
 
 }  // namespace

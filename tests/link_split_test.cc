@@ -75,6 +75,15 @@ void ExpectSameResult(const RunResult& plain, const RunResult& split, const std:
   EXPECT_GT(split.kept.size(), 10u) << what;
   EXPECT_EQ(split.merged, split.kept) << what << ": keyframes missing from the merged map";
   EXPECT_NEAR(split.report["ate_rmse_m"].get<double>(), plain.report["ate_rmse_m"].get<double>(), 0.05) << what;
+  // The merger's verdict on each pair of submaps is in the report: the merges, none refused.
+  ASSERT_TRUE(split.report.contains("merges")) << what;
+  int merged = 0;
+  for (const auto& edge : split.report["merges"]) {
+    const std::string status = edge["status"].get<std::string>();
+    merged += status == "merged";
+    EXPECT_EQ(status.find("refused"), std::string::npos) << what << ": " << edge.dump();
+  }
+  EXPECT_EQ(merged + 1, split.report["submaps_merged"].get<int>()) << what << ": " << split.report["merges"].dump();
   EXPECT_FALSE(split.info["link"].get<std::string>().empty()) << what;
   const auto figures = split.info["link_figures"];
   ASSERT_EQ(figures.size(), 2u) << what << "\n" << split.output;

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
+#include <set>
 #include <sstream>
 #include <thread>
 
@@ -12,6 +13,7 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/videoio.hpp>
 
+#include "stitch/io/colmap_model.h"
 #include "stitch/io/ply.h"
 #include "stitch/io/trajectory.h"
 #include "stitch/records/frame_record.h"
@@ -29,6 +31,17 @@ using testing::RunProgram;
 
 using testing::ReadJson;
 const std::string kShortFlight = testing::ShortFlightConfig();
+
+// The images `stitch render` wrote to `folder` (named by their time in seconds), in time order.
+std::vector<fs::path> RenderedImagesInTimeOrder(const std::string& folder) {
+  std::vector<fs::path> images;
+  for (const auto& entry : fs::directory_iterator(folder)) {
+    if (entry.path().extension() == ".png") images.push_back(entry.path());
+  }
+  std::sort(images.begin(), images.end(),
+            [](const fs::path& a, const fs::path& b) { return std::stod(a.stem()) < std::stod(b.stem()); });
+  return images;
+}
 
 TEST(StitchRun, TracksAShortFlightWithTheServicesAsProcesses) {
   testing::TempDir dir;
@@ -112,6 +125,8 @@ TEST(StitchRun, BadInputsGiveAClearErrorAndANonZeroExit) {
       {{Bin("stitch-link"), "--peer", "nowhere"}, "ADDRESS:PORT"},
       {{Bin("stitch-link"), "--loss", "2"}, "link.loss"},
       {{Bin("stitch"), "run", "--link-loss", "0.1"}, "need --link"},
+      {{Bin("stitch"), "run", "--vocabulary", dir / "ORBvoc.txt"}, "no such vocabulary file"},
+      {{Bin("stitch"), "run", "--start-frame", "-3"}, "--start-frame must be >= 0"},
       {{Bin("stitch"), "run", "--live", "flight.mp4", "--calib", dir / "calib.yaml"}, "GStreamer pipeline"},
       {{Bin("stitch"), "run", "--live", "/dev/video0"}, "--calib"},
       {{Bin("stitch-ingest"), "--live", "/dev/video-none", "--calib", dir / "calib.yaml", "--lcm-url", "memq://",
@@ -134,6 +149,9 @@ TEST(StitchRun, EveryCommandHasHelp) {
                                                                                     {Bin("stitch"), "eval", "--help"},
                                                                                     {Bin("stitch"), "render", "--help"},
                                                                                     {Bin("stitch"), "config", "--help"},
+                                                                                    {Bin("stitch"), "merger", "--help"},
+                                                                                    {Bin("stitch"), "spy", "--help"},
+                                                                                    {Bin("stitch"), "export", "--help"},
                                                                                     {Bin("stitch-ingest"), "--help"},
                                                                                     {Bin("stitch-tracker"), "--help"},
                                                                                     {Bin("stitch"), "link", "--help"},
@@ -152,10 +170,139 @@ TEST(StitchRender, WritesAFolderThatRunsAsADataset) {
   ASSERT_EQ(render.exit_code, 0) << render.output;
   EXPECT_TRUE(fs::exists(images + "/camera.yaml"));
   EXPECT_EQ(Trajectory::ReadTum(images + "/groundtruth.txt").size(), 12u);
-  const auto run = RunProgram({Bin("stitch"), "run", "--dataset", images, "--out", dir / "run"}, 60);
+  // As an ORB-SLAM user would run it: their settings file as it is (ORB-SLAM2's `key:value`
+  // without a space, ORBextractor.*), a vocabulary named on the command line, a start frame.
+  {
+    std::ifstream camera(images + "/camera.yaml");
+    std::ofstream(dir / "orbslam.yaml") << camera.rdbuf() << "ORBextractor.nFeatures: 800\nViewer.PointSize:2\n";
+  }
+  // One image damaged on disk: played as unreadable, counted in the report and the summary.
+  const std::vector<fs::path> pngs = RenderedImagesInTimeOrder(images);
+  ASSERT_EQ(pngs.size(), 12u);
+  std::ofstream(pngs[7]) << "not a png any more";
+  const std::string vocabulary = std::string(STITCH_SOURCE_DIR) + "/vocabulary/default.stitchvoc";
+  const auto run = RunProgram({Bin("stitch"), "run", "--dataset", images, "--out", dir / "run", "--calib",
+                               dir / "orbslam.yaml", "--vocabulary", vocabulary, "--start-frame", "2"},
+                              60);
   ASSERT_EQ(run.exit_code, 0) << run.output;
-  EXPECT_EQ(ReadJson(dir / "run/report.json")["frames_total"], 12);
+  EXPECT_EQ(ReadJson(dir / "run/report.json")["frames_total"], 10);
+  EXPECT_EQ(ReadJson(dir / "run/report.json")["frames_unreadable"], 1);
+  EXPECT_NE(run.output.find("1 frames could not be read"), std::string::npos) << run.output;
   EXPECT_EQ(ReadJson(dir / "run/report.json")["has_ground_truth"], true);
+  // The ground truth of the frames played, and the sample before them (to interpolate at the start).
+  EXPECT_EQ(Trajectory::ReadTum(dir / "run/groundtruth.tum").size(), 11u);
+  EXPECT_NE(run.output.find("tracker.tracking.orb.num_features=800"), std::string::npos) << run.output;
+  std::stringstream config, tracker_log;
+  config << std::ifstream(dir / "run/config.yaml").rdbuf();
+  EXPECT_NE(config.str().find("num_features: 800"), std::string::npos);
+  tracker_log << std::ifstream(dir / "run/logs/tracker.log").rdbuf();
+  EXPECT_NE(tracker_log.str().find("vocabulary " + vocabulary), std::string::npos) << tracker_log.str();
+}
+
+// A KITTI odometry sequence (the short flight laid out as KITTI ships one) gives its trajectory
+// in KITTI's format, in the ground truth's frame, with each line's frame number; every map has
+// its own TUM file under trajectories/.
+TEST(StitchRun, AKittiSequenceGivesItsTrajectoryInKittiFormatAndEveryMapItsOwnFile) {
+  testing::TempDir dir;
+  const std::string images = dir / "flight";
+  const auto render = RunProgram(
+      {Bin("stitch"), "render", "--config", kShortFlight, "--out", images, "--failures", "none", "--max-frames", "40"},
+      60);
+  ASSERT_EQ(render.exit_code, 0) << render.output;
+  const Trajectory truth = Trajectory::ReadTum(images + "/groundtruth.txt");
+  ASSERT_EQ(truth.size(), 40u);
+  const fs::path sequence = dir.path() / "kitti" / "sequences" / "03";
+  fs::create_directories(sequence / "image_0");
+  fs::create_directories(dir.path() / "kitti" / "poses");
+  std::ofstream times(sequence / "times.txt"), poses(dir.path() / "kitti" / "poses" / "03.txt");
+  poses.precision(10);
+  for (size_t i = 0; i < truth.size(); ++i) {
+    const StampedPose& p = truth.poses()[i];
+    char name[32], stamp[32];
+    std::snprintf(name, sizeof(name), "%06zu.png", i);
+    std::snprintf(stamp, sizeof(stamp), "%.9f", p.t_ns * 1e-9);
+    fs::rename(images + "/" + stamp + ".png", sequence / "image_0" / name);
+    times << stamp << "\n";
+    const Eigen::Matrix3d r = p.world_from_cam.rotation.toRotationMatrix();
+    for (int row = 0; row < 3; ++row) {
+      poses << r(row, 0) << " " << r(row, 1) << " " << r(row, 2) << " " << p.world_from_cam.translation[row]
+            << (row == 2 ? "\n" : " ");
+    }
+  }
+  times.close();
+  poses.close();
+  std::ofstream(sequence / "calib.txt") << "P0: 450 0 319.5 0 0 450 239.5 0 0 0 1 0\n";
+  const std::string out = dir / "run";
+  const auto run = RunProgram(
+      {Bin("stitch"), "run", "--dataset", sequence.string(), "--out", out, "--failures", "none", "--start-frame", "4"},
+      120);
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  // One line per frame of the largest map, 12 numbers, at the ground truth of its frame number.
+  std::ifstream lines(out + "/trajectory_kitti.txt"), frames(out + "/trajectory_kitti_frames.txt");
+  std::string line;
+  int count = 0, frame = -1;
+  double worst = 0;
+  while (std::getline(lines, line)) {
+    ASSERT_TRUE(frames >> frame) << "a frame number for every line";
+    std::istringstream fields(line);
+    double m[12];
+    for (double& v : m) ASSERT_TRUE(fields >> v) << line;
+    ASSERT_GE(frame, 4);
+    ASSERT_LT(frame, 40);
+    worst =
+        std::max(worst, (Eigen::Vector3d(m[3], m[7], m[11]) - truth.poses()[frame].world_from_cam.translation).norm());
+    ++count;
+  }
+  EXPECT_GE(count, 30) << run.output;
+  EXPECT_LT(worst, 1.0) << "metres from the ground truth, on a 40-frame flight over a 69 m strip";
+  EXPECT_EQ(count, ReadJson(out + "/report.json")["frames_localized"].get<int>());
+  // trajectories/: the largest map's file and an index naming it.
+  std::stringstream index;
+  index << std::ifstream(out + "/trajectories/index.tsv").rdbuf();
+  EXPECT_NE(index.str().find("yes"), std::string::npos) << index.str();
+  const std::string first = index.str().substr(index.str().find('\n') + 1);
+  EXPECT_EQ(Trajectory::ReadTum(out + "/trajectories/" + first.substr(0, first.find('\t'))).size(),
+            static_cast<size_t>(count));
+}
+
+// A survey densified elsewhere: the run's map as a COLMAP sparse model on the flight's image
+// files, which reads back with a reprojection error under 2 px and which COLMAP accepts.
+TEST(StitchExport, AColmapModelOfARunReadsBackOnItsImagesAndColmapAcceptsIt) {
+  testing::TempDir dir;
+  const std::string images = dir / "flight";
+  const auto render =
+      RunProgram({Bin("stitch"), "render", "--config", kShortFlight, "--out", images, "--max-frames", "60"}, 60);
+  ASSERT_EQ(render.exit_code, 0) << render.output;
+  const std::string out = dir / "run";
+  const auto run = RunProgram({Bin("stitch"), "run", "--dataset", images, "--out", out, "--start-frame", "2"}, 120);
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  const std::string model_dir = dir / "model";
+  const auto exported = RunProgram({Bin("stitch"), "export", "colmap", out, "--out", model_dir}, 60);
+  ASSERT_EQ(exported.exit_code, 0) << exported.output;
+  const ColmapModel model = ReadColmapModel(model_dir);
+  EXPECT_GT(model.images.size(), 10u);
+  EXPECT_GT(model.points.size(), 500u);
+  EXPECT_LT(ReprojectionRms(model), 2.0);
+  EXPECT_EQ(model.camera.width(), 640);
+  for (const ColmapImage& image : model.images) {
+    EXPECT_TRUE(fs::exists(fs::path(images) / image.name)) << image.name;
+  }
+  // The first keyframe is the first frame played: the third image file.
+  EXPECT_EQ(model.images.front().name, RenderedImagesInTimeOrder(images).at(2).filename().string());
+  // The points are coloured from the images (the rendered world is not one grey).
+  std::set<int> reds;
+  for (const ColmapPoint& point : model.points) reds.insert(point.rgb[0]);
+  EXPECT_GT(reds.size(), 10u);
+  // Refused: a second export into the same folder; a run without a model.
+  EXPECT_NE(RunProgram({Bin("stitch"), "export", "colmap", out, "--out", model_dir}, 30).exit_code, 0);
+  EXPECT_NE(RunProgram({Bin("stitch"), "export", "colmap", dir / "flight", "--out", dir / "m2"}, 30).exit_code, 0);
+  if (!testing::OnPath("colmap"))
+    GTEST_SKIP() << "COLMAP is not installed (Debian package colmap): model_analyzer not run";
+  const auto analyzer =
+      RunProgram({"/usr/bin/env", "QT_QPA_PLATFORM=offscreen", "colmap", "model_analyzer", "--path", model_dir}, 120);
+  EXPECT_EQ(analyzer.exit_code, 0) << analyzer.output;
+  EXPECT_NE(analyzer.output.find("Registered images: " + std::to_string(model.images.size())), std::string::npos)
+      << analyzer.output;
 }
 
 // A live camera end to end: a GStreamer pipeline plays a rendered flight at its 20 fps (as a
@@ -168,12 +315,7 @@ TEST(StitchRun, TracksALiveGStreamerSource) {
       60);
   ASSERT_EQ(render.exit_code, 0) << render.output;
   // multifilesrc reads numbered files: the frames in time order as 00000.png, 00001.png, ...
-  std::vector<fs::path> frames;
-  for (const auto& entry : fs::directory_iterator(images)) {
-    if (entry.path().extension() == ".png") frames.push_back(entry.path());
-  }
-  std::sort(frames.begin(), frames.end(),
-            [](const fs::path& a, const fs::path& b) { return std::stod(a.stem()) < std::stod(b.stem()); });
+  const std::vector<fs::path> frames = RenderedImagesInTimeOrder(images);
   ASSERT_EQ(frames.size(), 60u);
   const std::string numbered = dir / "numbered";
   fs::create_directories(numbered);

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Breaks each stage of the tracker and the mapper once and checks that its unit test fails.
+"""Breaks each stage of the tracker, the mapper and the merger's acceptance checks once and checks that its unit test fails.
 
 For each deliberate mistake below: edit the source, rebuild the stage's test program, run the
 stage's tests, restore the source (always). Prints CAUGHT (a test failed, as it must) or MISSED
@@ -41,6 +41,16 @@ MISTAKES = [
  ("keyframe decision: keyframes in flight ignored","src/stitch/tracking/tracking.cc","KeyframesInFlight() < options_.keyframes_in_flight","true","tracking_test","KeyframeDecision.*"),
  ("keyframe culling: redundancy test","src/stitch/mapping/culling.cc","if (points > 0 && redundant > redundancy * points) {","if (points > 0 && redundant > points) {","mapping_test","KeyframeCulling.*"),
  ("keyframe culling: keeps nothing","src/stitch/mapping/culling.cc","if (candidate == keep || candidate == keyframe) continue;","if (candidate == keyframe) continue;","mapping_test","KeyframeCulling.*"),
+]
+
+MISTAKES += [
+ ("merger acceptance: points on a line accepted","src/stitch/merging/submap_graph.cc","if (g.line_ratio < options.min_line_ratio) {","if (false) {","acceptance_test","Acceptance.PointsOnALine*"),
+ ("merger acceptance: parallel rays accepted","src/stitch/merging/submap_graph.cc","if (spread < options.min_bearing_spread) {","if (false) {","acceptance_test","Acceptance.PointsSeenAlongParallel*"),
+ ("merger acceptance: an edge of one connected frame","src/stitch/merging/submap_graph.cc","if (e.connected_frames < options.min_connected_frames) {","if (false) {","acceptance_test","Acceptance.AnEdgeOfOne*"),
+ ("merger acceptance: a split vote","src/stitch/merging/submap_graph.cc","} else if (e.agreement < options.min_agreement) {","} else if (false) {","acceptance_test","Acceptance.AnEdgeWhose*"),
+ ("merger acceptance: a cycle that does not close","src/stitch/merging/submap_graph.cc","if (SimilaritiesAgree(placed, e.b_from_a)) continue;","continue;","acceptance_test","Acceptance.AnEdgeOnACycle*"),
+ ("merger acceptance: stale connections vote","src/stitch/merging/submap_graph.cc","return !any_fresh || !m.stale;","return true;","acceptance_test","Acceptance.StaleConnected*"),
+ ("merger acceptance: never verified again","src/stitch/merging/merger.cc","if (c.revision_a == a.newest_revision && c.revision_b == b.newest_revision) {","if (true) {","acceptance_test","Acceptance.ConnectionsVerified*"),
 ]
 
 

@@ -11,4 +11,5 @@ $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recomme
   libyaml-cpp-dev nlohmann-json3-dev libsodium-dev \
   libgtest-dev libgmock-dev libbenchmark-dev \
   gstreamer1.0-plugins-base gstreamer1.0-plugins-good \
+  default-jdk-headless liblcm-java libjchart2d-java lua5.2 liblcm-lua colmap \
   iproute2 procps

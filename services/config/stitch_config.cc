@@ -3,9 +3,12 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <sstream>
 
+#include "stitch/io/calibration.h"
 #include "stitch/util/child_process.h"
+#include "stitch/util/log.h"
 #include "stitch/util/options.h"
 
 namespace stitch {
@@ -28,7 +31,11 @@ std::string DefaultVocabularyPath() {
 }
 
 Vocabulary LoadVocabulary(const StitchConfig& config) {
-  return Vocabulary::Load(config.vocabulary.empty() ? DefaultVocabularyPath() : config.vocabulary);
+  const std::string path = config.vocabulary.empty() ? DefaultVocabularyPath() : config.vocabulary;
+  Vocabulary vocabulary = Vocabulary::Load(path);
+  STITCH_LOG(INFO) << "vocabulary " << path << ": " << vocabulary.num_words()
+                   << " words (k = " << vocabulary.branching() << ", L = " << vocabulary.depth() << ")";
+  return vocabulary;
 }
 
 StitchConfig LoadStitchConfig(const std::string& path, const std::vector<std::string>& settings) {
@@ -83,6 +90,28 @@ std::string NumberSetting(const std::string& key, double value) {
   char text[32];
   std::snprintf(text, sizeof(text), "%.17g", value);
   return key + "=" + text;
+}
+
+std::vector<std::string> OrbSlamFeatureSettings(const std::string& calibration_path) {
+  static const std::map<std::string, std::string> kStitchKeys = {{"nFeatures", "num_features"},
+                                                                 {"scaleFactor", "scale_factor"},
+                                                                 {"nLevels", "num_levels"},
+                                                                 {"iniThFAST", "fast_threshold"},
+                                                                 {"minThFAST", "min_fast_threshold"}};
+  std::vector<std::string> settings;
+  for (const auto& [name, value] : ReadOrbExtractorSettings(calibration_path)) {
+    settings.push_back(NumberSetting("tracker.tracking.orb." + kStitchKeys.at(name), value));
+  }
+  return settings;
+}
+
+std::vector<std::string> CommandLineSettings(const std::string& calibration_path, const std::string& vocabulary,
+                                             const std::vector<std::string>& settings) {
+  std::vector<std::string> all;
+  if (!calibration_path.empty()) all = OrbSlamFeatureSettings(calibration_path);
+  if (!vocabulary.empty()) all.push_back(TextSetting("vocabulary", vocabulary));
+  all.insert(all.end(), settings.begin(), settings.end());
+  return all;
 }
 
 void SaveStitchConfig(const StitchConfig& config, const std::string& path) {

@@ -61,6 +61,16 @@ void SaveStitchConfig(const StitchConfig& config, const std::string& path);
 StitchConfig ApplySettings(StitchConfig config, const std::vector<std::string>& settings);
 // The same from "key=value[,key=value...]" (values without commas).
 StitchConfig ApplySettings(StitchConfig config, const std::string& settings);
+// The feature extractor's settings an ORB-SLAM settings file states (ORBextractor.nFeatures,
+// scaleFactor, nLevels, iniThFAST, minThFAST), as settings of tracker.tracking.orb; none for a
+// calibration of another layout. A launcher given such a file (--calib) applies them over the
+// settings file and under its own --set. Throws stitch::Error for a value that is no number.
+std::vector<std::string> OrbSlamFeatureSettings(const std::string& calibration_path);
+// The settings a launcher's command line means, in the order they apply (the later win): an
+// ORB-SLAM calibration's feature settings (OrbSlamFeatureSettings; none for an empty path), the
+// vocabulary (when not empty), then `settings` (--set and the launcher's own flags).
+std::vector<std::string> CommandLineSettings(const std::string& calibration_path, const std::string& vocabulary,
+                                             const std::vector<std::string>& settings);
 // A setting giving `key` the text `value` as it is (quoted for YAML), or a number.
 std::string TextSetting(const std::string& key, const std::string& value);
 std::string NumberSetting(const std::string& key, double value);

@@ -99,5 +99,26 @@ TEST(StitchConfig, FlagsBecomeSettingsOverTheFileAndTextStaysAsGiven) {
   EXPECT_THROW(LoadStitchConfig(file, {TextSetting("tracker.on_loss", "hover")}), Error);
 }
 
+TEST(StitchConfig, AnOrbSlamCalibrationSetsTheFeaturesUnderTheCommandLine) {
+  const std::string kitti = std::string(STITCH_SOURCE_DIR) + "/src/stitch/io/testdata/orbslam2_kitti00-02.yaml";
+  const StitchConfig from_file = LoadStitchConfig("", CommandLineSettings(kitti, "", {}));
+  EXPECT_EQ(from_file.tracker.tracking.orb.num_features, 2000);
+  EXPECT_DOUBLE_EQ(from_file.tracker.tracking.orb.scale_factor, 1.2);
+  EXPECT_EQ(from_file.tracker.tracking.orb.num_levels, 8);
+  EXPECT_EQ(from_file.tracker.tracking.orb.fast_threshold, 20);
+  EXPECT_EQ(from_file.tracker.tracking.orb.min_fast_threshold, 7);
+  // --set wins over the calibration; the vocabulary is a setting like the others.
+  const StitchConfig over =
+      LoadStitchConfig("", CommandLineSettings(kitti, "/data/ORBvoc.txt", {"tracker.tracking.orb.num_features=1500"}));
+  EXPECT_EQ(over.tracker.tracking.orb.num_features, 1500);
+  EXPECT_EQ(over.vocabulary, "/data/ORBvoc.txt");
+  // A calibration of another layout sets nothing; a value the extractor refuses is an error.
+  testing::TempDir dir;
+  std::ofstream(dir / "sensor.yaml") << "intrinsics: [458, 457, 367, 248]\nresolution: [752, 480]\n";
+  EXPECT_TRUE(OrbSlamFeatureSettings(dir / "sensor.yaml").empty());
+  std::ofstream(dir / "zero.yaml") << "%YAML:1.0\nCamera.fx: 500\nORBextractor.nLevels: 0\n";
+  EXPECT_THROW(LoadStitchConfig("", CommandLineSettings(dir / "zero.yaml", "", {})), Error);
+}
+
 }  // namespace
 }  // namespace stitch

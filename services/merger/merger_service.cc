@@ -3,6 +3,8 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <limits>
+#include <map>
 
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -10,12 +12,22 @@
 #include "services/common/convert.h"
 #include "services/common/map_convert.h"
 #include "stitch/global_map_t.hpp"
+#include "stitch/io/colmap_model.h"
 #include "stitch/io/ply.h"
+#include "stitch/map/map_export.h"
 #include "stitch/submap_request_t.hpp"
 #include "stitch/util/log.h"
 #include "stitch/util/time.h"
 
 namespace stitch {
+
+namespace {
+// How far past an aircraft's newest revision an update may be: the mapper counts one revision per
+// update it makes (a few per keyframe), and makes some the link never carries (thinned, lost).
+// A jump may be this many, plus this many per second since the newest arrived.
+constexpr int64_t kMaxRevisionJump = 1000;
+constexpr int64_t kMaxRevisionsPerSecond = 100;
+}  // namespace
 
 MergerService::MergerService(lcm::LCM* lcm, bus::Publisher* publisher, const MergerOptions& options,
                              const OrbOptions& orb, const Vocabulary* vocabulary, std::string record_dir,
@@ -85,6 +97,13 @@ void MergerService::Stop() {
   queue_.Close();
   if (worker_.joinable()) worker_.join();
   if (!refined_ || refined_at_ != processed_.load()) Refine("the run ended");
+  for (const auto& [id, replica] : merger_.submaps()) {
+    const SubmapCompleteness c = CompletenessOf(replica);
+    if (c.missing == 0 && replica.closed) continue;
+    STITCH_LOG(WARNING) << "submap " << SubmapName(id) << " is incomplete on the ground: " << c.missing << " of its "
+                        << c.listed << " keyframes" << (replica.closed ? "" : " and its final state")
+                        << " never arrived; the map holds what did";
+  }
   const Merger::Graph& graph = refined_->graph;
   const std::optional<MergedMap>& merged = refined_->merged;
   if (!record_dir_.empty()) {
@@ -146,6 +165,7 @@ void MergerService::Process(const stitch::submap_update_t& message, bool from_jo
     STITCH_LOG(WARNING) << "rejected a submap update: " << e.what();
     return;
   }
+  if (!from_journal && !recovering_ && !PlausibleRevision(message)) return;
   if (journal_ && !from_journal && !journal_failed_) {
     try {
       journal_->Append(message);
@@ -185,6 +205,31 @@ void MergerService::Process(const stitch::submap_update_t& message, bool from_jo
       !recovering_) {
     Refine("submap " + SubmapName(update.submap) + " closed");
   }
+}
+
+bool MergerService::PlausibleRevision(const stitch::submap_update_t& message) {
+  const double now = MonotonicSeconds();
+  const auto newest = newest_revision_.find(message.header.agent);
+  int64_t allowed = std::numeric_limits<int32_t>::max();
+  if (newest != newest_revision_.end()) {
+    const double waited_s = std::max(0.0, now - newest->second.heard_at);
+    allowed = newest->second.revision + kMaxRevisionJump +
+              static_cast<int64_t>(std::min(waited_s, 1e7) * static_cast<double>(kMaxRevisionsPerSecond));
+  }
+  if (message.revision < 0 || message.revision > allowed) {
+    // Stale from then on, every later real update of the submap would leave it as it was.
+    subscriber_.Reject(
+        bus::Channel(message.header.agent, bus::kSubmap),
+        "jumps to revision " + std::to_string(message.revision) + " from " +
+            (newest == newest_revision_.end() ? std::string("none") : std::to_string(newest->second.revision)));
+    return false;
+  }
+  if (newest == newest_revision_.end()) {
+    newest_revision_[message.header.agent] = {message.revision, now};
+  } else if (message.revision > newest->second.revision) {
+    newest->second = {message.revision, now};
+  }
+  return true;
 }
 
 void MergerService::RequestWhatWasLost() {
@@ -233,6 +278,13 @@ void MergerService::RequestWhatWasLost() {
 
 void MergerService::Refine(const std::string& why) {
   const Stopwatch clock;
+  const Merger::Reverification again = merger_.ReverifyStaleConnections();
+  if (again.reverified > 0) {
+    STITCH_LOG(INFO) << "verified " << again.reverified
+                     << " connected frames again on their submaps' newer points: " << again.changed << " moved, "
+                     << again.stale << " could not be (kept as stale: they count where the fresh ones agree)";
+    OnGraphChange("connected frames verified again (" + why + ")");
+  }
   Refined refined{merger_.Solve(/*refine=*/true), std::nullopt};
   refined.merged = MergeLargestMap(&refined.graph);
   PublishGlobalMap(refined.graph);
@@ -265,6 +317,18 @@ void MergerService::OnGraphChange(const std::string& event) {
   }
   std::string maps;
   for (const auto& [first, names] : merged) maps += (maps.empty() ? "" : " ") + names;
+  // Edges refused by the acceptance checks, each said once (and again when its reason changes).
+  std::map<std::pair<SubmapId, SubmapId>, std::string> refused;
+  for (const SubmapEdge& e : graph.edges) {
+    if (e.refused.empty()) continue;
+    refused[{e.a, e.b}] = e.refused;
+    const auto before = refused_edges_.find({e.a, e.b});
+    if (before != refused_edges_.end() && before->second == e.refused) continue;
+    const std::string what = "edge " + SubmapName(e.a) + "-" + SubmapName(e.b) + " refused: " + e.refused;
+    STITCH_LOG(WARNING) << what;
+    merge_log_.push_back({what, current_map, stack, maps});
+  }
+  refused_edges_.swap(refused);
   const std::string row = current_map + "\t" + stack + "\t" + maps;
   if (row == last_stack_) return;
   last_stack_ = row;
@@ -298,7 +362,7 @@ void MergerService::PublishGlobalMap(const Merger::Graph& graph) {
     edge.connected_frames = e.connected_frames;
     edge.map_points = e.map_points;
     edge.median_angle_deg = e.median_angle_deg;
-    for (const SubmapEdge& t : graph.tree) edge.in_spanning_tree |= t.a == e.a && t.b == e.b;
+    edge.in_spanning_tree = InTree(e, graph.tree);
     edge.b_from_a = ToMessage(e.b_from_a);
     m.edges.push_back(edge);
   }
@@ -321,6 +385,36 @@ void MergerService::PublishGlobalMap(const Merger::Graph& graph) {
   publisher_->Publish(bus::Channel(publisher_->agent(), bus::kGlobalMap), &m);
 }
 
+std::string ColmapImageName(const Keyframe& keyframe) {
+  char name[48];
+  std::snprintf(name, sizeof(name), "agent%d-frame%06d", AgentNumber(SubmapOf(keyframe.id)), keyframe.frame_index);
+  return name;
+}
+
+void MergerService::WriteColmapRecord(const Merger::Graph& graph, const MergedMap* merged) const {
+  // colmap/: the largest map as a COLMAP sparse model, its images named agentA-frameNNNNNN
+  // (`stitch export colmap` names them by the image files). One camera: the map's submaps must
+  // share it.
+  std::optional<Camera> camera;
+  const Map* map = merged ? &merged->map : nullptr;
+  for (const auto& [id, placement] : graph.placement) {
+    if (placement.component != 0) continue;
+    const SubmapReplica& replica = merger_.submaps().at(id);
+    if (!replica.camera) continue;
+    if (camera && camera->Describe() != replica.camera->Describe()) {
+      STITCH_LOG(WARNING) << "no COLMAP model: the largest map's submaps come from more than one camera";
+      return;
+    }
+    camera = replica.camera;
+    if (!merged) map = &replica.map;
+  }
+  if (!camera || !map) return;
+  const ColmapModel model = ColmapModelOf(*map, *camera, merger_.options().map_export, ColmapImageName);
+  WriteColmapModel(model, (std::filesystem::path(record_dir_) / "colmap").string());
+  STITCH_LOG(INFO) << "colmap/: " << model.images.size() << " images, " << model.points.size()
+                   << " points, reprojection " << ReprojectionRms(model) << " px rms";
+}
+
 void MergerService::WriteRecords(const Merger::Graph& graph, const MergedMap* merged) const {
   const std::filesystem::path dir(record_dir_);
   std::filesystem::create_directories(dir);
@@ -341,7 +435,9 @@ void MergerService::WriteRecords(const Merger::Graph& graph, const MergedMap* me
     for (const auto& [id, placement] : graph.placement) {
       if (placement.component == 0) colours[id] = colour++;
     }
-    const auto add = [&](const Eigen::Vector3d& position, SubmapId submap) {
+    std::vector<Eigen::Vector3d> positions;
+    std::vector<int> observations;
+    const auto add = [&](const Eigen::Vector3d& position, SubmapId submap, const MapPoint& point) {
       ColouredPoint p;
       p.position = position.cast<float>();
       const uint8_t* rgb = kPalette[colours[submap] % 10];
@@ -349,9 +445,11 @@ void MergerService::WriteRecords(const Merger::Graph& graph, const MergedMap* me
       p.green = rgb[1];
       p.blue = rgb[2];
       cloud.push_back(p);
+      positions.push_back(position);
+      observations.push_back(static_cast<int>(point.observations.size()));
     };
     if (merged) {  // fused and adjusted
-      for (const auto& [id, point] : merged->map.points()) add(point.position, SubmapOf(id));
+      for (const auto& [id, point] : merged->map.points()) add(point.position, SubmapOf(id), point);
     } else {  // one submap: its points, each moved with a keyframe that sees it
       for (const auto& [id, placement] : graph.placement) {
         if (placement.component != 0) continue;
@@ -365,21 +463,48 @@ void MergerService::WriteRecords(const Merger::Graph& graph, const MergedMap* me
               position = refined->second * (map.FindKeyframe(observer)->cam_from_world * point.position);
             }
           }
-          add(position, id);
+          add(position, id, point);
         }
       }
     }
-    WritePly((dir / "map.ply").string(), cloud);
+    // map.ply without the gross outliers a sparse map holds; map_raw.ply with every point.
+    WritePly((dir / "map_raw.ply").string(), cloud);
+    const std::vector<bool> keep = PointsToExport(positions, observations, merger_.options().map_export);
+    std::vector<ColouredPoint> exported;
+    for (size_t i = 0; i < cloud.size(); ++i) {
+      if (keep[i]) exported.push_back(cloud[i]);
+    }
+    if (exported.size() < cloud.size()) {
+      STITCH_LOG(INFO) << "map.ply: " << exported.size() << " of " << cloud.size() << " points ("
+                       << cloud.size() - exported.size()
+                       << " seen by too few keyframes or far beyond the scene left out; all in map_raw.ply)";
+    }
+    WritePly((dir / "map.ply").string(), exported);
   }
+  WriteColmapRecord(graph, merged);
   std::vector<MergedKeyframeRecord> merged_keyframes;
   for (const auto& [id, pose] : graph.keyframe_poses) {
     merged_keyframes.push_back({id, graph.placement.at(SubmapOf(id)).component, pose});
   }
   WriteMergedKeyframeRecords((dir / "keyframes_merged.tsv").string(), merged_keyframes);
+  const double min_strength = merger_.options().min_connection_strength;
+  std::vector<SubmapEdgeRecord> edges;
+  for (const SubmapEdge& e : graph.edges) {
+    edges.push_back({e.a, e.b, e.strength, e.connected_frames, e.map_points, e.disagreeing_frames, e.median_angle_deg,
+                     e.agreement, EdgeStatus(e, graph.tree, min_strength)});
+  }
+  WriteSubmapEdgeRecords((dir / "edges.tsv").string(), edges);
   std::vector<ConnectionRecord> connections;
-  for (const auto* list : {&merger_.connections(), &merger_.loops()}) {
+  for (const auto* list : {&merger_.connections(), &merger_.refused(), &merger_.loops()}) {
     for (const ConnectedFrame& c : *list) {
-      connections.push_back({c.keyframe_a, c.keyframe_b, c.map_points, c.median_angle_deg, c.b_from_a});
+      ConnectionRecord r{c.keyframe_a, c.keyframe_b, c.map_points, c.median_angle_deg, c.b_from_a};
+      r.verified_by = VerifiedByName(c.geometry.verified_by);
+      r.bearing_spread_a = c.geometry.bearing_spread_a;
+      r.bearing_spread_b = c.geometry.bearing_spread_b;
+      r.line_ratio = c.geometry.line_ratio;
+      r.depth_disagreement = c.geometry.depth_disagreement;
+      r.verdict = ConnectionVerdict(c, graph.edges, graph.tree, min_strength);
+      connections.push_back(r);
     }
   }
   WriteConnectionRecords((dir / "connections.tsv").string(), connections);
@@ -391,15 +516,18 @@ void MergerService::WriteRecords(const Merger::Graph& graph, const MergedMap* me
           << merger_.submaps().at(id).map.num_keyframes() << " kf, map " << placement.component << "\"];\n";
     }
     for (const SubmapEdge& e : graph.edges) {
-      bool in_tree = false;
-      for (const SubmapEdge& t : graph.tree) in_tree |= t.a == e.a && t.b == e.b;
+      const bool in_tree = InTree(e, graph.tree);
       char label[128];
       std::snprintf(
           label, sizeof(label), "C=%.1f (F=%d M=%d %.0f deg%s)", e.strength, e.connected_frames, e.map_points,
           e.median_angle_deg,
           e.disagreeing_frames > 0 ? (", " + std::to_string(e.disagreeing_frames) + " outvoted").c_str() : "");
-      out << "  \"" << SubmapName(e.a) << "\" -- \"" << SubmapName(e.b) << "\" [label=\"" << label << "\""
-          << (in_tree ? ", style=bold" : ", style=dashed") << "];\n";
+      out << "  \"" << SubmapName(e.a) << "\" -- \"" << SubmapName(e.b) << "\" [label=\"" << label
+          << (e.refused.empty() ? "" : "\\nrefused: " + e.refused) << "\""
+          << (in_tree             ? ", style=bold"
+              : e.refused.empty() ? ", style=dashed"
+                                  : ", style=dotted, color=red")
+          << "];\n";
     }
     out << "}\n";
   }
@@ -416,8 +544,7 @@ void MergerService::WriteRecords(const Merger::Graph& graph, const MergedMap* me
                          size / 2 + static_cast<int>(230 * std::sin(angle)));
     }
     for (const SubmapEdge& e : graph.edges) {
-      bool in_tree = false;
-      for (const SubmapEdge& t : graph.tree) in_tree |= t.a == e.a && t.b == e.b;
+      const bool in_tree = InTree(e, graph.tree);
       cv::line(image, at[e.a], at[e.b], in_tree ? cv::Scalar(40, 40, 200) : cv::Scalar(180, 180, 180), in_tree ? 3 : 1,
                cv::LINE_AA);
       char label[32];
@@ -437,11 +564,15 @@ void MergerService::WriteRecords(const Merger::Graph& graph, const MergedMap* me
   }
   WriteMergeLog((dir / "merge_log.tsv").string(), merge_log_);
   WriteRetrievalRecords((dir / "retrieval.tsv").string(), merger_.retrievals());
-  int outvoted = 0;
-  for (const SubmapEdge& e : graph.edges) outvoted += e.disagreeing_frames;
+  int outvoted = 0, refused_edges = 0;
+  for (const SubmapEdge& e : graph.edges) {
+    outvoted += e.disagreeing_frames;
+    refused_edges += !e.refused.empty();
+  }
   STITCH_LOG(INFO) << "wrote the submap graph (" << graph.placement.size() << " submaps, " << graph.edges.size()
-                   << " edges, " << graph.tree.size() << " merges, " << outvoted
-                   << " connected frames outvoted by their pair's others) to " << record_dir_;
+                   << " edges, " << graph.tree.size() << " merges, " << refused_edges << " edges refused, " << outvoted
+                   << " connected frames outvoted by their pair's others, " << merger_.refused().size()
+                   << " refused as degenerate) to " << record_dir_;
 }
 
 }  // namespace stitch

@@ -8,6 +8,7 @@
 // query's N0, N1, S0, S1, k, l and candidates).
 
 #include <atomic>
+#include <map>
 #include <memory>
 #include <optional>
 #include <set>
@@ -55,6 +56,10 @@ class MergerService {
  private:
   void Work();
   void Process(const stitch::submap_update_t& message, bool from_journal = false);
+  // Refuses (and counts) an update whose revision is negative or jumps far past its aircraft's
+  // newest: a forged 2^31-1 would make every later real update of the submap look stale. Live
+  // updates only (a journal or a recording holds no timing to judge by).
+  bool PlausibleRevision(const stitch::submap_update_t& message);
   // Asks the mapper for keyframes a manifest lists but never arrived, and for the final state of
   // a submap left open while a newer one of its aircraft goes on (its closing update was lost).
   void RequestWhatWasLost();
@@ -66,6 +71,8 @@ class MergerService {
   // Pose graph, merged map and bundle adjustment, then publishes; kept in refined_.
   void Refine(const std::string& why);
   void WriteRecords(const Merger::Graph& graph, const MergedMap* merged) const;
+  // colmap/ in the record folder: the largest map as a COLMAP sparse model (docs/tools.md).
+  void WriteColmapRecord(const Merger::Graph& graph, const MergedMap* merged) const;
 
   bus::Publisher* publisher_;
   ScalePyramid pyramid_;
@@ -89,9 +96,15 @@ class MergerService {
   std::vector<std::string> agents_;                        // whose submaps it merges
   std::set<std::string> submap_channels_;                  // their <agent>/SUBMAP
   std::map<SubmapId, std::string> agent_of_;               // each submap's aircraft (from its updates)
+  struct NewestRevision {
+    int64_t revision = 0;
+    double heard_at = 0;  // MonotonicSeconds()
+  };
+  std::map<std::string, NewestRevision> newest_revision_;  // per aircraft, live updates only
   std::atomic<int64_t> requests_{0}, keyframes_missing_{0};
   std::vector<MergeLogRecord> merge_log_;  // merge_log.tsv
   std::string last_stack_;
+  std::map<std::pair<SubmapId, SubmapId>, std::string> refused_edges_;  // as last logged
   int revision_ = 0;
   struct Refined {
     Merger::Graph graph;

@@ -1,5 +1,6 @@
 #include "services/tracker/tracker_service.h"
 
+#include <algorithm>
 #include <filesystem>
 
 #include "services/common/convert.h"
@@ -76,6 +77,12 @@ TrackerService::TrackerService(lcm::LCM* lcm, bus::Publisher* publisher, Tracker
   }
 }
 
+void TrackerService::RefreshReportedState() {
+  if (!tracking_) return;
+  mapper_connected_ = tracking_->mapper_connected();
+  submaps_closed_ = tracking_->submaps_closed();
+}
+
 void TrackerService::SaveState() {
   if (options_.state_file.empty() || !tracking_ || tracking_->next_submap_number() == saved_submap_number_) return;
   try {
@@ -134,7 +141,7 @@ void TrackerService::OnFrame(std::unique_ptr<stitch::frame_t> frame) {
     return;
   }
   if (frame->frame_index <= highest_received_.load()) {
-    if (frame->frame_index < highest_received_.load()) {
+    if (frame->frame_index < highest_received_.load() && !AwaitsReport(*frame)) {
       TrackResult late;
       late.state = TrackingState::kSkipped;
       late.reason = TrackingReason::kDropped;
@@ -147,13 +154,47 @@ void TrackerService::OnFrame(std::unique_ptr<stitch::frame_t> frame) {
   highest_received_ = frame->frame_index;
   ++received_;
   if (auto dropped = frames_.Push(std::move(frame))) {
+    // Reported and acknowledged by the worker, between the frames it tracks: frames.tsv and
+    // TRACKING_STATUS stay in frame order (this thread would write the line while the worker
+    // tracks an older frame).
     ++dropped_;
+    (*dropped)->data.clear();
+    (*dropped)->num_bytes = 0;
+    std::lock_guard<std::mutex> lock(dropped_frames_mutex_);
+    dropped_frames_.push_back(std::move(*dropped));
+  }
+}
+
+bool TrackerService::AwaitsReport(const stitch::frame_t& frame) {
+  std::lock_guard<std::mutex> lock(dropped_frames_mutex_);
+  return std::any_of(dropped_frames_.begin(), dropped_frames_.end(), [&](const auto& dropped) {
+    return dropped->frame_index == frame.frame_index && dropped->header.sender_session == frame.header.sender_session;
+  });
+}
+
+void TrackerService::ReportDroppedFrames(const stitch::frame_t* before) {
+  std::vector<std::unique_ptr<stitch::frame_t>> due;
+  {
+    std::lock_guard<std::mutex> lock(dropped_frames_mutex_);
+    auto kept = dropped_frames_.begin();
+    for (auto& frame : dropped_frames_) {
+      const bool older = !before || frame->header.sender_session != before->header.sender_session ||
+                         frame->frame_index < before->frame_index;
+      if (older) {
+        due.push_back(std::move(frame));
+      } else {
+        *kept++ = std::move(frame);
+      }
+    }
+    dropped_frames_.erase(kept, dropped_frames_.end());
+  }
+  for (const auto& frame : due) {
     TrackResult result;
     result.state = TrackingState::kSkipped;
     result.reason = TrackingReason::kDropped;
     result.detail = "tracker busy (real-time pacing)";
-    Report(**dropped, result, 0.0f);
-    Ack(**dropped);
+    Report(*frame, result, 0.0f);
+    Ack(*frame);
   }
 }
 
@@ -219,15 +260,18 @@ void TrackerService::Work() {
     ApplyUpdates(std::chrono::milliseconds(0));
     WaitForMapper();
     WatchMapper();
+    RefreshReportedState();
     if (tracking_ && tracking_->MapperCaughtUp()) {
       std::lock_guard<std::mutex> lock(unacknowledged_mutex_);
       unacknowledged_keyframes_.clear();
     }
     auto frame = frames_.Pop(std::chrono::milliseconds(20));
     if (!frame) {
+      ReportDroppedFrames(nullptr);
       if (frames_.closed()) return;
       continue;
     }
+    ReportDroppedFrames(frame->get());
     Process(**frame);
   }
 }
@@ -277,6 +321,7 @@ void TrackerService::Process(const stitch::frame_t& frame) {
   SaveState();
   if (frame.header.sender_session == ingest_session_.load()) highest_processed_ = frame.frame_index;
   ++tracked_;
+  RefreshReportedState();
   Report(frame, output.result, ms);
   if (publisher_thread_) {
     // Behind the frame's keyframes: a frame is acknowledged once all it made is out, so a
@@ -308,8 +353,8 @@ void TrackerService::Report(const stitch::frame_t& frame, const TrackResult& res
   status.num_tracked_points = result.num_tracked_points;
   status.submap_keyframes = result.submap_keyframes;
   status.tracking_ms = tracking_ms;
-  status.mapper_connected = tracking_ && tracking_->mapper_connected();
-  status.submaps_closed = tracking_ ? tracking_->submaps_closed() : 0;
+  status.mapper_connected = mapper_connected_.load();
+  status.submaps_closed = submaps_closed_.load();
   publisher_->Publish(bus::Channel(publisher_->agent(), bus::kTrackingStatus), &status);
   if (record_.is_open()) {
     FrameRecord record;

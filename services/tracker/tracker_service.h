@@ -59,6 +59,13 @@ class TrackerService {
   void Ack(const stitch::frame_t& frame);
   void PublishAck(stitch::frame_ack_t ack);
   void SaveState();
+  // Reports and acknowledges the dropped frames older than `before` (all of them when null).
+  // Worker thread only.
+  void ReportDroppedFrames(const stitch::frame_t* before);
+  // A dropped frame not reported yet: a re-send of it is neither late nor new.
+  bool AwaitsReport(const stitch::frame_t& frame);
+  // Copies what Report() says of tracking_ into the atomics it reads. Worker thread only.
+  void RefreshReportedState();
   // Makes the keyframe's message, sends it, keeps it until the mapper covers it.
   void PublishKeyframe(const Keyframe& keyframe, const std::vector<MapPoint>& new_points);
 
@@ -77,6 +84,10 @@ class TrackerService {
   std::mutex unacknowledged_mutex_;
   std::vector<stitch::keyframe_t> unacknowledged_keyframes_;  // sent, not yet covered by an update
   std::mutex record_mutex_;                                   // Report() runs in the worker and the dispatcher thread
+  // Frames the queue dropped for newer ones (their images cleared), for the worker to report
+  // in frame order: ReportDroppedFrames().
+  std::mutex dropped_frames_mutex_;
+  std::vector<std::unique_ptr<stitch::frame_t>> dropped_frames_;
   std::ofstream record_;
   bool record_failed_ = false;  // said once
   std::thread worker_;
@@ -88,6 +99,10 @@ class TrackerService {
   std::atomic<int64_t> received_{0}, tracked_{0}, dropped_{0}, keyframes_{0}, mapper_waits_{0};
   std::atomic<int> highest_received_{-1}, highest_processed_{-1};  // frame numbers of...
   std::atomic<int64_t> ingest_session_{0};                         // ...this ingest's frames
+  // tracking_'s state for Report(), which also runs in the dispatcher thread (late and dropped
+  // frames) and so must not touch tracking_; the worker refreshes them (RefreshReportedState).
+  std::atomic<bool> mapper_connected_{false};
+  std::atomic<int> submaps_closed_{0};
   int saved_submap_number_ = -1;
 };
 

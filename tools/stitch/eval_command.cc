@@ -5,6 +5,7 @@
 #include <fstream>
 
 #include "stitch/eval/evaluation.h"
+#include "stitch/io/image_sequence.h"
 #include "stitch/util/args.h"
 #include "stitch/util/error.h"
 #include "tools/stitch/commands.h"
@@ -24,7 +25,11 @@ int EvalCommand(int argc, char** argv) {
                  "TUM-format trajectory, e.g. one from another SLAM system.");
   args.AddPositional(&run_dirs, "RUN_DIR", "a folder written by `stitch run`");
   args.AddOption("--est", &estimate_path, "FILE", "estimated trajectory, TUM format");
-  args.AddOption("--gt", &truth_path, "FILE", "ground truth, TUM format");
+  args.AddOption("--gt", &truth_path, "FILE",
+                 "ground truth: TUM, KITTI poses (poses/NN.txt) or EuRoC (state_groundtruth_estimate0/data.csv)");
+  std::string kitti_times;
+  args.AddOption("--gt-times", &kitti_times, "FILE",
+                 "with KITTI poses: the sequence's times.txt (default: sequences/NN/times.txt beside poses/)");
   args.AddOption("--frames-total", &frames_total, "N",
                  "frames in the sequence, for completeness (default: poses in --est)");
   args.AddOption("--out", &out_dir, "DIR", "with --est: write report.json and trajectory.png here");
@@ -53,7 +58,7 @@ int EvalCommand(int argc, char** argv) {
     }
     input.frames_total = frames_total > 0 ? frames_total : static_cast<int>(estimate.size());
     input.submaps = estimate.empty() ? 0 : 1;
-    if (!truth_path.empty()) input.ground_truth = Trajectory::ReadTum(truth_path);
+    if (!truth_path.empty()) input.ground_truth = ReadGroundTruth(truth_path, kitti_times);
     const Evaluation evaluation = Evaluate(input);
     std::printf("%s", Summarize(evaluation).c_str());
     if (!out_dir.empty()) {

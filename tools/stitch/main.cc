@@ -23,12 +23,16 @@ constexpr char kUsage[] =
     "  render    write the synthetic flight as an image folder with ground truth\n"
     "  config    print every setting with its default and meaning\n"
     "  vocab     train a bag-of-words vocabulary, or describe one\n"
-    "  bench     time tracking and mapping on a sequence (no bus)\n"
+    "  bench     time tracking and mapping on a sequence (no bus); --quality: the quality gate\n"
+    "  campaign  many randomized flights, each merge scored against ground truth\n"
+    "  export    a run's merged map for other tools: colmap (a sparse model on the flight's images)\n"
     "  map       rebuild the merged map from recorded submap updates (a merger's journal or an LCM log)\n"
     "  record    record a flight's features (what crosses to the ground) with lcm-logger\n"
+    "  spy       lcm-spy with stitch's message types, or decode a recorded log with them\n"
     "  ingest    run the ingest service alone (same as stitch-ingest)\n"
     "  tracker   run the tracker service alone (same as stitch-tracker)\n"
     "  mapper    run the mapper service alone (same as stitch-mapper)\n"
+    "  merger    run the merger service alone (same as stitch-merger)\n"
     "  link      bridge chosen channels to the other side of a radio link (same as stitch-link)\n"
     "  version   print the version\n";
 
@@ -51,11 +55,14 @@ int main(int argc, char** argv) {
   if (command == "bench") return stitch::BenchCommand(argc - 1, argv + 1);
   if (command == "map") return stitch::MapCommand(argc - 1, argv + 1);
   if (command == "record") return stitch::RecordCommand(argc - 1, argv + 1);
+  if (command == "campaign") return stitch::CampaignCommand(argc - 1, argv + 1);
+  if (command == "spy") return stitch::SpyCommand(argc - 1, argv + 1);
+  if (command == "export") return stitch::ExportCommand(argc - 1, argv + 1);
   if (command == "version" || command == "--version") {
     std::printf("stitch %s\n", STITCH_VERSION);
     return 0;
   }
-  if (command == "ingest" || command == "tracker" || command == "mapper" || command == "link") {
+  if (command == "ingest" || command == "tracker" || command == "mapper" || command == "merger" || command == "link") {
     const std::string service = stitch::ExecutableDir() + "/stitch-" + command;
     argv[1] = const_cast<char*>(service.c_str());
     execv(service.c_str(), argv + 1);

@@ -2,6 +2,8 @@
 
 #include "tools/stitch/quality_gate.h"
 
+#include <unistd.h>
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -101,13 +103,18 @@ double Median(std::vector<double> values) {
   return values[values.size() / 2];
 }
 
+}  // namespace
+
 std::string ReadWholeFile(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) return "";
   std::ostringstream text;
   text << in.rdbuf();
+  if (in.bad()) throw Error(path + ": cannot read");
   return text.str();
 }
+
+namespace {
 
 std::string DefaultDatasetsDir() {
   if (const char* env = std::getenv("STITCH_DATASETS")) return env;
@@ -168,7 +175,8 @@ QualityMatrix LoadQualityMatrix(const std::string& path) {
       // A case's own tolerances start from the defaults.
       for (const auto& item : node["tolerance"]) {
         const std::string figure = item.first.as<std::string>();
-        if (!matrix.tolerance.count(figure)) throw Error("case '" + c.name + "': no default tolerance for '" + figure + "'");
+        if (!matrix.tolerance.count(figure))
+          throw Error("case '" + c.name + "': no default tolerance for '" + figure + "'");
         c.tolerance[figure] = ReadTolerance(item.second, c.name + ".tolerance." + figure, matrix.tolerance.at(figure));
       }
       matrix.cases.push_back(std::move(c));
@@ -273,9 +281,29 @@ std::map<std::string, double> MeasureRun(const std::string& run_dir, double cpu_
   return m;
 }
 
-std::string PlaceMarkdownTable(const std::string& document, const std::string& table) {
-  const size_t begin = document.find(kMarkdownBegin);
-  const size_t end = begin == std::string::npos ? std::string::npos : document.find(kMarkdownEnd, begin);
+std::string MarkdownOptionHelp(const char* begin, const char* end) {
+  return std::string("also write the table as Markdown: in place of the lines between the markers ") + begin + " and " +
+         end + " where FILE has them (docs/benchmarks.md), else as the whole file";
+}
+
+void WriteMarkdownTable(const std::string& path, const std::string& command,
+                        const std::function<void(std::FILE*)>& print, const char* begin, const char* end) {
+  char* text = nullptr;
+  size_t size = 0;
+  std::FILE* md = open_memstream(&text, &size);
+  if (!md) throw Error("out of memory for the Markdown table");
+  std::fprintf(md, "`%s`, %s:\n\n", command.c_str(), LocalTimestamp("%Y-%m-%d").c_str());
+  print(md);
+  std::fclose(md);
+  const std::string table(text, size);
+  std::free(text);
+  WriteFileAtomically(path, PlaceMarkdownTable(ReadWholeFile(path), table, begin, end));
+}
+
+std::string PlaceMarkdownTable(const std::string& document, const std::string& table, const char* begin_marker,
+                               const char* end_marker) {
+  const size_t begin = document.find(begin_marker);
+  const size_t end = begin == std::string::npos ? std::string::npos : document.find(end_marker, begin);
   if (end == std::string::npos) return table;
   const size_t after_begin = document.find('\n', begin);
   return document.substr(0, after_begin + 1) + table + document.substr(end);
@@ -290,8 +318,7 @@ std::string Regression::Describe() const {
 }
 
 std::vector<Regression> CheckCase(const QualityMatrix& matrix, const QualityCase& c,
-                                  const std::map<std::string, double>& measured,
-                                  const std::set<std::string>& only) {
+                                  const std::map<std::string, double>& measured, const std::set<std::string>& only) {
   std::vector<Regression> regressions;
   for (const auto& [figure, expected] : c.expect) {
     if (!only.empty() && !only.count(figure)) continue;
@@ -328,14 +355,7 @@ std::string ReproduceCommand(const QualityCase& c, const std::string& datasets_d
 
 namespace {
 
-struct Result {
-  const QualityCase* c = nullptr;
-  bool skipped = false;
-  std::string why;  // skipped or failed: why
-  bool failed = false;
-  std::map<std::string, double> figures;
-  std::vector<Regression> regressions;
-};
+using Result = CaseResult;
 
 // One running case.
 struct Running {
@@ -387,8 +407,8 @@ void PrintTable(const std::vector<Result>& results, bool markdown, std::FILE* ou
         const std::string old_cell = old == was.end() ? "n/a" : FormatFigure(f.key, old->second);
         if (old_cell != cell) cell = old_cell + " -> " + cell;
       }
-      const bool regressed =
-          std::any_of(r.regressions.begin(), r.regressions.end(), [&](const Regression& g) { return g.figure == f.key; });
+      const bool regressed = std::any_of(r.regressions.begin(), r.regressions.end(),
+                                         [&](const Regression& g) { return g.figure == f.key; });
       if (regressed) cell = markdown ? "**" + cell + "**" : cell + "!";
       row += separator + cell;
     }
@@ -398,6 +418,94 @@ void PrintTable(const std::vector<Result>& results, bool markdown, std::FILE* ou
 }
 
 }  // namespace
+
+std::vector<CaseResult> RunCases(const QualityMatrix& matrix, const std::vector<const QualityCase*>& chosen,
+                                 const RunCasesOptions& options) {
+  if (options.jobs < 1 || options.jobs > 64) throw Error("--jobs must be in [1, 64]");
+  const std::string& out_dir = options.out_dir;
+  if (fs::exists(out_dir) && !fs::is_empty(out_dir))
+    throw Error(out_dir + " exists and is not empty; give a new --out");
+  fs::create_directories(out_dir);
+  const std::string stitch = ExecutableDir() + "/stitch";
+  std::vector<CaseResult> results(chosen.size());
+  for (size_t i = 0; i < chosen.size(); ++i) results[i].c = chosen[i];
+  std::vector<Running> running;
+  size_t next = 0, done = 0;
+  // The running line is for a terminal; a log gets one line per case.
+  const bool terminal = isatty(fileno(stdout));
+  const auto progress = [&]() {
+    if (!terminal) return;
+    std::string line = "\r[" + std::to_string(done) + "/" + std::to_string(chosen.size()) + "] ";
+    for (const Running& r : running) {
+      line += r.c->name + " " + std::to_string(static_cast<int>(r.clock.ElapsedSeconds())) + " s  ";
+    }
+    std::printf("%-110s", line.c_str());
+    std::fflush(stdout);
+  };
+  const Stopwatch total;
+  while (done < chosen.size()) {
+    // Start what may start: a case marked alone only when nothing runs, nothing beside it.
+    while (next < chosen.size()) {
+      const QualityCase& c = *chosen[next];
+      const bool alone_running =
+          std::any_of(running.begin(), running.end(), [](const Running& r) { return r.c->alone; });
+      if (alone_running || static_cast<int>(running.size()) >= options.jobs || (c.alone && !running.empty())) break;
+      CaseResult& result = results[next];
+      result.c = &c;
+      if (!c.needs.empty() && !fs::exists(fs::path(options.datasets_dir) / c.needs)) {
+        result.skipped = true;
+        result.why = c.needs + " is not in " + options.datasets_dir;
+        ++next;
+        ++done;
+        continue;
+      }
+      Running r{&c, next, nullptr, Stopwatch(), (fs::path(out_dir) / c.name).string()};
+      std::vector<std::string> run_args{"run", "--quiet", "--out", r.run_dir};
+      for (const std::string& a : c.run) run_args.push_back(Substitute(a, options.datasets_dir));
+      for (const std::string& setting : options.settings) {
+        run_args.push_back("--set");
+        run_args.push_back(setting);
+      }
+      r.process = std::make_unique<ChildProcess>(c.name, stitch, run_args, r.run_dir + ".log");
+      running.push_back(std::move(r));
+      ++next;
+    }
+    progress();
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+    for (auto it = running.begin(); it != running.end();) {
+      const std::optional<int> status = it->process->Poll();
+      if (!status) {
+        ++it;
+        continue;
+      }
+      CaseResult& result = results[it->index];
+      const double wall = it->clock.ElapsedSeconds();
+      if (*status != 0) {
+        result.failed = true;
+        result.why = "stitch run exited with status " + std::to_string(*status) + ":\n" + it->process->LogTail(8);
+      } else {
+        try {
+          result.figures = MeasureRun(it->run_dir, it->process->cpu_seconds(), wall);
+          result.regressions = CheckCase(matrix, *result.c, result.figures, options.figures);
+        } catch (const Error& e) {
+          result.failed = true;
+          result.why = e.what();
+        }
+      }
+      if (terminal) std::printf("\r%-110s\r", "");
+      std::printf("[%zu/%zu] %-26s %5.0f s  %s\n", done + 1, chosen.size(), result.c->name.c_str(), wall,
+                  result.failed                 ? "FAILED"
+                  : !result.regressions.empty() ? (std::to_string(result.regressions.size()) + " regressed").c_str()
+                                                : "ok");
+      std::fflush(stdout);
+      ++done;
+      it = running.erase(it);
+    }
+  }
+  if (terminal) std::printf("\r%-110s\r", "");
+  std::printf("%zu cases in %.0f s\n", chosen.size(), total.ElapsedSeconds());
+  return results;
+}
 
 int QualityCommand(int argc, char** argv) {
   std::string expected_path = std::string(STITCH_SOURCE_DIR) + "/benchmarks/quality.yaml";
@@ -424,10 +532,7 @@ int QualityCommand(int argc, char** argv) {
                  "a machine other than the one the expectations were measured on)");
   args.AddFlag("--update", &update, "write the measured figures into --expected as the new expectations");
   args.AddOption("--out", &out_dir, "DIR", "where the cases' run folders go (default: runs/quality-<time>)");
-  args.AddOption("--markdown", &markdown_path, "FILE",
-                 "also write the table as Markdown: in place of the lines between the markers "
-                 "<!-- quality-gate --> and <!-- /quality-gate --> where FILE has them (docs/benchmarks.md), "
-                 "else as the whole file");
+  args.AddOption("--markdown", &markdown_path, "FILE", MarkdownOptionHelp(kMarkdownBegin, kMarkdownEnd));
   args.AddOption("--before", &before_path, "FILE",
                  "the quality.json of an earlier run: the tables show each figure that moved as before -> now");
   args.AddOption("--from", &from_path, "FILE",
@@ -435,7 +540,8 @@ int QualityCommand(int argc, char** argv) {
   args.AddOption("--jobs", &jobs, "N", "cases run side by side (those marked alone always run alone)");
   args.AddOption("--set", &settings, "KEY=VALUE",
                  "a setting for every case's run (to try a change against the expectations)");
-  args.AddOption("--datasets", &datasets_dir, "DIR", "the real sequences' folder (default: $STITCH_DATASETS or ../shared/datasets)");
+  args.AddOption("--datasets", &datasets_dir, "DIR",
+                 "the real sequences' folder (default: $STITCH_DATASETS or ../shared/datasets)");
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {
     if (jobs < 1 || jobs > 64) throw Error("--jobs must be in [1, 64]");
@@ -455,7 +561,8 @@ int QualityCommand(int argc, char** argv) {
       figures.insert(figure);
     }
     for (const std::string& name : wanted) {
-      if (std::none_of(matrix.cases.begin(), matrix.cases.end(), [&](const QualityCase& c) { return c.name == name; })) {
+      if (std::none_of(matrix.cases.begin(), matrix.cases.end(),
+                       [&](const QualityCase& c) { return c.name == name; })) {
         throw Error("--cases: no case named '" + name + "' in " + expected_path);
       }
     }
@@ -463,13 +570,12 @@ int QualityCommand(int argc, char** argv) {
       if ((wanted.empty() || wanted.count(c.name)) && (!ci_only || c.ci)) chosen.push_back(&c);
     }
     if (chosen.empty()) throw Error("no case chosen");
-    std::vector<Result> results(chosen.size());
-    std::vector<Running> running;
-    size_t next = 0, done = 0;
+    std::vector<Result> results;
     if (!from_path.empty()) {
       // Nothing runs: the figures of an earlier run, tabled and checked as if just measured.
       if (update) throw Error("--update takes figures just measured, not --from");
       const Figures earlier = ReadFigures(from_path);
+      results.resize(chosen.size());
       for (size_t i = 0; i < chosen.size(); ++i) {
         results[i].c = chosen[i];
         const auto it = earlier.find(chosen[i]->name);
@@ -481,92 +587,25 @@ int QualityCommand(int argc, char** argv) {
         results[i].figures = it->second;
         results[i].regressions = CheckCase(matrix, *chosen[i], it->second, figures);
       }
-      next = done = chosen.size();
       out_dir = fs::path(from_path).parent_path().string();
     } else {
       if (out_dir.empty()) out_dir = "runs/quality-" + LocalTimestamp("%Y%m%d-%H%M%S");
-      if (fs::exists(out_dir) && !fs::is_empty(out_dir)) {
-        throw Error(out_dir + " exists and is not empty; give a new --out");
-      }
-      fs::create_directories(out_dir);
+      RunCasesOptions run_options;
+      run_options.out_dir = out_dir;
+      run_options.datasets_dir = datasets_dir;
+      run_options.jobs = jobs;
+      run_options.settings = settings;
+      run_options.figures = figures;
+      results = RunCases(matrix, chosen, run_options);
     }
-    const std::string stitch = ExecutableDir() + "/stitch";
-
-    const Stopwatch total;
-    const auto progress = [&]() {
-      std::string line = "\r[" + std::to_string(done) + "/" + std::to_string(chosen.size()) + "] ";
-      for (const Running& r : running) {
-        line += r.c->name + " " + std::to_string(static_cast<int>(r.clock.ElapsedSeconds())) + " s  ";
-      }
-      std::printf("%-110s", line.c_str());
-      std::fflush(stdout);
-    };
-    while (done < chosen.size()) {
-      // Start what may start: a case marked alone only when nothing runs, nothing beside it.
-      while (next < chosen.size()) {
-        const QualityCase& c = *chosen[next];
-        const bool alone_running =
-            std::any_of(running.begin(), running.end(), [](const Running& r) { return r.c->alone; });
-        if (alone_running || static_cast<int>(running.size()) >= jobs || (c.alone && !running.empty())) break;
-        Result& result = results[next];
-        result.c = &c;
-        if (!c.needs.empty() && !fs::exists(fs::path(datasets_dir) / c.needs)) {
-          result.skipped = true;
-          result.why = c.needs + " is not in " + datasets_dir;
-          ++next;
-          ++done;
-          continue;
-        }
-        Running r{&c, next, nullptr, Stopwatch(), (fs::path(out_dir) / c.name).string()};
-        std::vector<std::string> run_args{"run", "--quiet", "--out", r.run_dir};
-        for (const std::string& a : c.run) run_args.push_back(Substitute(a, datasets_dir));
-        for (const std::string& setting : settings) {
-          run_args.push_back("--set");
-          run_args.push_back(setting);
-        }
-        r.process = std::make_unique<ChildProcess>(c.name, stitch, run_args, r.run_dir + ".log");
-        running.push_back(std::move(r));
-        ++next;
-      }
-      progress();
-      std::this_thread::sleep_for(std::chrono::milliseconds(200));
-      for (auto it = running.begin(); it != running.end();) {
-        const std::optional<int> status = it->process->Poll();
-        if (!status) {
-          ++it;
-          continue;
-        }
-        Result& result = results[it->index];
-        const double wall = it->clock.ElapsedSeconds();
-        if (*status != 0) {
-          result.failed = true;
-          result.why = "stitch run exited with status " + std::to_string(*status) + ":\n" + it->process->LogTail(8);
-        } else {
-          try {
-            result.figures = MeasureRun(it->run_dir, it->process->cpu_seconds(), wall);
-            result.regressions = CheckCase(matrix, *result.c, result.figures, figures);
-          } catch (const Error& e) {
-            result.failed = true;
-            result.why = e.what();
-          }
-        }
-        std::printf("\r%-110s\r", "");
-        std::printf("[%zu/%zu] %-26s %5.0f s  %s\n", done + 1, chosen.size(), result.c->name.c_str(), wall,
-                    result.failed                ? "FAILED"
-                    : !result.regressions.empty() ? (std::to_string(result.regressions.size()) + " regressed").c_str()
-                                                  : "ok");
-        ++done;
-        it = running.erase(it);
-      }
-    }
-    std::printf("\r%-110s\r", "");
-    std::printf("\nquality gate: %zu cases in %.0f s (%s)\n\n", chosen.size(), total.ElapsedSeconds(), out_dir.c_str());
+    std::printf("\nquality gate: %zu cases (%s)\n\n", chosen.size(), out_dir.c_str());
     PrintTable(results, /*markdown=*/false, stdout, before);
 
     nlohmann::json json = nlohmann::json::array();
     int regressed = 0, failed = 0;
     for (const Result& r : results) {
-      nlohmann::json j{{"case", r.c->name}, {"skipped", r.skipped}, {"failed", r.failed}, {"why", r.why},
+      nlohmann::json j{{"case", r.c->name},    {"skipped", r.skipped},
+                       {"failed", r.failed},   {"why", r.why},
                        {"figures", r.figures}, {"command", ReproduceCommand(*r.c, datasets_dir, settings)}};
       for (const Regression& g : r.regressions) j["regressions"].push_back(g.Describe());
       json.push_back(j);
@@ -583,16 +622,8 @@ int QualityCommand(int argc, char** argv) {
     }
     if (from_path.empty()) WriteFileAtomically((fs::path(out_dir) / "quality.json").string(), json.dump(2) + "\n");
     if (!markdown_path.empty()) {
-      char* text = nullptr;
-      size_t size = 0;
-      std::FILE* md = open_memstream(&text, &size);
-      if (!md) throw Error("out of memory for the Markdown table");
-      std::fprintf(md, "`build/bin/stitch bench --quality`, %s:\n\n", LocalTimestamp("%Y-%m-%d").c_str());
-      PrintTable(results, /*markdown=*/true, md, before);
-      std::fclose(md);
-      const std::string table(text, size);
-      std::free(text);
-      WriteFileAtomically(markdown_path, PlaceMarkdownTable(ReadWholeFile(markdown_path), table));
+      WriteMarkdownTable(markdown_path, "build/bin/stitch bench --quality",
+                         [&](std::FILE* md) { PrintTable(results, /*markdown=*/true, md, before); });
     }
     if (update) {
       for (const Result& r : results) {
@@ -607,7 +638,8 @@ int QualityCommand(int argc, char** argv) {
       SaveQualityMatrix(matrix, expected_path);
       std::printf("\nwrote the measured figures to %s\n", expected_path.c_str());
     }
-    const int skipped = static_cast<int>(std::count_if(results.begin(), results.end(), [](const Result& r) { return r.skipped; }));
+    const int skipped =
+        static_cast<int>(std::count_if(results.begin(), results.end(), [](const Result& r) { return r.skipped; }));
     std::printf("\n%d ok, %d regressed, %d failed, %d skipped\n",
                 static_cast<int>(results.size()) - regressed - failed - skipped, regressed, failed, skipped);
     return check && (regressed > 0 || failed > 0) ? 1 : 0;

@@ -4,6 +4,8 @@
 // time, frames dropped), compared against committed expectations with tolerances
 // (benchmarks/quality.yaml). docs/testing.md, "The quality gate".
 
+#include <cstdio>
+#include <functional>
 #include <map>
 #include <optional>
 #include <set>
@@ -24,12 +26,12 @@ struct Tolerance {
 struct QualityCase {
   std::string name;
   std::string about;
-  std::vector<std::string> run;  // `stitch run` arguments; ${datasets} is the datasets folder
-  std::string needs;             // a folder under the datasets folder the case plays ("" = none)
-  bool alone = false;            // runs with nothing beside it (CPU, real time, link timing)
-  bool ci = false;               // part of the subset ctest runs
-  std::map<std::string, double> expect;            // figure -> expected value
-  std::map<std::string, Tolerance> tolerance;      // this case's own slack (over the defaults)
+  std::vector<std::string> run;                // `stitch run` arguments; ${datasets} is the datasets folder
+  std::string needs;                           // a folder under the datasets folder the case plays ("" = none)
+  bool alone = false;                          // runs with nothing beside it (CPU, real time, link timing)
+  bool ci = false;                             // part of the subset ctest runs
+  std::map<std::string, double> expect;        // figure -> expected value
+  std::map<std::string, Tolerance> tolerance;  // this case's own slack (over the defaults)
 };
 
 struct QualityMatrix {
@@ -68,7 +70,43 @@ std::string ReproduceCommand(const QualityCase& c, const std::string& datasets_d
 // document lacks them (a new file).
 constexpr const char* kMarkdownBegin = "<!-- quality-gate -->";
 constexpr const char* kMarkdownEnd = "<!-- /quality-gate -->";
-std::string PlaceMarkdownTable(const std::string& document, const std::string& table);
+std::string PlaceMarkdownTable(const std::string& document, const std::string& table,
+                               const char* begin = kMarkdownBegin, const char* end = kMarkdownEnd);
+// Writes "`command`, DATE:" and what `print` prints into `path` between `begin` and `end`
+// (PlaceMarkdownTable), as one act.
+void WriteMarkdownTable(const std::string& path, const std::string& command,
+                        const std::function<void(std::FILE*)>& print, const char* begin = kMarkdownBegin,
+                        const char* end = kMarkdownEnd);
+// The help text of a --markdown option writing between `begin` and `end`.
+std::string MarkdownOptionHelp(const char* begin, const char* end);
+// The merge campaign's markers (stitch campaign --markdown).
+constexpr const char* kCampaignBegin = "<!-- merge-campaign -->";
+constexpr const char* kCampaignEnd = "<!-- /merge-campaign -->";
+// A whole file's text; throws stitch::Error when it cannot be read ("" when it does not exist).
+std::string ReadWholeFile(const std::string& path);
+
+// One case's outcome.
+struct CaseResult {
+  const QualityCase* c = nullptr;
+  bool skipped = false;  // its sequence is absent
+  bool failed = false;   // stitch run failed, or its outputs could not be read
+  std::string why;       // skipped or failed: why
+  std::map<std::string, double> figures;
+  std::vector<Regression> regressions;
+};
+
+struct RunCasesOptions {
+  std::string out_dir;                // each case's run folder goes under it (new or empty)
+  std::string datasets_dir;           // ${datasets}
+  int jobs = 1;                       // cases side by side (those marked alone run alone)
+  std::vector<std::string> settings;  // --set for every case
+  std::set<std::string> figures;      // checked against the expectations (empty: all)
+};
+
+// Runs each chosen case (`stitch run` as a child process, progress on stdout) and measures and
+// checks it. Throws stitch::Error when the folder cannot be made.
+std::vector<CaseResult> RunCases(const QualityMatrix& matrix, const std::vector<const QualityCase*>& chosen,
+                                 const RunCasesOptions& options);
 
 int QualityCommand(int argc, char** argv);  // stitch bench --quality
 

@@ -74,9 +74,15 @@ int ConfigCommand(int argc, char** argv) {
                  "merged over them (which also checks the file).");
   args.AddOption("--config", &config_path, "FILE", "a settings file to check and show resolved");
   args.AddOption("--set", &settings, "KEY=VALUE", "a setting over the file, checked and shown resolved");
+  std::string calibration;
+  args.AddOption("--calib", &calibration, "FILE",
+                 "an ORB-SLAM settings file whose ORBextractor.* go over the file (as `stitch run --calib` does), "
+                 "for the tracker and mapper of a deployment");
+  std::string vocabulary;
+  args.AddOption("--vocabulary", &vocabulary, "FILE", "the vocabulary setting (as `stitch run --vocabulary`)");
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {
-    const StitchConfig config = LoadStitchConfig(config_path, settings);
+    const StitchConfig config = LoadStitchConfig(config_path, CommandLineSettings(calibration, vocabulary, settings));
     std::printf("# stitch settings%s. Any subset may be given to --config; unknown keys are errors.\n%s",
                 config_path.empty() ? " (defaults)" : (" resolved from " + config_path).c_str(),
                 DumpOptions(config).c_str());

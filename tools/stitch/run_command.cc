@@ -46,6 +46,8 @@ struct RunArgs {
   std::string agent = "uav0";
   std::string log_level = "info";
   int max_frames = -1;
+  int start_frame = 0;
+  std::string vocabulary;  // over the settings' vocabulary
   bool quiet = false;
   bool journal = false;  // keep the merger's journal in OUT/merger
   bool compare = false;
@@ -145,17 +147,27 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
     bus::CheckAgentName(a.agent);
     // The launcher's own flags are settings like --set's, over the file.
     std::vector<std::string> settings = a.settings;
+    if (a.start_frame < 0) throw Error("--start-frame must be >= 0");
+    if (!a.vocabulary.empty() && !fs::is_regular_file(a.vocabulary)) {
+      throw Error(a.vocabulary + ": no such vocabulary file (--vocabulary)");
+    }
     if (!a.pacing.empty()) settings.push_back(TextSetting("ingest.pacing", a.pacing));
     if (!a.on_loss.empty()) settings.push_back(TextSetting("tracker.on_loss", a.on_loss));
     if (a.link_loss >= 0) settings.push_back(NumberSetting("link.loss", a.link_loss));
     if (a.link_delay_ms >= 0) settings.push_back(NumberSetting("link.delay_ms", a.link_delay_ms));
     if (a.link_budget >= 0) settings.push_back(NumberSetting("link.budget_bytes_per_s", a.link_budget));
-    config = LoadStitchConfig(a.config_path, settings);
+    const std::vector<std::string> from_calibration =
+        a.calibration.empty() ? std::vector<std::string>() : OrbSlamFeatureSettings(a.calibration);
+    for (const std::string& setting : from_calibration) {
+      info.notes.push_back("from the ORB-SLAM settings " + a.calibration + ": " + setting);
+    }
+    config = LoadStitchConfig(a.config_path, CommandLineSettings(a.calibration, a.vocabulary, settings));
     spec.dataset_path = a.dataset;
     spec.live_uri = a.live.empty() && a.dataset.empty() ? config.ingest.live : a.live;  // the config may name it
     spec.calibration_path = a.calibration;
     spec.failures = a.failures;
     spec.max_frames = a.max_frames;
+    spec.start_frame = a.start_frame;
     spec.synthetic = config.synthetic;
     source = SummarizeSource(spec);
     if (source.num_frames == 0) throw Error("the sequence has no frames");
@@ -186,6 +198,7 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
   }
   info.source = source.description;
   info.dataset = a.dataset;
+  info.start_frame = a.start_frame;
   info.frames_total = source.num_frames;
   info.frames_unusable = source.num_frames < 0 ? 0 : source.failures.CountWithin(source.num_frames);
   info.failures = source.failures.ToString();
@@ -289,7 +302,8 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
                     with(common, {"--record", (fs::path(out) / "frames.tsv").string(), "--state",
                                   (fs::path(out) / "logs" / "tracker.state").string()}));
     std::vector<std::string> ingest_args =
-        with(common, {"--failures", a.failures, "--max-frames", std::to_string(a.max_frames)});
+        with(common, {"--failures", a.failures, "--max-frames", std::to_string(a.max_frames), "--start-frame",
+                      std::to_string(a.start_frame)});
     if (!a.dataset.empty()) ingest_args = with(ingest_args, {"--dataset", a.dataset});
     if (!spec.live_uri.empty()) ingest_args = with(ingest_args, {"--live", spec.live_uri});
     if (!a.calibration.empty()) ingest_args = with(ingest_args, {"--calib", a.calibration});
@@ -458,8 +472,14 @@ int RunCommand(int argc, char** argv) {
   args.AddOption("--config", &a.config_path, "FILE", "YAML settings (print the defaults with `stitch config`)");
   args.AddOption("--set", &a.settings, "KEY=VALUE",
                  "a setting over the file, e.g. tracker.tracking.orb.num_features=1500");
-  args.AddOption("--calib", &a.calibration, "FILE", "calibration overriding the dataset's own (required with --live)");
+  args.AddOption("--calib", &a.calibration, "FILE",
+                 "calibration overriding the dataset's own (required with --live); an ORB-SLAM2/3 settings file's "
+                 "ORBextractor.* also set tracker.tracking.orb (under --set)");
   args.AddOption("--max-frames", &a.max_frames, "N", "play at most N frames");
+  args.AddOption("--start-frame", &a.start_frame, "N", "skip the first N frames of the sequence");
+  args.AddOption("--vocabulary", &a.vocabulary, "FILE",
+                 "bag-of-words vocabulary (a stitch vocabulary, or DBoW2 text such as ORB-SLAM's ORBvoc.txt; "
+                 "default: the one shipped)");
   args.AddOption("--pacing", &a.pacing, "MODE", "lockstep (reproducible, default) or realtime");
   args.AddOption("--lcm-url", &a.lcm_url, "URL", "bus for the services (default: a random local port, ttl=0)");
   args.AddOption("--agent", &a.agent, "NAME", "agent name prefixing the channels");
@@ -482,7 +502,9 @@ int RunCommand(int argc, char** argv) {
       "--compare", &a.compare,
       "run twice, --on-loss submap then relocalize, into DIR/submap and DIR/relocalize, and print both side by side");
   args.AddEpilog(
-      "Outputs: trajectory.tum, map.ply (the largest merged map), report.json, trajectory.png,\n"
+      "Outputs: trajectory.tum, map.ply (the largest merged map without gross outliers; map_raw.ply\n"
+      "with every point), trajectories/ (every map, index.tsv), trajectory_kitti.txt (KITTI input),\n"
+      "report.json, trajectory.png,\n"
       "frames.tsv, poses.tsv, groundtruth.tum (when known), config.yaml (resolved settings), the\n"
       "merger's graph.png, graph.dot, merge_log.tsv, retrieval.tsv, submaps.tsv, keyframes_merged.tsv,\n"
       "the mapper's keyframes.tsv and submaps.ply, logs/ (one per service); with --journal,\n"

@@ -1,5 +1,6 @@
 #include "tools/stitch/run_outputs.h"
 
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <map>
@@ -11,6 +12,7 @@
 #include "stitch/records/frame_record.h"
 #include "stitch/records/keyframe_record.h"
 #include "stitch/records/merger_records.h"
+#include "stitch/tracking/tracking_result.h"
 #include "stitch/util/error.h"
 #include "stitch/util/ids.h"
 #include "stitch/util/text_file.h"
@@ -18,6 +20,72 @@
 namespace fs = std::filesystem;
 
 namespace stitch {
+
+namespace {
+
+// trajectories/: every map's frames in TUM format, each in its own frame: a merged map of several
+// submaps as map-K.tum (K = 0 the largest, then by frames), a submap on its own as
+// submap-A-N.tum; index.tsv says which submaps each holds.
+void WriteEveryTrajectory(const std::string& folder, const std::vector<PoseRecord>& poses, int largest_component) {
+  fs::remove_all(folder);
+  fs::create_directories(folder);
+  std::map<int, std::vector<const PoseRecord*>> by_component;
+  for (const auto& p : poses) by_component[p.component].push_back(&p);
+  std::vector<std::pair<int, int>> order;  // (component, frames), the largest first, then by frames
+  for (const auto& [component, list] : by_component) order.push_back({component, static_cast<int>(list.size())});
+  std::stable_sort(order.begin(), order.end(), [&](const auto& a, const auto& b) {
+    if ((a.first == largest_component) != (b.first == largest_component)) return a.first == largest_component;
+    return a.second > b.second;
+  });
+  std::ostringstream index;
+  index << "file\tframes\tsubmaps\tlargest\n";
+  int merged_maps = 0;
+  for (const auto& [component, frames] : order) {
+    std::set<int64_t> submaps;
+    Trajectory trajectory;
+    for (const PoseRecord* p : by_component[component]) {
+      submaps.insert(p->submap_id);
+      trajectory.Add({p->t_ns, p->world_from_cam});
+    }
+    std::string name;
+    if (submaps.size() > 1) {
+      name = "map-" + std::to_string(merged_maps++) + ".tum";
+    } else {
+      name = "submap-" + SubmapName(SubmapId(*submaps.begin())) + ".tum";
+      std::replace(name.begin(), name.end(), ':', '-');
+    }
+    trajectory.WriteTum((fs::path(folder) / name).string());
+    std::string names;
+    for (int64_t submap : submaps) names += (names.empty() ? "" : ",") + SubmapName(SubmapId(submap));
+    index << name << "\t" << frames << "\t" << names << "\t" << (component == largest_component ? "yes" : "no") << "\n";
+  }
+  WriteFileAtomically((fs::path(folder) / "index.tsv").string(), index.str());
+}
+
+// For a KITTI sequence: the largest map in KITTI's format (the 3x4 world_from_cam, row by row),
+// in the ground truth's frame and scale when it can be aligned, one line per frame it holds;
+// trajectory_kitti_frames.txt gives each line's frame number in the sequence (the devkit wants
+// every frame: the frames stitch did not pose are not there).
+void WriteKittiTrajectory(const std::string& dir, const std::vector<PoseRecord>& poses, const Evaluation& evaluation,
+                          int start_frame) {
+  const Sim3d align = evaluation.errors ? evaluation.errors->ground_truth_from_estimate : Sim3d();
+  std::ostringstream lines, frames;
+  lines.precision(9);
+  for (const auto& p : poses) {
+    if (p.component != evaluation.largest_component) continue;
+    const Sim3d pose = align * Sim3d(1.0, p.world_from_cam.rotation, p.world_from_cam.translation);
+    const Eigen::Matrix3d r = pose.rotation.toRotationMatrix();
+    for (int row = 0; row < 3; ++row) {
+      lines << r(row, 0) << " " << r(row, 1) << " " << r(row, 2) << " " << pose.translation[row]
+            << (row == 2 ? "\n" : " ");
+    }
+    frames << start_frame + p.frame_index << "\n";
+  }
+  WriteFileAtomically((fs::path(dir) / "trajectory_kitti.txt").string(), lines.str());
+  WriteFileAtomically((fs::path(dir) / "trajectory_kitti_frames.txt").string(), frames.str());
+}
+
+}  // namespace
 
 Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
   const fs::path dir(run_dir);
@@ -47,8 +115,12 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
   }
   std::set<int64_t> submaps;
   int no_core = 0, keyframes_made = 0;
-  constexpr int kReasonNoTracker = 7;  // tracking_status_t::REASON_NO_TRACKER
+  constexpr int kReasonUndecodable = static_cast<int>(TrackingReason::kUndecodableFrame);
+  constexpr int kReasonDropped = static_cast<int>(TrackingReason::kDropped);
+  constexpr int kReasonNoTracker = static_cast<int>(TrackingReason::kNoTracker);
   for (const auto& r : records) {
+    input.frames_unreadable += r.reason == kReasonUndecodable;
+    input.frames_dropped += r.reason == kReasonDropped;
     if (r.tracking_ms > 0) input.tracking_ms.push_back(r.tracking_ms);
     if (r.is_keyframe) ++keyframes_made;
     if (r.state == "OK") submaps.insert(r.submap_id);
@@ -140,6 +212,10 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
     if (p.component == evaluation.largest_component) trajectory.Add({p.t_ns, p.world_from_cam});
   }
   trajectory.WriteTum((dir / "trajectory.tum").string());
+  WriteEveryTrajectory((dir / "trajectories").string(), input.poses, evaluation.largest_component);
+  if (info->source.rfind("KITTI ", 0) == 0) {
+    WriteKittiTrajectory(dir.string(), input.poses, evaluation, info->start_frame);
+  }
   if (!fs::exists(dir / "map.ply")) {
     WritePly((dir / "map.ply").string(), {});
     info->notes.push_back("map.ply is empty: no merger wrote a map in this run");
@@ -155,7 +231,29 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
                           " frames never reached the tracker");
   }
 
-  WriteReport((dir / "report.json").string(), evaluation, info->ToJson());
+  // The merger's verdict on every pair of submaps with connected frames; the refused ones said.
+  nlohmann::json merges = nullptr;
+  if (fs::exists(dir / "edges.tsv")) {
+    merges = nlohmann::json::array();
+    for (const SubmapEdgeRecord& e : ReadSubmapEdgeRecords((dir / "edges.tsv").string())) {
+      merges.push_back({{"submap_a", SubmapName(e.a)},
+                        {"submap_b", SubmapName(e.b)},
+                        {"strength", e.strength},
+                        {"connected_frames", e.connected_frames},
+                        {"map_points", e.map_points},
+                        {"outvoted_frames", e.disagreeing_frames},
+                        {"median_angle_deg", e.median_angle_deg},
+                        {"agreement", e.agreement},
+                        {"status", e.status}});
+      if (e.status.rfind("refused", 0) == 0) {
+        char strength[32];
+        std::snprintf(strength, sizeof(strength), "%.1f", e.strength);
+        info->notes.push_back("submaps " + SubmapName(e.a) + " and " + SubmapName(e.b) +
+                              " not merged (C = " + strength + "): " + e.status);
+      }
+    }
+  }
+  WriteReport((dir / "report.json").string(), evaluation, info->ToJson(), merges);
   WriteTrajectoryPlot((dir / "trajectory.png").string(), input, evaluation, info->source);
   return evaluation;
 }

@@ -1,6 +1,7 @@
 #include "stitch/eval/evaluation.h"
 
 #include <algorithm>
+#include <climits>
 #include <cmath>
 #include <cstdio>
 #include <fstream>
@@ -8,6 +9,7 @@
 #include <set>
 #include <sstream>
 
+#include <Eigen/Eigenvalues>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
@@ -88,6 +90,8 @@ Evaluation Evaluate(const EvaluationInput& input) {
   Evaluation e;
   e.frames_total = input.frames_total;
   e.frames_unusable = input.frames_unusable;
+  e.frames_unreadable = input.frames_unreadable;
+  e.frames_dropped = input.frames_dropped;
   e.keyframes = input.keyframes;
   e.submaps = input.submaps;
   e.has_ground_truth = !input.ground_truth.empty();
@@ -167,6 +171,8 @@ nlohmann::json ToJson(const Evaluation& e) {
   json j;
   j["frames_total"] = e.frames_total;
   j["frames_unusable"] = e.frames_unusable;
+  j["frames_unreadable"] = e.frames_unreadable;
+  j["frames_dropped"] = e.frames_dropped;
   j["frames_localized"] = e.frames_localized;
   j["completeness"] = e.completeness;
   j["keyframes"] = e.keyframes;
@@ -204,6 +210,8 @@ Evaluation EvaluationFromJson(const nlohmann::json& j) {
     Evaluation e;
     e.frames_total = j.at("frames_total");
     e.frames_unusable = j.at("frames_unusable");
+    e.frames_unreadable = j.value("frames_unreadable", 0);  // reports before they were counted
+    e.frames_dropped = j.value("frames_dropped", 0);
     e.frames_localized = j.at("frames_localized");
     e.completeness = j.at("completeness");
     e.keyframes = j.at("keyframes");
@@ -254,9 +262,11 @@ Evaluation ReadReport(const std::string& path) {
   }
 }
 
-void WriteReport(const std::string& path, const Evaluation& evaluation, const nlohmann::json& run) {
+void WriteReport(const std::string& path, const Evaluation& evaluation, const nlohmann::json& run,
+                 const nlohmann::json& merges) {
   nlohmann::json report = ToJson(evaluation);
   if (!run.is_null()) report["run"] = run;
+  if (!merges.is_null()) report["merges"] = merges;
   WriteFileAtomically(path, report.dump(2) + "\n");
 }
 
@@ -268,6 +278,14 @@ std::string Summarize(const Evaluation& e) {
       100.0 * e.completeness,
       e.frames_unusable > 0 ? (" - " + std::to_string(e.frames_unusable) + " frames were made unusable").c_str() : "");
   text += line;
+  if (e.frames_unreadable > 0) {
+    text += "  unreadable        " + std::to_string(e.frames_unreadable) +
+            " frames could not be read from the source (see logs/ingest.log)\n";
+  }
+  if (e.frames_dropped > 0) {
+    text +=
+        "  dropped           " + std::to_string(e.frames_dropped) + " live frames came while the tracker was busy\n";
+  }
   std::snprintf(line, sizeof(line), "  keyframes         %d\n  submaps           %d (%d in the largest map)\n",
                 e.keyframes, e.submaps, e.submaps_merged);
   text += line;
@@ -284,7 +302,8 @@ std::string Summarize(const Evaluation& e) {
   if (e.submaps_merged > 1) {
     for (const auto& s : e.per_submap) {
       if (s.component != e.largest_component || !s.ate_in_map_m || !s.ate_rmse_m) continue;
-      std::snprintf(line, sizeof(line), "    submap %-6s %4d frames, ATE %.4f m on its own, %.4f m in the merged map%s\n",
+      std::snprintf(line, sizeof(line),
+                    "    submap %-6s %4d frames, ATE %.4f m on its own, %.4f m in the merged map%s\n",
                     SubmapName(SubmapId(s.submap_id)).c_str(), s.frames, *s.ate_rmse_m, *s.ate_in_map_m,
                     s.wrong_merge ? "  WRONG MERGE?" : "");
       text += line;
@@ -307,72 +326,152 @@ std::string Summarize(const Evaluation& e) {
 
 void WriteTrajectoryPlot(const std::string& path, const EvaluationInput& input, const Evaluation& evaluation,
                          const std::string& title) {
-  constexpr int kWidth = 1000, kHeight = 800, kMargin = 60;
+  constexpr int kWidth = 1000, kHeight = 800, kMargin = 60, kLegendWidth = 230;
   cv::Mat canvas(kHeight, kWidth, CV_8UC3, cv::Scalar(255, 255, 255));
-  // Estimated positions in the ground-truth frame when aligned, else in their own.
-  const Sim3d align = evaluation.errors ? evaluation.errors->ground_truth_from_estimate : Sim3d();
-  std::vector<std::pair<Eigen::Vector3d, const PoseRecord*>> estimate;
+  // Each map's poses: the largest with the run's alignment, every other merged map and submap
+  // aligned on its own (when it can be), so that each is drawn where it belongs.
+  std::map<int, std::vector<const PoseRecord*>> by_component;
+  int64_t first_ns = INT64_MAX, last_ns = INT64_MIN;
   for (const auto& p : input.poses) {
-    if (evaluation.errors && p.component != evaluation.largest_component) continue;
-    estimate.push_back({align * p.world_from_cam.translation, &p});
+    by_component[p.component].push_back(&p);
+    first_ns = std::min(first_ns, p.t_ns);
+    last_ns = std::max(last_ns, p.t_ns);
   }
+  const bool aligned = evaluation.errors.has_value();
+  std::vector<std::pair<Eigen::Vector3d, const PoseRecord*>> estimate;
+  for (const auto& [component, poses] : by_component) {
+    std::optional<Sim3d> align;
+    if (component == evaluation.largest_component) {
+      align = aligned ? evaluation.errors->ground_truth_from_estimate : Sim3d();
+    } else if (aligned) {
+      std::vector<StampedPose> stamped;
+      for (const PoseRecord* p : poses) stamped.push_back({p->t_ns, p->world_from_cam});
+      const auto own = CompareTrajectories(stamped, input.ground_truth, input.max_association_gap_ns);
+      if (own) align = own->ground_truth_from_estimate;
+    }
+    if (!align) continue;  // no frame of reference to draw it in
+    for (const PoseRecord* p : poses) estimate.push_back({*align * p->world_from_cam.translation, p});
+  }
+  // The ground truth of the frames the run covers (a run of part of a sequence).
   std::vector<Eigen::Vector3d> truth;
-  for (const auto& p : input.ground_truth.poses()) truth.push_back(p.world_from_cam.translation);
+  for (const auto& p : input.ground_truth.poses()) {
+    if (input.poses.empty() || (p.t_ns >= first_ns - 500'000'000 && p.t_ns <= last_ns + 500'000'000)) {
+      truth.push_back(p.world_from_cam.translation);
+    }
+  }
+  // Seen from above the plane of the motion: the two largest principal axes of the ground truth
+  // (else of the estimate), so that a car's drive or a survey is never seen edge-on.
+  std::vector<Eigen::Vector3d> cloud = truth;
+  if (cloud.size() < 3) {
+    for (const auto& [e, p] : estimate) cloud.push_back(e);
+  }
+  Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+  Eigen::Matrix3d axes = Eigen::Matrix3d::Identity();
+  if (cloud.size() >= 3) {
+    for (const auto& c : cloud) centre += c;
+    centre /= static_cast<double>(cloud.size());
+    Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();
+    for (const auto& c : cloud) covariance += (c - centre) * (c - centre).transpose();
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver(covariance);
+    if (solver.info() == Eigen::Success) {
+      // Eigenvalues ascending: columns 2 and 1 are the largest; the view from their cross product.
+      axes.col(0) = solver.eigenvectors().col(2);
+      axes.col(1) = solver.eigenvectors().col(1);
+      axes.col(2) = axes.col(0).cross(axes.col(1));
+    }
+  }
+  const auto in_plane = [&](const Eigen::Vector3d& p) -> Eigen::Vector2d {
+    const Eigen::Vector3d q = axes.transpose() * (p - centre);
+    return q.head<2>();
+  };
   Eigen::Vector2d lo = Eigen::Vector2d::Constant(1e18), hi = Eigen::Vector2d::Constant(-1e18);
   for (const auto& t : truth) {
-    lo = lo.cwiseMin(t.head<2>());
-    hi = hi.cwiseMax(t.head<2>());
+    lo = lo.cwiseMin(in_plane(t));
+    hi = hi.cwiseMax(in_plane(t));
   }
   for (const auto& [e, p] : estimate) {
-    lo = lo.cwiseMin(e.head<2>());
-    hi = hi.cwiseMax(e.head<2>());
+    lo = lo.cwiseMin(in_plane(e));
+    hi = hi.cwiseMax(in_plane(e));
   }
   if (!(hi.x() >= lo.x())) {
     lo = Eigen::Vector2d(-1, -1);
     hi = Eigen::Vector2d(1, 1);
   }
+  const int plot_width = kWidth - kLegendWidth;
   const double span = std::max({hi.x() - lo.x(), hi.y() - lo.y(), 1e-6});
-  const double scale = std::min((kWidth - 2.0 * kMargin) / std::max(hi.x() - lo.x(), span * 0.05),
+  const double scale = std::min((plot_width - 2.0 * kMargin) / std::max(hi.x() - lo.x(), span * 0.05),
                                 (kHeight - 2.0 * kMargin) / std::max(hi.y() - lo.y(), span * 0.05));
+  // Centred in the plot's area.
+  const double pad_x = std::max(0.0, (plot_width - 2.0 * kMargin - (hi.x() - lo.x()) * scale) / 2);
+  const double pad_y = std::max(0.0, (kHeight - 2.0 * kMargin - (hi.y() - lo.y()) * scale) / 2);
   const auto to_px = [&](const Eigen::Vector3d& p) {
-    return cv::Point(static_cast<int>(kMargin + (p.x() - lo.x()) * scale),
-                     static_cast<int>(kHeight - kMargin - (p.y() - lo.y()) * scale));  // y up
+    const Eigen::Vector2d q = in_plane(p);
+    return cv::Point(static_cast<int>(kMargin + pad_x + (q.x() - lo.x()) * scale),
+                     static_cast<int>(kHeight - kMargin - pad_y - (q.y() - lo.y()) * scale));  // second axis up
   };
   for (size_t i = 1; i < truth.size(); ++i) {
     cv::line(canvas, to_px(truth[i - 1]), to_px(truth[i]), cv::Scalar(170, 170, 170), 3, cv::LINE_AA);
   }
   static const cv::Scalar kPalette[] = {{200, 90, 30}, {40, 40, 220}, {40, 160, 40}, {180, 40, 180},  {20, 150, 220},
                                         {140, 140, 0}, {90, 60, 160}, {0, 110, 200}, {100, 100, 100}, {60, 180, 180}};
+  // Colours by submap, the largest map's first.
   std::map<int64_t, int> colour_of;
-  for (const auto& [e, p] : estimate) {
-    if (!colour_of.count(p->submap_id)) {
-      const int index = static_cast<int>(colour_of.size());
-      colour_of[p->submap_id] = index;
+  std::vector<std::pair<int64_t, int>> legend_entries;  // submap, component
+  for (int pass = 0; pass < 2; ++pass) {
+    for (const auto& [e, p] : estimate) {
+      if ((p->component == evaluation.largest_component) != (pass == 0) || colour_of.count(p->submap_id)) continue;
+      colour_of[p->submap_id] = static_cast<int>(colour_of.size());
+      legend_entries.push_back({p->submap_id, p->component});
     }
   }
   for (size_t i = 0; i < estimate.size(); ++i) {
     const auto& [e, p] = estimate[i];
     const cv::Scalar colour = kPalette[colour_of[p->submap_id] % 10];
+    const bool in_largest = p->component == evaluation.largest_component;
     const bool continues = i > 0 && estimate[i - 1].second->submap_id == p->submap_id &&
                            p->frame_index - estimate[i - 1].second->frame_index <= 3;
     if (continues)
-      cv::line(canvas, to_px(estimate[i - 1].first), to_px(e), colour, 2, cv::LINE_AA);
+      cv::line(canvas, to_px(estimate[i - 1].first), to_px(e), colour, in_largest ? 2 : 1, cv::LINE_AA);
     else
       cv::circle(canvas, to_px(e), 2, colour, cv::FILLED, cv::LINE_AA);
   }
   cv::putText(canvas, title, cv::Point(kMargin, 30), cv::FONT_HERSHEY_SIMPLEX, 0.6, cv::Scalar(0, 0, 0), 1,
               cv::LINE_AA);
-  std::string legend =
-      truth.empty() ? "estimate (own frame, no ground truth)" : "grey: ground truth; colours: submaps, Sim3-aligned";
+  std::string caption = truth.empty()
+                            ? "estimate (own frame, no ground truth)"
+                            : "grey: ground truth; colours: submaps, Sim3-aligned; top view of the motion's plane";
   if (evaluation.errors) {
     char ate[64];
     std::snprintf(ate, sizeof(ate), "; ATE %.3f m", evaluation.errors->ate_rmse_m);
-    legend += ate;
+    caption += ate;
   }
-  cv::putText(canvas, legend, cv::Point(kMargin, 52), cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(60, 60, 60), 1,
+  cv::putText(canvas, caption, cv::Point(kMargin, 52), cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(60, 60, 60), 1,
               cv::LINE_AA);
-  // Scale bar: a round length near a fifth of the width.
-  const double target = (kWidth - 2.0 * kMargin) / scale / 5;
+  // Legend: each submap's colour and the map it is in.
+  const int legend_x = kWidth - kLegendWidth + 10;
+  int legend_y = 90;
+  const auto legend_line = [&](const cv::Scalar& colour, int thickness, const std::string& text) {
+    if (thickness > 0) {
+      cv::line(canvas, cv::Point(legend_x, legend_y - 4), cv::Point(legend_x + 24, legend_y - 4), colour, thickness,
+               cv::LINE_AA);
+    }
+    cv::putText(canvas, text, cv::Point(legend_x + 32, legend_y), cv::FONT_HERSHEY_SIMPLEX, 0.42, cv::Scalar(0, 0, 0),
+                1, cv::LINE_AA);
+    legend_y += 20;
+  };
+  if (!truth.empty()) legend_line(cv::Scalar(170, 170, 170), 3, "ground truth");
+  constexpr size_t kMaxEntries = 30;
+  for (size_t i = 0; i < legend_entries.size() && i < kMaxEntries; ++i) {
+    const auto& [submap, component] = legend_entries[i];
+    const bool in_largest = component == evaluation.largest_component;
+    legend_line(kPalette[colour_of[submap] % 10], in_largest ? 2 : 1,
+                "submap " + SubmapName(SubmapId(submap)) + (in_largest ? " (largest map)" : " (apart)"));
+  }
+  if (legend_entries.size() > kMaxEntries) {
+    legend_line(cv::Scalar(), 0, "... and " + std::to_string(legend_entries.size() - kMaxEntries) + " more");
+  }
+  // Scale bar: a round length near a fifth of the plot's width.
+  const double target = (plot_width - 2.0 * kMargin) / scale / 5;
   const double magnitude = std::pow(10.0, std::floor(std::log10(target)));
   const double bar = target >= 5 * magnitude ? 5 * magnitude : target >= 2 * magnitude ? 2 * magnitude : magnitude;
   const int bar_px = static_cast<int>(bar * scale);

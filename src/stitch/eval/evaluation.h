@@ -21,6 +21,8 @@ namespace stitch {
 struct EvaluationInput {
   int frames_total = 0;             // frames in the sequence
   int frames_unusable = 0;          // of those, replaced by the failure schedule
+  int frames_unreadable = 0;        // of those, the source could not read (an empty frame reached the tracker)
+  int frames_dropped = 0;           // of those, live frames the tracker had no time for
   std::vector<PoseRecord> poses;    // the run's final poses
   Trajectory ground_truth;          // may be empty
   std::vector<double> tracking_ms;  // per processed frame
@@ -54,6 +56,8 @@ struct TrajectoryErrors {
 struct Evaluation {
   int frames_total = 0;
   int frames_unusable = 0;
+  int frames_unreadable = 0;
+  int frames_dropped = 0;
   int frames_localized = 0;  // with a pose in the largest merged map
   double completeness = 0;   // frames_localized / frames_total
   int keyframes = 0;
@@ -81,12 +85,17 @@ nlohmann::json ToJson(const Evaluation& evaluation);
 Evaluation EvaluationFromJson(const nlohmann::json& json);
 Evaluation ReadReport(const std::string& path);
 // Writes report.json (ToJson, with `run` under "run" when given) atomically: the one writer.
-void WriteReport(const std::string& path, const Evaluation& evaluation, const nlohmann::json& run = nullptr);
+// `run` (run.json's content) and `merges` (the merger's edges and their verdicts) go in as they are.
+void WriteReport(const std::string& path, const Evaluation& evaluation, const nlohmann::json& run = nullptr,
+                 const nlohmann::json& merges = nullptr);
 // A few lines for the terminal.
 std::string Summarize(const Evaluation& evaluation);
 
-// Top view (x, y) of the ground truth (grey) and the estimate aligned to it, one colour per
-// submap. Without ground truth, the estimate alone in its own frame.
+// Top view of the plane of the motion (the two largest principal axes of the ground truth, else
+// of the estimate): the ground truth of the frames the run covers (grey) and every map aligned
+// to it, one colour per submap with a legend; the largest map with the run's alignment, every
+// other merged map or submap aligned on its own (left out when it cannot be). Without ground
+// truth, the largest map alone in its own frame.
 void WriteTrajectoryPlot(const std::string& path, const EvaluationInput& input, const Evaluation& evaluation,
                          const std::string& title);
 

@@ -1,6 +1,8 @@
 #include "stitch/eval/evaluation.h"
 
 #include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "stitch/testing/temp_dir.h"
 #include "stitch/util/error.h"
@@ -169,6 +171,63 @@ TEST(Evaluation, PoseRecordsRoundTrip) {
   EXPECT_EQ(back[3].t_ns, poses[3].t_ns);
   EXPECT_EQ(back[3].submap_id, poses[3].submap_id);
   EXPECT_NEAR((back[3].world_from_cam.translation - poses[3].world_from_cam.translation).norm(), 0, 1e-6);
+}
+
+// The pixels of the plot's drawing area (below the title, left of the legend, above the scale
+// bar) in `colour` (BGR, within a small tolerance): their bounding box.
+cv::Rect PixelsOf(const cv::Mat& image, const cv::Scalar& colour) {
+  const cv::Mat area = image(cv::Rect(0, 60, 760, 700));
+  cv::Mat mask;
+  cv::inRange(area, colour - cv::Scalar::all(12), colour + cv::Scalar::all(12), mask);
+  std::vector<cv::Point> points;
+  cv::findNonZero(mask, points);
+  return points.empty() ? cv::Rect() : cv::boundingRect(points);
+}
+
+// A car's drive (camera y down, the motion in x-z) is drawn from above its plane, never edge-on;
+// the ground truth beyond the frames played is left out; an unmerged submap is drawn where it
+// belongs, with a legend entry of its own.
+TEST(Evaluation, ThePlotShowsThePlaneOfTheMotionTheFramesPlayedAndEveryMap) {
+  std::vector<StampedPose> truth;
+  for (int i = 0; i < 1000; ++i) {  // 1 Hz: 100 m along x, 60 m along z (winding), then 840 m more along x
+    const Eigen::Vector3d centre = i < 100   ? Eigen::Vector3d(i, 1.5, 0)
+                                   : i < 160 ? Eigen::Vector3d(99 + 3 * std::sin((i - 100) / 5.0), 1.5, i - 99)
+                                             : Eigen::Vector3d(99 + (i - 160), 1.5, 60);
+    truth.push_back({static_cast<int64_t>(i) * 1'000'000'000, Rigid3d(Eigen::Quaterniond::Identity(), centre)});
+  }
+  EvaluationInput input;
+  input.ground_truth = Trajectory(truth);
+  for (int i = 0; i < 160; ++i) {  // frames 0..159 played: 0..119 in the largest map, 125..159 apart
+    if (i >= 120 && i < 125) continue;
+    PoseRecord r;
+    r.frame_index = i;
+    r.t_ns = truth[i].t_ns;
+    r.submap_id = i < 120 ? 1 : 2;
+    r.component = i < 120 ? 0 : 1;
+    const Eigen::Vector3d centre =
+        i < 120 ? Eigen::Vector3d(0.5 * truth[i].world_from_cam.translation)
+                : Eigen::Vector3d(2.0 * truth[i].world_from_cam.translation + Eigen::Vector3d(7, 7, 7));
+    r.world_from_cam = Rigid3d(Eigen::Quaterniond::Identity(), centre);
+    input.poses.push_back(r);
+  }
+  input.frames_total = 160;
+  const Evaluation evaluation = Evaluate(input);
+  ASSERT_EQ(evaluation.largest_component, 0);
+  testing::TempDir dir;
+  WriteTrajectoryPlot(dir / "plot.png", input, evaluation, "drive");
+  const cv::Mat image = cv::imread(dir / "plot.png");
+  ASSERT_FALSE(image.empty());
+  const cv::Rect largest = PixelsOf(image, cv::Scalar(200, 90, 30));  // the first colour
+  const cv::Rect apart = PixelsOf(image, cv::Scalar(40, 40, 220));    // the second
+  // Both legs of the largest map spread over the plot (100 m by 20 m, not a line).
+  EXPECT_GT(largest.width, 300) << largest;
+  EXPECT_GT(largest.height, 60) << largest;
+  // The submap apart is drawn along the second leg, aligned on its own (35 m long).
+  EXPECT_GT(std::max(apart.width, apart.height), 150) << apart;
+  // Clipped: the 840 m the run did not play would shrink the 160 m it did to a fifth of the plot.
+  const cv::Rect grey = PixelsOf(image, cv::Scalar(170, 170, 170));
+  EXPECT_LT(std::max(grey.width, grey.height), 800) << grey;
+  EXPECT_GT(std::max(grey.width, grey.height), 400) << grey;
 }
 
 }  // namespace

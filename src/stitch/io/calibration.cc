@@ -2,29 +2,19 @@
 
 #include <filesystem>
 #include <fstream>
+#include <iterator>
+#include <map>
+#include <optional>
 #include <sstream>
 
 #include <yaml-cpp/yaml.h>
+#include <opencv2/core.hpp>
 
 #include "stitch/util/error.h"
 #include "stitch/util/options.h"
 
 namespace stitch {
 namespace {
-
-double RequireNumber(const YAML::Node& root, const std::string& key, const std::string& path) {
-  const YAML::Node node = root[key];
-  if (!node) throw Error(path + ": missing " + key);
-  try {
-    return node.as<double>();
-  } catch (const YAML::Exception&) {
-    throw Error(path + ": " + key + " is not a number");
-  }
-}
-
-double OptionalNumber(const YAML::Node& root, const std::string& key, const std::string& path) {
-  return root[key] ? RequireNumber(root, key, path) : 0.0;
-}
 
 std::vector<double> NumberList(const YAML::Node& node, const std::string& what, const std::string& path) {
   try {
@@ -56,16 +46,64 @@ Camera FinishCamera(CameraModel model, int file_width, int file_height, const st
   }
 }
 
-// ORB-SLAM2 (Camera.) or ORB-SLAM3 (Camera1.) settings.
-Camera ReadOrbSlamSettings(const YAML::Node& root, const std::string& prefix, int image_width, int image_height,
+// An ORB-SLAM2 / ORB-SLAM3 settings file, read as ORB-SLAM reads it: with OpenCV's FileStorage,
+// which accepts what YAML parsers refuse (`Viewer.PointSize:2`, no space after the colon).
+class OrbSlamSettings {
+ public:
+  // Empty when the file is no FileStorage YAML or names no camera (Camera.fx or Camera1.fx).
+  static std::optional<OrbSlamSettings> Read(const std::string& path) {
+    std::ifstream in(path, std::ios::binary);
+    std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    // FileStorage wants its header; ORB-SLAM's files have it, hand-written copies often not.
+    if (text.rfind("%YAML", 0) != 0) text = "%YAML:1.0\n" + text;
+    OrbSlamSettings settings(path);
+    try {
+      if (!settings.storage_.open(text, cv::FileStorage::READ | cv::FileStorage::MEMORY | cv::FileStorage::FORMAT_YAML))
+        return std::nullopt;
+    } catch (const cv::Exception&) {
+      return std::nullopt;
+    }
+    if (settings.Has("Camera.fx"))
+      settings.prefix_ = "Camera.";
+    else if (settings.Has("Camera1.fx"))
+      settings.prefix_ = "Camera1.";
+    else
+      return std::nullopt;
+    return settings;
+  }
+
+  // "Camera." (ORB-SLAM2) or "Camera1." (ORB-SLAM3): the prefix of the intrinsics.
+  const std::string& prefix() const { return prefix_; }
+  bool Has(const std::string& key) const { return !storage_[key].empty(); }
+  double Number(const std::string& key) const {
+    const cv::FileNode node = storage_[key];
+    if (node.empty()) throw Error(path_ + ": missing " + key);
+    if (!node.isReal() && !node.isInt()) throw Error(path_ + ": " + key + " is not a number");
+    return static_cast<double>(node);
+  }
+  double NumberOr(const std::string& key, double otherwise) const { return Has(key) ? Number(key) : otherwise; }
+  std::string Text(const std::string& key, const std::string& otherwise) const {
+    const cv::FileNode node = storage_[key];
+    if (node.empty()) return otherwise;
+    if (!node.isString()) throw Error(path_ + ": " + key + " is not text");
+    return static_cast<std::string>(node);
+  }
+
+ private:
+  explicit OrbSlamSettings(std::string path) : path_(std::move(path)) {}
+  std::string path_;
+  std::string prefix_;
+  cv::FileStorage storage_;
+};
+
+Camera ReadOrbSlamSettings(const OrbSlamSettings& settings, int image_width, int image_height,
                            const std::string& path) {
-  std::string type = "PinHole";
-  if (root["Camera.type"]) type = root["Camera.type"].as<std::string>();
-  const auto get = [&](const std::string& name) { return RequireNumber(root, prefix + name, path); };
-  const auto opt = [&](const std::string& name) { return OptionalNumber(root, prefix + name, path); };
-  const int width = static_cast<int>(root["Camera.width"] ? RequireNumber(root, "Camera.width", path) : opt("width"));
-  const int height =
-      static_cast<int>(root["Camera.height"] ? RequireNumber(root, "Camera.height", path) : opt("height"));
+  const std::string type = settings.Text("Camera.type", "PinHole");
+  const std::string& prefix = settings.prefix();
+  const auto get = [&](const std::string& name) { return settings.Number(prefix + name); };
+  const auto opt = [&](const std::string& name) { return settings.NumberOr(prefix + name, 0.0); };
+  const int width = static_cast<int>(settings.NumberOr("Camera.width", opt("width")));
+  const int height = static_cast<int>(settings.NumberOr("Camera.height", opt("height")));
   if (type == "PinHole" || type == "Pinhole" || type == "pinhole") {
     return FinishCamera(
         CameraModel::kPinholeRadTan, width, height,
@@ -139,18 +177,26 @@ Camera LoadCalibration(const std::string& path, int image_width, int image_heigh
   if (std::filesystem::path(path).extension() == ".txt") {
     return ReadKittiCalib(path, image_width, image_height);
   }
+  if (const auto settings = OrbSlamSettings::Read(path)) {
+    return ReadOrbSlamSettings(*settings, image_width, image_height, path);
+  }
   const YAML::Node root = LoadYamlFile(path);
   if (!root.IsMap()) throw Error(path + ": expected a YAML map of calibration keys");
-  if (root["Camera.fx"]) {
-    return ReadOrbSlamSettings(root, "Camera.", image_width, image_height, path);
-  }
-  if (root["Camera1.fx"]) {
-    return ReadOrbSlamSettings(root, "Camera1.", image_width, image_height, path);
-  }
   if (root["intrinsics"]) return ReadSensorYaml(root, image_width, image_height, path);
   throw Error(path +
               ": not a calibration file stitch knows (expected ORB-SLAM settings with Camera.fx, "
               "or a EuRoC/Kalibr sensor.yaml with intrinsics)");
+}
+
+std::map<std::string, double> ReadOrbExtractorSettings(const std::string& path) {
+  std::map<std::string, double> stated;
+  const auto settings = OrbSlamSettings::Read(path);
+  if (!settings) return stated;
+  for (const char* name : {"nFeatures", "scaleFactor", "nLevels", "iniThFAST", "minThFAST"}) {
+    const std::string key = std::string("ORBextractor.") + name;
+    if (settings->Has(key)) stated[name] = settings->Number(key);
+  }
+  return stated;
 }
 
 void SaveCalibration(const Camera& camera, const std::string& path) {

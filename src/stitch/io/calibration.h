@@ -1,10 +1,12 @@
 #pragma once
 // Calibration files. Reads, detecting the layout:
 //  - ORB-SLAM2 / ORB-SLAM3 settings (Camera.fx ... or Camera1.fx ..., Camera.type), which many
-//    users already have; this is also the layout stitch writes;
+//    users already have, read as they are with the parser ORB-SLAM uses (OpenCV's FileStorage:
+//    `%YAML:1.0`, `key:value` without a space); this is also the layout stitch writes;
 //  - EuRoC / Kalibr-style sensor.yaml (intrinsics, distortion_coefficients, resolution);
 //  - KITTI odometry calib.txt (P0: 3x4 projection matrix; rectified, no distortion).
 
+#include <map>
 #include <string>
 
 #include "stitch/geometry/camera.h"
@@ -15,6 +17,11 @@ namespace stitch {
 // `image_width` x `image_height` (pass 0 to require the file to state it). When both are known
 // and differ, throws stitch::Error saying so.
 Camera LoadCalibration(const std::string& path, int image_width = 0, int image_height = 0);
+
+// The feature extractor's settings an ORB-SLAM settings file states, by their ORB-SLAM names
+// without the "ORBextractor." prefix (nFeatures, scaleFactor, nLevels, iniThFAST, minThFAST);
+// empty for a file of another layout. Throws stitch::Error for a value that is no number.
+std::map<std::string, double> ReadOrbExtractorSettings(const std::string& path);
 
 // Writes the camera as an ORB-SLAM-style settings file.
 void SaveCalibration(const Camera& camera, const std::string& path);

@@ -47,6 +47,52 @@ TEST(Calibration, ReadsOrbSlam3SettingsAndTakesSizeFromImages) {
   EXPECT_DOUBLE_EQ(camera.cy(), 248.4);
 }
 
+// ORB-SLAM's own example settings, as they are (our copies of their keys in testdata/).
+std::string Example(const std::string& name) {
+  return std::string(STITCH_SOURCE_DIR) + "/src/stitch/io/testdata/" + name;
+}
+
+TEST(Calibration, ReadsOrbSlamExampleSettingsAsTheyAre) {
+  // ORB-SLAM2's TUM1.yaml: `Viewer.PointSize:2`, which a YAML parser refuses; no image size.
+  const Camera tum = LoadCalibration(Example("orbslam2_tum1.yaml"), 640, 480);
+  EXPECT_DOUBLE_EQ(tum.fx(), 517.306408);
+  EXPECT_DOUBLE_EQ(tum.params()[8], 1.163314);  // k3
+  EXPECT_EQ(tum.width(), 640);
+  const Camera kitti = LoadCalibration(Example("orbslam2_kitti00-02.yaml"), 1241, 376);
+  EXPECT_DOUBLE_EQ(kitti.cx(), 607.1928);
+  EXPECT_EQ(kitti.height(), 376);
+  // ORB-SLAM3's versioned layout: Camera1. intrinsics, the size stated (and checked).
+  const Camera euroc = LoadCalibration(Example("orbslam3_euroc_mono.yaml"));
+  EXPECT_EQ(euroc.width(), 752);
+  EXPECT_DOUBLE_EQ(euroc.params()[7], 1.76187114e-05);  // p2
+  EXPECT_NE(ErrorOf([&] { LoadCalibration(Example("orbslam3_euroc_mono.yaml"), 640, 480); }).find("752x480"),
+            std::string::npos);
+}
+
+TEST(Calibration, ReadsTheFeatureSettingsOfAnOrbSlamFile) {
+  const auto kitti = ReadOrbExtractorSettings(Example("orbslam2_kitti00-02.yaml"));
+  ASSERT_EQ(kitti.size(), 5u);
+  EXPECT_EQ(kitti.at("nFeatures"), 2000);
+  EXPECT_EQ(kitti.at("scaleFactor"), 1.2);
+  EXPECT_EQ(kitti.at("nLevels"), 8);
+  EXPECT_EQ(kitti.at("iniThFAST"), 20);
+  EXPECT_EQ(kitti.at("minThFAST"), 7);
+  testing::TempDir dir;
+  // Written by hand: no `%YAML:1.0` header, `key:value`, only some of the keys.
+  Write(dir / "mine.yaml",
+        "Camera.fx:500\nCamera.fy: 500\nCamera.cx: 320\nCamera.cy: 240\nORBextractor.nFeatures:1500\n");
+  const auto mine = ReadOrbExtractorSettings(dir / "mine.yaml");
+  ASSERT_EQ(mine.size(), 1u);
+  EXPECT_EQ(mine.at("nFeatures"), 1500);
+  EXPECT_DOUBLE_EQ(LoadCalibration(dir / "mine.yaml", 640, 480).fx(), 500);
+  // Other layouts state none; a value that is no number is an error naming it.
+  Write(dir / "sensor.yaml", "intrinsics: [458, 457, 367, 248]\nresolution: [752, 480]\n");
+  EXPECT_TRUE(ReadOrbExtractorSettings(dir / "sensor.yaml").empty());
+  Write(dir / "bad.yaml", "Camera.fx: 500\nORBextractor.nLevels: eight\n");
+  EXPECT_NE(ErrorOf([&] { ReadOrbExtractorSettings(dir / "bad.yaml"); }).find("ORBextractor.nLevels is not a number"),
+            std::string::npos);
+}
+
 TEST(Calibration, ReadsEurocSensorYaml) {
   testing::TempDir dir;
   Write(dir / "sensor.yaml",

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cctype>
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -13,6 +14,7 @@
 #include "stitch/io/calibration.h"
 #include "stitch/io/image_sequence.h"
 #include "stitch/util/error.h"
+#include "stitch/util/log.h"
 #include "stitch/util/options.h"
 #include "stitch/util/text_file.h"
 #include "stitch/util/time.h"
@@ -81,7 +83,10 @@ class ImageListSequence : public ImageSequence {
       : description_(std::move(description)),
         images_(std::move(images)),
         camera_(std::move(camera)),
-        ground_truth_(std::move(ground_truth)),
+        // Only what the played frames span: a run of part of a sequence is drawn and evaluated
+        // against that part.
+        ground_truth_(images_.empty() ? std::move(ground_truth)
+                                      : ground_truth.Between(images_.front().t_ns, images_.back().t_ns)),
         fps_(fps) {}
 
   std::string description() const override { return description_ + " (" + std::to_string(images_.size()) + " frames)"; }
@@ -89,6 +94,9 @@ class ImageListSequence : public ImageSequence {
   const Camera& camera() const override { return camera_; }
   double nominal_fps() const override { return fps_; }
   const Trajectory& ground_truth() const override { return ground_truth_; }
+  std::string image_path(int index) const override {
+    return index >= 0 && index < static_cast<int>(images_.size()) ? images_[index].path : std::string();
+  }
 
   bool Next(SequenceFrame* frame) override {
     if (next_ >= images_.size()) return false;
@@ -119,6 +127,24 @@ double FpsFromTimestamps(const std::vector<ImageEntry>& images, double fallback)
   if (images.size() < 2) return fallback;
   const double span_s = (images.back().t_ns - images.front().t_ns) * 1e-9;
   return span_s > 0 ? (images.size() - 1) / span_s : fallback;
+}
+
+// The list as the camera took it: a list out of time order (sorted by name, say: 10.0 before
+// 2.0) is played in time order, with a warning; tracking a shuffled sequence goes nowhere.
+std::vector<ImageEntry> InTimeOrder(std::vector<ImageEntry> images, const std::string& list) {
+  const auto earlier = [](const ImageEntry& a, const ImageEntry& b) { return a.t_ns < b.t_ns; };
+  const auto first_out = std::is_sorted_until(images.begin(), images.end(), earlier);
+  if (first_out == images.end()) return images;
+  const size_t backwards = [&] {
+    size_t n = 0;
+    for (size_t i = 1; i < images.size(); ++i) n += images[i].t_ns < images[i - 1].t_ns;
+    return n;
+  }();
+  STITCH_LOG(WARNING) << list << " lists its images out of time order (" << backwards << " step"
+                      << (backwards == 1 ? "" : "s") << " back in time, the first at entry "
+                      << (first_out - images.begin() + 1) << ", " << first_out->path << "); playing them in time order";
+  std::stable_sort(images.begin(), images.end(), earlier);
+  return images;
 }
 
 std::vector<ImageEntry> Slice(std::vector<ImageEntry> images, const SequenceOptions& options) {
@@ -167,7 +193,7 @@ std::unique_ptr<ImageSequence> OpenTum(const fs::path& root, const SequenceOptio
         }
       },
       " (TUM RGB-D sequences have rgb.txt)");
-  images = Slice(std::move(images), options);
+  images = Slice(InTimeOrder(std::move(images), list.string()), options);
   const std::string folder_name =
       root.filename().empty() ? root.parent_path().filename().string() : root.filename().string();
   std::string calibration = options.calibration_path;
@@ -249,7 +275,7 @@ std::unique_ptr<ImageSequence> OpenEuroc(const fs::path& given, const SequenceOp
         }
       },
       " (EuRoC sequences have mav0/cam0/data.csv)");
-  images = Slice(std::move(images), options);
+  images = Slice(InTimeOrder(std::move(images), list.string()), options);
   const std::string sensor = (cam / "sensor.yaml").string();
   const std::string calibration = options.calibration_path.empty() ? sensor : options.calibration_path;
   const Camera camera = CameraForImages(images, calibration, mav.string());
@@ -267,19 +293,53 @@ std::unique_ptr<ImageSequence> OpenEuroc(const fs::path& given, const SequenceOp
 
 // --- KITTI odometry ------------------------------------------------------------------------
 
-std::unique_ptr<ImageSequence> OpenKitti(const fs::path& root, const SequenceOptions& options) {
-  const fs::path times = root / "times.txt";
-  std::ifstream in(times);
-  if (!in) throw Error(times.string() + ": cannot open (KITTI odometry sequences have times.txt)");
-  std::vector<ImageEntry> images;
+// times.txt: one time a line, in seconds, often in exponent form ("1.036e-01"), which
+// ParseSecondsToNs rejects on purpose; KITTI's resolution is far coarser than a double's.
+std::vector<int64_t> ReadKittiTimes(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw Error(path + ": cannot open (KITTI odometry sequences have times.txt)");
+  std::vector<int64_t> times;
   std::string stamp;
-  char name[32];
   while (in >> stamp) {
-    // times.txt is in seconds, often in exponent form ("1.036e-01"), which ParseSecondsToNs
-    // rejects on purpose; KITTI's resolution is far coarser than a double's.
-    const double seconds = std::stod(stamp);
+    double seconds = 0;
+    try {
+      seconds = std::stod(stamp);
+    } catch (const std::exception&) {
+      throw Error(Str() << path << ": line " << times.size() + 1 << ": '" << stamp << "' is not a time in seconds");
+    }
+    if (!std::isfinite(seconds)) throw Error(Str() << path << ": line " << times.size() + 1 << ": not finite");
+    times.push_back(static_cast<int64_t>(std::llround(seconds * 1e9)));
+  }
+  return times;
+}
+
+// poses/NN.txt: one world_from_cam a line, the 3x4 matrix row by row.
+std::vector<Rigid3d> ReadKittiPoses(const std::string& path) {
+  std::vector<Rigid3d> poses;
+  ForEachDataLine(path, [&](const std::string& line, int line_number) {
+    std::istringstream fields(line);
+    double m[12];
+    for (double& v : m) fields >> v;
+    std::string extra;
+    if (!fields || (fields >> extra)) {
+      throw Error(Str() << path << ":" << line_number << ": a KITTI pose line holds 12 numbers");
+    }
+    Eigen::Matrix3d r;
+    r << m[0], m[1], m[2], m[4], m[5], m[6], m[8], m[9], m[10];
+    if (!r.allFinite() || std::abs(r.determinant() - 1.0) > 0.01) {
+      throw Error(Str() << path << ":" << line_number << ": not a rotation");
+    }
+    poses.push_back(Rigid3d(Eigen::Quaterniond(r).normalized(), Eigen::Vector3d(m[3], m[7], m[11])));
+  });
+  return poses;
+}
+
+std::unique_ptr<ImageSequence> OpenKitti(const fs::path& root, const SequenceOptions& options) {
+  std::vector<ImageEntry> images;
+  char name[32];
+  for (const int64_t t_ns : ReadKittiTimes((root / "times.txt").string())) {
     std::snprintf(name, sizeof(name), "%06zu.png", images.size());
-    images.push_back({static_cast<int64_t>(std::llround(seconds * 1e9)), (root / "image_0" / name).string()});
+    images.push_back({t_ns, (root / "image_0" / name).string()});
   }
   images = Slice(std::move(images), options);
   const std::string calibration =
@@ -291,21 +351,12 @@ std::unique_ptr<ImageSequence> OpenKitti(const fs::path& root, const SequenceOpt
                                                                     : sequence_dir.filename().string();
   const fs::path poses = sequence_dir.parent_path().parent_path() / "poses" / (sequence_name + ".txt");
   if (fs::exists(poses)) {
-    std::ifstream pin(poses);
-    std::vector<StampedPose> gt;
-    double m[12];
-    while (pin >> m[0]) {
-      for (int k = 1; k < 12; ++k) pin >> m[k];
-      if (!pin) throw Error(poses.string() + ": each line needs 12 numbers");
-      Eigen::Matrix3d r;
-      r << m[0], m[1], m[2], m[4], m[5], m[6], m[8], m[9], m[10];
-      gt.push_back({0, Rigid3d(Eigen::Quaterniond(r).normalized(), Eigen::Vector3d(m[3], m[7], m[11]))});
-    }
+    const std::vector<Rigid3d> gt = ReadKittiPoses(poses.string());
     // Poses are one per frame of the full sequence; keep those of the frames we play.
     std::vector<StampedPose> kept;
     for (size_t k = 0; k < images.size(); ++k) {
       const size_t full_index = k + std::max(options.start_frame, 0);
-      if (full_index < gt.size()) kept.push_back({images[k].t_ns, gt[full_index].world_from_cam});
+      if (full_index < gt.size()) kept.push_back({images[k].t_ns, gt[full_index]});
     }
     ground_truth = Trajectory(std::move(kept));
   }
@@ -490,6 +541,53 @@ std::unique_ptr<ImageSequence> OpenDataset(const std::string& path, const Sequen
   if (kind == "kitti") return OpenKitti(root, options);
   if (kind == "folder") return OpenImageFolder(root, options);
   return std::make_unique<VideoSequence>(root, options);
+}
+
+Trajectory ReadGroundTruth(const std::string& path, const std::string& kitti_times) {
+  if (!fs::is_regular_file(path)) throw Error(path + ": no such ground-truth file");
+  // The layout by the first data line: commas (EuRoC), 12 numbers (KITTI) or 8 (TUM).
+  std::string first;
+  ForEachDataLine(path, [&](const std::string& line, int) {
+    if (first.empty()) first = line;
+  });
+  if (first.find(',') != std::string::npos) {
+    const fs::path sensor = fs::path(path).parent_path().parent_path() / "cam0" / "sensor.yaml";
+    if (!fs::exists(sensor)) {
+      STITCH_LOG(WARNING) << path << ": EuRoC ground truth is the body's (IMU's) pose and no " << sensor.string()
+                          << " gives the camera's place on it; evaluating against the body's poses";
+    }
+    return ReadEurocStateGroundTruth(path, fs::exists(sensor) ? ReadTBS(sensor.string()) : Eigen::Matrix4d::Identity());
+  }
+  std::istringstream fields(first);
+  int count = 0;
+  for (std::string field; fields >> field;) ++count;
+  if (count == 12) {
+    // KITTI poses carry no times: those of the sequence, times.txt (found beside the KITTI
+    // layout's poses/NN.txt as sequences/NN/times.txt when not given).
+    std::string times = kitti_times;
+    if (times.empty()) {
+      const fs::path guess =
+          fs::path(path).parent_path().parent_path() / "sequences" / fs::path(path).stem() / "times.txt";
+      if (!fs::exists(guess)) {
+        throw Error(path + ": KITTI poses carry no times; give the sequence's times.txt (not found at " +
+                    guess.string() + ")");
+      }
+      times = guess.string();
+    }
+    const std::vector<Rigid3d> poses = ReadKittiPoses(path);
+    const std::vector<int64_t> t_ns = ReadKittiTimes(times);
+    if (t_ns.size() != poses.size()) {
+      throw Error(Str() << path << " holds " << poses.size() << " poses but " << times << " " << t_ns.size()
+                        << " times; they must be of the same sequence");
+    }
+    std::vector<StampedPose> stamped;
+    for (size_t i = 0; i < poses.size(); ++i) stamped.push_back({t_ns[i], poses[i]});
+    return Trajectory(std::move(stamped));
+  }
+  if (count == 8) return Trajectory::ReadTum(path);
+  throw Error(path +
+              ": not a ground truth stitch reads (TUM: 'timestamp tx ty tz qx qy qz qw'; KITTI: 12 numbers a "
+              "line; EuRoC: state_groundtruth_estimate0/data.csv)");
 }
 
 }  // namespace stitch

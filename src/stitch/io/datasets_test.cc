@@ -1,5 +1,6 @@
 // Each reader on a small fixture written here (no real data in the repository).
 
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
 
@@ -81,6 +82,43 @@ TEST(Datasets, TumReadsListCalibrationAndGroundTruth) {
   EXPECT_DOUBLE_EQ(OpenDataset(root.string())->camera().fx(), 500);
 }
 
+// rgb.txt sorted by name (10.0 before 2.0) is played in time order; the ground truth is only what
+// the played frames span.
+TEST(Datasets, TumPlaysAListOutOfTimeOrderInTimeOrderAndClipsTheGroundTruth) {
+  testing::TempDir dir;
+  const fs::path root = dir.path() / "handheld";
+  fs::create_directories(root / "rgb");
+  std::string gt;
+  for (int i = 0; i < 12; ++i) {
+    const std::string stamp = std::to_string(i) + ".0";
+    cv::imwrite((root / "rgb" / (stamp + ".png")).string(), TestImage(i));
+    gt += std::to_string(i) + ".0 " + std::to_string(i) + " 0 0 0 0 0 1\n";
+  }
+  std::vector<std::string> names;
+  for (int i = 0; i < 12; ++i) names.push_back(std::to_string(i) + ".0");
+  std::sort(names.begin(), names.end());  // 0.0 1.0 10.0 11.0 2.0 ...
+  std::string list;
+  for (const auto& name : names) list += name + " rgb/" + name + ".png\n";
+  WriteText(root / "rgb.txt", list);
+  WriteText(root / "groundtruth.txt", gt);
+  WriteText(root / "camera.yaml", PinholeYaml());
+  SequenceOptions options;
+  options.start_frame = 3;
+  options.max_frames = 4;
+  auto sequence = OpenDataset(root.string(), options);
+  const auto frames = ReadAll(*sequence);
+  ASSERT_EQ(frames.size(), 4u);
+  for (int k = 0; k < 4; ++k) {
+    EXPECT_EQ(frames[k].t_ns, (3 + k) * 1'000'000'000LL);
+    ExpectShowsFrame(frames[k], 3 + k);
+  }
+  // Frames 3..6 and one sample on each side: 2..7.
+  const auto& poses = sequence->ground_truth().poses();
+  ASSERT_EQ(poses.size(), 6u);
+  EXPECT_EQ(poses.front().t_ns, 2'000'000'000LL);
+  EXPECT_EQ(poses.back().t_ns, 7'000'000'000LL);
+}
+
 TEST(Datasets, EurocReadsCsvSensorAndStateGroundTruth) {
   testing::TempDir dir;
   const fs::path root = dir.path() / "MH_test";
@@ -121,6 +159,10 @@ TEST(Datasets, EurocReadsCsvSensorAndStateGroundTruth) {
   const auto some = ReadAll(*part);
   ASSERT_EQ(some.size(), 2u);
   ExpectShowsFrame(some[0], 1);
+  // `stitch eval --gt` reads the state ground truth directly, onto the camera with T_BS.
+  const Trajectory gt = ReadGroundTruth((root / "mav0" / "state_groundtruth_estimate0" / "data.csv").string());
+  ASSERT_EQ(gt.size(), 2u);
+  EXPECT_NEAR((gt.poses()[0].world_from_cam.translation - Eigen::Vector3d(1.5, 2, 3)).norm(), 0, 1e-9);
 }
 
 TEST(Datasets, KittiReadsTimesCalibAndPoses) {
@@ -144,6 +186,33 @@ TEST(Datasets, KittiReadsTimesCalibAndPoses) {
   ExpectShowsFrame(frames[2], 2);
   ASSERT_EQ(sequence->ground_truth().size(), 3u);
   EXPECT_NEAR(sequence->ground_truth().poses()[2].world_from_cam.translation.z(), 3.0, 1e-12);
+  // `stitch eval --gt poses/05.txt`: the times from sequences/05/times.txt, or given.
+  const std::string poses = (dir.path() / "poses" / "05.txt").string();
+  const Trajectory gt = ReadGroundTruth(poses);
+  ASSERT_EQ(gt.size(), 3u);
+  EXPECT_EQ(gt.poses()[1].t_ns, 103600000);
+  EXPECT_NEAR(gt.poses()[1].world_from_cam.translation.z(), 1.5, 1e-12);
+  WriteText(dir.path() / "other" / "times.txt", "0\n0.1\n");
+  EXPECT_THROW(ReadGroundTruth(poses, (dir.path() / "other" / "times.txt").string()), Error);  // 3 poses, 2 times
+  fs::copy_file(poses, dir.path() / "other" / "07.txt");
+  EXPECT_THROW(ReadGroundTruth((dir.path() / "other" / "07.txt").string()), Error);  // no times anywhere
+  EXPECT_EQ(ReadGroundTruth((dir.path() / "other" / "07.txt").string(), (seq / "times.txt").string()).size(), 3u);
+}
+
+TEST(Datasets, GroundTruthOfAnUnknownLayoutIsAClearError) {
+  testing::TempDir dir;
+  WriteText(dir / "tum.txt", "# time tx ty tz qx qy qz qw\n1.0 0 0 0 0 0 0 1\n2.0 1 0 0 0 0 0 1\n");
+  EXPECT_EQ(ReadGroundTruth(dir / "tum.txt").size(), 2u);
+  WriteText(dir / "odd.txt", "1 2 3 4 5\n");
+  try {
+    ReadGroundTruth(dir / "odd.txt");
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("not a ground truth stitch reads"), std::string::npos) << e.what();
+  }
+  WriteText(dir / "bent.txt", "2 0 0 0 0 1 0 0 0 0 1 0\n");
+  EXPECT_THROW(ReadGroundTruth(dir / "bent.txt", dir / "tum.txt"), Error);  // not a rotation
+  EXPECT_THROW(ReadGroundTruth(dir / "none.txt"), Error);
 }
 
 TEST(Datasets, ImageFolderNeedsCalibrationAndSortsByName) {

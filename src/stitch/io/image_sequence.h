@@ -37,6 +37,9 @@ class ImageSequence {
   virtual bool Next(SequenceFrame* frame) = 0;
   // A live camera: frames come at its rate, whatever the consumer does (it is not to be paced).
   virtual bool live() const { return false; }
+  // The file frame `index` is read from, for sequences of image files; empty otherwise (a video,
+  // a rendered flight, a camera).
+  virtual std::string image_path(int /*index*/) const { return {}; }
   // Frames a live source captured but replaced by a newer one before Next() took them.
   virtual int64_t dropped_at_source() const { return 0; }
 };
@@ -55,5 +58,12 @@ std::string DetectDatasetKind(const std::string& path);
 // Opens a dataset of the detected kind. Throws stitch::Error for a missing folder, a missing or
 // wrong calibration, or a first image that cannot be read.
 std::unique_ptr<ImageSequence> OpenDataset(const std::string& path, const SequenceOptions& options = {});
+
+// Ground truth in the layouts datasets ship it, detected: TUM ("timestamp tx ty tz qx qy qz qw"),
+// KITTI odometry poses (12 numbers a line, one line per frame; the times come from `kitti_times`,
+// else from the KITTI layout's sequences/NN/times.txt beside poses/NN.txt), or EuRoC's
+// state_groundtruth_estimate0/data.csv (the body's poses, moved onto the camera with cam0/sensor.yaml's
+// T_BS when it is there). Throws stitch::Error naming the file and what was expected.
+Trajectory ReadGroundTruth(const std::string& path, const std::string& kitti_times = "");
 
 }  // namespace stitch

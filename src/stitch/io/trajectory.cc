@@ -77,6 +77,18 @@ void Trajectory::WriteTum(const std::string& path) const {
   if (!out) throw Error(path + ": write failed");
 }
 
+Trajectory Trajectory::Between(int64_t first_ns, int64_t last_ns) const {
+  const auto by_time = [](const StampedPose& p, int64_t t) { return p.t_ns < t; };
+  auto begin = std::lower_bound(poses_.begin(), poses_.end(), first_ns, by_time);
+  auto end = std::upper_bound(poses_.begin(), poses_.end(), last_ns,
+                              [](int64_t t, const StampedPose& p) { return t < p.t_ns; });
+  if (begin != poses_.begin()) --begin;
+  if (end != poses_.end()) ++end;
+  Trajectory clipped;
+  clipped.poses_.assign(begin, end);
+  return clipped;
+}
+
 std::optional<Rigid3d> Trajectory::PoseAt(int64_t t_ns, int64_t max_gap_ns) const {
   if (poses_.empty()) return std::nullopt;
   const auto after =

@@ -35,6 +35,9 @@ class Trajectory {
   bool empty() const { return poses_.empty(); }
   size_t size() const { return poses_.size(); }
   void Add(const StampedPose& pose);  // keeps the order
+  // The samples from `first_ns` to `last_ns`, and the one on each side of that span (so that
+  // PoseAt still interpolates at its ends).
+  Trajectory Between(int64_t first_ns, int64_t last_ns) const;
 
   // Pose at t_ns: the sample itself if one lies within 1 us, otherwise interpolated between the
   // two samples around it (slerp) when they are at most `max_gap_ns` apart. Empty outside.

@@ -7,6 +7,7 @@
 
 #include "stitch/merging/merger.h"
 #include "stitch/testing/default_vocabulary.h"
+#include "stitch/testing/submap_updates.h"
 #include "stitch/util/rng.h"
 
 namespace stitch {
@@ -89,26 +90,7 @@ std::vector<SubmapUpdate> LoopingSubmap() {
     map.AddKeyframe(keyframe);
   }
   for (const auto& [id, point] : map.points()) map.UpdatePointGeometry(id);
-  std::vector<SubmapUpdate> updates;
-  for (int k = 0; k < kKeyframes; ++k) {
-    const KeyframeId id = MakeKeyframeId(kSubmap, k);
-    map.UpdateConnections(id);
-    const Keyframe& keyframe = *map.FindKeyframe(id);
-    LocalMapUpdate changes;
-    changes.revision = k + 1;
-    changes.last_keyframe = id;
-    changes.keyframe_poses.push_back({id, keyframe.cam_from_world});
-    changes.associations.push_back({id, keyframe.points});
-    for (MapPointId p : keyframe.points) {
-      MapPoint copy = *map.FindPoint(p);
-      copy.observations.clear();
-      changes.points.push_back(copy);
-    }
-    updates.push_back(MakeKeyframeSubmapUpdate(map, id, kCamera, changes));
-    updates.back().manifest.clear();  // the keyframes so far (the map holds them all already)
-    for (int j = 0; j <= k; ++j) updates.back().manifest.push_back(MakeKeyframeId(kSubmap, j));
-  }
-  return updates;
+  return testing::KeyframeByKeyframeUpdates(&map, kCamera);
 }
 
 // The worst keyframe position error against the truth, in the frame of keyframe 0 (which the

@@ -4,6 +4,8 @@
 #include <cmath>
 #include <set>
 
+#include <Eigen/Eigenvalues>
+
 #include "stitch/estimators/pnp.h"
 #include "stitch/estimators/pose_optimizer.h"
 #include "stitch/features/descriptor.h"
@@ -65,7 +67,67 @@ int ApplyAdaptiveThresholds(std::vector<KeyframeDatabase::Candidate>* candidates
   return passed_k;
 }
 
+// The smaller principal standard deviation of 2D points.
+double SmallerSpread(const std::vector<Eigen::Vector2d>& points) {
+  if (points.size() < 2) return 0;
+  Eigen::Vector2d mean = Eigen::Vector2d::Zero();
+  for (const auto& p : points) mean += p;
+  mean /= static_cast<double>(points.size());
+  Eigen::Matrix2d covariance = Eigen::Matrix2d::Zero();
+  for (const auto& p : points) covariance += (p - mean) * (p - mean).transpose();
+  covariance /= static_cast<double>(points.size());
+  return std::sqrt(std::max(0.0, Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d>(covariance).eigenvalues()(0)));
+}
+
+// The middle principal standard deviation of 3D points over the largest, over the 80% of the
+// points nearest their median (a few points triangulated with little parallax lie far out along
+// their rays and would make any cloud look like a line).
+double LineRatio(std::vector<Eigen::Vector3d> points) {
+  if (points.size() < 3) return 0;
+  Eigen::Vector3d median;
+  for (int axis = 0; axis < 3; ++axis) {
+    std::vector<double> values;
+    for (const auto& p : points) values.push_back(p(axis));
+    median(axis) = Median(values);
+  }
+  std::sort(points.begin(), points.end(), [&](const Eigen::Vector3d& x, const Eigen::Vector3d& y) {
+    return (x - median).squaredNorm() < (y - median).squaredNorm();
+  });
+  points.resize(std::max<size_t>(3, points.size() * 8 / 10));
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (const auto& p : points) mean += p;
+  mean /= static_cast<double>(points.size());
+  Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();
+  for (const auto& p : points) covariance += (p - mean) * (p - mean).transpose();
+  const Eigen::Vector3d values = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(covariance).eigenvalues();
+  return values(2) > 0 ? std::sqrt(std::max(0.0, values(1)) / values(2)) : 0;
+}
+
 }  // namespace
+
+ConnectionGeometry MeasureConnectionGeometry(const std::vector<Sim3Correspondence>& pairs,
+                                             const std::vector<char>& inlier, const Sim3d& b_from_a,
+                                             const Rigid3d& cam_b_from_b, const PinholeIntrinsics& k) {
+  ConnectionGeometry g;
+  std::vector<Eigen::Vector2d> bearings_a, bearings_b;
+  std::vector<Eigen::Vector3d> points_a;
+  std::vector<double> disagreement;
+  const Eigen::Vector3d centre_b = cam_b_from_b.Inverse().translation;
+  for (size_t m = 0; m < pairs.size(); ++m) {
+    if (!inlier[m]) continue;
+    const Sim3Correspondence& c = pairs[m];
+    bearings_a.push_back(k.Normalize(c.pixel_a));
+    bearings_b.push_back(k.Normalize(c.pixel_b));
+    points_a.push_back(c.point_a);
+    const double range = (c.point_b - centre_b).norm();
+    if (range > 0) disagreement.push_back((b_from_a * c.point_a - c.point_b).norm() / range);
+  }
+  g.bearing_spread_a = SmallerSpread(bearings_a);
+  g.bearing_spread_b = SmallerSpread(bearings_b);
+  g.line_ratio = LineRatio(points_a);
+  g.depth_disagreement = disagreement.empty() ? 0 : Median(disagreement);
+  return g;
+}
 
 Merger::Merger(const MergerOptions& options, const Vocabulary* vocabulary, const ScalePyramid& pyramid)
     : options_(options), vocabulary_(vocabulary), pyramid_(pyramid) {
@@ -167,8 +229,7 @@ RetrievalRecord Merger::Retrieve(const SubmapReplica& replica, const Keyframe& k
     if (!candidate) continue;
     int matches = 0, inliers = 0;
     if (auto connection = Verify(replica, keyframe, other->second, *candidate, &matches, &inliers)) {
-      connections_.push_back(*connection);
-      r.connected.push_back(id);
+      if (File(std::move(*connection), &connections_)) r.connected.push_back(id);
     }
     r.verification.push_back({matches, inliers});
   }
@@ -198,8 +259,7 @@ void Merger::RetrieveLoops(const SubmapReplica& replica, const Keyframe& keyfram
     if (!candidate) continue;
     int matches = 0, inliers = 0;
     if (auto loop = Verify(replica, keyframe, replica, *candidate, &matches, &inliers)) {
-      loops_.push_back(*loop);
-      r->loops.push_back(id);
+      if (File(std::move(*loop), &loops_)) r->loops.push_back(id);
     }
     r->verification.push_back({matches, inliers});
   }
@@ -261,17 +321,25 @@ std::optional<ConnectedFrame> Merger::Verify(const SubmapReplica& a, const Keyfr
   sim3.min_inliers = options_.sim3_min_inliers;
   sim3.seed = static_cast<uint64_t>(keyframe_a.id.value ^ (keyframe_b.id.value << 1));
   std::optional<Sim3Estimate> estimate;
+  VerifiedBy verified_by = VerifiedBy::kDescriptors;
   if (static_cast<int>(pairs.size()) >= options_.sim3_min_inliers) {
     estimate = EstimateSim3(pairs, keyframe_a.cam_from_world, keyframe_b.cam_from_world, k, sim3, inlier_count);
   }
   if (!estimate && options_.match_by_projection) {
+    verified_by = VerifiedBy::kProjection;
     estimate = VerifyByProjection(a, keyframe_a, b, keyframe_b, &used_a, &used_b, &pairs, &point_ids, inlier_count);
   }
   if (!estimate && options_.relocalization_min_inliers > 0) {
+    verified_by = VerifiedBy::kRelocalization;
     estimate = VerifyByRelocalization(keyframe_a, k, pairs, inlier_count);
   }
   if (!estimate) return std::nullopt;
   ConnectedFrame connection;
+  connection.geometry =
+      MeasureConnectionGeometry(pairs, estimate->inlier, estimate->b_from_a, keyframe_b.cam_from_world, k);
+  connection.geometry.verified_by = verified_by;
+  connection.revision_a = a.newest_revision;
+  connection.revision_b = b.newest_revision;
   connection.keyframe_a = keyframe_a.id;
   connection.keyframe_b = keyframe_b.id;
   connection.b_from_a = estimate->b_from_a;
@@ -386,17 +454,80 @@ std::optional<Sim3Estimate> Merger::VerifyByRelocalization(const Keyframe& keyfr
   return estimate;
 }
 
+bool Merger::File(ConnectedFrame connection, std::vector<ConnectedFrame>* accepted) {
+  connection.refused = RefuseConnection(connection.geometry, options_.acceptance);
+  if (!connection.refused.empty()) {
+    refused_.push_back(std::move(connection));
+    return false;
+  }
+  accepted->push_back(std::move(connection));
+  return true;
+}
+
+Merger::Reverification Merger::ReverifyStaleConnections() {
+  Reverification result;
+  if (!options_.acceptance.reverify_stale_connections) return result;
+  std::vector<ConnectedFrame> all;
+  for (std::vector<ConnectedFrame>* list : {&connections_, &loops_, &refused_}) {
+    for (ConnectedFrame& c : *list) all.push_back(std::move(c));
+    list->clear();
+  }
+  for (ConnectedFrame& c : all) {
+    const bool loop = SubmapOf(c.keyframe_a) == SubmapOf(c.keyframe_b);
+    std::vector<ConnectedFrame>* accepted = loop ? &loops_ : &connections_;
+    const SubmapReplica& a = submaps_.at(SubmapOf(c.keyframe_a));
+    const SubmapReplica& b = submaps_.at(SubmapOf(c.keyframe_b));
+    if (c.revision_a == a.newest_revision && c.revision_b == b.newest_revision) {
+      (c.refused.empty() ? accepted : &refused_)->push_back(std::move(c));
+      continue;
+    }
+    const Keyframe* keyframe_a = a.map.FindKeyframe(c.keyframe_a);
+    const Keyframe* keyframe_b = b.map.FindKeyframe(c.keyframe_b);
+    ++result.reverified;
+    int matches = 0, inliers = 0;
+    std::optional<ConnectedFrame> again;
+    if (keyframe_a && keyframe_b && prepared_.count(c.keyframe_a) && prepared_.count(c.keyframe_b)) {
+      again = Verify(a, *keyframe_a, b, *keyframe_b, &matches, &inliers);
+    }
+    if (!again) {
+      // Nothing newer to go by: kept, marked stale, and tried again when its submaps change.
+      ++result.stale;
+      c.stale = true;
+      c.revision_a = a.newest_revision;
+      c.revision_b = b.newest_revision;
+      (c.refused.empty() ? accepted : &refused_)->push_back(std::move(c));
+      continue;
+    }
+    if (!SimilaritiesAgree(c.b_from_a, again->b_from_a)) ++result.changed;
+    File(std::move(*again), accepted);
+  }
+  return result;
+}
+
+SubmapCompleteness CompletenessOf(const SubmapReplica& replica) {
+  SubmapCompleteness c;
+  c.listed = static_cast<int>(replica.manifest.size());
+  for (KeyframeId id : replica.manifest) c.missing += replica.map.FindKeyframe(id) == nullptr;
+  return c;
+}
+
 Merger::Graph Merger::Solve(bool refine) const {
   Graph graph;
   graph.edges = SummarizeConnections(connections_, options_.connection_weights);
   std::vector<SubmapId> ids;
   std::map<SubmapId, int> keyframes;
+  std::map<SubmapId, SubmapCompleteness> completeness;
   for (const auto& [id, replica] : submaps_) {
     ids.push_back(id);
     keyframes[id] = static_cast<int>(replica.map.num_keyframes());
+    completeness[id] = CompletenessOf(replica);
   }
+  CheckEdges(&graph.edges, options_.min_connection_strength, options_.acceptance);
+  CheckCompleteness(&graph.edges, options_.min_connection_strength, completeness,
+                    options_.acceptance.max_missing_keyframes);
   graph.tree = MinimumSpanningForest(ids, graph.edges, options_.min_connection_strength);
   graph.placement = PlaceSubmaps(keyframes, graph.tree);
+  CheckCycles(&graph.edges, graph.tree, graph.placement);
   if (refine) graph.keyframe_poses = RefineKeyframePoses(graph.placement, &graph);
   return graph;
 }

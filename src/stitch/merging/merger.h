@@ -24,6 +24,14 @@
 
 namespace stitch {
 
+// The geometry of a verified connection's agreeing points (`inlier` of `pairs`).
+ConnectionGeometry MeasureConnectionGeometry(const std::vector<Sim3Correspondence>& pairs,
+                                             const std::vector<char>& inlier, const Sim3d& b_from_a,
+                                             const Rigid3d& cam_b_from_b, const PinholeIntrinsics& k);
+
+// The keyframes a submap's copy lacks of those its manifest lists (lost or still on the link).
+SubmapCompleteness CompletenessOf(const SubmapReplica& replica);
+
 class Merger {
  public:
   // `vocabulary` must outlive the merger.
@@ -45,13 +53,32 @@ class Merger {
   };
   Graph Solve(bool refine = false) const;
 
+  // Verifies again, with the submaps' points as they are now, every connected frame and loop
+  // verified on an older revision of either submap. A connection is verified once, when its
+  // keyframe arrives: the points of a young submap move a lot under its mapper's bundle
+  // adjustment afterwards, and behind a busy link the mapper holds their refinements back, so
+  // early points can agree on a similarity tens of degrees off (docs/merger.md). One that
+  // cannot be verified again (a keyframe culled, too few matches now) is kept as stale
+  // (ConnectedFrame::stale). The service calls it before each refinement.
+  struct Reverification {
+    int reverified = 0;
+    int changed = 0;  // the similarity moved beyond SimilaritiesAgree
+    int stale = 0;    // not verified again: kept as it was, marked stale
+  };
+  Reverification ReverifyStaleConnections();
+
   const std::map<SubmapId, SubmapReplica>& submaps() const { return submaps_; }
   const std::vector<ConnectedFrame>& connections() const { return connections_; }
   const std::vector<ConnectedFrame>& loops() const { return loops_; }  // both ends in one submap
+  // Verified, but refused by RefuseConnection (ConnectedFrame::refused says why); never used.
+  const std::vector<ConnectedFrame>& refused() const { return refused_; }
   const std::vector<RetrievalRecord>& retrievals() const { return retrievals_; }
   const MergerOptions& options() const { return options_; }
 
  private:
+  // Files a verified connection (or loop) where it belongs: `accepted` or, with its reason,
+  // refused_. Returns whether it was accepted.
+  bool File(ConnectedFrame connection, std::vector<ConnectedFrame>* accepted);
   void Prepare(SubmapReplica* replica, Keyframe* keyframe);
   RetrievalRecord Retrieve(const SubmapReplica& replica, const Keyframe& keyframe);
   void RetrieveLoops(const SubmapReplica& replica, const Keyframe& keyframe, RetrievalRecord* record);
@@ -85,6 +112,7 @@ class Merger {
   std::set<KeyframeId> prepared_;  // keyframes with undistorted points and BoW
   std::vector<ConnectedFrame> connections_;
   std::vector<ConnectedFrame> loops_;
+  std::vector<ConnectedFrame> refused_;
   std::vector<RetrievalRecord> retrievals_;
 };
 

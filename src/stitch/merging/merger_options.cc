@@ -24,6 +24,23 @@ bool MergedMapOptions::Check(std::string* why) const {
   return true;
 }
 
+bool AcceptanceOptions::Check(std::string* why) const {
+  auto fail = [&](const std::string& m) {
+    if (why) *why = m;
+    return false;
+  };
+  if (!(min_line_ratio >= 0 && min_line_ratio < 1)) return fail("merger.acceptance.min_line_ratio must be in [0, 1)");
+  if (!(min_bearing_spread >= 0 && min_bearing_spread < 1)) {
+    return fail("merger.acceptance.min_bearing_spread must be in [0, 1) radians");
+  }
+  if (min_connected_frames < 1) return fail("merger.acceptance.min_connected_frames must be >= 1");
+  if (!(min_agreement >= 0 && min_agreement <= 1)) return fail("merger.acceptance.min_agreement must be in [0, 1]");
+  if (!(max_missing_keyframes >= 0 && max_missing_keyframes <= 1)) {
+    return fail("merger.acceptance.max_missing_keyframes must be in [0, 1]");
+  }
+  return true;
+}
+
 bool MergerOptions::Check(std::string* why) const {
   auto fail = [&](const std::string& m) {
     if (why) *why = m;
@@ -40,7 +57,7 @@ bool MergerOptions::Check(std::string* why) const {
   if (!(match_ratio > 0 && match_ratio <= 1)) return fail("merger.match_ratio must be in (0, 1]");
   if (loop_min_separation < 1) return fail("merger.loop_min_separation must be >= 1");
   if (!(resend_interval_s > 0)) return fail("merger.resend_interval_s must be > 0");
-  return connection_weights.Check(why) && merged_map.Check(why);
+  return connection_weights.Check(why) && merged_map.Check(why) && acceptance.Check(why) && map_export.Check(why);
 }
 
 }  // namespace stitch

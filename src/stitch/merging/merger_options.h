@@ -4,6 +4,8 @@
 
 #include <string>
 
+#include "stitch/map/map_export.h"
+
 namespace stitch {
 
 // Weights of the connection strength between two submaps, C = frames * F + points * M +
@@ -41,6 +43,39 @@ struct MergedMapOptions {
   bool Check(std::string* why) const;
 };
 
+// The checks a connection and an edge must pass before they may place a submap
+// (docs/merger.md, "Acceptance"): a connection whose points cannot pin a rotation, an edge with
+// one connected frame or whose connected frames disagree among themselves, waits.
+struct AcceptanceOptions {
+  double min_line_ratio = 0.05;            // a connection's points in 3D: middle / largest principal spread
+  double min_bearing_spread = 0.01;        // ...their bearings in each image: smaller principal spread (rad)
+  int min_connected_frames = 2;            // agreeing connected frames an edge needs
+  double min_agreement = 0.6;              // share of the pair's points whose rotation agrees with the edge's Sim3
+  bool reverify_stale_connections = true;  // verify connections again on newer points before each refinement
+  double max_missing_keyframes = 0.25;     // share of a submap's keyframes its copy may lack and still be placed
+
+  template <class Visitor>
+  void VisitFields(Visitor& v) {
+    v("min_line_ratio", min_line_ratio,
+      "a connected frame whose agreeing points lie closer to a line than this (middle over largest principal "
+      "spread in 3D, of the 80% nearest their median) is refused: nothing pins the rotation about that line");
+    v("min_bearing_spread", min_bearing_spread,
+      "a connected frame whose points are seen within a narrower spread of directions than this (radians, the "
+      "smaller principal spread in either image) is refused: near-parallel rays do not pin the rotation");
+    v("min_connected_frames", min_connected_frames,
+      "agreeing connected frames an edge needs before it may merge two submaps (one can be one lucky place)");
+    v("min_agreement", min_agreement,
+      "share of a pair's verified map points whose connected frames' rotation must agree with the edge's Sim3; "
+      "below it the pair's connected frames point two ways and the edge waits");
+    v("reverify_stale_connections", reverify_stale_connections,
+      "before each refinement, verify again the connected frames found on older points of their submaps");
+    v("max_missing_keyframes", max_missing_keyframes,
+      "a submap whose copy lacks more than this share of the keyframes its manifest lists (the link has not "
+      "brought them) is placed by no edge until they arrive: what it holds may be early, unrefined points");
+  }
+  bool Check(std::string* why) const;
+};
+
 struct MergerOptions {
   double min_connection_strength = 10.0;  // C needed for two submaps to merge
   ConnectionWeights connection_weights;   // the weights of F, M and theta^2 in C
@@ -56,6 +91,8 @@ struct MergerOptions {
   bool loop_closure = true;               // connected frames within a submap, away from the covisible window
   int loop_min_separation = 20;           // keyframes between a loop's two ends
   MergedMapOptions merged_map;            // fusing points and the global bundle adjustment
+  AcceptanceOptions acceptance;           // checks before a connection or an edge may place a submap
+  MapExportOptions map_export;            // what of the merged map goes into map.ply
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
@@ -80,6 +117,9 @@ struct MergerOptions {
     v("loop_closure", loop_closure, "look for connected frames within each submap too (in-map loop closure)");
     v("loop_min_separation", loop_min_separation, "keyframes (by number) between the two ends of a loop");
     v("merged_map", merged_map, "fusing duplicate points and the global bundle adjustment after the pose graph");
+    v("acceptance", acceptance, "checks a connected frame and an edge must pass before they may place a submap");
+    v("map_export", map_export,
+      "what of the merged map goes into map.ply (everything, gross outliers included, goes into map_raw.ply)");
   }
   bool Check(std::string* why) const;
 };

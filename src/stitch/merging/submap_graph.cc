@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <deque>
 #include <numeric>
 
@@ -35,7 +36,49 @@ class DisjointSets {
   std::vector<size_t> parent_;
 };
 
+// A connected frame's two submaps in id order, and its Sim3 as the second's frame from the first's.
+struct OrientedPair {
+  SubmapId a, b;
+  Sim3d b_from_a;
+};
+OrientedPair Orient(const ConnectedFrame& c) {
+  OrientedPair pair{SubmapOf(c.keyframe_a), SubmapOf(c.keyframe_b), c.b_from_a};
+  if (pair.b < pair.a) {
+    std::swap(pair.a, pair.b);
+    pair.b_from_a = pair.b_from_a.Inverse();
+  }
+  return pair;
+}
+
 }  // namespace
+
+const char* VerifiedByName(VerifiedBy how) {
+  switch (how) {
+    case VerifiedBy::kDescriptors:
+      return "descriptors";
+    case VerifiedBy::kProjection:
+      return "projection";
+    case VerifiedBy::kRelocalization:
+      return "relocalization";
+  }
+  return "?";
+}
+
+std::string RefuseConnection(const ConnectionGeometry& g, const AcceptanceOptions& options) {
+  char why[160];
+  if (g.line_ratio < options.min_line_ratio) {
+    std::snprintf(why, sizeof(why), "points near a line (spread ratio %.3f < %.3f)", g.line_ratio,
+                  options.min_line_ratio);
+    return why;
+  }
+  const double spread = std::min(g.bearing_spread_a, g.bearing_spread_b);
+  if (spread < options.min_bearing_spread) {
+    std::snprintf(why, sizeof(why), "rays near parallel (bearing spread %.4f < %.4f rad)", spread,
+                  options.min_bearing_spread);
+    return why;
+  }
+  return "";
+}
 
 double ConnectionStrength(int connected_frames, int map_points, double median_angle_deg,
                           const ConnectionWeights& weights) {
@@ -55,27 +98,29 @@ std::vector<SubmapEdge> SummarizeConnections(const std::vector<ConnectedFrame>& 
     Sim3d b_from_a;
     int map_points;
     double median_angle_deg;
+    bool stale;
   };
   std::map<std::pair<SubmapId, SubmapId>, std::vector<Measurement>> pairs;
   for (const ConnectedFrame& c : connections) {
-    SubmapId a = SubmapOf(c.keyframe_a), b = SubmapOf(c.keyframe_b);
-    Sim3d b_from_a = c.b_from_a;
-    if (b < a) {
-      std::swap(a, b);
-      b_from_a = b_from_a.Inverse();
-    }
-    pairs[{a, b}].push_back({b_from_a, c.map_points, c.median_angle_deg});
+    const OrientedPair pair = Orient(c);
+    pairs[{pair.a, pair.b}].push_back({pair.b_from_a, c.map_points, c.median_angle_deg, c.stale});
   }
   std::vector<SubmapEdge> edges;
   for (const auto& [key, measurements] : pairs) {
+    // Connected frames verified on the submaps' current points decide when there are any; those
+    // that could not be verified again (ConnectedFrame::stale) count only where they agree.
+    bool any_fresh = false;
+    for (const Measurement& m : measurements) any_fresh |= !m.stale;
+    const auto votes = [&](const Measurement& m) { return !any_fresh || !m.stale; };
     // The measurement the most map points agree with; among equals, the one with the most
     // points of its own, then the first found.
     size_t best = 0;
     int best_support = -1;
     for (size_t i = 0; i < measurements.size(); ++i) {
+      if (!votes(measurements[i])) continue;
       int support = 0;
       for (const Measurement& other : measurements) {
-        if (SimilaritiesAgree(measurements[i].b_from_a, other.b_from_a)) support += other.map_points;
+        if (votes(other) && SimilaritiesAgree(measurements[i].b_from_a, other.b_from_a)) support += other.map_points;
       }
       if (support > best_support ||
           (support == best_support && measurements[i].map_points > measurements[best].map_points)) {
@@ -88,8 +133,18 @@ std::vector<SubmapEdge> SummarizeConnections(const std::vector<ConnectedFrame>& 
     edge.b = key.second;
     edge.b_from_a = measurements[best].b_from_a;
     std::vector<double> angles;
+    int voting_points = 0, turned_points = 0;
     for (const Measurement& m : measurements) {
-      if (!SimilaritiesAgree(edge.b_from_a, m.b_from_a)) {
+      const bool agrees = SimilaritiesAgree(edge.b_from_a, m.b_from_a);
+      if (votes(m) || agrees) {
+        voting_points += m.map_points;
+        // Split votes are about the rotation: a camera that only rotates measures the scale
+        // between submaps loosely, but it does not turn a submap over.
+        if (RotationAngle((edge.b_from_a.Inverse() * m.b_from_a).rotation) > kAgreeingRotationRad) {
+          turned_points += m.map_points;
+        }
+      }
+      if (!agrees) {
         ++edge.disagreeing_frames;
         continue;
       }
@@ -98,10 +153,88 @@ std::vector<SubmapEdge> SummarizeConnections(const std::vector<ConnectedFrame>& 
       angles.push_back(m.median_angle_deg);
     }
     edge.median_angle_deg = Median(angles);
+    edge.agreement = voting_points > 0 ? 1.0 - static_cast<double>(turned_points) / voting_points : 0;
     edge.strength = ConnectionStrength(edge.connected_frames, edge.map_points, edge.median_angle_deg, weights);
     edges.push_back(edge);
   }
   return edges;
+}
+
+void CheckEdges(std::vector<SubmapEdge>* edges, double min_strength, const AcceptanceOptions& options) {
+  for (SubmapEdge& e : *edges) {
+    if (e.strength < min_strength) continue;  // too weak to merge anyway
+    char why[160];
+    if (e.connected_frames < options.min_connected_frames) {
+      std::snprintf(why, sizeof(why), "%d agreeing connected frame%s (needs %d)", e.connected_frames,
+                    e.connected_frames == 1 ? "" : "s", options.min_connected_frames);
+      e.refused = why;
+    } else if (e.agreement < options.min_agreement) {
+      std::snprintf(why, sizeof(why),
+                    "its connected frames disagree: %.0f%% of the points agree in rotation (needs %.0f%%)",
+                    100 * e.agreement, 100 * options.min_agreement);
+      e.refused = why;
+    }
+  }
+}
+
+void CheckCompleteness(std::vector<SubmapEdge>* edges, double min_strength,
+                       const std::map<SubmapId, SubmapCompleteness>& completeness, double max_missing) {
+  for (SubmapEdge& e : *edges) {
+    if (e.strength < min_strength || !e.refused.empty()) continue;
+    for (SubmapId id : {e.a, e.b}) {
+      const auto it = completeness.find(id);
+      if (it == completeness.end() || it->second.listed == 0) continue;
+      const SubmapCompleteness& c = it->second;
+      if (c.missing <= max_missing * c.listed) continue;
+      char why[160];
+      std::snprintf(why, sizeof(why), "submap %s lacks %d of its %d keyframes (not yet brought by the link)",
+                    SubmapName(id).c_str(), c.missing, c.listed);
+      e.refused = why;
+      break;
+    }
+  }
+}
+
+void CheckCycles(std::vector<SubmapEdge>* edges, const std::vector<SubmapEdge>& tree,
+                 const std::map<SubmapId, SubmapPlacement>& placement) {
+  for (SubmapEdge& e : *edges) {
+    if (!e.refused.empty()) continue;
+    const auto pa = placement.find(e.a), pb = placement.find(e.b);
+    if (InTree(e, tree) || pa == placement.end() || pb == placement.end() ||
+        pa->second.component != pb->second.component) {
+      continue;
+    }
+    const Sim3d placed = pb->second.world_from_submap.Inverse() * pa->second.world_from_submap;  // b from a
+    if (SimilaritiesAgree(placed, e.b_from_a)) continue;
+    const Sim3d difference = placed.Inverse() * e.b_from_a;
+    char why[160];
+    std::snprintf(why, sizeof(why), "its cycle does not close (%.1f deg, log scale %.3f from the tree's placement)",
+                  RotationAngle(difference.rotation) * 180.0 / M_PI, std::log(difference.scale));
+    e.refused = why;
+  }
+}
+
+bool InTree(const SubmapEdge& edge, const std::vector<SubmapEdge>& tree) {
+  return std::any_of(tree.begin(), tree.end(), [&](const SubmapEdge& t) { return t.a == edge.a && t.b == edge.b; });
+}
+
+std::string EdgeStatus(const SubmapEdge& edge, const std::vector<SubmapEdge>& tree, double min_strength) {
+  if (InTree(edge, tree)) return "merged";
+  if (!edge.refused.empty()) return "refused: " + edge.refused;
+  if (edge.strength < min_strength) return "below min_connection_strength";
+  return "agrees";  // its submaps were joined by stronger edges, and it closes their cycle
+}
+
+std::string ConnectionVerdict(const ConnectedFrame& c, const std::vector<SubmapEdge>& edges,
+                              const std::vector<SubmapEdge>& tree, double min_strength) {
+  if (!c.refused.empty()) return "refused: " + c.refused;
+  const OrientedPair pair = Orient(c);
+  if (pair.a == pair.b) return "loop";
+  for (const SubmapEdge& e : edges) {
+    if (e.a != pair.a || e.b != pair.b) continue;
+    return SimilaritiesAgree(e.b_from_a, pair.b_from_a) ? EdgeStatus(e, tree, min_strength) : "outvoted";
+  }
+  return "no edge";
 }
 
 std::vector<SubmapEdge> MinimumSpanningForest(const std::vector<SubmapId>& submaps, std::vector<SubmapEdge> edges,
@@ -110,7 +243,8 @@ std::vector<SubmapEdge> MinimumSpanningForest(const std::vector<SubmapId>& subma
   for (SubmapId id : submaps) index.emplace(id, index.size());
   edges.erase(std::remove_if(edges.begin(), edges.end(),
                              [&](const SubmapEdge& e) {
-                               return e.strength < min_strength || !index.count(e.a) || !index.count(e.b) || e.a == e.b;
+                               return e.strength < min_strength || !e.refused.empty() || !index.count(e.a) ||
+                                      !index.count(e.b) || e.a == e.b;
                              }),
               edges.end());
   // Weight -C ascending = strength descending.

@@ -18,6 +18,16 @@ SubmapEdge Edge(char a, char b, double strength, const Sim3d& b_from_a = Sim3d()
   return e;
 }
 
+ConnectedFrame Connection(KeyframeId a, KeyframeId b, const Sim3d& b_from_a, int map_points, double angle_deg) {
+  ConnectedFrame c;
+  c.keyframe_a = a;
+  c.keyframe_b = b;
+  c.b_from_a = b_from_a;
+  c.map_points = map_points;
+  c.median_angle_deg = angle_deg;
+  return c;
+}
+
 std::vector<std::string> Names(const std::vector<SubmapEdge>& tree) {
   std::vector<std::string> names;
   for (const auto& e : tree) {
@@ -36,9 +46,9 @@ TEST(SubmapGraph, ConnectionStrengthFollowsTheFormulaAndCapsTheAngle) {
 TEST(SubmapGraph, ConnectionsOfAPairInEitherDirectionMakeOneEdge) {
   const Sim3d b_from_a(2.0, Eigen::Quaterniond::Identity(), Eigen::Vector3d(1, 0, 0));
   std::vector<ConnectedFrame> connections = {
-      {MakeKeyframeId(S('A'), 5), MakeKeyframeId(S('B'), 7), b_from_a, 40, 10.0, {}},
-      {MakeKeyframeId(S('B'), 8), MakeKeyframeId(S('A'), 6), b_from_a.Inverse(), 60, 20.0, {}},
-      {MakeKeyframeId(S('B'), 9), MakeKeyframeId(S('A'), 7), b_from_a.Inverse(), 30, 30.0, {}},
+      Connection(MakeKeyframeId(S('A'), 5), MakeKeyframeId(S('B'), 7), b_from_a, 40, 10.0),
+      Connection(MakeKeyframeId(S('B'), 8), MakeKeyframeId(S('A'), 6), b_from_a.Inverse(), 60, 20.0),
+      Connection(MakeKeyframeId(S('B'), 9), MakeKeyframeId(S('A'), 7), b_from_a.Inverse(), 30, 30.0),
   };
   const auto edges = SummarizeConnections(connections);
   ASSERT_EQ(edges.size(), 1u);
@@ -63,10 +73,10 @@ TEST(SubmapGraph, ConnectedFramesThatDisagreeWithTheOthersAreOutvoted) {
   };
   const Sim3d wrong = nudged(35.0);
   std::vector<ConnectedFrame> connections = {
-      {MakeKeyframeId(S('B'), 4), MakeKeyframeId(S('A'), 1), b_from_a, 25, 43.0, {}},
-      {MakeKeyframeId(S('B'), 3), MakeKeyframeId(S('A'), 1), wrong, 40, 4.7, {}},  // the most points
-      {MakeKeyframeId(S('B'), 6), MakeKeyframeId(S('A'), 1), nudged(1.0), 27, 45.0, {}},
-      {MakeKeyframeId(S('B'), 5), MakeKeyframeId(S('A'), 9), nudged(-2.0), 23, 28.0, {}},
+      Connection(MakeKeyframeId(S('B'), 4), MakeKeyframeId(S('A'), 1), b_from_a, 25, 43.0),
+      Connection(MakeKeyframeId(S('B'), 3), MakeKeyframeId(S('A'), 1), wrong, 40, 4.7),  // the most points
+      Connection(MakeKeyframeId(S('B'), 6), MakeKeyframeId(S('A'), 1), nudged(1.0), 27, 45.0),
+      Connection(MakeKeyframeId(S('B'), 5), MakeKeyframeId(S('A'), 9), nudged(-2.0), 23, 28.0),
   };
   // Found from B's keyframes: each measures A's frame from B's; the edge is B from A.
   for (auto& c : connections) c.b_from_a = c.b_from_a.Inverse();

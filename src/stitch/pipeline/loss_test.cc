@@ -204,6 +204,46 @@ TEST(TrackingLoss, ANewMapThatCannotInitializeGivesWayToAClosedSubmapTheCameraIs
   EXPECT_EQ(run.submaps, 1);
 }
 
+TEST(TrackingLoss, AYoungSubmapGivesWayToTheClosedSubmapTheCameraIsBackIn) {
+  // The camera returns over mapped ground after a blackout, with parallax enough to start a new
+  // submap at once: within return_to_closed_frames it relocalizes into the closed submap, and goes
+  // on there as the relocalize baseline would; the young submap closes with what it has. (Not into
+  // another young submap: only into one with more keyframes than the young one.)
+  std::vector<int> script;
+  Play(&script, 0, 79);
+  Repeat(&script, ScriptedSequence::kBlack, 8);
+  Play(&script, 40, 79);
+  PipelineOptions options;
+  options.on_loss = "submap";
+  options.tracking.return_to_closed_frames = 60;
+  ScriptedSequence sequence(script);
+  const InlineRun run = RunInline(sequence, options, DefaultVocabulary());
+  const SubmapId first = run.frames[10].result.submap;
+  const InlineFrame* young = FirstOkFrom(run, 88);
+  ASSERT_NE(young, nullptr);
+  EXPECT_NE(young->result.submap, first) << "a new submap starts at once";
+  const InlineFrame* back = nullptr;
+  for (const auto& f : run.frames) {
+    if (f.frame_index > young->frame_index && f.result.relocalized && f.result.submap == first) {
+      back = &f;
+      break;
+    }
+  }
+  ASSERT_NE(back, nullptr) << "never went back into the closed submap";
+  EXPECT_LE(back->frame_index, young->frame_index + options.tracking.return_to_closed_frames);
+  EXPECT_NE(back->result.detail.find("back in closed submap"), std::string::npos) << back->result.detail;
+  for (int i = back->frame_index; i < static_cast<int>(script.size()); ++i) {
+    EXPECT_EQ(run.frames[i].result.state, TrackingState::kOk) << i;
+    EXPECT_EQ(run.frames[i].result.submap, first) << i;
+  }
+  EXPECT_EQ(run.submaps, 2);
+  // Never: without the window (the default) the young submap keeps the camera.
+  const InlineRun kept = RunScript(script, "submap");
+  for (int i = young->frame_index; i < static_cast<int>(script.size()); ++i) {
+    EXPECT_NE(kept.frames[i].result.submap, first) << i;
+  }
+}
+
 TEST(TrackingLoss, ABlackoutDuringInitializationOnlyDelaysIt) {
   std::vector<int> script;
   Play(&script, 0, 0);  // the reference frame of the first initialization attempt

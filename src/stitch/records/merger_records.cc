@@ -116,12 +116,15 @@ std::vector<MergedKeyframeRecord> ReadMergedKeyframeRecords(const std::string& p
 void WriteConnectionRecords(const std::string& path, const std::vector<ConnectionRecord>& records) {
   std::string text =
       "# keyframe_a keyframe_b map_points median_angle_deg scale qx qy qz qw tx ty tz (b_from_a: submap b's frame from "
-      "a's; loops within one submap last)\n";
+      "a's; loops within one submap last) verified_by bearing_spread_a bearing_spread_b line_ratio depth_disagreement "
+      "verdict (the rest of the line)\n";
   for (const ConnectionRecord& r : records) {
-    char head[120];
+    char head[120], tail[200];
     std::snprintf(head, sizeof(head), "%" PRId64 " %" PRId64 " %d %.3f ", r.keyframe_a.value, r.keyframe_b.value,
                   r.map_points, r.median_angle_deg);
-    text += head + FormatSim3(r.b_from_a) + "\n";
+    std::snprintf(tail, sizeof(tail), " %s %.4f %.4f %.4f %.4f ", r.verified_by.c_str(), r.bearing_spread_a,
+                  r.bearing_spread_b, r.line_ratio, r.depth_disagreement);
+    text += head + FormatSim3(r.b_from_a) + tail + r.verdict + "\n";
   }
   WriteFileAtomically(path, text);
 }
@@ -130,7 +133,35 @@ std::vector<ConnectionRecord> ReadConnectionRecords(const std::string& path) {
   return ReadLines<ConnectionRecord>(path, "connection", [](const std::string& line, ConnectionRecord* r) {
     std::istringstream fields(line);
     fields >> r->keyframe_a.value >> r->keyframe_b.value >> r->map_points >> r->median_angle_deg;
-    return fields && ReadSim3(fields, &r->b_from_a);
+    if (!fields || !ReadSim3(fields, &r->b_from_a)) return false;
+    fields >> r->verified_by >> r->bearing_spread_a >> r->bearing_spread_b >> r->line_ratio >> r->depth_disagreement;
+    if (!fields) return false;
+    std::getline(fields >> std::ws, r->verdict);
+    return !r->verdict.empty();
+  });
+}
+
+void WriteSubmapEdgeRecords(const std::string& path, const std::vector<SubmapEdgeRecord>& records) {
+  std::string text =
+      "# submap_a submap_b strength connected_frames map_points disagreeing_frames median_angle_deg agreement status "
+      "(the rest of the line)\n";
+  for (const SubmapEdgeRecord& r : records) {
+    char head[200];
+    std::snprintf(head, sizeof(head), "%" PRId64 " %" PRId64 " %.3f %d %d %d %.3f %.4f ", r.a.value, r.b.value,
+                  r.strength, r.connected_frames, r.map_points, r.disagreeing_frames, r.median_angle_deg, r.agreement);
+    text += head + r.status + "\n";
+  }
+  WriteFileAtomically(path, text);
+}
+
+std::vector<SubmapEdgeRecord> ReadSubmapEdgeRecords(const std::string& path) {
+  return ReadLines<SubmapEdgeRecord>(path, "submap edge", [](const std::string& line, SubmapEdgeRecord* r) {
+    std::istringstream fields(line);
+    fields >> r->a.value >> r->b.value >> r->strength >> r->connected_frames >> r->map_points >>
+        r->disagreeing_frames >> r->median_angle_deg >> r->agreement;
+    if (!fields) return false;
+    std::getline(fields >> std::ws, r->status);
+    return !r->status.empty();
   });
 }
 

@@ -4,6 +4,8 @@
 //   submaps.tsv           each submap's merged map and Sim3 (SubmapRecord)
 //   keyframes_merged.tsv  each merged keyframe's refined pose (MergedKeyframeRecord)
 //   connections.tsv       each verified connected frame and in-map loop (ConnectionRecord)
+//   edges.tsv             each pair of submaps with connected frames, and what became of it
+//                         (SubmapEdgeRecord)
 //   retrieval.tsv         each connected-frame query with the method's N0, N1, S0, S1, k, l
 //                         (RetrievalRecord)
 //   merge_log.tsv         the stack of unconnected submaps at each event (MergeLogRecord)
@@ -44,9 +46,28 @@ struct ConnectionRecord {
   int map_points = 0;
   double median_angle_deg = 0;
   Sim3d b_from_a;  // submap b's frame from a's
+  // ConnectionGeometry (submap_graph.h): how it was verified and how well its points pin b_from_a.
+  std::string verified_by = "descriptors";
+  double bearing_spread_a = 0, bearing_spread_b = 0, line_ratio = 0, depth_disagreement = 0;
+  // What the merger made of it: "used", or why not ("outvoted", "degenerate: ...", "loop").
+  std::string verdict = "used";
 };
 void WriteConnectionRecords(const std::string& path, const std::vector<ConnectionRecord>& records);
 std::vector<ConnectionRecord> ReadConnectionRecords(const std::string& path);
+
+// An edge of the submap graph: the pair's connected frames summed up, and the verdict.
+struct SubmapEdgeRecord {
+  SubmapId a, b;
+  double strength = 0;  // C
+  int connected_frames = 0, map_points = 0, disagreeing_frames = 0;
+  double median_angle_deg = 0;
+  double agreement = 0;  // share of the pair's verified points that agree with its Sim3
+  // "merged", "agrees" (closes a cycle of merged submaps), "below min_connection_strength" or
+  // "refused: <reason>".
+  std::string status;
+};
+void WriteSubmapEdgeRecords(const std::string& path, const std::vector<SubmapEdgeRecord>& records);
+std::vector<SubmapEdgeRecord> ReadSubmapEdgeRecords(const std::string& path);
 
 // One connected-frame query, as the method's thresholds need to be studied.
 struct RetrievalRecord {

@@ -81,9 +81,22 @@ TEST(MergerRecords, ConnectionsReadBackAsWritten) {
   testing::TempDir dir;
   const std::string path = dir / "connections.tsv";
   const KeyframeId a = MakeKeyframeId(MakeSubmapId(0, 1), 3), b = MakeKeyframeId(MakeSubmapId(0, 2), 9);
-  WriteConnectionRecords(path, {{a, b, 57, 23.125, kSim3}});
+  ConnectionRecord written{a, b, 57, 23.125, kSim3};
+  written.verified_by = "projection";
+  written.bearing_spread_a = 0.125;
+  written.bearing_spread_b = 0.25;
+  written.line_ratio = 0.0625;
+  written.depth_disagreement = 0.5;
+  written.verdict = "degenerate: points near a line";
+  WriteConnectionRecords(path, {written});
   const auto read = ReadConnectionRecords(path);
   ASSERT_EQ(read.size(), 1u);
+  EXPECT_EQ(read[0].verified_by, "projection");
+  EXPECT_DOUBLE_EQ(read[0].bearing_spread_a, 0.125);
+  EXPECT_DOUBLE_EQ(read[0].bearing_spread_b, 0.25);
+  EXPECT_DOUBLE_EQ(read[0].line_ratio, 0.0625);
+  EXPECT_DOUBLE_EQ(read[0].depth_disagreement, 0.5);
+  EXPECT_EQ(read[0].verdict, "degenerate: points near a line");
   EXPECT_EQ(read[0].keyframe_a, a);
   EXPECT_EQ(read[0].keyframe_b, b);
   EXPECT_EQ(read[0].map_points, 57);
@@ -91,6 +104,35 @@ TEST(MergerRecords, ConnectionsReadBackAsWritten) {
   ExpectNear(read[0].b_from_a, kSim3);
   AppendLine(path, "1 2 x");
   ExpectMalformedLineNamed(path, ReadConnectionRecords, 3);
+}
+
+TEST(MergerRecords, SubmapEdgesReadBackAsWritten) {
+  testing::TempDir dir;
+  const std::string path = dir / "edges.tsv";
+  SubmapEdgeRecord written;
+  written.a = MakeSubmapId(0, 2);
+  written.b = MakeSubmapId(0, 3);
+  written.strength = 51.375;
+  written.connected_frames = 11;
+  written.map_points = 346;
+  written.disagreeing_frames = 4;
+  written.median_angle_deg = 8.25;
+  written.agreement = 0.5625;
+  written.status = "refused: its connected frames disagree: 56% of the points agree (needs 60%)";
+  WriteSubmapEdgeRecords(path, {written});
+  const auto read = ReadSubmapEdgeRecords(path);
+  ASSERT_EQ(read.size(), 1u);
+  EXPECT_EQ(read[0].a, written.a);
+  EXPECT_EQ(read[0].b, written.b);
+  EXPECT_DOUBLE_EQ(read[0].strength, 51.375);
+  EXPECT_EQ(read[0].connected_frames, 11);
+  EXPECT_EQ(read[0].map_points, 346);
+  EXPECT_EQ(read[0].disagreeing_frames, 4);
+  EXPECT_DOUBLE_EQ(read[0].median_angle_deg, 8.25);
+  EXPECT_DOUBLE_EQ(read[0].agreement, 0.5625);
+  EXPECT_EQ(read[0].status, written.status);
+  AppendLine(path, "1 2 3.0 1 2 0 4.0 0.5");  // no status
+  ExpectMalformedLineNamed(path, ReadSubmapEdgeRecords, 3);
 }
 
 TEST(MergerRecords, RetrievalQueriesReadBackAsWritten) {

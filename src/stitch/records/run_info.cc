@@ -13,6 +13,7 @@ namespace stitch {
 nlohmann::json RunInfo::ToJson() const {
   return {{"source", source},
           {"dataset", dataset},
+          {"start_frame", start_frame},
           {"frames_total", frames_total},
           {"frames_unusable", frames_unusable},
           {"failures", failures},
@@ -33,6 +34,7 @@ RunInfo RunInfo::FromJson(const nlohmann::json& j) {
     RunInfo info;
     info.source = j.at("source");
     info.dataset = j.at("dataset");
+    info.start_frame = j.value("start_frame", 0);
     info.frames_total = j.at("frames_total");
     info.frames_unusable = j.at("frames_unusable");
     info.failures = j.at("failures");

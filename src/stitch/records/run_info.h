@@ -12,6 +12,7 @@ namespace stitch {
 struct RunInfo {
   std::string source;   // what was played
   std::string dataset;  // its path; empty for the synthetic flight
+  int start_frame = 0;  // frames of the sequence skipped before the first played
   int frames_total = 0;
   int frames_unusable = 0;
   std::string failures;  // the failure schedule, "none" when empty

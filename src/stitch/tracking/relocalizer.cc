@@ -13,15 +13,20 @@ Relocalizer::Relocalizer(const TrackingOptions& options, FramePlacer* placer, co
       vocabulary_(vocabulary),
       wait_for_keyframe_bow_(std::move(wait_for_keyframe_bow)) {}
 
-std::optional<KeyframeId> Relocalizer::Relocalize(Frame* frame, SubmapStore* store, KeyframeId* reference) {
+std::optional<KeyframeId> Relocalizer::Relocalize(Frame* frame, SubmapStore* store, KeyframeId* reference,
+                                                  RelocalizationScope scope, size_t more_keyframes_than) {
+  const Map* current = store->current();
+  if (scope == RelocalizationScope::kCurrentSubmap && !current) return std::nullopt;
   if (wait_for_keyframe_bow_) wait_for_keyframe_bow_();  // every keyframe in the database
   ComputeBow(*vocabulary_, frame);
-  // The current submap (relocalize policy), or every closed submap while a new one initializes.
-  std::function<bool(int64_t)> accept;
-  if (const Map* current = store->current()) {
-    const int64_t id = current->id().value;
-    accept = [id](int64_t submap) { return submap == id; };
-  }
+  const int64_t current_id = current ? current->id().value : -1;
+  const bool in_current = scope == RelocalizationScope::kCurrentSubmap;
+  const std::function<bool(int64_t)> accept = [&](int64_t submap) {
+    if ((submap == current_id) != in_current) return false;
+    if (in_current || more_keyframes_than == 0) return true;
+    const Map* map = store->FindMap(SubmapId(submap));
+    return map && map->num_keyframes() > more_keyframes_than;
+  };
   std::vector<KeyframeDatabase::Candidate> candidates = store->database().Query(frame->bow, accept);
   if (candidates.empty()) return std::nullopt;
   int most_common = 0;
@@ -35,7 +40,7 @@ std::optional<KeyframeId> Relocalizer::Relocalize(Frame* frame, SubmapStore* sto
   }
   for (const auto& candidate : candidates) {
     const KeyframeId id(candidate.keyframe_id);
-    const Map* map = store->current() ? store->current() : store->FindMap(SubmapOf(id));
+    const Map* map = in_current ? current : store->FindMap(SubmapOf(id));
     if (map && RelocalizeAt(frame, *map, id, reference)) return id;
   }
   return std::nullopt;

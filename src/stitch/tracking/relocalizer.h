@@ -15,6 +15,10 @@
 
 namespace stitch {
 
+// Where a frame is relocalized: in the current submap (the relocalize policy, or a camera lost in
+// it), or in the closed submaps only (a new submap initializing or still young).
+enum class RelocalizationScope { kCurrentSubmap, kClosedSubmaps };
+
 class Relocalizer {
  public:
   // `placer` and `vocabulary` must outlive the relocalizer. `wait_for_keyframe_bow` (optional)
@@ -22,11 +26,12 @@ class Relocalizer {
   Relocalizer(const TrackingOptions& options, FramePlacer* placer, const Vocabulary* vocabulary,
               std::function<void()> wait_for_keyframe_bow = nullptr);
 
-  // Places `frame` in the store's current submap or, when there is none, in any closed one.
-  // Returns the keyframe it was relocalized at (its submap is where the frame is); `reference`
-  // becomes the keyframe sharing most points with the frame. Each candidate tried may change
-  // `reference` even when none succeeds.
-  std::optional<KeyframeId> Relocalize(Frame* frame, SubmapStore* store, KeyframeId* reference);
+  // Places `frame` in the store's current submap, or in any closed one (by `scope`). Returns the
+  // keyframe it was relocalized at (its submap is where the frame is); `reference` becomes the
+  // keyframe sharing most points with the frame. Each candidate tried may change `reference`
+  // even when none succeeds. In closed submaps, only those with more than `more_keyframes_than`.
+  std::optional<KeyframeId> Relocalize(Frame* frame, SubmapStore* store, KeyframeId* reference,
+                                       RelocalizationScope scope, size_t more_keyframes_than = 0);
 
  private:
   bool RelocalizeAt(Frame* frame, const Map& map, KeyframeId candidate, KeyframeId* reference);

@@ -62,6 +62,7 @@ std::optional<SubmapId> Tracking::CloseSubmap() {
   typical_sharpness_ = 0;
   lost_ = false;
   frames_initializing_ = 0;
+  young_submap_started_at_ = -1;
   initializer_.Reset();
   return id;
 }
@@ -100,7 +101,20 @@ Tracking::Output Tracking::TrackFrame(const cv::Mat& image, int frame_index, int
   result.submap = store_.current()->id();
   result.num_features = static_cast<int>(frame.size());
   if (lost_) return Relocalize(std::move(frame), std::move(output));
+  // A young submap: is the camera back over a closed one, where the relocalize baseline would go on?
+  std::optional<Frame> copy;
+  if (young_submap_started_at_ >= 0) {
+    const int age = frame_index - young_submap_started_at_;
+    if (age > options_.return_to_closed_frames) {
+      young_submap_started_at_ = -1;
+    } else if (age % options_.return_to_closed_every == 0 && static_cast<int>(frame.size()) >= 20) {
+      copy = frame;
+    }
+  }
   TrackInSubmap(std::move(frame), &output);
+  // Not on a frame that made a keyframe of the young submap (it is sent already), nor after a
+  // loss closed the young submap (Initialize relocalizes into the closed ones then).
+  if (copy && store_.current() && output.new_keyframes.empty()) TryReturnToClosed(std::move(*copy), &output);
   return output;
 }
 
@@ -133,6 +147,7 @@ Tracking::Output Tracking::Initialize(Frame frame) {
   store_.StartCurrent(std::move(initialized.map), 2);
   ++next_submap_number_;
   Frame& placed = initialized.frame;
+  young_submap_started_at_ = store_.has_closed() && options_.return_to_closed_frames > 0 ? placed.frame_index : -1;
   const Map& map = *store_.current();
   reference_keyframe_ = id1;
   last_keyframe_frame_index_ = placed.frame_index;
@@ -285,7 +300,9 @@ void Tracking::OnTracked(Frame* frame, Output* output, bool may_make_keyframe) {
 
 bool Tracking::TryRelocalize(Frame* frame, Output* output) {
   const bool reopening = !store_.current();
-  const std::optional<KeyframeId> at = relocalizer_.Relocalize(frame, &store_, &reference_keyframe_);
+  const std::optional<KeyframeId> at =
+      relocalizer_.Relocalize(frame, &store_, &reference_keyframe_,
+                              reopening ? RelocalizationScope::kClosedSubmaps : RelocalizationScope::kCurrentSubmap);
   if (!at) return false;
   if (reopening) store_.Reopen(SubmapOf(*at));
   ++relocalizations_;
@@ -300,6 +317,32 @@ bool Tracking::TryRelocalize(Frame* frame, Output* output) {
                   std::to_string(result.num_tracked_points) + " points";
   if (reopening) output->reopened_submap = result.submap;
   return true;
+}
+
+void Tracking::TryReturnToClosed(Frame frame, Output* output) {
+  KeyframeId reference;
+  // Only into a submap larger than the young one: not back into another young one.
+  const size_t young_keyframes = store_.current()->num_keyframes();
+  const std::optional<KeyframeId> at =
+      relocalizer_.Relocalize(&frame, &store_, &reference, RelocalizationScope::kClosedSubmaps, young_keyframes);
+  if (!at) return;
+  const int young_frames = frame.frame_index - young_submap_started_at_;
+  Output returned;
+  returned.result.num_features = output->result.num_features;
+  returned.result.timings = output->result.timings;
+  returned.closed_submap = CloseSubmap();  // also ends the young window
+  store_.Reopen(SubmapOf(*at));
+  reference_keyframe_ = reference;
+  ++relocalizations_;
+  OnTracked(&frame, &returned, /*may_make_keyframe=*/false);
+  returned.result.relocalized = true;
+  returned.result.detail = "back in closed submap " + SubmapName(returned.result.submap) + " at keyframe " +
+                           std::to_string(IndexOf(*at)) + " with " +
+                           std::to_string(returned.result.num_tracked_points) + " points; submap " +
+                           SubmapName(*returned.closed_submap) + " closed after " + std::to_string(young_frames) +
+                           " frames, " + std::to_string(young_keyframes) + " keyframes";
+  returned.reopened_submap = returned.result.submap;
+  *output = std::move(returned);
 }
 
 Keyframe Tracking::CreateKeyframe(const Frame& frame) {

@@ -68,9 +68,7 @@ class Tracking {
   bool MapperCaughtUp() const { return KeyframesInFlight() == 0; }
   // Keyframes sent that the mapper has not answered yet (counted up to the last 16 sent).
   int KeyframesInFlight() const;
-  KeyframeId last_keyframe_sent() const {
-    return keyframes_sent_.empty() ? KeyframeId() : keyframes_sent_.back();
-  }
+  KeyframeId last_keyframe_sent() const { return keyframes_sent_.empty() ? KeyframeId() : keyframes_sent_.back(); }
   void SetMapperConnected(bool connected) { mapper_connected_ = connected; }
   bool mapper_connected() const { return mapper_connected_; }
   int submaps_closed() const { return submaps_closed_; }
@@ -94,6 +92,10 @@ class Tracking {
   // Relocalizes `frame` (in the current submap, or in a closed one which is reopened); on
   // success the frame is tracked and `output` says so.
   bool TryRelocalize(Frame* frame, Output* output);
+  // Submap policy, a young submap: relocalizes `frame` (a copy of the one tracked in it) into the
+  // closed submaps; where it lands, the young submap closes, the closed one reopens and `output`
+  // is replaced by the frame tracked there.
+  void TryReturnToClosed(Frame frame, Output* output);
   // Keyframes whose bag of words the worker has finished get it, and enter the database;
   // `wait`: first wait for the worker to finish all.
   void AdoptKeyframeBow(bool wait);
@@ -120,6 +122,9 @@ class Tracking {
   int relocalizations_ = 0;
   bool lost_ = false;            // relocalize policy: the map is kept but the camera is not in it
   int frames_initializing_ = 0;  // frames since the last submap closed (submap policy)
+  // The frame the current submap started at, while it is one started after a loss that may still
+  // give way to a closed submap (return_to_closed_frames); -1 otherwise.
+  int young_submap_started_at_ = -1;
   TrackingState last_state_ = TrackingState::kNotTracked;
 
   std::optional<Frame> last_frame_;  // last tracked frame

@@ -31,6 +31,8 @@ bool TrackingOptions::Check(std::string* why) const {
   if (!(min_relative_sharpness >= 0 && min_relative_sharpness < 1))
     return fail("tracker.tracking.min_relative_sharpness must be in [0, 1)");
   if (relocalize_closed_after_frames < 0) return fail("tracker.tracking.relocalize_closed_after_frames must be >= 0");
+  if (return_to_closed_frames < 0) return fail("tracker.tracking.return_to_closed_frames must be >= 0");
+  if (return_to_closed_every < 1) return fail("tracker.tracking.return_to_closed_every must be >= 1");
   if (relocalization_candidates < 1) return fail("tracker.tracking.relocalization_candidates must be >= 1");
   if (relocalization_min_inliers < min_inliers)
     return fail("tracker.tracking.relocalization_min_inliers must be >= min_inliers");

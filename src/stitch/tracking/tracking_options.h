@@ -34,6 +34,13 @@ struct TrackingOptions {
   int relocalization_candidates = 8;  // keyframes tried per frame when relocalizing
   // Submap policy: frames a new map tries to initialize before closed submaps are tried.
   int relocalize_closed_after_frames = 20;
+  // Submap policy: for this many frames after a new submap starts (following a loss), every
+  // return_to_closed_every-th frame is also relocalized into the closed submaps; where it lands,
+  // the young submap closes and the camera goes on in the closed one, as the relocalize baseline
+  // would have (0: never). Off by default: it wins on handheld video and loses on the survey
+  // (docs/tracking-loss.md has the figures' command).
+  int return_to_closed_frames = 0;
+  int return_to_closed_every = 2;
   int relocalization_min_inliers = 50;  // tracked points that accept a relocalized pose
   // Matching against the reference keyframe and relocalization candidates, where no pose says
   // where to look: bow (the vocabulary's direct index), lsh or brute_force (DescriptorIndex).
@@ -82,6 +89,11 @@ struct TrackingOptions {
     v("relocalize_closed_after_frames", relocalize_closed_after_frames,
       "submap policy: frames a new map tries to initialize alone before relocalization into closed submaps is tried "
       "too");
+    v("return_to_closed_frames", return_to_closed_frames,
+      "submap policy: for this many frames after a new submap starts, frames are also relocalized into the closed "
+      "submaps; where one lands, the young submap closes and the camera goes on in the closed one (0: never)");
+    v("return_to_closed_every", return_to_closed_every,
+      "submap policy: every this-many-th frame of that window is tried (the others cost nothing)");
     v("relocalization_candidates", relocalization_candidates,
       "keyframes (by bag of words) tried per frame when relocalizing");
     v("relocalization_min_inliers", relocalization_min_inliers, "tracked points needed to accept a relocalized pose");

@@ -24,7 +24,9 @@ using testing::RotationErrorDeg;
 using testing::TranslationError;
 
 // The default flight's strip: 70 m above the terrain, 1 m a frame.
-RenderedViews& Strip() { return testing::SharedStrip(); }
+RenderedViews& Strip() {
+  return testing::SharedStrip();
+}
 
 OrbExtractor& InitializationExtractor() {
   static OrbExtractor* extractor = new OrbExtractor([] {
@@ -456,7 +458,8 @@ TEST(Relocalizer, PlacesAFrameInTheSubmapItSees) {
   const Rigid3d truth = *frame.cam_from_world;
   frame.cam_from_world.reset();
   KeyframeId reference;
-  const std::optional<KeyframeId> at = relocalizer.Relocalize(&frame, store.get(), &reference);
+  const std::optional<KeyframeId> at =
+      relocalizer.Relocalize(&frame, store.get(), &reference, RelocalizationScope::kCurrentSubmap);
   ASSERT_TRUE(at);
   EXPECT_EQ(SubmapOf(*at), store->current()->id());
   EXPECT_TRUE(reference.valid());
@@ -471,9 +474,23 @@ TEST(Relocalizer, FindsAClosedSubmapWhenThereIsNoCurrentOne) {
   Relocalizer relocalizer(TrackingOptions(), &placer, &DefaultVocabulary());
   Frame frame = Strip().Render(12);
   KeyframeId reference;
-  const std::optional<KeyframeId> at = relocalizer.Relocalize(&frame, store.get(), &reference);
+  const std::optional<KeyframeId> at =
+      relocalizer.Relocalize(&frame, store.get(), &reference, RelocalizationScope::kClosedSubmaps);
   ASSERT_TRUE(at);
   EXPECT_EQ(SubmapOf(*at), SharedThreeKeyframes().map.id());
+  // There is no current submap to relocalize in.
+  Frame again = Strip().Render(12);
+  EXPECT_FALSE(relocalizer.Relocalize(&again, store.get(), &reference, RelocalizationScope::kCurrentSubmap));
+}
+
+TEST(Relocalizer, TheClosedScopeLeavesTheCurrentSubmapOut) {
+  // A young submap's frame that would relocalize in the young submap itself is no way back.
+  auto store = StoreWithThreeKeyframes(/*close=*/false);
+  FramePlacer placer(TrackingOptions(), &Strip().geometry(), &DefaultVocabulary());
+  Relocalizer relocalizer(TrackingOptions(), &placer, &DefaultVocabulary());
+  Frame frame = Strip().Render(12);
+  KeyframeId reference;
+  EXPECT_FALSE(relocalizer.Relocalize(&frame, store.get(), &reference, RelocalizationScope::kClosedSubmaps));
 }
 
 TEST(Relocalizer, NeedsTheLocalMapToConfirmThePose) {
@@ -484,7 +501,7 @@ TEST(Relocalizer, NeedsTheLocalMapToConfirmThePose) {
   Relocalizer relocalizer(options, &placer, &DefaultVocabulary());
   Frame frame = Strip().Render(24);
   KeyframeId reference;
-  EXPECT_FALSE(relocalizer.Relocalize(&frame, store.get(), &reference));
+  EXPECT_FALSE(relocalizer.Relocalize(&frame, store.get(), &reference, RelocalizationScope::kCurrentSubmap));
 }
 
 TEST(Relocalizer, RefusesAFrameOfAPlaceTheSubmapNeverSaw) {
@@ -493,7 +510,7 @@ TEST(Relocalizer, RefusesAFrameOfAPlaceTheSubmapNeverSaw) {
   Relocalizer relocalizer(TrackingOptions(), &placer, &DefaultVocabulary());
   Frame frame = Strip().Render(190);  // 170 m further along: no overlap
   KeyframeId reference;
-  EXPECT_FALSE(relocalizer.Relocalize(&frame, store.get(), &reference));
+  EXPECT_FALSE(relocalizer.Relocalize(&frame, store.get(), &reference, RelocalizationScope::kCurrentSubmap));
 }
 
 // ---------------------------------------------------------------- the store of submaps

@@ -1,0 +1,59 @@
+#pragma once
+// A sparse model in COLMAP's text format (colmap.github.io/format.html): cameras.txt, images.txt
+// and points3D.txt, which COLMAP, OpenMVS and most photogrammetry tools read. One camera; images
+// with their poses (cam_from_world) and 2D features; points with their tracks.
+//
+// Pixel convention: COLMAP puts the centre of the first pixel at (0.5, 0.5), OpenCV and stitch at
+// (0, 0). The model here is in stitch's convention; the files in COLMAP's (written +0.5, read -0.5).
+
+#include <array>
+#include <cstdint>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "stitch/geometry/camera.h"
+#include "stitch/geometry/rigid3.h"
+
+namespace stitch {
+
+struct ColmapImage {
+  int id = 0;  // from 1
+  Rigid3d cam_from_world;
+  std::string name;                       // the image file, relative to the image folder COLMAP is given
+  std::vector<Eigen::Vector2d> features;  // pixels, stitch's convention
+  std::vector<int64_t> point_ids;         // per feature: its point, or -1
+};
+
+struct ColmapPoint {
+  int64_t id = 0;  // from 1
+  Eigen::Vector3d position = Eigen::Vector3d::Zero();
+  std::array<uint8_t, 3> rgb{128, 128, 128};
+  double error_px = 0;                     // mean reprojection error
+  std::vector<std::pair<int, int>> track;  // (image id, feature index)
+};
+
+struct ColmapModel {
+  Camera camera;  // camera id 1
+  std::vector<ColmapImage> images;
+  std::vector<ColmapPoint> points;
+};
+
+// COLMAP's name for the camera's model (PINHOLE, OPENCV, FULL_OPENCV, OPENCV_FISHEYE) and its
+// parameters in COLMAP's order and pixel convention.
+std::string ColmapCameraLine(const Camera& camera);
+
+// Writes DIR/cameras.txt, images.txt and points3D.txt (DIR is created). Throws stitch::Error.
+void WriteColmapModel(const ColmapModel& model, const std::string& dir);
+// Reads them back. Throws stitch::Error naming the file and line on anything malformed, a track
+// naming an image or feature that is not there, or a camera model stitch does not know.
+ColmapModel ReadColmapModel(const std::string& dir);
+
+// Root mean square of every track's reprojection error, pixels (0 without observations).
+double ReprojectionRms(const ColmapModel& model);
+// Sets each point's error_px: the mean reprojection error of its track.
+void SetReprojectionErrors(ColmapModel* model);
+
+}  // namespace stitch
