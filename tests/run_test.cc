@@ -17,6 +17,7 @@
 #include "stitch/io/ply.h"
 #include "stitch/io/trajectory.h"
 #include "stitch/records/frame_record.h"
+#include "stitch/testing/full_disk.h"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/util/child_process.h"
 #include "tests/test_process.h"
@@ -382,6 +383,35 @@ bool Running(pid_t pid) {
 
 // The security issue's row: SIGKILL of the `stitch run` launcher left tracker, mapper and merger
 // running as orphans.
+// The disk fills up during a run (a file size limit of 24 kB stands in for it: the plot, the
+// point clouds and the service logs outgrow it): the run says which file it could not write
+// and fails, and leaves no file cut short: each output is whole or absent.
+TEST(StitchRun, AFullDiskIsReportedWithTheFileAndLeavesNoFileCut) {
+  testing::TempDir dir;
+  const std::string out = dir / "run";
+  testing::CommandResult run;
+  {
+    const testing::FullDiskAfter full(24 * 1024);  // inherited by stitch run and its services
+    run = RunProgram({Bin("stitch"), "run", "--config", kShortFlight, "--out", out, "--failures", "none"}, 180);
+  }
+  EXPECT_NE(run.exit_code, 0) << run.output;
+  EXPECT_NE(run.exit_code, 134) << "crashed: " << run.output;
+  EXPECT_NE(run.output.find(": write failed (File too large)"), std::string::npos) << run.output;
+  EXPECT_NE(run.output.find(out), std::string::npos) << "names the file: " << run.output;
+  for (const auto& entry : fs::recursive_directory_iterator(out)) {
+    EXPECT_NE(entry.path().extension(), ".partial") << entry.path();
+  }
+  if (fs::exists(out + "/trajectory.tum")) {
+    EXPECT_NO_THROW(Trajectory::ReadTum(out + "/trajectory.tum"));
+  }
+  if (fs::exists(out + "/report.json")) {
+    EXPECT_NO_THROW(ReadJson(out + "/report.json"));
+  }
+  if (fs::exists(out + "/map.ply")) {
+    EXPECT_NO_THROW(ReadPly(out + "/map.ply"));
+  }
+}
+
 TEST(StitchRun, ItsServicesEndWhenTheLauncherIsKilled) {
   testing::TempDir dir;
   ChildProcess launcher("run", Bin("stitch"), {"run", "--quiet", "--out", dir / "run"}, dir / "run.log");

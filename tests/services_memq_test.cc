@@ -1,5 +1,6 @@
 // Ingest, tracker and mapper services on one in-process bus (memq://), as in a single process.
 
+#include <atomic>
 #include <future>
 #include <map>
 #include <mutex>
@@ -406,6 +407,53 @@ TEST(ServicesInProcess, ALossClosesTheSubmapForTheMergerBeforeTheNextOneStarts) 
   EXPECT_GE(first_closed_before_status, 32);
   EXPECT_LT(first_closed_before_status, 36);
   EXPECT_TRUE(events.back().second) << "the last submap is closed at shutdown";
+}
+
+// The security issue's row "closing statuses only from the tracker's session": two statuses from
+// another session in mid-flight (the first set the count the mapper compared with, the second
+// said one more submap had closed) made the mapper close the submap the tracker was still
+// mapping. They are refused; the submap closes only at shutdown.
+TEST(ServicesInProcess, AClosingStatusFromAnotherSessionClosesNothing) {
+  InProcessStack stack(nullptr, /*with_mapper=*/true, "");
+  std::mutex mutex;
+  int last_status_frame = -1, closed_during_flight = 0;
+  bus::Subscriber merger_side(stack.lcm.get());
+  merger_side.Subscribe<stitch::submap_update_t>(
+      bus::Channel("uav0", bus::kSubmap), [&](std::unique_ptr<stitch::submap_update_t> message, const std::string&) {
+        std::lock_guard<std::mutex> lock(mutex);
+        if (message->closed && last_status_frame < 59) ++closed_during_flight;
+      });
+  merger_side.Subscribe<stitch::tracking_status_t>(
+      bus::Channel("uav0", bus::kTrackingStatus),
+      [&](std::unique_ptr<stitch::tracking_status_t> status, const std::string&) {
+        std::lock_guard<std::mutex> lock(mutex);
+        last_status_frame = std::max(last_status_frame, status->frame_index);
+      });
+  bus::Publisher stranger(stack.lcm.get(), "uav0");  // a session of its own
+  std::atomic<bool> flying{true};
+  std::thread forger([&] {
+    for (bool sent = false; flying.load() && !sent; std::this_thread::sleep_for(std::chrono::milliseconds(5))) {
+      {
+        std::lock_guard<std::mutex> lock(mutex);
+        if (last_status_frame < 30) continue;
+      }
+      for (int closed = 0; closed < 2; ++closed) {
+        stitch::tracking_status_t forged{};
+        forged.frame_index = 31;
+        forged.state = stitch::tracking_status_t::STATE_LOST;
+        forged.submap_id = MakeSubmapId(0, 1).value;
+        forged.submaps_closed = closed;
+        stranger.Publish(bus::Channel("uav0", bus::kTrackingStatus), &forged);
+      }
+      sent = true;
+    }
+  });
+  stack.Play("none");
+  flying = false;
+  forger.join();
+  std::lock_guard<std::mutex> lock(mutex);
+  EXPECT_EQ(last_status_frame, 59);
+  EXPECT_EQ(closed_during_flight, 0);
 }
 
 }  // namespace

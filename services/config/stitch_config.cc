@@ -10,6 +10,7 @@
 #include "stitch/util/child_process.h"
 #include "stitch/util/log.h"
 #include "stitch/util/options.h"
+#include "stitch/util/text_file.h"
 
 namespace stitch {
 
@@ -115,10 +116,8 @@ std::vector<std::string> CommandLineSettings(const std::string& calibration_path
 }
 
 void SaveStitchConfig(const StitchConfig& config, const std::string& path) {
-  std::ofstream out(path);
-  if (!out) throw Error(path + ": cannot write");
-  out << "# stitch configuration (resolved: every setting, defaults included)\n" << DumpOptions(config);
-  if (!out) throw Error(path + ": write failed");
+  WriteFileAtomically(path,
+                      "# stitch configuration (resolved: every setting, defaults included)\n" + DumpOptions(config));
 }
 
 }  // namespace stitch

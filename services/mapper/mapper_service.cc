@@ -39,6 +39,10 @@ MapperService::MapperService(lcm::LCM* lcm, bus::Publisher* publisher, MapperOpt
   subscriber_.Subscribe<stitch::keyframe_t>(bus::Channel(publisher_->agent(), bus::kKeyframe),
                                             [this](std::unique_ptr<stitch::keyframe_t> keyframe, const std::string&) {
                                               ++received_;
+                                              {
+                                                std::lock_guard<std::mutex> lock(tracker_mutex_);
+                                                keyframe_session_ = keyframe->header.sender_session;
+                                              }
                                               if (auto dropped = queue_.Push(std::move(keyframe))) {
                                                 ++rejected_;
                                                 STITCH_LOG(WARNING) << "mapper queue full: dropped keyframe "
@@ -50,8 +54,15 @@ MapperService::MapperService(lcm::LCM* lcm, bus::Publisher* publisher, MapperOpt
   // next submap's first keyframe arrives.
   subscriber_.Subscribe<stitch::tracking_status_t>(
       bus::Channel(publisher_->agent(), bus::kTrackingStatus),
-      [this](std::unique_ptr<stitch::tracking_status_t> status, const std::string&) {
+      [this](std::unique_ptr<stitch::tracking_status_t> status, const std::string& channel) {
         std::lock_guard<std::mutex> lock(tracker_mutex_);
+        // Only the tracker whose keyframes the mapper maps closes its submaps: a status from
+        // another session (forged, or a tracker that has sent no keyframe yet) closes nothing.
+        if (keyframe_session_ != 0 && status->header.sender_session != keyframe_session_) {
+          subscriber_.Reject(channel, "comes from session " + std::to_string(status->header.sender_session) +
+                                          ", not that of the tracker whose keyframes are mapped");
+          return;
+        }
         if (status->header.sender_session != tracker_session_) {
           tracker_session_ = status->header.sender_session;  // a (re)started tracker counts from 0
           tracker_submaps_closed_ = status->submaps_closed;

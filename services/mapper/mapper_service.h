@@ -67,6 +67,7 @@ class MapperService {
   std::atomic<int64_t> received_{0}, mapped_{0}, rejected_{0};
   std::mutex tracker_mutex_;  // what the tracker's statuses say about closed submaps
   int64_t tracker_session_ = 0;
+  int64_t keyframe_session_ = 0;  // the sender of the newest keyframe: the tracker
   int tracker_submaps_closed_ = 0;
   int64_t close_requested_ = -1;
   std::unordered_map<MapPointId, Eigen::Vector3d> sent_positions_;  // what the merger was last sent

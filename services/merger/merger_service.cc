@@ -13,10 +13,12 @@
 #include "services/common/map_convert.h"
 #include "stitch/global_map_t.hpp"
 #include "stitch/io/colmap_model.h"
+#include "stitch/io/image_file.h"
 #include "stitch/io/ply.h"
 #include "stitch/map/map_export.h"
 #include "stitch/submap_request_t.hpp"
 #include "stitch/util/log.h"
+#include "stitch/util/text_file.h"
 #include "stitch/util/time.h"
 
 namespace stitch {
@@ -509,7 +511,7 @@ void MergerService::WriteRecords(const Merger::Graph& graph, const MergedMap* me
   }
   WriteConnectionRecords((dir / "connections.tsv").string(), connections);
   {
-    std::ofstream out(dir / "graph.dot");
+    std::ostringstream out;
     out << "graph submaps {\n  // edge weight -C; bold: Kruskal's spanning tree\n";
     for (const auto& [id, placement] : graph.placement) {
       out << "  \"" << SubmapName(id) << "\" [label=\"" << SubmapName(id) << "\\n"
@@ -530,6 +532,7 @@ void MergerService::WriteRecords(const Merger::Graph& graph, const MergedMap* me
           << "];\n";
     }
     out << "}\n";
+    WriteFileAtomically((dir / "graph.dot").string(), out.str());
   }
   {
     // The graph as a picture: submaps on a circle, edges with their strength.
@@ -560,7 +563,7 @@ void MergerService::WriteRecords(const Merger::Graph& graph, const MergedMap* me
     }
     cv::putText(image, "submap graph: edges labelled C, spanning tree in red, one colour per merged map",
                 cv::Point(10, 20), cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
-    cv::imwrite((dir / "graph.png").string(), image);
+    WritePng((dir / "graph.png").string(), image);
   }
   WriteMergeLog((dir / "merge_log.tsv").string(), merge_log_);
   WriteRetrievalRecords((dir / "retrieval.tsv").string(), merger_.retrievals());

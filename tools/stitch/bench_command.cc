@@ -24,6 +24,7 @@
 #include "stitch/util/args.h"
 #include "stitch/util/child_process.h"
 #include "stitch/util/error.h"
+#include "stitch/util/text_file.h"
 #include "stitch/util/time.h"
 #include "tools/stitch/commands.h"
 #include "tools/stitch/quality_gate.h"
@@ -302,9 +303,7 @@ int BenchCommand(int argc, char** argv) {
   try {
     const nlohmann::json json = options ? BenchOptions(a) : BenchOnce(a);
     if (!a.json_path.empty()) {
-      std::ofstream out(a.json_path);
-      out << json.dump(2) << "\n";
-      if (!out) throw Error(a.json_path + ": cannot write");
+      WriteFileAtomically(a.json_path, json.dump(2) + "\n");
     }
     return 0;
   } catch (const std::exception& e) {

@@ -8,6 +8,7 @@
 
 #include "services/config/stitch_config.h"
 #include "stitch/io/calibration.h"
+#include "stitch/io/image_file.h"
 #include "stitch/source/source.h"
 #include "stitch/util/args.h"
 #include "stitch/util/error.h"
@@ -48,8 +49,7 @@ int RenderCommand(int argc, char** argv) {
     const int total = sequence->size();
     while (sequence->Next(&frame)) {
       const std::string name = FormatSeconds(frame.t_ns) + ".png";
-      if (!cv::imwrite((fs::path(out_dir) / name).string(), frame.image))
-        throw Error(out_dir + ": cannot write " + name);
+      WritePng((fs::path(out_dir) / name).string(), frame.image);
       if (const auto pose = sequence->ground_truth().PoseAt(frame.t_ns)) truth.Add({frame.t_ns, *pose});
       if ((frame.index + 1) % 50 == 0 || frame.index + 1 == total) {
         std::printf("\r  rendered %d/%d", frame.index + 1, total);

@@ -24,6 +24,7 @@
 #include "stitch/util/child_process.h"
 #include "stitch/util/ids.h"
 #include "stitch/util/options.h"
+#include "stitch/util/text_file.h"
 #include "tools/stitch/commands.h"
 #include "tools/stitch/run_outputs.h"
 #include "tools/stitch/split_network.h"
@@ -384,6 +385,20 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
     }
   }
 
+  // What a service logged as an error (a record it could not write on a full disk, updates it had
+  // to drop) is said here too, not only in its log.
+  for (const auto& child : children) {
+    int total = 0;
+    const std::vector<std::string> errors = child->LogErrors(3, &total);
+    for (const std::string& line : errors) {
+      std::fprintf(stderr, "stitch run: the %s logged: %s\n", child->name().c_str(), line.c_str());
+      info.notes.push_back("the " + child->name() + " logged: " + line);
+    }
+    if (total > static_cast<int>(errors.size())) {
+      info.notes.push_back("the " + child->name() + " logged " + std::to_string(total) + " errors in all; see " +
+                           child->log_path());
+    }
+  }
   if (!failure.empty()) {
     std::fprintf(stderr, "stitch run: %s\n", failure.c_str());
     info.notes.push_back("the run failed: " + failure);
@@ -530,7 +545,6 @@ int RunCommand(int argc, char** argv) {
   }
   const std::string table = FormatComparison(runs);
   std::printf("%s", table.c_str());
-  std::ofstream(fs::path(out) / "comparison.txt") << table;
   nlohmann::json j = nlohmann::json::array();
   for (const auto& run : runs) {
     j.push_back({{"on_loss", run.on_loss},
@@ -538,7 +552,13 @@ int RunCommand(int argc, char** argv) {
                  {"exit_code", run.exit_code},
                  {"report", run.evaluation ? ToJson(*run.evaluation) : nlohmann::json()}});
   }
-  std::ofstream(fs::path(out) / "comparison.json") << j.dump(2) << "\n";
+  try {
+    WriteFileAtomically((fs::path(out) / "comparison.txt").string(), table);
+    WriteFileAtomically((fs::path(out) / "comparison.json").string(), j.dump(2) + "\n");
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "stitch run: writing the comparison failed: %s\n", e.what());
+    return 1;
+  }
   std::printf("comparison written to %s/comparison.{txt,json}\n", out.c_str());
   for (const auto& run : runs) {
     if (run.exit_code != 0) return run.exit_code;

@@ -14,6 +14,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "stitch/geometry/similarity.h"
+#include "stitch/io/image_file.h"
 #include "stitch/util/error.h"
 #include "stitch/util/ids.h"
 #include "stitch/util/text_file.h"
@@ -480,7 +481,7 @@ void WriteTrajectoryPlot(const std::string& path, const EvaluationInput& input, 
   std::snprintf(bar_text, sizeof(bar_text), "%g %s", bar, truth.empty() ? "units" : "m");
   cv::putText(canvas, bar_text, cv::Point(kMargin + bar_px + 8, kHeight - 20), cv::FONT_HERSHEY_SIMPLEX, 0.45,
               cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
-  if (!cv::imwrite(path, canvas)) throw Error(path + ": cannot write the plot");
+  WritePng(path, canvas);
 }
 
 }  // namespace stitch

@@ -10,6 +10,7 @@
 
 #include "stitch/util/error.h"
 #include "stitch/util/rng.h"
+#include "stitch/util/text_file.h"
 
 namespace stitch {
 namespace {
@@ -294,10 +295,7 @@ void Vocabulary::Save(const std::string& path) const {
     Put<float>(&bytes, node.weight);
   }
   Put<uint64_t>(&bytes, Fnv1a(bytes.data(), bytes.size()));
-  std::ofstream out(path, std::ios::binary);
-  if (!out) throw Error(path + ": cannot write the vocabulary");
-  out.write(reinterpret_cast<const char*>(bytes.data()), static_cast<std::streamsize>(bytes.size()));
-  if (!out) throw Error(path + ": write failed");
+  WriteFileAtomically(path, std::string(reinterpret_cast<const char*>(bytes.data()), bytes.size()));
 }
 
 namespace {

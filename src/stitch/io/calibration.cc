@@ -12,6 +12,7 @@
 
 #include "stitch/util/error.h"
 #include "stitch/util/options.h"
+#include "stitch/util/text_file.h"
 
 namespace stitch {
 namespace {
@@ -200,8 +201,7 @@ std::map<std::string, double> ReadOrbExtractorSettings(const std::string& path) 
 }
 
 void SaveCalibration(const Camera& camera, const std::string& path) {
-  std::ofstream out(path);
-  if (!out) throw Error(path + ": cannot write calibration");
+  std::ostringstream out;
   out.precision(12);
   const auto p = camera.params();
   out << "%YAML:1.0\n# Written by stitch. ORB-SLAM-style settings.\n";
@@ -219,7 +219,7 @@ void SaveCalibration(const Camera& camera, const std::string& path) {
         << "\n";
   }
   out << "Camera.width: " << camera.width() << "\nCamera.height: " << camera.height() << "\n";
-  if (!out) throw Error(path + ": write failed");
+  WriteFileAtomically(path, out.str());
 }
 
 }  // namespace stitch

@@ -2,14 +2,15 @@
 
 #include <cstring>
 #include <fstream>
+#include <sstream>
 
 #include "stitch/util/error.h"
+#include "stitch/util/text_file.h"
 
 namespace stitch {
 
 void WritePly(const std::string& path, const std::vector<ColouredPoint>& points) {
-  std::ofstream out(path, std::ios::binary);
-  if (!out) throw Error(path + ": cannot write");
+  std::ostringstream out(std::ios::binary);
   out << "ply\nformat binary_little_endian 1.0\ncomment written by stitch\nelement vertex " << points.size()
       << "\nproperty float x\nproperty float y\nproperty float z\nproperty uchar red\n"
          "property uchar green\nproperty uchar blue\nend_header\n";
@@ -19,7 +20,7 @@ void WritePly(const std::string& path, const std::vector<ColouredPoint>& points)
     const uint8_t rgb[3] = {p.red, p.green, p.blue};
     out.write(reinterpret_cast<const char*>(rgb), 3);
   }
-  if (!out) throw Error(path + ": write failed");
+  WriteFileAtomically(path, out.str());
 }
 
 std::vector<ColouredPoint> ReadPly(const std::string& path) {

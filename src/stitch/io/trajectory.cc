@@ -70,11 +70,9 @@ Trajectory Trajectory::ReadTum(const std::string& path) {
 }
 
 void Trajectory::WriteTum(const std::string& path) const {
-  std::ofstream out(path);
-  if (!out) throw Error(path + ": cannot write trajectory file");
-  out << "# timestamp tx ty tz qx qy qz qw (world_from_cam)\n";
-  for (const auto& pose : poses_) out << FormatSeconds(pose.t_ns) << " " << FormatTumPose(pose.world_from_cam) << "\n";
-  if (!out) throw Error(path + ": write failed");
+  std::string text = "# timestamp tx ty tz qx qy qz qw (world_from_cam)\n";
+  for (const auto& pose : poses_) text += FormatSeconds(pose.t_ns) + " " + FormatTumPose(pose.world_from_cam) + "\n";
+  WriteFileAtomically(path, text);
 }
 
 Trajectory Trajectory::Between(int64_t first_ns, int64_t last_ns) const {

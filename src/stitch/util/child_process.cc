@@ -102,6 +102,19 @@ std::string ChildProcess::LogTail(int lines) const {
   return text;
 }
 
+std::vector<std::string> ChildProcess::LogErrors(int max_lines, int* total) const {
+  std::ifstream in(log_path_);
+  std::vector<std::string> errors;
+  *total = 0;
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.rfind("E ", 0) != 0) continue;
+    if (static_cast<int>(errors.size()) < max_lines) errors.push_back(line);
+    ++*total;
+  }
+  return errors;
+}
+
 std::string ExecutableDir() {
   std::error_code error;
   const auto self = std::filesystem::read_symlink("/proc/self/exe", error);

@@ -32,6 +32,9 @@ class ChildProcess {
   int Terminate(std::chrono::milliseconds grace);
   // The last `lines` lines of its log (for error messages).
   std::string LogTail(int lines) const;
+  // The lines its log holds at ERROR level (stitch's log format: they begin "E "), the first
+  // `max_lines` of them, and how many there are in all.
+  std::vector<std::string> LogErrors(int max_lines, int* total) const;
   // Once it has ended: the CPU seconds (user + system) it and the children it waited for used.
   double cpu_seconds() const { return cpu_seconds_; }
 
