@@ -2,7 +2,6 @@
 // during the short flight, with hostile updates between the real ones.
 
 #include <climits>
-#include <future>
 
 #include <gtest/gtest.h>
 
@@ -11,6 +10,7 @@
 #include "services/merger/merger_service.h"
 #include "stitch/pipeline/inline_pipeline.h"
 #include "stitch/source/source.h"
+#include "tests/memq_dispatched.h"
 
 namespace stitch {
 namespace {
@@ -44,14 +44,7 @@ class MergerOnMemq {
   }
   void Send(stitch::submap_update_t message) { publisher_.Publish(bus::Channel("uav0", bus::kSubmap), &message); }
   const Merger& Finish() {
-    // memq:// delivers in order: once a marker published now is handled, so is every update.
-    std::promise<void> handled;
-    lcm_->subscribeFunction(
-        "TEST_DISPATCHED",
-        +[](const lcm::ReceiveBuffer*, const std::string&, std::promise<void>* p) { p->set_value(); }, &handled);
-    const uint8_t marker = 0;
-    lcm_->publish("TEST_DISPATCHED", &marker, 1);
-    EXPECT_EQ(handled.get_future().wait_for(std::chrono::seconds(120)), std::future_status::ready);
+    testing::WaitUntilDispatched(lcm_.get());
     merger_.Stop();
     dispatcher_.Stop();
     return merger_.merger();

@@ -1,7 +1,6 @@
 // Ingest, tracker and mapper services on one in-process bus (memq://), as in a single process.
 
 #include <atomic>
-#include <future>
 #include <map>
 #include <mutex>
 #include <optional>
@@ -25,6 +24,7 @@
 #include "stitch/source/source.h"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/tracking_status_t.hpp"
+#include "tests/memq_dispatched.h"
 
 namespace stitch {
 namespace {
@@ -75,20 +75,7 @@ struct InProcessStack {
     return summary;
   }
 
-  // memq:// delivers in order: once a marker published now is handled, so is everything the
-  // services published before it (their final states included), however far behind the
-  // dispatcher runs (a sanitizer build on a loaded machine).
-  void WaitUntilDispatched() {
-    std::promise<void> handled;
-    auto* subscription = lcm->subscribeFunction(
-        "TEST_DISPATCHED",
-        +[](const lcm::ReceiveBuffer*, const std::string&, std::promise<void>* p) { p->set_value(); }, &handled);
-    const uint8_t marker = 0;
-    lcm->publish("TEST_DISPATCHED", &marker, 1);
-    EXPECT_EQ(handled.get_future().wait_for(std::chrono::seconds(120)), std::future_status::ready)
-        << "the bus did not deliver what was published within 2 minutes";
-    lcm->unsubscribe(subscription);
-  }
+  void WaitUntilDispatched() { testing::WaitUntilDispatched(lcm.get()); }
 
   StitchConfig config;
   Vocabulary vocabulary;

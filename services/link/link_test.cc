@@ -323,7 +323,9 @@ TEST(LinkBridge, RepairsWhatAFifthLossEachWayAndJitterDoToEveryMessage) {
   const LinkCounts down = sides.aircraft->counts(), up = sides.ground->counts();
   EXPECT_GT(down.datagrams_lost_injected, 100);
   EXPECT_GT(down.fragments_repaired, 100);
-  EXPECT_GT(up.repair_requests_sent, 10);
+  // One request names every fragment missing at the time: fewer, larger requests when the
+  // bridge's thread runs late (9 in an ASan run beside a TSan run; 10+ on an idle machine).
+  EXPECT_GT(up.repair_requests_sent, 3);
   EXPECT_EQ(up.messages_given_up, 0);
   EXPECT_EQ(up.messages_delivered, kMessages);
 }
