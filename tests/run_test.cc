@@ -33,6 +33,15 @@ using testing::RunProgram;
 using testing::ReadJson;
 const std::string kShortFlight = testing::ShortFlightConfig();
 
+// `stitch render` of the short flight's first `frames` frames into the folder `images`, with its
+// gusts unless `failures` says otherwise.
+testing::CommandResult RenderShortFlight(const std::string& images, int frames,
+                                         const std::string& failures = "default") {
+  return RunProgram({Bin("stitch"), "render", "--config", kShortFlight, "--out", images, "--failures", failures,
+                     "--max-frames", std::to_string(frames)},
+                    60);
+}
+
 // The images `stitch render` wrote to `folder` (named by their time in seconds), in time order.
 std::vector<fs::path> RenderedImagesInTimeOrder(const std::string& folder) {
   std::vector<fs::path> images;
@@ -166,8 +175,7 @@ TEST(StitchRun, EveryCommandHasHelp) {
 TEST(StitchRender, WritesAFolderThatRunsAsADataset) {
   testing::TempDir dir;
   const std::string images = dir / "flight";
-  const auto render =
-      RunProgram({Bin("stitch"), "render", "--config", kShortFlight, "--out", images, "--max-frames", "12"}, 60);
+  const auto render = RenderShortFlight(images, 12);
   ASSERT_EQ(render.exit_code, 0) << render.output;
   EXPECT_TRUE(fs::exists(images + "/camera.yaml"));
   EXPECT_EQ(Trajectory::ReadTum(images + "/groundtruth.txt").size(), 12u);
@@ -206,9 +214,7 @@ TEST(StitchRender, WritesAFolderThatRunsAsADataset) {
 TEST(StitchRun, AKittiSequenceGivesItsTrajectoryInKittiFormatAndEveryMapItsOwnFile) {
   testing::TempDir dir;
   const std::string images = dir / "flight";
-  const auto render = RunProgram(
-      {Bin("stitch"), "render", "--config", kShortFlight, "--out", images, "--failures", "none", "--max-frames", "40"},
-      60);
+  const auto render = RenderShortFlight(images, 40, "none");
   ASSERT_EQ(render.exit_code, 0) << render.output;
   const Trajectory truth = Trajectory::ReadTum(images + "/groundtruth.txt");
   ASSERT_EQ(truth.size(), 40u);
@@ -271,8 +277,7 @@ TEST(StitchRun, AKittiSequenceGivesItsTrajectoryInKittiFormatAndEveryMapItsOwnFi
 TEST(StitchExport, AColmapModelOfARunReadsBackOnItsImagesAndColmapAcceptsIt) {
   testing::TempDir dir;
   const std::string images = dir / "flight";
-  const auto render =
-      RunProgram({Bin("stitch"), "render", "--config", kShortFlight, "--out", images, "--max-frames", "60"}, 60);
+  const auto render = RenderShortFlight(images, 60);
   ASSERT_EQ(render.exit_code, 0) << render.output;
   const std::string out = dir / "run";
   const auto run = RunProgram({Bin("stitch"), "run", "--dataset", images, "--out", out, "--start-frame", "2"}, 120);
@@ -311,9 +316,7 @@ TEST(StitchExport, AColmapModelOfARunReadsBackOnItsImagesAndColmapAcceptsIt) {
 TEST(StitchRun, TracksALiveGStreamerSource) {
   testing::TempDir dir;
   const std::string images = dir / "flight";
-  const auto render = RunProgram(
-      {Bin("stitch"), "render", "--config", kShortFlight, "--out", images, "--failures", "none", "--max-frames", "60"},
-      60);
+  const auto render = RenderShortFlight(images, 60, "none");
   ASSERT_EQ(render.exit_code, 0) << render.output;
   // multifilesrc reads numbered files: the frames in time order as 00000.png, 00001.png, ...
   const std::vector<fs::path> frames = RenderedImagesInTimeOrder(images);
