@@ -12,11 +12,15 @@ foreach(header ${HEADERS})
   set(original "${code}")
   string(REGEX REPLACE "if\\(__([A-Za-z0-9_]+)_len__ > maxlen - pos\\) return -1;"
          "if(__\\1_len__ < 1 || __\\1_len__ > maxlen - pos) return -1;" code "${code}")
+  # A string inside an array (string names[n]) has its length in __elem_len.
+  string(REPLACE "if(__elem_len > maxlen - pos) return -1;" "if(__elem_len < 1 || __elem_len > maxlen - pos) return -1;"
+         code "${code}")
   string(REGEX REPLACE "this->([A-Za-z0-9_]+)\\.resize\\(this->([A-Za-z0-9_]+)\\);"
          "if(this->\\2 < 0 || this->\\2 > maxlen - pos) { return -1; } this->\\1.resize(this->\\2);" code "${code}")
   string(FIND "${code}" ".assign(" has_string)
-  string(FIND "${code}" "_len__ < 1 ||" checked_string)
-  if(has_string GREATER -1 AND checked_string EQUAL -1)
+  string(REGEX MATCH "(_len__|__elem_len) < 1 \\|\\|" checked_string "${code}")
+  string(REGEX MATCH "if\\(__[A-Za-z0-9_]+ > maxlen - pos\\) return -1;" unchecked_string "${code}")
+  if(has_string GREATER -1 AND (NOT checked_string OR unchecked_string))
     message(FATAL_ERROR "${header}: lcm-gen's string decode changed; review lcmtypes/harden_generated.cmake")
   endif()
   if(NOT code STREQUAL original)

@@ -4,6 +4,7 @@
 // memory, each counts what it rejected, and the system still maps a flight afterwards.
 
 #include <sys/resource.h>
+#include <unistd.h>
 
 #include <map>
 #include <mutex>
@@ -16,6 +17,7 @@
 #include "services/mapper/mapper_service.h"
 #include "services/merger/merger_service.h"
 #include "services/tracker/tracker_service.h"
+#include "services/viewer/viewer_service.h"
 #include "stitch/link_status_t.hpp"
 #include "stitch/service_status_t.hpp"
 #include "stitch/source/source.h"
@@ -39,6 +41,12 @@ StitchConfig PatientConfig() {
   return config;
 }
 
+ViewerOptions ViewerOnAPortOfItsOwn() {
+  ViewerOptions options;
+  options.port = 20000 + getpid() % 1000;
+  return options;
+}
+
 struct Stack {
   explicit Stack(const std::string& failures)
       : config(PatientConfig()),
@@ -49,9 +57,11 @@ struct Stack {
         tracker(lcm.get(), &publisher, config.tracker, &vocabulary, ""),
         mapper(lcm.get(), &publisher, config.mapper, config.tracker.tracking.orb, &vocabulary, ""),
         merger(lcm.get(), &publisher, config.merger, config.tracker.tracking.orb, &vocabulary, ""),
+        viewer(lcm.get(), &publisher, ViewerOnAPortOfItsOwn()),
         failures(failures) {}
 
   void Start() {
+    viewer.Start();
     merger.Start();
     mapper.Start();
     tracker.Start();
@@ -69,6 +79,7 @@ struct Stack {
     tracker.Stop();
     mapper.Stop();
     merger.Stop();
+    viewer.Stop();
   }
 
   StitchConfig config;
@@ -79,14 +90,16 @@ struct Stack {
   TrackerService tracker;
   MapperService mapper;
   MergerService merger;
+  ViewerService viewer;
   std::string failures;
 };
 
 // The channels the services listen to (and those they publish, which some tool may listen to),
 // and the first few real messages seen on each.
-const std::vector<std::string> kChannels = {"FRAME",           "FRAME_ACK",   "LOCAL_MAP", "KEYFRAME",
-                                            "TRACKING_STATUS", "SUBMAP",      "SERVICE",   "SEQUENCE",
-                                            "SUBMAP_REQUEST",  "LINK_STATUS", "GLOBAL_MAP"};
+const std::vector<std::string> kChannels = {"FRAME",       "FRAME_ACK",  "LOCAL_MAP",       "KEYFRAME",
+                                            "POSE",        "SUBMAP",     "TRACKING_STATUS", "SERVICE",
+                                            "SEQUENCE",    "MAP_CLOUD",  "SUBMAP_REQUEST",  "LINK_STATUS",
+                                            "GLOBAL_MAP"};
 
 template <class Message>
 Bytes Encoded(const Message& message) {
@@ -210,7 +223,7 @@ TEST(BusFuzz, MalformedMessagesOnEveryChannelAreRejectedAndTheServicesKeepWorkin
 
   Rng rng(2026);
   int sent = 0;
-  for (int round = 0; round < 200; ++round) {  // 11 channels: 2200 messages
+  for (int round = 0; round < 200; ++round) {  // 13 channels: 2600 messages
     for (size_t c = 0; c < kChannels.size(); ++c) {
       const auto& own = seeds.at(kChannels[c]);
       const auto& other = seeds.at(kChannels[(c + 1 + static_cast<size_t>(rng.UniformInt(0, 5))) % kChannels.size()]);
@@ -227,7 +240,7 @@ TEST(BusFuzz, MalformedMessagesOnEveryChannelAreRejectedAndTheServicesKeepWorkin
   // dispatcher thread, which under a sanitizer, beside other tests, takes many seconds.
   const auto all_counted = [&] {
     std::lock_guard<std::mutex> lock(mutex);
-    for (const char* service : {"tracker", "mapper", "merger"}) {
+    for (const char* service : {"tracker", "mapper", "merger", "viewer"}) {
       if (rejected[service] <= 50) return false;
     }
     return true;
@@ -238,7 +251,7 @@ TEST(BusFuzz, MalformedMessagesOnEveryChannelAreRejectedAndTheServicesKeepWorkin
   EXPECT_LT(PeakResidentMb(), 3000) << "an absurd count made someone allocate";
   {
     std::lock_guard<std::mutex> lock(mutex);
-    for (const char* service : {"tracker", "mapper", "merger"}) {
+    for (const char* service : {"tracker", "mapper", "merger", "viewer"}) {
       EXPECT_GT(rejected[service], 50) << service << " rejected too few of " << sent << " malformed messages";
     }
   }

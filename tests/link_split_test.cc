@@ -14,6 +14,7 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
+#include "stitch/io/trajectory.h"
 #include "stitch/records/keyframe_record.h"
 #include "stitch/records/merger_records.h"
 #include "stitch/testing/temp_dir.h"
@@ -47,6 +48,7 @@ std::set<int64_t> MergedKeyframes(const std::string& path) {
 struct RunResult {
   nlohmann::json report, info;
   std::set<int64_t> kept, merged;
+  size_t posed = 0, posed_on_the_ground = 0;  // frames in trajectory.tum and trajectory_ground.tum
   std::string output;
 };
 
@@ -63,6 +65,10 @@ RunResult RunStitch(const fs::path& out, const std::vector<std::string>& extra) 
   run.info = ReadJson((out / "run.json").string());
   run.kept = KeptKeyframes((out / "keyframes.tsv").string());
   run.merged = MergedKeyframes((out / "keyframes_merged.tsv").string());
+  run.posed = Trajectory::ReadTum((out / "trajectory.tum").string()).size();
+  if (std::filesystem::exists(out / "trajectory_ground.tum")) {
+    run.posed_on_the_ground = Trajectory::ReadTum((out / "trajectory_ground.tum").string()).size();
+  }
   return run;
 }
 
@@ -84,6 +90,9 @@ void ExpectSameResult(const RunResult& plain, const RunResult& split, const std:
     EXPECT_EQ(status.find("refused"), std::string::npos) << what << ": " << edge.dump();
   }
   EXPECT_EQ(merged + 1, split.report["submaps_merged"].get<int>()) << what << ": " << split.report["merges"].dump();
+  // The pose stream crossed the link too: the ground placed (nearly) every frame of the largest map.
+  EXPECT_GE(split.posed_on_the_ground, split.posed * 9 / 10) << what << ": " << split.posed_on_the_ground << " of "
+                                                             << split.posed << " frames in the ground's trajectory";
   EXPECT_FALSE(split.info["link"].get<std::string>().empty()) << what;
   const auto figures = split.info["link_figures"];
   ASSERT_EQ(figures.size(), 2u) << what << "\n" << split.output;

@@ -9,6 +9,7 @@
 #include <chrono>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <map>
 #include <sstream>
 #include <thread>
@@ -16,10 +17,14 @@
 #include <gtest/gtest.h>
 
 #include "services/common/bus.h"
+#include "services/common/convert.h"
 #include "services/common/map_convert.h"
 #include "services/common/update_journal.h"
 #include "services/config/stitch_config.h"
 #include "stitch/pipeline/inline_pipeline.h"
+#include "stitch/eval/evaluation.h"
+#include "stitch/io/ply.h"
+#include "stitch/io/trajectory.h"
 #include "stitch/records/merger_records.h"
 #include "stitch/source/source.h"
 #include "stitch/testing/temp_dir.h"
@@ -32,8 +37,15 @@ namespace {
 using namespace std::chrono_literals;
 using testing::Bin;
 
-// What the mapper publishes on <agent>/SUBMAP during a 200-frame strip with a gust at frame 90.
-std::vector<stitch::submap_update_t> GustStripUpdates() {
+// A 200-frame strip with a gust at frame 90, run in process: what the mapper publishes on
+// <agent>/SUBMAP, what the tracker publishes on <agent>/POSE, and the ground truth.
+struct GustStrip {
+  std::vector<stitch::submap_update_t> updates;
+  std::vector<stitch::frame_pose_t> poses;
+  Trajectory ground_truth;
+};
+
+GustStrip FlyGustStrip() {
   StitchConfig config;
   config.synthetic.flight.num_frames = 200;
   config.synthetic.flight.num_strips = 1;
@@ -44,8 +56,19 @@ std::vector<stitch::submap_update_t> GustStripUpdates() {
   FailureSchedule unused;
   auto sequence = OpenSource(spec, &unused);
   const Vocabulary vocabulary = LoadVocabulary(config);
-  return ToMessages(
-      RunInline(*sequence, config.pipeline(), vocabulary, nullptr, /*keep_submap_updates=*/true).submap_updates);
+  const InlineRun run = RunInline(*sequence, config.pipeline(), vocabulary, nullptr, /*keep_submap_updates=*/true);
+  GustStrip strip{ToMessages(run.submap_updates), {}, sequence->ground_truth()};
+  for (const InlineFrame& f : run.frames) {
+    const TrackResult& r = f.result;
+    if (r.state != TrackingState::kOk || !r.cam_from_submap) continue;
+    strip.poses.push_back(FramePoseMessage(f.frame_index, f.t_ns, r.submap, *r.cam_from_submap, r.reference_keyframe,
+                                           r.cam_from_reference));
+  }
+  return strip;
+}
+
+std::vector<stitch::submap_update_t> GustStripUpdates() {
+  return FlyGustStrip().updates;
 }
 
 int64_t JournalRecords(const std::string& path) {
@@ -202,6 +225,85 @@ TEST(MergerRestart, ADamagedJournalCostsOnlyTheDamagedRecords) {
       << text;
   EXPECT_TRUE(std::filesystem::exists(journal_path + ".damaged"));
   EXPECT_EQ(JournalRecords(journal_path), kept);  // liblcm's reader reads the mended journal through
+}
+
+// The ground's live outputs (issue #22): the merger writes its map and tables at every refinement
+// and the per-frame trajectory of the pose stream during the flight, so a merger killed mid-flight
+// leaves them on disk, readable, with the submaps merged so far.
+TEST(MergerLiveOutputs, AMergerKilledMidFlightLeavesItsMapAndPerFrameTrajectoryOnDisk) {
+  GustStrip strip = FlyGustStrip();
+  size_t first_closed = 0;  // the last part of the update that closes the first submap
+  while (first_closed < strip.updates.size() && !(strip.updates[first_closed].closed &&
+                                                  strip.updates[first_closed].part ==
+                                                      strip.updates[first_closed].num_parts - 1)) {
+    ++first_closed;
+  }
+  ASSERT_LT(first_closed, strip.updates.size());
+  testing::TempDir dir;
+  const std::string url = bus::LocalUdpUrl(7800 + (getpid() + 30) % 90);
+  auto lcm = bus::OpenLcm(url);
+  bus::Publisher publisher(lcm.get(), "uav0");
+  const std::string out = dir / "ground";
+  MergerProcess merger(url, dir / "state", out, dir / "merger.log");
+  const auto wait_for = [&](const std::function<bool()>& done, const char* what) {
+    const auto deadline = std::chrono::steady_clock::now() + 60s;
+    while (!done()) {
+      if (std::chrono::steady_clock::now() > deadline) {
+        ADD_FAILURE() << "waited 60 s for " << what << "; " << merger.process().LogTail(10);
+        return false;
+      }
+      std::this_thread::sleep_for(100ms);
+    }
+    return true;
+  };
+  const auto frames_on_disk = [&] {
+    try {
+      return std::filesystem::exists(out + "/trajectory.tum") ? Trajectory::ReadTum(out + "/trajectory.tum").size()
+                                                               : size_t{0};
+    } catch (const Error&) {
+      return size_t{0};  // never: the file is replaced whole
+    }
+  };
+  // Everything, the poses interleaved with the updates, all but the very end.
+  const size_t updates_sent = strip.updates.size() - 2;
+  size_t pose = 0;
+  for (size_t i = 0; i < updates_sent; ++i) {
+    publisher.Publish(bus::Channel("uav0", bus::kSubmap), &strip.updates[i]);
+    for (size_t k = 0; k < 5 && pose < strip.poses.size(); ++k, ++pose) {
+      publisher.Publish(bus::Channel("uav0", bus::kPose), &strip.poses[pose]);
+    }
+    std::this_thread::sleep_for(3ms);
+    if (i == first_closed) {
+      // The first submap closed: the refinement writes the map and its frames at once.
+      ASSERT_TRUE(wait_for([&] { return std::filesystem::exists(out + "/map.ply") && frames_on_disk() > 0; },
+                           "the first refinement's map and trajectory"));
+    }
+  }
+  for (; pose < strip.poses.size(); ++pose) publisher.Publish(bus::Channel("uav0", bus::kPose), &strip.poses[pose]);
+  // Both submaps merged on disk: most frames in the trajectory (written every 2 s).
+  ASSERT_TRUE(wait_for([&] { return frames_on_disk() > strip.poses.size() * 3 / 4; }, "the frames of both submaps"));
+  EXPECT_EQ(merger.process().Terminate(0ms), 128 + SIGKILL);
+
+  const Trajectory trajectory = Trajectory::ReadTum(out + "/trajectory.tum");
+  EXPECT_GT(trajectory.size(), strip.poses.size() * 3 / 4);
+  const std::optional<TrajectoryErrors> errors = CompareTrajectories(trajectory.poses(), strip.ground_truth);
+  ASSERT_TRUE(errors);
+  EXPECT_LT(errors->ate_rmse_m, 1.0) << "the strip is 230 m; a submap placed wrongly is metres off";
+  std::printf("the ground's trajectory.tum at the kill: %zu of %zu posed frames, ATE %.3f m\n", trajectory.size(),
+              strip.poses.size(), errors->ate_rmse_m);
+  EXPECT_GT(ReadPly(out + "/map.ply").size(), 1000u);
+  int merged = 0;
+  for (const SubmapRecord& r : ReadSubmapRecords(out + "/submaps.tsv")) merged += r.component == 0;
+  EXPECT_GE(merged, 1);
+  // keyframes_merged.tsv carries each keyframe's frame and time.
+  const std::vector<MergedKeyframeRecord> keyframes = ReadMergedKeyframeRecords(out + "/keyframes_merged.tsv");
+  ASSERT_FALSE(keyframes.empty());
+  int timed = 0;
+  for (const MergedKeyframeRecord& r : keyframes) {
+    EXPECT_GE(r.frame_index, 0);
+    timed += r.t_ns > 0;
+  }
+  EXPECT_GE(timed, static_cast<int>(keyframes.size()) - 1);
 }
 
 }  // namespace

@@ -2,6 +2,7 @@
 // Running the project's programs from tests: exit status and combined output.
 
 #include <csignal>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -29,5 +30,12 @@ nlohmann::json ReadJson(const std::string& path);
 
 // Whether a program is on the PATH.
 bool OnPath(const std::string& program);
+
+// Sends `request` (raw bytes) to 127.0.0.1:`port` over TCP and returns what comes back until the
+// server closes, 3 s pass, or (with `until_close` false) the end of the reply's headers; "" when
+// nothing listens there.
+std::string HttpExchange(int port, const std::string& request, bool until_close = true);
+// "GET `path`": the reply's body when the status is 200, else nullopt.
+std::optional<std::string> HttpGet(int port, const std::string& path);
 
 }  // namespace stitch::testing

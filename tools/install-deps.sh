@@ -12,4 +12,5 @@ $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recomme
   libgtest-dev libgmock-dev libbenchmark-dev \
   gstreamer1.0-plugins-base gstreamer1.0-plugins-good \
   default-jdk-headless liblcm-java libjchart2d-java lua5.2 liblcm-lua colmap \
+  libcivetweb-dev libjs-three \
   iproute2 procps

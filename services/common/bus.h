@@ -38,6 +38,8 @@ inline constexpr char kSubmapRequest[] = "SUBMAP_REQUEST";
 inline constexpr char kGlobalMap[] = "GLOBAL_MAP";
 inline constexpr char kService[] = "SERVICE";
 inline constexpr char kLinkStatus[] = "LINK_STATUS";
+inline constexpr char kPose[] = "POSE";
+inline constexpr char kMapCloud[] = "MAP_CLOUD";
 
 // "uav0" + "FRAME" -> "uav0/FRAME". Throws stitch::Error for an agent name that is not
 // [A-Za-z0-9_-]{1,32} (channels are regular expressions to LCM).

@@ -83,6 +83,32 @@ Sim3d FromMessage(const stitch::sim3_t& message) {
                FiniteTranslation(message.translation, "sim3"));
 }
 
+void ToFloatPose(const Rigid3d& transform, float* wxyz_xyz) {
+  double wxyz[4];
+  QuaternionToWxyz(transform.rotation, wxyz);
+  for (int i = 0; i < 4; ++i) wxyz_xyz[i] = static_cast<float>(wxyz[i]);
+  for (int i = 0; i < 3; ++i) wxyz_xyz[4 + i] = static_cast<float>(transform.translation[i]);
+}
+
+Rigid3d FromFloatPose(const float* wxyz_xyz, const char* what) {
+  double values[7];
+  for (int i = 0; i < 7; ++i) values[i] = wxyz_xyz[i];
+  return Rigid3d(WxyzToQuaternion(values, what), FiniteTranslation(values + 4, what));
+}
+
+stitch::frame_pose_t FramePoseMessage(int frame_index, int64_t t_ns, SubmapId submap, const Rigid3d& cam_from_submap,
+                                      KeyframeId reference, const std::optional<Rigid3d>& cam_from_reference) {
+  stitch::frame_pose_t pose{};
+  pose.frame_index = frame_index;
+  pose.t_ns = t_ns;
+  pose.submap_id = submap.value;
+  const bool referenced = reference.valid() && cam_from_reference;
+  pose.reference_keyframe = referenced ? reference.value : -1;
+  ToFloatPose(referenced ? *cam_from_reference : Rigid3d(), pose.cam_from_reference);
+  ToFloatPose(cam_from_submap, pose.cam_from_submap);
+  return pose;
+}
+
 ImageEncoding ParseImageEncoding(const std::string& name) {
   if (name == "gray8") return ImageEncoding::kGray8;
   if (name == "jpeg") return ImageEncoding::kJpeg;

@@ -8,11 +8,13 @@
 #include <opencv2/core.hpp>
 
 #include "stitch/camera_t.hpp"
+#include "stitch/frame_pose_t.hpp"
 #include "stitch/frame_t.hpp"
 #include "stitch/geometry/camera.h"
 #include "stitch/geometry/rigid3.h"
 #include "stitch/rigid3_t.hpp"
 #include "stitch/sim3_t.hpp"
+#include "stitch/util/ids.h"
 
 namespace stitch {
 
@@ -24,6 +26,14 @@ stitch::rigid3_t ToMessage(const Rigid3d& transform);
 Rigid3d FromMessage(const stitch::rigid3_t& message);
 stitch::sim3_t ToMessage(const Sim3d& transform);
 Sim3d FromMessage(const stitch::sim3_t& message);
+// A pose as 7 floats (frame_pose_t): unit quaternion w, x, y, z, then translation. The reader
+// throws stitch::Error for a rotation far from unit length or a translation that is not finite.
+void ToFloatPose(const Rigid3d& transform, float* wxyz_xyz);
+Rigid3d FromFloatPose(const float* wxyz_xyz, const char* what);
+// A frame tracked OK as the pose stream carries it (<agent>/POSE); `reference` invalid or no
+// `cam_from_reference`: tracked against no keyframe.
+stitch::frame_pose_t FramePoseMessage(int frame_index, int64_t t_ns, SubmapId submap, const Rigid3d& cam_from_submap,
+                                      KeyframeId reference, const std::optional<Rigid3d>& cam_from_reference);
 
 enum class ImageEncoding { kGray8, kJpeg };
 // Parses "gray8" or "jpeg"; throws stitch::Error otherwise.

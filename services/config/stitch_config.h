@@ -10,6 +10,7 @@
 #include "services/link/link_options.h"
 #include "services/mapper/mapper_options.h"
 #include "services/tracker/tracker_options.h"
+#include "services/viewer/viewer_options.h"
 #include "stitch/features/vocabulary.h"
 #include "stitch/merging/merger_options.h"
 #include "stitch/pipeline/pipeline_options.h"
@@ -25,6 +26,7 @@ struct StitchConfig {
   MapperOptions mapper;
   MergerOptions merger;
   LinkOptions link;
+  ViewerOptions viewer;
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
@@ -35,10 +37,11 @@ struct StitchConfig {
     v("mapper", mapper, "local mapping service");
     v("merger", merger, "submap merging service");
     v("link", link, "link bridge between the aircraft's and the ground's networks (stitch-link)");
+    v("viewer", viewer, "the ground's live web page (stitch-viewer)");
   }
   bool Check(std::string* why) const {
     return synthetic.Check(why) && ingest.Check(why) && tracker.Check(why) && mapper.Check(why) && merger.Check(why) &&
-           link.Check(why);
+           link.Check(why) && viewer.Check(why);
   }
   // The algorithms' settings, for running them inline (no bus).
   PipelineOptions pipeline() const { return {tracker.tracking, tracker.on_loss, mapper.mapping, merger}; }

@@ -12,8 +12,10 @@
 #include "services/common/convert.h"
 #include "services/common/map_convert.h"
 #include "stitch/global_map_t.hpp"
+#include "stitch/map_cloud_t.hpp"
 #include "stitch/io/colmap_model.h"
 #include "stitch/io/image_file.h"
+#include "stitch/io/trajectory.h"
 #include "stitch/io/ply.h"
 #include "stitch/map/map_export.h"
 #include "stitch/submap_request_t.hpp"
@@ -29,6 +31,12 @@ namespace {
 // A jump may be this many, plus this many per second since the newest arrived.
 constexpr int64_t kMaxRevisionJump = 1000;
 constexpr int64_t kMaxRevisionsPerSecond = 100;
+// Frames of the pose stream kept per aircraft: 9 hours at 30 fps.
+constexpr size_t kMaxFramePoses = 1'000'000;
+// Between two map clouds while submaps grow (a refinement publishes one at once).
+constexpr double kCloudInterval_s = 10.0;
+// Lines of the merge log each global map carries.
+constexpr size_t kGlobalMapLogLines = 100;
 }  // namespace
 
 MergerService::MergerService(lcm::LCM* lcm, bus::Publisher* publisher, const MergerOptions& options,
@@ -56,6 +64,13 @@ MergerService::MergerService(lcm::LCM* lcm, bus::Publisher* publisher, const Mer
         });
   }
   submap_channels_ = channels;
+  for (const std::string& agent : agents_) {
+    subscriber_.Subscribe<stitch::frame_pose_t>(
+        bus::Channel(agent, bus::kPose), [this](std::unique_ptr<stitch::frame_pose_t> pose, const std::string& on) {
+          std::string why;
+          if (!TakePose(*pose, &why)) subscriber_.Reject(on, why);
+        });
+  }
   heartbeat_ = std::make_unique<Heartbeat>(publisher_, "merger", [this] {
     return Heartbeat::Counts{received_.load(), processed_.load(), subscriber_.rejected() + rejected_.load()};
   });
@@ -98,7 +113,8 @@ void MergerService::Stop() {
   if (!running_.exchange(false)) return;
   queue_.Close();
   if (worker_.joinable()) worker_.join();
-  if (!refined_ || refined_at_ != processed_.load()) Refine("the run ended");
+  const bool refine_now = !refined_ || refined_at_ != processed_.load();
+  if (refine_now) Refine("the run ended");  // writes the records
   for (const auto& [id, replica] : merger_.submaps()) {
     const SubmapCompleteness c = CompletenessOf(replica);
     if (c.missing == 0 && replica.closed) continue;
@@ -108,13 +124,14 @@ void MergerService::Stop() {
   }
   const Merger::Graph& graph = refined_->graph;
   const std::optional<MergedMap>& merged = refined_->merged;
-  if (!record_dir_.empty()) {
+  if (!record_dir_.empty() && !refine_now) {
     try {
       WriteRecords(graph, merged ? &*merged : nullptr);
     } catch (const std::exception& e) {
       STITCH_LOG(ERROR) << "writing the merger's records failed: " << e.what();
     }
   }
+  WriteLiveTrajectory();
   heartbeat_->SetState(stitch::service_status_t::STATE_FINISHED);
   heartbeat_->Stop();
 }
@@ -154,7 +171,103 @@ void MergerService::Work() {
     auto update = queue_.Pop(std::chrono::milliseconds(100));
     if (update) Process(**update);
     RequestWhatWasLost();
+    const double interval = merger_.options().live_outputs_interval_s;
+    if (interval > 0 && MonotonicSeconds() - trajectory_written_at_ >= interval) WriteLiveTrajectory();
+    if (cloud_stale_ && MonotonicSeconds() - cloud_published_at_ >= kCloudInterval_s) PublishMapCloud();
     if (!update && queue_.closed()) return;
+  }
+}
+
+bool MergerService::TakePose(const stitch::frame_pose_t& message, std::string* why) {
+  TrackedFramePose pose;
+  try {
+    pose.world_from_cam = FromFloatPose(message.cam_from_submap, "frame_pose cam_from_submap").Inverse();
+    pose.cam_from_reference = FromFloatPose(message.cam_from_reference, "frame_pose cam_from_reference");
+  } catch (const Error& e) {
+    *why = e.what();
+    return false;
+  }
+  const SubmapId submap(message.submap_id);
+  if (message.frame_index < 0 || message.t_ns < 0) {
+    *why = "negative frame index or time";
+    return false;
+  }
+  if (!submap.valid() || SubmapOf(submap) != submap) {
+    *why = "names no submap (" + std::to_string(message.submap_id) + ")";
+    return false;
+  }
+  if (message.reference_keyframe != -1 &&
+      (message.reference_keyframe < 0 || SubmapOf(KeyframeId(message.reference_keyframe)) != submap)) {
+    *why = "its reference keyframe is not of its submap";
+    return false;
+  }
+  pose.frame_index = message.frame_index;
+  pose.t_ns = message.t_ns;
+  pose.submap_id = message.submap_id;
+  pose.reference_keyframe = message.reference_keyframe;
+  std::lock_guard<std::mutex> lock(poses_mutex_);
+  if (poses_pending_.size() >= kMaxFramePoses) {
+    *why = "the worker is " + std::to_string(kMaxFramePoses) + " poses behind";
+    return false;
+  }
+  poses_pending_.emplace_back(message.header.agent, pose);
+  ++poses_received_;
+  return true;
+}
+
+void MergerService::WriteLiveTrajectory() {
+  trajectory_written_at_ = MonotonicSeconds();
+  {
+    std::vector<std::pair<std::string, TrackedFramePose>> pending;
+    {
+      std::lock_guard<std::mutex> lock(poses_mutex_);
+      pending.swap(poses_pending_);
+    }
+    for (auto& [agent, pose] : pending) {
+      std::map<int, TrackedFramePose>& frames = frame_poses_[agent];
+      if (frames.size() >= kMaxFramePoses && !frames.count(pose.frame_index)) continue;
+      frames[pose.frame_index] = pose;
+      trajectory_stale_ = true;
+    }
+  }
+  if (!trajectory_stale_ || record_dir_.empty() || latest_placement_.empty()) return;
+  trajectory_stale_ = false;
+  // Keyframes as the ground holds them now, the newest placement, and the last refinement's
+  // keyframe poses where their merged map's frame (its root) is still the same.
+  std::map<int64_t, KeyframeInSubmap> keyframes;
+  for (const auto& [id, replica] : merger_.submaps()) {
+    for (const auto& [keyframe_id, keyframe] : replica.map.keyframes()) {
+      keyframes[keyframe_id.value] = {keyframe.cam_from_world, keyframe.frame_index};
+    }
+  }
+  std::map<int64_t, SubmapInMap> placement;
+  for (const auto& [id, p] : latest_placement_) placement[id.value] = {p.component, p.world_from_submap};
+  std::map<int64_t, Sim3d> refined;
+  if (refined_) {
+    for (const auto& [id, pose] : refined_->graph.keyframe_poses) {
+      const auto then = refined_->graph.placement.find(SubmapOf(id));
+      const auto now = latest_placement_.find(SubmapOf(id));
+      if (then != refined_->graph.placement.end() && now != latest_placement_.end() && then->second.root == now->second.root) {
+        refined[id.value] = pose;
+      }
+    }
+  }
+  const std::filesystem::path dir(record_dir_);
+  for (const auto& [agent, frames] : frame_poses_) {
+    std::vector<TrackedFramePose> list;
+    list.reserve(frames.size());
+    for (const auto& [index, pose] : frames) list.push_back(pose);
+    Trajectory trajectory;
+    for (const PoseRecord& p : PlaceTrackedFrames(list, keyframes, placement, refined)) {
+      if (p.component == 0) trajectory.Add({p.t_ns, p.world_from_cam});
+    }
+    const std::string name = agents_.size() == 1 ? "trajectory.tum" : "trajectory-" + agent + ".tum";
+    try {
+      std::filesystem::create_directories(dir);
+      trajectory.WriteTum((dir / name).string());
+    } catch (const std::exception& e) {
+      STITCH_LOG(ERROR) << "writing the trajectory failed: " << e.what();
+    }
   }
 }
 
@@ -292,6 +405,16 @@ void MergerService::Refine(const std::string& why) {
   PublishGlobalMap(refined.graph);
   refined_ = std::move(refined);
   refined_at_ = processed_.load();
+  if (!record_dir_.empty() && !recovering_) {
+    // The last good map on disk at every refinement, not only at the end.
+    try {
+      WriteRecords(refined_->graph, refined_->merged ? &*refined_->merged : nullptr);
+    } catch (const std::exception& e) {
+      STITCH_LOG(ERROR) << "writing the merger's records failed: " << e.what();
+    }
+    WriteLiveTrajectory();
+  }
+  PublishMapCloud();
   STITCH_LOG(INFO) << "refined the merged maps (" << why << ") in " << clock.ElapsedMs() << " ms";
 }
 
@@ -340,6 +463,9 @@ void MergerService::OnGraphChange(const std::string& event) {
 }
 
 void MergerService::PublishGlobalMap(const Merger::Graph& graph) {
+  latest_placement_ = graph.placement;
+  trajectory_stale_ = true;
+  cloud_stale_ = true;
   stitch::global_map_t m{};
   m.revision = ++revision_;
   for (const auto& [id, placement] : graph.placement) {
@@ -366,6 +492,7 @@ void MergerService::PublishGlobalMap(const Merger::Graph& graph) {
     edge.median_angle_deg = e.median_angle_deg;
     edge.in_spanning_tree = InTree(e, graph.tree);
     edge.b_from_a = ToMessage(e.b_from_a);
+    edge.refused = e.refused;
     m.edges.push_back(edge);
   }
   m.num_edges = static_cast<int32_t>(m.edges.size());
@@ -384,7 +511,64 @@ void MergerService::PublishGlobalMap(const Merger::Graph& graph) {
     m.trajectory.push_back(p);
   }
   m.num_poses = static_cast<int32_t>(m.trajectory.size());
+  for (size_t i = merge_log_.size() > kGlobalMapLogLines ? merge_log_.size() - kGlobalMapLogLines : 0;
+       i < merge_log_.size(); ++i) {
+    const MergeLogRecord& r = merge_log_[i];
+    m.merge_log.push_back(r.event + "\t" + r.current_map + "\t" + r.unconnected + "\t" + r.merged_maps);
+  }
+  m.num_log_lines = static_cast<int32_t>(m.merge_log.size());
   publisher_->Publish(bus::Channel(publisher_->agent(), bus::kGlobalMap), &m);
+}
+
+void MergerService::PublishMapCloud() {
+  cloud_stale_ = false;
+  cloud_published_at_ = MonotonicSeconds();
+  const int max_points = merger_.options().map_cloud_points;
+  if (max_points <= 0 || latest_placement_.empty()) return;
+  // The refined merged map's points (fused and adjusted) for the submaps whose merged map still
+  // has the same frame; the others' own points through their placement.
+  std::map<SubmapId, std::vector<Eigen::Vector3f>> points;
+  std::set<SubmapId> refined;
+  if (refined_ && refined_->merged) {
+    for (const auto& [id, point] : refined_->merged->map.points()) {
+      const SubmapId submap = SubmapOf(id);
+      const auto then = refined_->graph.placement.find(submap);
+      const auto now = latest_placement_.find(submap);
+      if (then == refined_->graph.placement.end() || now == latest_placement_.end() ||
+          then->second.root != now->second.root) {
+        continue;
+      }
+      points[submap].push_back(point.position.cast<float>());
+      refined.insert(submap);
+    }
+  }
+  for (const auto& [id, placement] : latest_placement_) {
+    if (refined.count(id)) continue;
+    const auto replica = merger_.submaps().find(id);
+    if (replica == merger_.submaps().end()) continue;
+    std::vector<Eigen::Vector3f>& list = points[id];
+    for (const auto& [point_id, point] : replica->second.map.points()) {
+      list.push_back((placement.world_from_submap * point.position).cast<float>());
+    }
+  }
+  int64_t total = 0;
+  for (const auto& [id, list] : points) total += static_cast<int64_t>(list.size());
+  const int64_t stride = std::max<int64_t>(1, (total + max_points - 1) / max_points);
+  stitch::map_cloud_t cloud{};
+  cloud.revision = ++cloud_revision_;
+  cloud.points_in_maps = total;
+  for (const auto& [id, list] : points) {
+    int32_t count = 0;
+    for (size_t i = 0; i < list.size(); i += static_cast<size_t>(stride), ++count) {
+      cloud.positions.insert(cloud.positions.end(), {list[i].x(), list[i].y(), list[i].z()});
+    }
+    cloud.submap_ids.push_back(id.value);
+    cloud.components.push_back(latest_placement_.at(id).component);
+    cloud.point_counts.push_back(count);
+  }
+  cloud.num_submaps = static_cast<int32_t>(cloud.submap_ids.size());
+  cloud.num_coordinates = static_cast<int32_t>(cloud.positions.size());
+  publisher_->Publish(bus::Channel(publisher_->agent(), bus::kMapCloud), &cloud);
 }
 
 std::string ColmapImageName(const Keyframe& keyframe) {
@@ -486,7 +670,9 @@ void MergerService::WriteRecords(const Merger::Graph& graph, const MergedMap* me
   WriteColmapRecord(graph, merged);
   std::vector<MergedKeyframeRecord> merged_keyframes;
   for (const auto& [id, pose] : graph.keyframe_poses) {
-    merged_keyframes.push_back({id, graph.placement.at(SubmapOf(id)).component, pose});
+    const Keyframe* keyframe = merger_.submaps().at(SubmapOf(id)).map.FindKeyframe(id);
+    merged_keyframes.push_back({id, graph.placement.at(SubmapOf(id)).component, pose,
+                                keyframe ? keyframe->frame_index : -1, keyframe ? keyframe->t_ns : 0});
   }
   WriteMergedKeyframeRecords((dir / "keyframes_merged.tsv").string(), merged_keyframes);
   const double min_strength = merger_.options().min_connection_strength;

@@ -5,11 +5,16 @@
 // submaps.tsv (each submap's merged map and Sim3), graph.dot and graph.png (the submap graph,
 // spanning tree in bold), merge_log.tsv (the stack of unconnected submaps and the current map at
 // each event, as the method's merging-process table) and retrieval.tsv (each connected-frame
-// query's N0, N1, S0, S1, k, l and candidates).
+// query's N0, N1, S0, S1, k, l and candidates). Those files are written again at every refinement
+// (each whole or not at all), so a merger killed mid-flight leaves its last good map on disk.
+// It also takes the aircraft's thin pose stream (<agent>/POSE) and writes the per-frame trajectory
+// of the largest merged map, with the images' timestamps, as trajectory.tum (one aircraft) or
+// trajectory-<agent>.tum (several) during the flight.
 
 #include <atomic>
 #include <map>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <set>
 #include <string>
@@ -19,6 +24,8 @@
 #include "services/common/bus.h"
 #include "services/common/service.h"
 #include "services/common/update_journal.h"
+#include "stitch/frame_pose_t.hpp"
+#include "stitch/merging/frame_trajectory.h"
 #include "stitch/merging/merger.h"
 #include "stitch/submap_update_t.hpp"
 #include "stitch/util/bounded_queue.h"
@@ -47,6 +54,7 @@ class MergerService {
   int64_t updates_received() const { return received_.load(); }
   int64_t updates_processed() const { return processed_.load(); }
   int64_t requests_sent() const { return requests_.load(); }
+  int64_t poses_received() const { return poses_received_.load(); }
   // The store; read it only after Stop() (the worker owns it while running).
   const Merger& merger() const { return merger_; }
   // Keyframes listed by manifests but not received, over every submap (as of the last update).
@@ -71,6 +79,14 @@ class MergerService {
   // Pose graph, merged map and bundle adjustment, then publishes; kept in refined_.
   void Refine(const std::string& why);
   void WriteRecords(const Merger::Graph& graph, const MergedMap* merged) const;
+  // Takes a pose of the stream after its checks (subscriber thread); false: refused, with why.
+  bool TakePose(const stitch::frame_pose_t& message, std::string* why);
+  // trajectory.tum (or one per aircraft): every frame of the pose stream that lies in the largest
+  // merged map, placed with the newest placement and the last refinement's keyframe poses.
+  void WriteLiveTrajectory();
+  // <station>/MAP_CLOUD: every placed submap's points in its merged map's frame (the refined
+  // merged map's where it still holds), thinned to map_cloud_points.
+  void PublishMapCloud();
   // colmap/ in the record folder: the largest map as a COLMAP sparse model (docs/tools.md).
   void WriteColmapRecord(const Merger::Graph& graph, const MergedMap* merged) const;
 
@@ -106,6 +122,18 @@ class MergerService {
   std::string last_stack_;
   std::map<std::pair<SubmapId, SubmapId>, std::string> refused_edges_;  // as last logged
   int revision_ = 0;
+  std::map<SubmapId, SubmapPlacement> latest_placement_;  // as last published
+  // The pose stream: what the subscriber took, waiting for the worker, and the worker's copy by
+  // aircraft and frame.
+  std::mutex poses_mutex_;
+  std::vector<std::pair<std::string, TrackedFramePose>> poses_pending_;
+  std::map<std::string, std::map<int, TrackedFramePose>> frame_poses_;
+  std::atomic<int64_t> poses_received_{0};
+  bool trajectory_stale_ = false;
+  bool cloud_stale_ = false;
+  double cloud_published_at_ = -1e9;  // MonotonicSeconds()
+  int cloud_revision_ = 0;
+  double trajectory_written_at_ = 0;  // MonotonicSeconds()
   struct Refined {
     Merger::Graph graph;
     std::optional<MergedMap> merged;

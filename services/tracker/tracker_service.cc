@@ -356,6 +356,12 @@ void TrackerService::Report(const stitch::frame_t& frame, const TrackResult& res
   status.mapper_connected = mapper_connected_.load();
   status.submaps_closed = submaps_closed_.load();
   publisher_->Publish(bus::Channel(publisher_->agent(), bus::kTrackingStatus), &status);
+  if (result.state == TrackingState::kOk && result.cam_from_submap) {
+    // The thin pose stream the ground places in the merged map (trajectory.tum on the ground).
+    stitch::frame_pose_t pose = FramePoseMessage(frame.frame_index, frame.t_ns, result.submap, *result.cam_from_submap,
+                                                 result.reference_keyframe, result.cam_from_reference);
+    publisher_->Publish(bus::Channel(publisher_->agent(), bus::kPose), &pose);
+  }
   if (record_.is_open()) {
     FrameRecord record;
     record.frame_index = frame.frame_index;

@@ -52,6 +52,8 @@ struct RunArgs {
   bool quiet = false;
   bool journal = false;  // keep the merger's journal in OUT/merger
   bool compare = false;
+  bool viewer = false;    // the ground's live web page (stitch-viewer), kept up after the flight
+  int viewer_port = -1;   // < 0: viewer.port
   bool link = false;   // a link bridge pair between the aircraft's bus and the ground's
   bool netns = false;  // and the two sides in two network namespaces
   double link_loss = -1, link_delay_ms = -1, link_budget = -1;  // < 0: as configured
@@ -263,7 +265,9 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
     args.insert(args.end(), more.begin(), more.end());
     return args;
   };
-  ChildProcess *merger = nullptr, *mapper = nullptr, *tracker = nullptr, *ingest = nullptr;
+  ChildProcess *merger = nullptr, *mapper = nullptr, *tracker = nullptr, *ingest = nullptr, *viewer = nullptr;
+  const int viewer_port = a.viewer_port >= 0 ? a.viewer_port : config.viewer.port;
+  const std::string viewer_url = "http://" + config.viewer.bind_address + ":" + std::to_string(viewer_port) + "/";
   std::vector<ChildProcess*> links;
   try {
     std::vector<std::string> merger_args = with(ground_common, {"--record", out});
@@ -274,7 +278,7 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
       const std::string ground = network ? SplitNetwork::kGroundAddress : "127.0.0.1";
       const std::string air_port = std::to_string(RandomPort()), ground_port = std::to_string(RandomPort());
       merger = start("merger", "stitch-merger", merger_args);
-      const std::string aircraft_sends = a.agent + "/(SUBMAP|SEQUENCE|TRACKING_STATUS|SERVICE)";
+      const std::string aircraft_sends = a.agent + "/(SUBMAP|SEQUENCE|TRACKING_STATUS|POSE|SERVICE)";
       // Authenticated as deployed: the config's key, else one made for this run (beside its outputs).
       std::vector<std::string> key;
       if (!config.link.key_file.empty()) {
@@ -297,6 +301,11 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
                      key)));
     } else {
       merger = start("merger", "stitch-merger", merger_args);
+    }
+    if (a.viewer) {
+      viewer = start("viewer", "stitch-viewer", with(ground_common, {"--port", std::to_string(viewer_port)}));
+      std::printf("  viewer %s\n", viewer_url.c_str());
+      std::fflush(stdout);
     }
     mapper = start("mapper", "stitch-mapper", with(common, {"--record", out}));
     tracker = start("tracker", "stitch-tracker",
@@ -339,7 +348,7 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
       break;
     }
     std::vector<ChildProcess*> services = links;
-    services.insert(services.end(), {merger, mapper, tracker});
+    services.insert(services.end(), {merger, mapper, tracker, viewer});
     for (ChildProcess* service : services) {
       if (service && service->Poll()) {
         failure = "the " + service->name() + " exited unexpectedly (status " + std::to_string(*service->Poll()) +
@@ -369,6 +378,7 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
   // (the mapper may still have keyframes to map, the aircraft's bridge submap states to deliver,
   // the merger submap updates to merge).
   for (auto it = children.rbegin(); it != children.rend(); ++it) {
+    if (it->get() == viewer && !info.interrupted && failure.empty()) continue;  // it shows the finished flight
     const bool slow = (*it)->name() == "mapper" || (*it)->name() == "merger" || (*it)->name().rfind("link", 0) == 0;
     const int status = (*it)->Terminate(std::chrono::milliseconds(slow ? 120000 : 15000));
     if (status != 0 && status != 128 + SIGTERM && status != 130 && !info.interrupted && failure.empty()) {
@@ -404,6 +414,13 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
     info.notes.push_back("the run failed: " + failure);
     exit_code = 1;
   }
+  // The ground's per-frame trajectory (the merger's, from the pose stream, written during the flight)
+  // stays beside the one the run ends with, which re-composes frames.tsv with the mapper's final
+  // keyframes (every frame, culled keyframes included).
+  if (fs::exists(fs::path(out) / "trajectory.tum")) {
+    std::error_code ignored;
+    fs::rename(fs::path(out) / "trajectory.tum", fs::path(out) / "trajectory_ground.tum", ignored);
+  }
   try {
     const Evaluation evaluation = FinishRunOutputs(out, &info);
     SaveRunInfo(info, out);
@@ -413,6 +430,12 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
     for (const auto& note : info.notes) std::printf("note: %s\n", note.c_str());
     std::printf("outputs: %s/{trajectory.tum, map.ply, report.json, trajectory.png, logs/}\n", out.c_str());
     outcome.evaluation = evaluation;
+    if (viewer && !viewer->Poll() && !stop.load()) {
+      std::printf("viewer: %s shows the finished flight; Ctrl-C ends it\n", viewer_url.c_str());
+      std::fflush(stdout);
+      while (!stop.load() && !viewer->Poll()) std::this_thread::sleep_for(std::chrono::milliseconds(100));
+      viewer->Terminate(std::chrono::milliseconds(5000));
+    }
   } catch (const std::exception& e) {
     std::fprintf(stderr, "stitch run: writing the outputs failed: %s\n", e.what());
     outcome.exit_code = 1;
@@ -513,6 +536,10 @@ int RunCommand(int argc, char** argv) {
   args.AddOption("--link-delay-ms", &a.link_delay_ms, "MS", "with --link: delay each datagram (link.delay_ms)");
   args.AddOption("--link-budget", &a.link_budget, "BYTES/S",
                  "with --link: bandwidth budget of each side (link.budget_bytes_per_s; 0: none)");
+  args.AddFlag("--viewer", &a.viewer,
+               "serve the ground's live web page (stitch-viewer, http://127.0.0.1:8080/) during the flight, and "
+               "after it until Ctrl-C");
+  args.AddOption("--viewer-port", &a.viewer_port, "PORT", "with --viewer: its TCP port (viewer.port)");
   args.AddFlag(
       "--compare", &a.compare,
       "run twice, --on-loss submap then relocalize, into DIR/submap and DIR/relocalize, and print both side by side");
@@ -528,6 +555,14 @@ int RunCommand(int argc, char** argv) {
 
   if (!a.link && !a.netns && (a.link_loss >= 0 || a.link_delay_ms >= 0 || a.link_budget >= 0)) {
     std::fprintf(stderr, "stitch run: --link-loss, --link-delay-ms and --link-budget need --link\n");
+    return 2;
+  }
+  if (a.viewer && a.compare) {
+    std::fprintf(stderr, "stitch run: --viewer shows one run; give it without --compare\n");
+    return 2;
+  }
+  if (a.viewer_port >= 0 && !a.viewer) {
+    std::fprintf(stderr, "stitch run: --viewer-port needs --viewer\n");
     return 2;
   }
   const std::string out = a.out.empty() ? NewRunFolder() : a.out;

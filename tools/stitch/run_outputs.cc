@@ -9,6 +9,7 @@
 
 #include "stitch/io/ply.h"
 #include "stitch/io/trajectory.h"
+#include "stitch/merging/frame_trajectory.h"
 #include "stitch/records/frame_record.h"
 #include "stitch/records/keyframe_record.h"
 #include "stitch/records/merger_records.h"
@@ -103,13 +104,11 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
     input.frames_total = info->frames_total;
   }
   // Final keyframe poses from the mapper (culled keyframes placed through their parents).
-  std::map<int64_t, Rigid3d> keyframe_cam_from_world;
-  std::map<int64_t, int> keyframe_frame_index;
+  std::map<int64_t, KeyframeInSubmap> keyframes;
   int keyframes_retained = 0;
   if (fs::exists(dir / "keyframes.tsv")) {
     for (const KeyframeRecord& k : ReadKeyframeRecords((dir / "keyframes.tsv").string())) {
-      keyframe_cam_from_world[k.keyframe_id] = k.world_from_cam.Inverse();
-      keyframe_frame_index[k.keyframe_id] = k.frame_index;
+      keyframes[k.keyframe_id] = {k.world_from_cam.Inverse(), k.frame_index};
       keyframes_retained += !k.culled;
     }
   }
@@ -130,75 +129,34 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
   input.submaps = static_cast<int>(submaps.size());
 
   // The tracker's poses, each re-composed with the mapper's final pose of the keyframe it was
-  // tracked against, each submap a map of its own until the merger's placements below.
+  // tracked against and placed by the merger (submaps.tsv, keyframes_merged.tsv); a submap the
+  // merger did not place is a map of its own.
   {
-    std::map<int64_t, int> component_of;
+    std::vector<TrackedFramePose> tracked;
+    std::map<int64_t, int> own_component;  // for submaps without a placement, by first frame
     for (const auto& r : records) {
       if (r.state != "OK") continue;
-      if (!component_of.count(r.submap_id)) {
-        const int next = static_cast<int>(component_of.size());
-        component_of[r.submap_id] = next;
-      }
-      PoseRecord p;
-      p.frame_index = r.frame_index;
-      p.t_ns = r.t_ns;
-      p.submap_id = r.submap_id;
-      p.component = component_of[r.submap_id];
-      p.is_keyframe = r.is_keyframe;
-      p.world_from_cam = r.world_from_cam;
-      const auto reference = keyframe_cam_from_world.find(r.reference_keyframe);
-      if (reference != keyframe_cam_from_world.end()) {
-        p.world_from_cam = (r.cam_from_reference * reference->second).Inverse();
-      }
-      input.poses.push_back(p);
+      own_component.try_emplace(r.submap_id, static_cast<int>(own_component.size()));
+      tracked.push_back({r.frame_index, r.t_ns, r.submap_id, r.is_keyframe, r.world_from_cam, r.reference_keyframe,
+                         r.cam_from_reference});
     }
-  }
-  // The merger's placements: each submap's merged map and its Sim3 into that map's frame.
-  if (fs::exists(dir / "submaps.tsv")) {
-    std::map<int64_t, std::pair<int, Sim3d>> placement;
-    for (const SubmapRecord& r : ReadSubmapRecords((dir / "submaps.tsv").string())) {
-      placement[r.submap.value] = {r.component, r.world_from_submap};
-    }
-    // Refined keyframe poses: a frame follows the keyframe it was tracked against.
-    std::map<int64_t, Sim3d> keyframe_world_from_cam;
-    if (fs::exists(dir / "keyframes_merged.tsv")) {
-      for (const MergedKeyframeRecord& r : ReadMergedKeyframeRecords((dir / "keyframes_merged.tsv").string())) {
-        keyframe_world_from_cam[r.keyframe.value] = r.world_from_cam;
+    std::map<int64_t, SubmapInMap> placement;
+    std::map<int64_t, Sim3d> refined;
+    const bool merger_ran = fs::exists(dir / "submaps.tsv");
+    if (merger_ran) {
+      for (const SubmapRecord& r : ReadSubmapRecords((dir / "submaps.tsv").string())) {
+        placement[r.submap.value] = {r.component, r.world_from_submap};
       }
-    }
-    // The pose graph's correction of each merged keyframe (refined against placed), by submap
-    // and frame; every frame takes the correction of the nearest keyframe of its submap, so
-    // frames tracked against keyframes the mapper culled move with their neighbours.
-    std::map<int64_t, std::map<int, Sim3d>> corrections;
-    for (const auto& [id, refined] : keyframe_world_from_cam) {
-      const auto in_submap = keyframe_cam_from_world.find(id);
-      const auto placed = placement.find(SubmapOf(KeyframeId(id)).value);
-      if (in_submap == keyframe_cam_from_world.end() || placed == placement.end()) continue;
-      const Rigid3d submap_from_cam = in_submap->second.Inverse();
-      const Sim3d placed_pose =
-          placed->second.second * Sim3d(1.0, submap_from_cam.rotation, submap_from_cam.translation);
-      corrections[placed->first][keyframe_frame_index[id]] = refined * placed_pose.Inverse();
-    }
-    for (auto& p : input.poses) {
-      const auto placed = placement.find(p.submap_id);
-      if (placed == placement.end()) {
-        p.component = 1000 + p.component;  // the merger never heard of it: a map of its own
-        continue;
-      }
-      p.component = placed->second.first;
-      Sim3d world_from_cam =
-          placed->second.second * Sim3d(1.0, p.world_from_cam.rotation, p.world_from_cam.translation);
-      const auto submap_corrections = corrections.find(p.submap_id);
-      if (submap_corrections != corrections.end() && !submap_corrections->second.empty()) {
-        const auto& by_frame = submap_corrections->second;
-        auto next = by_frame.lower_bound(p.frame_index);
-        if (next == by_frame.end() ||
-            (next != by_frame.begin() && p.frame_index - std::prev(next)->first < next->first - p.frame_index)) {
-          next = std::prev(next);
+      if (fs::exists(dir / "keyframes_merged.tsv")) {
+        for (const MergedKeyframeRecord& r : ReadMergedKeyframeRecords((dir / "keyframes_merged.tsv").string())) {
+          refined[r.keyframe.value] = r.world_from_cam;
         }
-        world_from_cam = next->second * world_from_cam;
       }
-      p.world_from_cam = Rigid3d(world_from_cam.rotation, world_from_cam.translation);
+    }
+    input.poses = PlaceTrackedFrames(tracked, keyframes, placement, refined);
+    for (PoseRecord& p : input.poses) {
+      // The merger never heard of it (or there was no merger): a map of its own.
+      if (p.component < 0) p.component = (merger_ran ? 1000 : 0) + own_component[p.submap_id];
     }
   }
   WritePoseRecords((dir / "poses.tsv").string(), input.poses);

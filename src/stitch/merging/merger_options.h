@@ -88,6 +88,8 @@ struct MergerOptions {
   int relocalization_min_inliers = 50;    // points that confirm a keyframe relocalized in the other submap (0: off)
   bool request_resends = true;            // ask the mapper again for what the link lost
   double resend_interval_s = 1.0;         // between two requests for one submap
+  double live_outputs_interval_s = 2.0;   // between two writes of the ground's trajectory.tum
+  int map_cloud_points = 100000;          // points of <station>/MAP_CLOUD for the viewer (0: not published)
   bool loop_closure = true;               // connected frames within a submap, away from the covisible window
   int loop_min_separation = 20;           // keyframes between a loop's two ends
   MergedMapOptions merged_map;            // fusing points and the global bundle adjustment
@@ -114,6 +116,12 @@ struct MergerOptions {
     v("request_resends", request_resends,
       "ask the mapper (on <agent>/SUBMAP_REQUEST) for keyframes and final states the link lost");
     v("resend_interval_s", resend_interval_s, "seconds between two requests for one submap");
+    v("live_outputs_interval_s", live_outputs_interval_s,
+      "seconds between two writes of the ground's per-frame trajectory (trajectory.tum) during the flight; the map "
+      "and the tables are written at every refinement (0: the trajectory only at refinements and at the end)");
+    v("map_cloud_points", map_cloud_points,
+      "points at most in <station>/MAP_CLOUD, the merged maps' points for the live viewer, published at every "
+      "refinement and at most every 10 s while submaps grow (0: not published)");
     v("loop_closure", loop_closure, "look for connected frames within each submap too (in-map loop closure)");
     v("loop_min_separation", loop_min_separation, "keyframes (by number) between the two ends of a loop");
     v("merged_map", merged_map, "fusing duplicate points and the global bundle adjustment after the pose graph");

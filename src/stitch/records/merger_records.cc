@@ -94,12 +94,14 @@ std::vector<SubmapRecord> ReadSubmapRecords(const std::string& path) {
 
 void WriteMergedKeyframeRecords(const std::string& path, const std::vector<MergedKeyframeRecord>& records) {
   std::string text =
-      "# keyframe_id submap_id component scale qx qy qz qw tx ty tz (world_from_cam, refined by the pose graph)\n";
+      "# keyframe_id submap_id component scale qx qy qz qw tx ty tz (world_from_cam, refined by the pose graph) "
+      "frame_index t_ns\n";
   for (const MergedKeyframeRecord& r : records) {
-    char head[100];
+    char head[100], tail[64];
     std::snprintf(head, sizeof(head), "%" PRId64 " %" PRId64 " %d ", r.keyframe.value, SubmapOf(r.keyframe).value,
                   r.component);
-    text += head + FormatSim3(r.world_from_cam) + "\n";
+    std::snprintf(tail, sizeof(tail), " %d %" PRId64 "\n", r.frame_index, r.t_ns);
+    text += head + FormatSim3(r.world_from_cam) + tail;
   }
   WriteFileAtomically(path, text);
 }
@@ -109,7 +111,9 @@ std::vector<MergedKeyframeRecord> ReadMergedKeyframeRecords(const std::string& p
     std::istringstream fields(line);
     int64_t submap = -1;
     fields >> r->keyframe.value >> submap >> r->component;
-    return fields && submap == SubmapOf(r->keyframe).value && ReadSim3(fields, &r->world_from_cam);
+    if (!fields || submap != SubmapOf(r->keyframe).value || !ReadSim3(fields, &r->world_from_cam)) return false;
+    if (!(fields >> r->frame_index)) return fields.eof();  // a file from before the timestamps
+    return static_cast<bool>(fields >> r->t_ns);
   });
 }
 

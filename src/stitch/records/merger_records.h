@@ -37,6 +37,8 @@ struct MergedKeyframeRecord {
   KeyframeId keyframe;
   int component = -1;
   Sim3d world_from_cam;  // refined by the pose graph; the scale is the keyframe's submap's
+  int frame_index = -1;  // the keyframe's frame, and its image's time (-1 / 0 in files written
+  int64_t t_ns = 0;      // before they were recorded)
 };
 void WriteMergedKeyframeRecords(const std::string& path, const std::vector<MergedKeyframeRecord>& records);
 std::vector<MergedKeyframeRecord> ReadMergedKeyframeRecords(const std::string& path);

@@ -66,12 +66,20 @@ TEST(MergerRecords, MergedKeyframesReadBackAsWritten) {
   testing::TempDir dir;
   const std::string path = dir / "keyframes_merged.tsv";
   const KeyframeId id = MakeKeyframeId(MakeSubmapId(2, 5), 17);
-  WriteMergedKeyframeRecords(path, {{id, 3, kSim3}});
+  WriteMergedKeyframeRecords(path, {{id, 3, kSim3, 412, 1305031102175304000}});
   const auto read = ReadMergedKeyframeRecords(path);
   ASSERT_EQ(read.size(), 1u);
   EXPECT_EQ(read[0].keyframe, id);
   EXPECT_EQ(read[0].component, 3);
   ExpectNear(read[0].world_from_cam, kSim3);
+  EXPECT_EQ(read[0].frame_index, 412);
+  EXPECT_EQ(read[0].t_ns, 1305031102175304000);
+  // A line from before the timestamps still reads; one with a frame but no time does not.
+  AppendLine(path, std::to_string(id.value) + " " + std::to_string(SubmapOf(id).value) + " 0 1 0 0 0 1 0 0 0");
+  EXPECT_EQ(ReadMergedKeyframeRecords(path).size(), 2u);
+  AppendLine(path, std::to_string(id.value) + " " + std::to_string(SubmapOf(id).value) + " 0 1 0 0 0 1 0 0 0 7");
+  ExpectMalformedLineNamed(path, ReadMergedKeyframeRecords, 4);
+  WriteMergedKeyframeRecords(path, {{id, 3, kSim3, 412, 1305031102175304000}});
   // The submap column must be the keyframe's.
   AppendLine(path, std::to_string(id.value) + " 99 0 1 0 0 0 1 0 0 0");
   ExpectMalformedLineNamed(path, ReadMergedKeyframeRecords, 3);

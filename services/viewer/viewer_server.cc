@@ -1,0 +1,200 @@
+#include "services/viewer/viewer_server.h"
+
+#include <civetweb.h>
+
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <vector>
+
+#include "services/viewer/web_assets.h"
+#include "stitch/util/error.h"
+#include "stitch/util/log.h"
+#include "stitch/util/time.h"
+
+namespace stitch {
+
+namespace {
+
+ViewerServer::Asset ThreeFile(const std::string& three_dir, const std::string& relative) {
+  const std::string path = (std::filesystem::path(three_dir) / relative).string();
+  if (!std::filesystem::is_regular_file(path)) {
+    throw Error("the viewer needs three.js: " + path +
+                " is missing (install Debian's libjs-three, or set viewer.three_dir)");
+  }
+  std::ifstream in(path, std::ios::binary);
+  std::string body((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  if (!in && !in.eof()) throw Error(path + ": cannot read");
+  return {"text/javascript; charset=utf-8", std::move(body)};
+}
+
+// The page's own origin, as the browser names it in a WebSocket's Origin header.
+bool SameOrigin(const mg_connection* connection) {
+  const char* origin = mg_get_header(connection, "Origin");
+  const char* host = mg_get_header(connection, "Host");
+  if (!origin) return true;  // not a browser (a browser always sends one)
+  if (!host) return false;
+  return std::string(origin) == "http://" + std::string(host);
+}
+
+int SendBody(mg_connection* connection, int status, const char* status_text, const std::string& content_type,
+             const std::string& body, bool head) {
+  mg_printf(connection,
+            "HTTP/1.1 %d %s\r\nContent-Type: %s\r\nContent-Length: %zu\r\nCache-Control: no-store\r\n"
+            "X-Content-Type-Options: nosniff\r\nX-Frame-Options: DENY\r\n"
+            "Content-Security-Policy: default-src 'self'; img-src 'self' data:\r\nConnection: close\r\n\r\n",
+            status, status_text, content_type.c_str(), body.size());
+  if (!head) mg_write(connection, body.data(), body.size());
+  return status;
+}
+
+}  // namespace
+
+ViewerServer::ViewerServer(const ViewerOptions& options, const ViewerState* state)
+    : options_(options), state_(state) {
+  for (const auto& [path, asset] : ViewerWebAssets()) assets_[path] = {asset.first, asset.second};
+  assets_["/"] = assets_.at("/index.html");
+  assets_["/three/three.min.js"] = ThreeFile(options_.three_dir, "build/three.min.js");
+  assets_["/three/OrbitControls.js"] = ThreeFile(options_.three_dir, "examples/js/controls/OrbitControls.js");
+
+  mg_init_library(0);
+  const std::string ports = options_.bind_address + ":" + std::to_string(options_.port);
+  const std::string threads = std::to_string(options_.max_pages + 4);
+  const char* settings[] = {"listening_ports",
+                            ports.c_str(),
+                            "num_threads",
+                            threads.c_str(),
+                            "request_timeout_ms",
+                            "10000",
+                            "websocket_timeout_ms",
+                            "30000",
+                            "enable_keep_alive",
+                            "no",
+                            "enable_directory_listing",
+                            "no",
+                            nullptr};
+  mg_callbacks callbacks{};
+  context_ = mg_start(&callbacks, this, settings);
+  if (!context_) {
+    mg_exit_library();
+    throw Error("the viewer cannot listen on " + ports + " (in use, or not this machine's address?)");
+  }
+  mg_set_request_handler(context_, "/", &ViewerServer::HandleRequest, this);
+  mg_set_websocket_handler(context_, "/live", &ViewerServer::OnSocketConnect, &ViewerServer::OnSocketReady,
+                           &ViewerServer::OnSocketData, &ViewerServer::OnSocketClose, this);
+}
+
+ViewerServer::~ViewerServer() {
+  if (context_) {
+    mg_stop(context_);
+    mg_exit_library();
+  }
+}
+
+std::string ViewerServer::url() const {
+  return "http://" + options_.bind_address + ":" + std::to_string(options_.port) + "/";
+}
+
+int ViewerServer::open_pages() const {
+  std::lock_guard<std::mutex> lock(sockets_mutex_);
+  return static_cast<int>(sockets_.size());
+}
+
+int64_t ViewerServer::requests_refused() const {
+  std::lock_guard<std::mutex> lock(sockets_mutex_);
+  return refused_;
+}
+
+int ViewerServer::HandleRequest(mg_connection* connection, void* self) {
+  return static_cast<ViewerServer*>(self)->Serve(connection);
+}
+
+int ViewerServer::Serve(mg_connection* connection) {
+  const mg_request_info* request = mg_get_request_info(connection);
+  const std::string method = request->request_method ? request->request_method : "";
+  const std::string path = request->local_uri ? request->local_uri : "";
+  const bool head = method == "HEAD";
+  const auto refuse = [&](int status, const char* text) {
+    {
+      std::lock_guard<std::mutex> lock(sockets_mutex_);
+      ++refused_;
+    }
+    return SendBody(connection, status, text, "text/plain; charset=utf-8", std::string(text) + "\n", head);
+  };
+  if (method != "GET" && !head) return refuse(405, "Method Not Allowed");
+  if (path == "/live") return refuse(400, "Bad Request");  // a WebSocket only
+  if (path == "/state.json") {
+    const std::string body =
+        "{\"live\":" + state_->LiveJson(MonotonicSeconds()) + ",\"map\":" + state_->MapJson() + "}";
+    return SendBody(connection, 200, "OK", "application/json", body, head);
+  }
+  if (path == "/cloud.bin") return SendBody(connection, 200, "OK", "application/octet-stream", state_->CloudBinary(), head);
+  const auto asset = assets_.find(path);
+  if (asset == assets_.end()) return refuse(404, "Not Found");
+  return SendBody(connection, 200, "OK", asset->second.content_type, asset->second.body, head);
+}
+
+int ViewerServer::OnSocketConnect(const mg_connection* connection, void* self) {
+  auto* server = static_cast<ViewerServer*>(self);
+  std::lock_guard<std::mutex> lock(server->sockets_mutex_);
+  if (!SameOrigin(connection)) {
+    ++server->refused_;
+    STITCH_LOG(WARNING) << "refused a WebSocket from another origin: "
+                        << (mg_get_header(connection, "Origin") ? mg_get_header(connection, "Origin") : "");
+    return 1;
+  }
+  if (static_cast<int>(server->sockets_.size()) + server->pending_sockets_ >= server->options_.max_pages) {
+    ++server->refused_;
+    STITCH_LOG(WARNING) << "refused a page: " << server->options_.max_pages << " are open (viewer.max_pages)";
+    return 1;
+  }
+  ++server->pending_sockets_;
+  return 0;
+}
+
+void ViewerServer::OnSocketReady(mg_connection* connection, void* self) {
+  auto* server = static_cast<ViewerServer*>(self);
+  std::lock_guard<std::mutex> lock(server->sockets_mutex_);
+  --server->pending_sockets_;
+  server->sockets_[connection] = Socket{};
+}
+
+int ViewerServer::OnSocketData(mg_connection*, int bits, char*, size_t, void*) {
+  // The page sends nothing but pings and the close: keep the socket open unless it closes.
+  return (bits & 0x0f) == MG_WEBSOCKET_OPCODE_CONNECTION_CLOSE ? 0 : 1;
+}
+
+void ViewerServer::OnSocketClose(const mg_connection* connection, void* self) {
+  auto* server = static_cast<ViewerServer*>(self);
+  std::lock_guard<std::mutex> lock(server->sockets_mutex_);
+  if (server->sockets_.erase(connection) == 0 && server->pending_sockets_ > 0) --server->pending_sockets_;
+}
+
+int ViewerServer::Push(double now_s) {
+  const std::string live = state_->LiveJson(now_s);
+  const int64_t map_revision = state_->map_revision(), cloud_revision = state_->cloud_revision();
+  std::string map, cloud;  // made once, for the pages that need them
+  std::lock_guard<std::mutex> lock(sockets_mutex_);
+  int pushed = 0;
+  for (auto& [key, socket] : sockets_) {
+    auto* connection = const_cast<mg_connection*>(key);
+    mg_lock_connection(connection);
+    bool ok = mg_websocket_write(connection, MG_WEBSOCKET_OPCODE_TEXT, live.data(), live.size()) > 0;
+    if (ok && socket.map_revision != map_revision) {
+      if (map.empty()) map = state_->MapJson();
+      ok = mg_websocket_write(connection, MG_WEBSOCKET_OPCODE_TEXT, map.data(), map.size()) > 0;
+      if (ok) socket.map_revision = map_revision;
+    }
+    if (ok && socket.cloud_revision != cloud_revision) {
+      if (cloud.empty()) cloud = state_->CloudBinary();
+      ok = mg_websocket_write(connection, MG_WEBSOCKET_OPCODE_BINARY, cloud.data(), cloud.size()) > 0;
+      if (ok) socket.cloud_revision = cloud_revision;
+    }
+    mg_unlock_connection(connection);
+    pushed += ok;
+  }
+  return pushed;
+}
+
+}  // namespace stitch

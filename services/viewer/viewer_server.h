@@ -1,0 +1,62 @@
+#pragma once
+// The viewer's web server (civetweb): serves the page, three.js from Debian's libjs-three, the
+// state as JSON and the points as binary over HTTP, and pushes updates to each open page over a
+// WebSocket (/live). Only GET and HEAD of the fixed paths are answered (nothing is served from a
+// folder a request could name); a WebSocket is accepted only from the page's own origin (another
+// site open in the same browser cannot read the map) and only while fewer than max_pages are open.
+
+#include <cstdint>
+#include <map>
+#include <mutex>
+#include <string>
+
+#include "services/viewer/viewer_options.h"
+#include "services/viewer/viewer_state.h"
+
+struct mg_context;
+struct mg_connection;
+
+namespace stitch {
+
+class ViewerServer {
+ public:
+  struct Asset {
+    std::string content_type;
+    std::string body;
+  };
+  // Listens at once; throws stitch::Error when three.js is missing or the address cannot be had.
+  // `state` must outlive the server.
+  ViewerServer(const ViewerOptions& options, const ViewerState* state);
+  ~ViewerServer();
+  ViewerServer(const ViewerServer&) = delete;
+  ViewerServer& operator=(const ViewerServer&) = delete;
+
+  // Sends each open page what changed since its last push: the live state always, the map and
+  // the points when newer. Returns the pages pushed to.
+  int Push(double now_s);
+  std::string url() const;
+  int open_pages() const;
+  int64_t requests_refused() const;
+
+ private:
+  struct Socket {
+    int64_t map_revision = -1, cloud_revision = -1;
+  };
+  static int HandleRequest(mg_connection* connection, void* self);
+  static int OnSocketConnect(const mg_connection* connection, void* self);
+  static void OnSocketReady(mg_connection* connection, void* self);
+  static int OnSocketData(mg_connection* connection, int bits, char* data, size_t length, void* self);
+  static void OnSocketClose(const mg_connection* connection, void* self);
+  int Serve(mg_connection* connection);
+
+  ViewerOptions options_;
+  const ViewerState* state_;
+  std::map<std::string, Asset> assets_;
+  mg_context* context_ = nullptr;
+  mutable std::mutex sockets_mutex_;
+  std::map<const mg_connection*, Socket> sockets_;
+  int pending_sockets_ = 0;  // accepted, not ready yet
+  int64_t refused_ = 0;
+};
+
+}  // namespace stitch

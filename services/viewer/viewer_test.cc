@@ -1,0 +1,324 @@
+// The viewer's state (what the page is sent) from constructed messages, and its web server
+// against hostile requests: only GET and HEAD of its own paths, WebSockets only from its own
+// origin and only as many as max_pages.
+
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
+#include <sys/time.h>
+#include <unistd.h>
+
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <string>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "services/common/convert.h"
+#include "services/viewer/viewer_server.h"
+#include "services/viewer/viewer_state.h"
+#include "stitch/util/error.h"
+#include "stitch/util/ids.h"
+#include "tests/test_process.h"
+
+namespace stitch {
+namespace {
+
+const SubmapId kFirst = MakeSubmapId(0, 1), kSecond = MakeSubmapId(0, 2), kAlone = MakeSubmapId(0, 3);
+
+stitch::global_map_t GlobalMap() {
+  stitch::global_map_t m{};
+  m.header.agent = "uav0";
+  m.revision = 1;
+  const Sim3d moved(2.0, Eigen::Quaterniond(Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitZ())), {10, 0, 0});
+  for (const auto& [id, component, pose] :
+       {std::tuple{kFirst, 0, Sim3d()}, std::tuple{kSecond, 0, moved}, std::tuple{kAlone, 1, Sim3d()}}) {
+    stitch::submap_placement_t p{};
+    p.agent = "uav0";
+    p.submap_id = id.value;
+    p.component = component;
+    p.world_from_submap = ToMessage(pose);
+    p.num_keyframes = 10;
+    p.num_points = 100;
+    p.closed = id != kAlone;
+    m.submaps.push_back(p);
+    for (int k = 0; k < 3; ++k) {
+      stitch::trajectory_pose_t t{};
+      t.frame_index = 10 * k;
+      t.submap_id = id.value;
+      t.component = component;
+      t.is_keyframe = true;
+      t.world_from_cam = ToMessage(Sim3d(1.0, Eigen::Quaterniond::Identity(), Eigen::Vector3d(k, 0, 0)));
+      m.trajectory.push_back(t);
+    }
+  }
+  m.num_submaps = 3;
+  m.num_poses = static_cast<int32_t>(m.trajectory.size());
+  stitch::submap_edge_t merged{}, refused{};
+  merged.submap_a = kFirst.value;
+  merged.submap_b = kSecond.value;
+  merged.strength = 42.5;
+  merged.connected_frames = 5;
+  merged.in_spanning_tree = true;
+  merged.b_from_a = ToMessage(Sim3d());
+  refused = merged;
+  refused.submap_b = kAlone.value;
+  refused.strength = 12;
+  refused.in_spanning_tree = false;
+  refused.refused = "one connected frame";
+  m.edges = {merged, refused};
+  m.num_edges = 2;
+  m.merge_log = {"submap 0:2 closed\t0:1 0:2\t0:3\t0:1+0:2 0:3"};
+  m.num_log_lines = 1;
+  return m;
+}
+
+TEST(ViewerState, TheMapHoldsEverySubmapItsTrajectoryTheEdgesAndTheLog) {
+  ViewerState state(1000);
+  std::string why;
+  ASSERT_TRUE(state.OnGlobalMap(GlobalMap(), &why)) << why;
+  const nlohmann::json map = nlohmann::json::parse(state.MapJson());
+  ASSERT_EQ(map["submaps"].size(), 3u);
+  EXPECT_EQ(map["submaps"][0]["id"], "0:1");
+  EXPECT_EQ(map["submaps"][0]["colour"], SubmapColour(0));
+  EXPECT_EQ(map["submaps"][1]["colour"], SubmapColour(1));
+  EXPECT_EQ(map["submaps"][0]["trajectory"].size(), 3u);
+  EXPECT_TRUE(map["submaps"][1]["merged"]);
+  EXPECT_FALSE(map["submaps"][2]["merged"]) << "0:3 is a merged map on its own";
+  EXPECT_EQ(map["merged_maps"], 1);
+  EXPECT_EQ(map["keyframes"], 30);
+  ASSERT_EQ(map["edges"].size(), 2u);
+  EXPECT_TRUE(map["edges"][0]["tree"]);
+  EXPECT_DOUBLE_EQ(map["edges"][0]["C"].get<double>(), 42.5);
+  EXPECT_EQ(map["edges"][1]["refused"], "one connected frame");
+  ASSERT_EQ(map["merge_log"].size(), 1u);
+  EXPECT_EQ(state.map_revision(), 1);
+  // An older revision from the same merger changes nothing.
+  stitch::global_map_t older = GlobalMap();
+  older.revision = 0;
+  EXPECT_TRUE(state.OnGlobalMap(older, &why));
+  EXPECT_EQ(state.map_revision(), 1);
+}
+
+TEST(ViewerState, TheCameraIsPlacedInItsMergedMapBySubmapPlacement) {
+  ViewerState state(1000);
+  std::string why;
+  ASSERT_TRUE(state.OnGlobalMap(GlobalMap(), &why));
+  const Rigid3d submap_from_cam(Eigen::Quaterniond::Identity(), {1, 0, 0});
+  stitch::frame_pose_t pose = FramePoseMessage(7, 700, kSecond, submap_from_cam.Inverse(), KeyframeId(), std::nullopt);
+  pose.header.agent = "uav0";
+  ASSERT_TRUE(state.OnPose(pose, &why)) << why;
+  stitch::tracking_status_t status{};
+  status.header.agent = "uav0";
+  status.frame_index = 7;
+  status.state = stitch::tracking_status_t::STATE_OK;
+  status.submap_id = kSecond.value;
+  for (int i = 0; i < 10; ++i) ASSERT_TRUE(state.OnTrackingStatus(status, 100.0 + 0.1 * i, &why));
+  const nlohmann::json live = nlohmann::json::parse(state.LiveJson(101.0));
+  const nlohmann::json& camera = live["aircraft"]["uav0"]["camera"];
+  EXPECT_EQ(camera["component"], 0);
+  // 2 * Rz(90) * (1, 0, 0) + (10, 0, 0) = (10, 2, 0)
+  EXPECT_NEAR(camera["position"][0].get<double>(), 10, 1e-5);
+  EXPECT_NEAR(camera["position"][1].get<double>(), 2, 1e-5);
+  const nlohmann::json& tracking = live["aircraft"]["uav0"]["tracking"];
+  EXPECT_EQ(tracking["state"], "OK");
+  EXPECT_NEAR(tracking["fps"].get<double>(), 10, 0.01);
+  // A pose of a submap the ground has not placed yet: no merged map.
+  pose.submap_id = MakeSubmapId(0, 9).value;
+  pose.frame_index = 8;
+  ASSERT_TRUE(state.OnPose(pose, &why));
+  EXPECT_TRUE(nlohmann::json::parse(state.LiveJson(101.0))["aircraft"]["uav0"]["camera"]["component"].is_null());
+}
+
+TEST(ViewerState, ContentThatCannotBeDrawnIsRefusedAndCounted) {
+  ViewerState state(1000);
+  std::string why;
+  stitch::global_map_t map = GlobalMap();
+  map.submaps[1].world_from_submap.rotation_wxyz[0] = 40;  // not a unit quaternion
+  EXPECT_FALSE(state.OnGlobalMap(map, &why));
+  EXPECT_NE(why.find("unit quaternion"), std::string::npos) << why;
+  map = GlobalMap();
+  map.edges[0].strength = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_FALSE(state.OnGlobalMap(map, &why));
+
+  stitch::map_cloud_t cloud{};
+  cloud.header.agent = "uav0";
+  cloud.revision = 1;
+  cloud.num_submaps = 1;
+  cloud.submap_ids = {kFirst.value};
+  cloud.components = {0};
+  cloud.point_counts = {5};  // five points, two given
+  cloud.positions = {1, 2, 3, 4, 5, 6};
+  cloud.num_coordinates = 6;
+  EXPECT_FALSE(state.OnMapCloud(cloud, &why));
+  EXPECT_NE(why.find("add up"), std::string::npos) << why;
+  cloud.point_counts = {-1};
+  EXPECT_FALSE(state.OnMapCloud(cloud, &why));
+
+  stitch::frame_pose_t pose{};
+  pose.header.agent = "uav0";
+  pose.submap_id = kFirst.value;
+  pose.cam_from_submap[0] = std::numeric_limits<float>::infinity();
+  EXPECT_FALSE(state.OnPose(pose, &why));
+
+  stitch::link_status_t link{};
+  link.header.agent = "uav0";
+  link.backlog_s = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_FALSE(state.OnLinkStatus(link, &why));
+
+  stitch::tracking_status_t status{};
+  status.header.agent = "uav0";
+  status.frame_index = -5;
+  EXPECT_FALSE(state.OnTrackingStatus(status, 0, &why));
+  EXPECT_EQ(state.refused(), 7);
+  EXPECT_EQ(state.map_revision(), 0);
+  EXPECT_EQ(state.cloud_revision(), 0);
+}
+
+TEST(ViewerState, TheCloudIsThinnedToThePagesBoundAndLeavesOutNonFinitePoints) {
+  ViewerState state(/*max_page_points=*/50);
+  std::string why;
+  ASSERT_TRUE(state.OnGlobalMap(GlobalMap(), &why));
+  stitch::map_cloud_t cloud{};
+  cloud.header.agent = "uav0";
+  cloud.revision = 1;
+  cloud.num_submaps = 2;
+  cloud.submap_ids = {kFirst.value, kAlone.value};
+  cloud.components = {0, 1};
+  cloud.point_counts = {100, 100};
+  for (int i = 0; i < 200; ++i) cloud.positions.insert(cloud.positions.end(), {float(i), 0.f, 1.f});
+  cloud.positions[3 * 4] = std::numeric_limits<float>::quiet_NaN();  // point 4, kept by the thinning
+  cloud.num_coordinates = static_cast<int32_t>(cloud.positions.size());
+  cloud.points_in_maps = 200;
+  ASSERT_TRUE(state.OnMapCloud(cloud, &why)) << why;
+  const std::string bytes = state.CloudBinary();
+  uint32_t header[4];
+  std::memcpy(header, bytes.data(), sizeof(header));
+  EXPECT_EQ(std::string(bytes.data(), 4), "STCL");
+  const uint32_t n = header[2];
+  EXPECT_EQ(n, 49u) << "every 4th of 200 points (50), less the NaN one";
+  ASSERT_EQ(bytes.size(), 16 + 16 * n);
+  float first[3];
+  std::memcpy(first, bytes.data() + 16, sizeof(first));
+  EXPECT_EQ(first[0], 0.f);
+  const uint8_t* colours = reinterpret_cast<const uint8_t*>(bytes.data()) + 16 + 12 * n;
+  const uint8_t* components = colours + 3 * n;
+  EXPECT_EQ(components[0], 0);
+  EXPECT_EQ(components[n - 1], 1) << "the last points are 0:3's, a merged map of its own";
+  EXPECT_NE(std::memcmp(colours, colours + 3 * (n - 1), 3), 0) << "two submaps, two colours";
+}
+
+// --- The web server ---------------------------------------------------------------------------
+
+int TestPort(int offset) {
+  return 18000 + (getpid() * 7 + offset) % 1000;  // the browser test takes 19000-19999, the bus fuzz test 20000-20999
+}
+
+std::string Exchange(int port, const std::string& request, bool until_close = true) {
+  return testing::HttpExchange(port, request, until_close);
+}
+
+std::string StatusLine(const std::string& reply) {
+  return reply.substr(0, reply.find("\r\n"));
+}
+
+std::string WebSocketRequest(int port, const std::string& origin) {
+  return "GET /live HTTP/1.1\r\nHost: 127.0.0.1:" + std::to_string(port) +
+         "\r\nUpgrade: websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n"
+         "Sec-WebSocket-Version: 13\r\nOrigin: " +
+         origin + "\r\n\r\n";
+}
+
+TEST(ViewerServer, ServesThePageAndThreeJsAndNothingElse) {
+  ViewerState state(1000);
+  ViewerOptions options;
+  options.port = TestPort(1);
+  ViewerServer server(options, &state);
+  const int port = options.port;
+  const std::string page = Exchange(port, "GET / HTTP/1.1\r\nHost: x\r\n\r\n");
+  EXPECT_EQ(StatusLine(page), "HTTP/1.1 200 OK");
+  EXPECT_NE(page.find("/three/three.min.js"), std::string::npos);
+  EXPECT_NE(page.find("Content-Security-Policy: default-src 'self'"), std::string::npos);
+  EXPECT_EQ(StatusLine(Exchange(port, "GET /three/three.min.js HTTP/1.1\r\nHost: x\r\n\r\n")), "HTTP/1.1 200 OK");
+  EXPECT_EQ(StatusLine(Exchange(port, "GET /three/OrbitControls.js HTTP/1.1\r\nHost: x\r\n\r\n")), "HTTP/1.1 200 OK");
+  EXPECT_EQ(StatusLine(Exchange(port, "GET /viewer.js HTTP/1.1\r\nHost: x\r\n\r\n")), "HTTP/1.1 200 OK");
+  const std::string json = Exchange(port, "GET /state.json HTTP/1.1\r\nHost: x\r\n\r\n");
+  ASSERT_EQ(StatusLine(json), "HTTP/1.1 200 OK");
+  EXPECT_NO_THROW(nlohmann::json::parse(json.substr(json.find("\r\n\r\n") + 4)));
+  EXPECT_EQ(StatusLine(Exchange(port, "GET /cloud.bin HTTP/1.1\r\nHost: x\r\n\r\n")), "HTTP/1.1 200 OK");
+  // Hostile requests: other paths (a way out of any folder among them), other methods, garbage.
+  for (const char* path : {"/../../../etc/passwd", "/three/../../../../etc/passwd", "/%2e%2e/%2e%2e/etc/passwd",
+                           "/etc/passwd", "/live.json", "/three/"}) {
+    const std::string reply = Exchange(port, std::string("GET ") + path + " HTTP/1.1\r\nHost: x\r\n\r\n");
+    EXPECT_EQ(reply.find("root:"), std::string::npos) << path;
+    EXPECT_NE(StatusLine(reply).substr(9, 3), "200") << path << ": " << StatusLine(reply);
+  }
+  EXPECT_EQ(StatusLine(Exchange(port, "POST / HTTP/1.1\r\nHost: x\r\nContent-Length: 3\r\n\r\nabc")),
+            "HTTP/1.1 405 Method Not Allowed");
+  EXPECT_EQ(StatusLine(Exchange(port, "GET /live HTTP/1.1\r\nHost: x\r\n\r\n")), "HTTP/1.1 400 Bad Request");
+  Exchange(port, "\x16\x03\x01\x02\x00garbage\r\n\r\n");
+  Exchange(port, "GET / HTTP/1.1\r\nHost: x\r\nX-Long: " + std::string(200000, 'a') + "\r\n\r\n");
+  Exchange(port, "GET / HTTP/1.1\r\n");  // never finished: the request timeout frees the thread
+  // ...and it still serves.
+  EXPECT_EQ(StatusLine(Exchange(port, "GET / HTTP/1.1\r\nHost: x\r\n\r\n")), "HTTP/1.1 200 OK");
+  EXPECT_GE(server.requests_refused(), 8);  // 6 paths, a method, a plain GET of /live
+}
+
+TEST(ViewerServer, AWebSocketOnlyFromThePagesOwnOriginAndOnlyAsManyAsAllowed) {
+  ViewerState state(1000);
+  ViewerOptions options;
+  options.port = TestPort(2);
+  options.max_pages = 2;
+  ViewerServer server(options, &state);
+  const int port = options.port;
+  // Another site open in the same browser may not read the map.
+  EXPECT_NE(StatusLine(Exchange(port, WebSocketRequest(port, "http://evil.example"), false)),
+            "HTTP/1.1 101 Switching Protocols");
+  // The page's own origin may: two sockets held open, a third refused.
+  const auto open_socket = [&] {
+    const int fd = socket(AF_INET, SOCK_STREAM, 0);
+    sockaddr_in address{};
+    address.sin_family = AF_INET;
+    address.sin_port = htons(static_cast<uint16_t>(port));
+    address.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    timeval timeout{3, 0};
+    setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &timeout, sizeof(timeout));
+    EXPECT_EQ(connect(fd, reinterpret_cast<sockaddr*>(&address), sizeof(address)), 0);
+    const std::string request = WebSocketRequest(port, "http://127.0.0.1:" + std::to_string(port));
+    EXPECT_EQ(send(fd, request.data(), request.size(), MSG_NOSIGNAL), static_cast<ssize_t>(request.size()));
+    char buffer[1024];
+    const ssize_t n = recv(fd, buffer, sizeof(buffer), 0);
+    return std::pair<int, std::string>{fd, n > 0 ? std::string(buffer, static_cast<size_t>(n)) : ""};
+  };
+  const auto [first, first_reply] = open_socket();
+  const auto [second, second_reply] = open_socket();
+  EXPECT_EQ(StatusLine(first_reply), "HTTP/1.1 101 Switching Protocols");
+  EXPECT_EQ(StatusLine(second_reply), "HTTP/1.1 101 Switching Protocols");
+  for (int i = 0; i < 50 && server.open_pages() < 2; ++i) usleep(20000);
+  EXPECT_EQ(server.open_pages(), 2);
+  const auto [third, third_reply] = open_socket();
+  EXPECT_NE(StatusLine(third_reply), "HTTP/1.1 101 Switching Protocols");
+  // A push reaches both open pages.
+  EXPECT_EQ(server.Push(0), 2);
+  for (int fd : {first, second, third}) close(fd);
+  for (int i = 0; i < 100 && server.open_pages() > 0; ++i) usleep(20000);
+  EXPECT_EQ(server.open_pages(), 0);
+}
+
+TEST(ViewerServer, WithoutThreeJsItSaysWhatToInstall) {
+  ViewerState state(1000);
+  ViewerOptions options;
+  options.port = TestPort(3);
+  options.three_dir = "/nonexistent/three";
+  try {
+    ViewerServer server(options, &state);
+    ADD_FAILURE() << "no error";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("libjs-three"), std::string::npos) << e.what();
+  }
+}
+
+}  // namespace
+}  // namespace stitch

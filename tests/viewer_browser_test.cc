@@ -1,0 +1,201 @@
+// The ground's live viewer end to end (issue #22): `stitch run --viewer` flies a strip with a gust
+// on the real services, the viewer serves the page, and headless Chromium (Debian's chromium)
+// loads it. Asserted from the page itself: the DOM after its scripts ran (submaps, keyframes,
+// points, tracking state, an open WebSocket, no error) and a screenshot whose canvas is not blank;
+// and from Chromium's log: no console error. Skipped where Chromium is not installed.
+
+#include <unistd.h>
+
+#include <chrono>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <regex>
+#include <sstream>
+#include <thread>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
+
+#include "services/common/bus.h"
+#include "stitch/testing/temp_dir.h"
+#include "stitch/util/child_process.h"
+#include "tests/test_process.h"
+
+namespace stitch {
+namespace {
+
+using namespace std::chrono_literals;
+using testing::Bin;
+
+const char kChromium[] = "/usr/bin/chromium";
+
+std::string BusUrl(int base) {
+  return bus::LocalUdpUrl(base + getpid() % 90);
+}
+
+// <body data-*> of the page as Chromium left it: data-submaps -> "2", ...
+std::map<std::string, std::string> BodyData(const std::string& dom) {
+  std::map<std::string, std::string> data;
+  std::smatch body;
+  if (!std::regex_search(dom, body, std::regex("<body([^>]*)>"))) return data;
+  const std::string attributes = body[1];
+  const std::regex attribute("data-([a-z-]+)=\"([^\"]*)\"");
+  for (auto it = std::sregex_iterator(attributes.begin(), attributes.end(), attribute); it != std::sregex_iterator();
+       ++it) {
+    data[(*it)[1]] = (*it)[2];
+  }
+  return data;
+}
+
+int Number(const std::map<std::string, std::string>& data, const std::string& key) {
+  const auto it = data.find(key);
+  return it == data.end() ? -1 : std::atoi(it->second.c_str());
+}
+
+std::vector<std::string> Chromium(const std::string& url, const std::vector<std::string>& more) {
+  std::vector<std::string> args{kChromium,
+                                "--headless",
+                                "--no-sandbox",  // CI runs as root
+                                "--disable-gpu",
+                                "--enable-unsafe-swiftshader",
+                                "--use-angle=swiftshader",
+                                "--no-first-run",
+                                "--window-size=1280,800",
+                                "--virtual-time-budget=8000",
+                                "--enable-logging=stderr",
+                                "--v=0"};
+  args.insert(args.end(), more.begin(), more.end());
+  args.push_back(url);
+  return args;
+}
+
+TEST(ViewerInBrowser, ThePageShowsTheFlightsSubmapsKeyframesPointsAndTrackingState) {
+  if (access(kChromium, X_OK) != 0) {
+    GTEST_SKIP() << "Chromium is not installed (Debian's chromium; .ci/run installs it): the viewer's page is not "
+                    "loaded in a browser here";
+  }
+  stitch::testing::TempDir dir;
+  const int port = 19000 + getpid() % 1000;
+  const std::string url = "http://127.0.0.1:" + std::to_string(port) + "/";
+  const std::string log = dir / "run.log";
+  ChildProcess run("run", Bin("stitch"),
+                   {"run", "--viewer", "--viewer-port", std::to_string(port), "--out", dir / "run", "--quiet", "--set",
+                    "synthetic.flight.num_frames=200", "--set", "synthetic.flight.num_strips=1", "--set",
+                    "synthetic.flight.strip_length_m=230", "--failures", "90:10"},
+                   log);
+  const auto said = [&](const std::string& text) {
+    std::ifstream in(log);
+    const std::string all((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    return all.find(text) != std::string::npos;
+  };
+  // During the flight the page's state follows the tracker.
+  int live_frame = -1;
+  const auto deadline = std::chrono::steady_clock::now() + 240s;
+  while (!said("shows the finished flight")) {
+    ASSERT_LT(std::chrono::steady_clock::now(), deadline) << run.LogTail(20);
+    ASSERT_FALSE(run.Poll()) << run.LogTail(20);
+    if (const auto state = testing::HttpGet(port, "/state.json"); state && live_frame < 0 && !said("outputs:")) {
+      const nlohmann::json aircraft = nlohmann::json::parse(*state)["live"]["aircraft"];
+      if (aircraft.contains("uav0") && aircraft["uav0"].contains("tracking")) {
+        const int frame = aircraft["uav0"]["tracking"]["frame"].get<int>();
+        if (frame > 0 && frame < 180) live_frame = frame;
+      }
+    }
+    std::this_thread::sleep_for(100ms);
+  }
+  EXPECT_GT(live_frame, 0) << "the viewer's state never showed a frame while the flight went on";
+
+  // The page after its scripts ran.
+  const testing::CommandResult dom = testing::RunProgram(Chromium(url, {"--dump-dom"}), 90);
+  ASSERT_EQ(dom.exit_code, 0) << dom.output.substr(0, 4000);
+  const auto data = BodyData(dom.output);
+  EXPECT_EQ(data.count("loaded"), 1u) << dom.output.substr(0, 4000);
+  EXPECT_EQ(Number(data, "errors"), 0) << "errors on the page: " << dom.output.substr(0, 4000);
+  EXPECT_EQ(data.count("ws") ? data.at("ws") : "", "open") << "the WebSocket did not open";
+  EXPECT_GE(Number(data, "updates"), 1) << "nothing was pushed over the WebSocket";
+  EXPECT_EQ(Number(data, "submaps"), 2) << "the gust's two submaps";
+  EXPECT_GE(Number(data, "keyframes"), 30);
+  EXPECT_GE(Number(data, "points"), 2000);
+  EXPECT_EQ(data.count("tracking") ? data.at("tracking") : "", "OK");
+  EXPECT_GE(Number(data, "drawn-pixels"), 2000) << "the canvas drew nothing";
+  EXPECT_NE(dom.output.find("<td id=\"merged-count\">1</td>"), std::string::npos) << "the two submaps merged";
+  // Chromium logs what the page writes on its console (errors, warnings, uncaught exceptions) as
+  // CONSOLE lines; the page writes nothing there when all is well.
+  std::string console;
+  std::istringstream lines(dom.output);
+  for (std::string line; std::getline(lines, line);) {
+    // (but for the GL driver's note that reading the pixels back, as the page's pixel count does, stalls)
+    if (line.find(":CONSOLE") != std::string::npos && line.find("GL Driver Message (OpenGL, Performance") == std::string::npos) {
+      console += line + "\n";
+    }
+  }
+  EXPECT_EQ(console, "");
+
+  // A screenshot whose canvas (the page left of the 360-pixel panel) is not blank.
+  const std::string shot = dir / "viewer.png";
+  const testing::CommandResult screenshot = testing::RunProgram(Chromium(url, {"--screenshot=" + shot}), 90);
+  ASSERT_EQ(screenshot.exit_code, 0) << screenshot.output.substr(0, 4000);
+  const cv::Mat image = cv::imread(shot, cv::IMREAD_COLOR);
+  ASSERT_FALSE(image.empty());
+  int drawn = 0;
+  for (int y = 40; y < image.rows; ++y) {
+    for (int x = 0; x < std::min(image.cols, 1280 - 360); ++x) {
+      const cv::Vec3b bgr = image.at<cv::Vec3b>(y, x);
+      drawn += std::abs(bgr[2] - 16) + std::abs(bgr[1] - 20) + std::abs(bgr[0] - 26) > 40;
+    }
+  }
+  EXPECT_GT(drawn, 2000) << "the canvas in " << shot << " is blank";
+
+  EXPECT_EQ(run.Terminate(30000ms), 0) << run.LogTail(20);
+}
+
+// Replays (issue #22): a flight recorded with `stitch record` and played back with lcm-logplayer
+// onto another bus shows in stitch-viewer as it did live, with no other service running.
+TEST(ViewerOnAReplay, ARecordedFlightPlayedBackShowsAsItWasFlown) {
+  if (!testing::OnPath("lcm-logger")) GTEST_SKIP() << "lcm-logger not installed (Debian package liblcm-bin)";
+  stitch::testing::TempDir dir;
+  const std::string url = BusUrl(7300), replay_url = BusUrl(7400);
+  const std::string log = dir / "flight.lcmlog";
+  {
+    ChildProcess recorder("record", Bin("stitch"), {"record", "--lcm-url", url, log}, dir / "record.log");
+    std::this_thread::sleep_for(1s);
+    const testing::CommandResult flight = testing::RunProgram(
+        {Bin("stitch"), "run", "--lcm-url", url, "--out", dir / "run", "--quiet", "--set",
+         "synthetic.flight.num_frames=200", "--set", "synthetic.flight.num_strips=1", "--set",
+         "synthetic.flight.strip_length_m=230", "--failures", "90:10"},
+        240);
+    ASSERT_EQ(flight.exit_code, 0) << flight.output;
+    std::this_thread::sleep_for(500ms);
+    recorder.Terminate(5000ms);
+  }
+  const int port = 19000 + (getpid() + 500) % 1000;
+  ChildProcess viewer("viewer", Bin("stitch-viewer"), {"--lcm-url", replay_url, "--port", std::to_string(port)},
+                      dir / "viewer.log");
+  for (int i = 0; i < 100 && !testing::HttpGet(port, "/state.json"); ++i) std::this_thread::sleep_for(50ms);
+  const testing::CommandResult play =
+      testing::RunProgram({"/usr/bin/lcm-logplayer", "--lcm-url=" + replay_url, "--speed=4", log}, 120);
+  ASSERT_EQ(play.exit_code, 0) << play.output;
+  std::this_thread::sleep_for(500ms);
+  const std::optional<std::string> state = testing::HttpGet(port, "/state.json");
+  ASSERT_TRUE(state) << viewer.LogTail(10);
+  const nlohmann::json j = nlohmann::json::parse(*state);
+  EXPECT_EQ(j["map"]["submaps"].size(), 2u) << *state;
+  EXPECT_EQ(j["map"]["merged_maps"], 1);
+  EXPECT_GE(j["map"]["keyframes"].get<int>(), 30);
+  ASSERT_TRUE(j["live"]["aircraft"].contains("uav0")) << *state;
+  EXPECT_EQ(j["live"]["aircraft"]["uav0"]["tracking"]["frame"], 199);
+  EXPECT_EQ(j["live"]["aircraft"]["uav0"]["camera"]["component"], 0) << "the last frame in the merged map";
+  EXPECT_EQ(j["live"]["refused"], 0);
+  const std::optional<std::string> cloud = testing::HttpGet(port, "/cloud.bin");
+  ASSERT_TRUE(cloud && cloud->size() >= 16);
+  uint32_t header[4];
+  std::memcpy(header, cloud->data(), sizeof(header));
+  EXPECT_GT(header[2], 2000u) << "points of the replayed map cloud";
+  EXPECT_EQ(viewer.Terminate(5000ms), 0) << viewer.LogTail(10);
+}
+
+}  // namespace
+}  // namespace stitch
