@@ -150,6 +150,8 @@ TEST(LcmLog, StitchSpyDecodesEveryChannelOfARecordedRun) {
                                                        {"uav0/FRAME_ACK", "stitch.frame_ack_t"},
                                                        {"uav0/SEQUENCE", "stitch.sequence_info_t"},
                                                        {"uav0/TRACKING_STATUS", "stitch.tracking_status_t"},
+                                                       {"uav0/POSE", "stitch.frame_pose_t"},
+                                                       {"uav0/MAP_CLOUD", "stitch.map_cloud_t"},
                                                        {"uav0/KEYFRAME", "stitch.keyframe_t"},
                                                        {"uav0/LOCAL_MAP", "stitch.local_map_update_t"},
                                                        {"uav0/SUBMAP", "stitch.submap_update_t"},
@@ -167,7 +169,8 @@ TEST(LcmLog, StitchSpyDecodesEveryChannelOfARecordedRun) {
                                 60);
     ASSERT_EQ(lua.exit_code, 0) << lua.output;
     for (const auto& [channel, type] : expected) {
-      // "channel<TAB>type<TAB>messages<TAB>decoded<TAB>0": the Java line, decoded the same.
+      // "channel<TAB>type<TAB>messages<TAB>decoded<TAB>0<TAB>bytes<TAB>bytes/s": the Java line, decoded
+      // and counted the same.
       const size_t java = spy.output.find(channel + "\t" + type + "\t");
       ASSERT_NE(java, std::string::npos) << channel;
       const std::string line = spy.output.substr(java, spy.output.find('\n', java) - java);

@@ -55,7 +55,7 @@ int SpyCommand(int argc, char** argv) {
                  "this starts the same program with both mended. With --log, decodes a recorded log (stitch record, "
                  "lcm-logger) instead, one line per channel, without a display.");
   args.AddOption("--lcm-url", &lcm_url, "URL", "the bus to watch");
-  args.AddOption("--log", &log, "FILE", "decode this LCM log and print, per channel, its type and messages decoded");
+  args.AddOption("--log", &log, "FILE", "decode this LCM log and print, per channel, its type, messages decoded, bytes and bytes per second");
   args.AddFlag("--classpath", &classpath,
                "print the Java class path holding stitch's types (for your own Java tools) and exit");
   if (!args.Parse(argc, argv)) return args.exit_code();

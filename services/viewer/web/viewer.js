@@ -279,8 +279,8 @@
         const t = a.tracking;
         if (!firstState) firstState = t.state;
         add('tracking', t.state + (t.detail ? ' (' + t.detail + ')' : ''), 'state-' + t.state);
-        add('frame', String(t.frame) + (t.seconds_ago > 3 ? ' (' + t.seconds_ago.toFixed(0) + ' s ago)' : ''));
-        add('frame rate', t.fps.toFixed(1) + ' fps');
+        add('frame', String(t.frame));
+        add('frame rate', t.seconds_ago > 2 ? '- (no frame for ' + t.seconds_ago.toFixed(0) + ' s)' : t.fps.toFixed(1) + ' fps');
         add('submap', t.submap + ', ' + t.submap_keyframes + ' keyframes');
         add('tracked points', String(t.tracked_points) + ' of ' + t.features + ' features');
         add('submaps closed', String(t.submaps_closed));
@@ -486,10 +486,24 @@
     body.dataset.drawnPixels = String(drawn);
   }
 
+  // The view's own frame rate (rendering included), shown beside the buttons: how responsive the
+  // page is with the points it holds.
+  const frameTimes = [];
+  function noteFrame(time) {
+    frameTimes.push(time);
+    while (frameTimes.length > 30) frameTimes.shift();
+    if (frameTimes.length >= 2 && frameTimes.length % 10 === 0) {
+      const fps = 1000 * (frameTimes.length - 1) / (frameTimes[frameTimes.length - 1] - frameTimes[0]);
+      body.dataset.viewFps = fps.toFixed(1);
+      document.getElementById('view-fps').textContent = fps.toFixed(0) + ' fps';
+    }
+  }
+
   function frame(time) {
     resize();
     controls.update();
     renderer.render(scene, camera);
+    noteFrame(time);
     if (time - lastCount > 1000) {
       lastCount = time;
       countDrawnPixels();

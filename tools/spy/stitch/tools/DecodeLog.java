@@ -1,6 +1,7 @@
 // Decodes every message of an LCM log with the LCM types on the class path (stitch's generated
 // Java types, in the same jar), the way lcm-spy finds them: by each message's fingerprint. Prints
-// one line per channel: channel, type, messages, decoded, undecodable. `stitch spy --log FILE`
+// one line per channel: channel, type, messages, decoded, undecodable, bytes (of messages) and
+// bytes per second (from the channel's first message to its last). `stitch spy --log FILE`
 // runs it; a channel whose type is unknown shows "??" as lcm-spy would.
 package stitch.tools;
 
@@ -18,6 +19,8 @@ public final class DecodeLog {
     long messages = 0;
     long decoded = 0;
     long failed = 0;
+    long bytes = 0;
+    long first = -1, last = -1;  // utime of its first and last message
   }
 
   public static void main(String[] args) throws Exception {
@@ -38,6 +41,9 @@ public final class DecodeLog {
         }
         final Channel channel = channels.computeIfAbsent(event.channel, name -> new Channel());
         ++channel.messages;
+        channel.bytes += event.data.length;
+        if (channel.first < 0) channel.first = event.utime;
+        channel.last = event.utime;
         if (event.data.length < 8) {
           ++channel.failed;
           continue;
@@ -62,10 +68,13 @@ public final class DecodeLog {
       System.err.println(args[0] + ": not an LCM log (no event found)");
       System.exit(1);
     }
-    System.out.println("channel\ttype\tmessages\tdecoded\tundecodable");
+    System.out.println("channel\ttype\tmessages\tdecoded\tundecodable\tbytes\tbytes_per_s");
     for (Map.Entry<String, Channel> entry : channels.entrySet()) {
       final Channel c = entry.getValue();
-      System.out.println(entry.getKey() + "\t" + c.type + "\t" + c.messages + "\t" + c.decoded + "\t" + c.failed);
+      final long spanUs = c.last - c.first;
+      final long rate = spanUs > 0 ? (long) Math.floor(c.bytes * 1e6 / spanUs) : 0;
+      System.out.println(entry.getKey() + "\t" + c.type + "\t" + c.messages + "\t" + c.decoded + "\t" + c.failed
+          + "\t" + c.bytes + "\t" + rate);
     }
   }
 }
