@@ -96,10 +96,9 @@ struct Stack {
 
 // The channels the services listen to (and those they publish, which some tool may listen to),
 // and the first few real messages seen on each.
-const std::vector<std::string> kChannels = {"FRAME",       "FRAME_ACK",  "LOCAL_MAP",       "KEYFRAME",
-                                            "POSE",        "SUBMAP",     "TRACKING_STATUS", "SERVICE",
-                                            "SEQUENCE",    "MAP_CLOUD",  "SUBMAP_REQUEST",  "LINK_STATUS",
-                                            "GLOBAL_MAP"};
+const std::vector<std::string> kChannels = {"FRAME",          "FRAME_ACK",       "LOCAL_MAP", "KEYFRAME", "POSE",
+                                            "SUBMAP",         "TRACKING_STATUS", "SERVICE",   "SEQUENCE", "MAP_CLOUD",
+                                            "SUBMAP_REQUEST", "LINK_STATUS",     "GLOBAL_MAP"};
 
 template <class Message>
 Bytes Encoded(const Message& message) {

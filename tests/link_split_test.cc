@@ -91,8 +91,8 @@ void ExpectSameResult(const RunResult& plain, const RunResult& split, const std:
   }
   EXPECT_EQ(merged + 1, split.report["submaps_merged"].get<int>()) << what << ": " << split.report["merges"].dump();
   // The pose stream crossed the link too: the ground placed (nearly) every frame of the largest map.
-  EXPECT_GE(split.posed_on_the_ground, split.posed * 9 / 10) << what << ": " << split.posed_on_the_ground << " of "
-                                                             << split.posed << " frames in the ground's trajectory";
+  EXPECT_GE(split.posed_on_the_ground, split.posed * 9 / 10)
+      << what << ": " << split.posed_on_the_ground << " of " << split.posed << " frames in the ground's trajectory";
   EXPECT_FALSE(split.info["link"].get<std::string>().empty()) << what;
   const auto figures = split.info["link_figures"];
   ASSERT_EQ(figures.size(), 2u) << what << "\n" << split.output;

@@ -21,10 +21,10 @@
 #include "services/common/map_convert.h"
 #include "services/common/update_journal.h"
 #include "services/config/stitch_config.h"
-#include "stitch/pipeline/inline_pipeline.h"
 #include "stitch/eval/evaluation.h"
 #include "stitch/io/ply.h"
 #include "stitch/io/trajectory.h"
+#include "stitch/pipeline/inline_pipeline.h"
 #include "stitch/records/merger_records.h"
 #include "stitch/source/source.h"
 #include "stitch/testing/temp_dir.h"
@@ -233,9 +233,9 @@ TEST(MergerRestart, ADamagedJournalCostsOnlyTheDamagedRecords) {
 TEST(MergerLiveOutputs, AMergerKilledMidFlightLeavesItsMapAndPerFrameTrajectoryOnDisk) {
   GustStrip strip = FlyGustStrip();
   size_t first_closed = 0;  // the last part of the update that closes the first submap
-  while (first_closed < strip.updates.size() && !(strip.updates[first_closed].closed &&
-                                                  strip.updates[first_closed].part ==
-                                                      strip.updates[first_closed].num_parts - 1)) {
+  while (first_closed < strip.updates.size() &&
+         !(strip.updates[first_closed].closed &&
+           strip.updates[first_closed].part == strip.updates[first_closed].num_parts - 1)) {
     ++first_closed;
   }
   ASSERT_LT(first_closed, strip.updates.size());
@@ -259,7 +259,7 @@ TEST(MergerLiveOutputs, AMergerKilledMidFlightLeavesItsMapAndPerFrameTrajectoryO
   const auto frames_on_disk = [&] {
     try {
       return std::filesystem::exists(out + "/trajectory.tum") ? Trajectory::ReadTum(out + "/trajectory.tum").size()
-                                                               : size_t{0};
+                                                              : size_t{0};
     } catch (const Error&) {
       return size_t{0};  // never: the file is replaced whole
     }

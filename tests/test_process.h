@@ -31,6 +31,9 @@ nlohmann::json ReadJson(const std::string& path);
 // Whether a program is on the PATH.
 bool OnPath(const std::string& program);
 
+// A TCP socket connected to 127.0.0.1:`port`, receiving with a 3 s timeout; -1 when nothing
+// listens there. The caller closes it.
+int ConnectToLocalPort(int port);
 // Sends `request` (raw bytes) to 127.0.0.1:`port` over TCP and returns what comes back until the
 // server closes, 3 s pass, or (with `until_close` false) the end of the reply's headers; "" when
 // nothing listens there.

@@ -128,7 +128,8 @@ TEST(ViewerInBrowser, ThePageShowsTheFlightsSubmapsKeyframesPointsAndTrackingSta
   std::istringstream lines(dom.output);
   for (std::string line; std::getline(lines, line);) {
     // (but for the GL driver's note that reading the pixels back, as the page's pixel count does, stalls)
-    if (line.find(":CONSOLE") != std::string::npos && line.find("GL Driver Message (OpenGL, Performance") == std::string::npos) {
+    if (line.find(":CONSOLE") != std::string::npos &&
+        line.find("GL Driver Message (OpenGL, Performance") == std::string::npos) {
       console += line + "\n";
     }
   }
@@ -162,11 +163,11 @@ TEST(ViewerOnAReplay, ARecordedFlightPlayedBackShowsAsItWasFlown) {
   {
     ChildProcess recorder("record", Bin("stitch"), {"record", "--lcm-url", url, log}, dir / "record.log");
     std::this_thread::sleep_for(1s);
-    const testing::CommandResult flight = testing::RunProgram(
-        {Bin("stitch"), "run", "--lcm-url", url, "--out", dir / "run", "--quiet", "--set",
-         "synthetic.flight.num_frames=200", "--set", "synthetic.flight.num_strips=1", "--set",
-         "synthetic.flight.strip_length_m=230", "--failures", "90:10"},
-        240);
+    const testing::CommandResult flight =
+        testing::RunProgram({Bin("stitch"), "run", "--lcm-url", url, "--out", dir / "run", "--quiet", "--set",
+                             "synthetic.flight.num_frames=200", "--set", "synthetic.flight.num_strips=1", "--set",
+                             "synthetic.flight.strip_length_m=230", "--failures", "90:10"},
+                            240);
     ASSERT_EQ(flight.exit_code, 0) << flight.output;
     std::this_thread::sleep_for(500ms);
     recorder.Terminate(5000ms);

@@ -12,12 +12,12 @@
 #include "services/common/convert.h"
 #include "services/common/map_convert.h"
 #include "stitch/global_map_t.hpp"
-#include "stitch/map_cloud_t.hpp"
 #include "stitch/io/colmap_model.h"
 #include "stitch/io/image_file.h"
-#include "stitch/io/trajectory.h"
 #include "stitch/io/ply.h"
+#include "stitch/io/trajectory.h"
 #include "stitch/map/map_export.h"
+#include "stitch/map_cloud_t.hpp"
 #include "stitch/submap_request_t.hpp"
 #include "stitch/util/log.h"
 #include "stitch/util/text_file.h"
@@ -124,9 +124,11 @@ void MergerService::Stop() {
   }
   const Merger::Graph& graph = refined_->graph;
   const std::optional<MergedMap>& merged = refined_->merged;
-  if (!record_dir_.empty() && !refine_now) {
+  if (!record_dir_.empty()) {
     try {
-      WriteRecords(graph, merged ? &*merged : nullptr);
+      if (!refine_now) WriteRecords(graph, merged ? &*merged : nullptr);
+      // The COLMAP model, a product for after the flight, only at the end.
+      WriteColmapRecord(graph, merged ? &*merged : nullptr);
     } catch (const std::exception& e) {
       STITCH_LOG(ERROR) << "writing the merger's records failed: " << e.what();
     }
@@ -247,7 +249,8 @@ void MergerService::WriteLiveTrajectory() {
     for (const auto& [id, pose] : refined_->graph.keyframe_poses) {
       const auto then = refined_->graph.placement.find(SubmapOf(id));
       const auto now = latest_placement_.find(SubmapOf(id));
-      if (then != refined_->graph.placement.end() && now != latest_placement_.end() && then->second.root == now->second.root) {
+      if (then != refined_->graph.placement.end() && now != latest_placement_.end() &&
+          then->second.root == now->second.root) {
         refined[id.value] = pose;
       }
     }
@@ -667,7 +670,6 @@ void MergerService::WriteRecords(const Merger::Graph& graph, const MergedMap* me
     }
     WritePly((dir / "map.ply").string(), exported);
   }
-  WriteColmapRecord(graph, merged);
   std::vector<MergedKeyframeRecord> merged_keyframes;
   for (const auto& [id, pose] : graph.keyframe_poses) {
     const Keyframe* keyframe = merger_.submaps().at(SubmapOf(id)).map.FindKeyframe(id);

@@ -87,7 +87,8 @@ class MergerService {
   // <station>/MAP_CLOUD: every placed submap's points in its merged map's frame (the refined
   // merged map's where it still holds), thinned to map_cloud_points.
   void PublishMapCloud();
-  // colmap/ in the record folder: the largest map as a COLMAP sparse model (docs/tools.md).
+  // colmap/ in the record folder: the largest map as a COLMAP sparse model (docs/tools.md), at
+  // the end only (the other records are written at every refinement too).
   void WriteColmapRecord(const Merger::Graph& graph, const MergedMap* merged) const;
 
   bus::Publisher* publisher_;

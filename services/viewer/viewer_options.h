@@ -9,9 +9,9 @@ namespace stitch {
 struct ViewerOptions {
   std::string bind_address = "127.0.0.1";  // localhost only by default: the page has no login
   int port = 8080;
-  double updates_per_s = 4;                // pushes to each open page
-  int max_page_points = 500000;            // points sent to a page (the merger thins to merger.map_cloud_points)
-  int max_pages = 4;                       // pages open at once (each holds a server thread)
+  double updates_per_s = 4;      // pushes to each open page
+  int max_page_points = 500000;  // points sent to a page (the merger thins to merger.map_cloud_points)
+  int max_pages = 4;             // pages open at once (each holds a server thread)
   // Where Debian's libjs-three put three.js (build/three.min.js, examples/js/controls/OrbitControls.js).
   std::string three_dir = "/usr/share/javascript/three";
 

@@ -51,8 +51,7 @@ int SendBody(mg_connection* connection, int status, const char* status_text, con
 
 }  // namespace
 
-ViewerServer::ViewerServer(const ViewerOptions& options, const ViewerState* state)
-    : options_(options), state_(state) {
+ViewerServer::ViewerServer(const ViewerOptions& options, const ViewerState* state) : options_(options), state_(state) {
   for (const auto& [path, asset] : ViewerWebAssets()) assets_[path] = {asset.first, asset.second};
   assets_["/"] = assets_.at("/index.html");
   assets_["/three/three.min.js"] = ThreeFile(options_.three_dir, "build/three.min.js");
@@ -129,7 +128,8 @@ int ViewerServer::Serve(mg_connection* connection) {
         "{\"live\":" + state_->LiveJson(MonotonicSeconds()) + ",\"map\":" + state_->MapJson() + "}";
     return SendBody(connection, 200, "OK", "application/json", body, head);
   }
-  if (path == "/cloud.bin") return SendBody(connection, 200, "OK", "application/octet-stream", state_->CloudBinary(), head);
+  if (path == "/cloud.bin")
+    return SendBody(connection, 200, "OK", "application/octet-stream", state_->CloudBinary(), head);
   const auto asset = assets_.find(path);
   if (asset == assets_.end()) return refuse(404, "Not Found");
   return SendBody(connection, 200, "OK", asset->second.content_type, asset->second.body, head);

@@ -22,12 +22,14 @@ ViewerService::ViewerService(lcm::LCM* lcm, bus::Publisher* publisher, const Vie
   };
   const std::string station = publisher->agent();
   subscriber_.Subscribe<stitch::global_map_t>(
-      bus::Channel(station, bus::kGlobalMap), [this, take](std::unique_ptr<stitch::global_map_t> m, const std::string& on) {
+      bus::Channel(station, bus::kGlobalMap),
+      [this, take](std::unique_ptr<stitch::global_map_t> m, const std::string& on) {
         std::string why;
         take(on, state_.OnGlobalMap(*m, &why), why);
       });
   subscriber_.Subscribe<stitch::map_cloud_t>(
-      bus::Channel(station, bus::kMapCloud), [this, take](std::unique_ptr<stitch::map_cloud_t> m, const std::string& on) {
+      bus::Channel(station, bus::kMapCloud),
+      [this, take](std::unique_ptr<stitch::map_cloud_t> m, const std::string& on) {
         std::string why;
         take(on, state_.OnMapCloud(*m, &why), why);
       });

@@ -25,12 +25,18 @@ const uint8_t kPalette[][3] = {{30, 90, 200}, {220, 40, 40}, {40, 160, 40}, {180
 
 const char* StateName(int8_t state) {
   switch (state) {
-    case stitch::tracking_status_t::STATE_INITIALIZING: return "INITIALIZING";
-    case stitch::tracking_status_t::STATE_OK: return "OK";
-    case stitch::tracking_status_t::STATE_LOST: return "LOST";
-    case stitch::tracking_status_t::STATE_SKIPPED: return "SKIPPED";
-    case stitch::tracking_status_t::STATE_NOT_TRACKED: return "NOT_TRACKED";
-    default: return "UNKNOWN";
+    case stitch::tracking_status_t::STATE_INITIALIZING:
+      return "INITIALIZING";
+    case stitch::tracking_status_t::STATE_OK:
+      return "OK";
+    case stitch::tracking_status_t::STATE_LOST:
+      return "LOST";
+    case stitch::tracking_status_t::STATE_SKIPPED:
+      return "SKIPPED";
+    case stitch::tracking_status_t::STATE_NOT_TRACKED:
+      return "NOT_TRACKED";
+    default:
+      return "UNKNOWN";
   }
 }
 
@@ -141,7 +147,9 @@ bool ViewerState::OnLinkStatus(const stitch::link_status_t& message, std::string
     return Refuse(why, "a figure is not finite");
   }
   if (message.forward.size() > 1000 || message.peer.size() > 1000) return Refuse(why, "a text over 1000 characters");
-  aircraft_[message.header.agent].link = message;
+  auto& links = aircraft_[message.header.agent].links;
+  if (links.size() >= 4 && !links.count(message.forward)) return Refuse(why, "a fifth link bridge");
+  links[message.forward] = message;
   return true;
 }
 
@@ -194,19 +202,21 @@ std::string ViewerState::LiveJson(double now_s) const {
       }
       j["camera"] = camera;
     }
-    if (a.link) {
-      const stitch::link_status_t& l = *a.link;
-      j["link"] = {{"peer", l.peer},
-                   {"authenticated", l.authenticated != 0},
-                   {"budget_bytes_per_s", l.budget_bytes_per_s},
-                   {"send_rate_bytes_per_s", l.send_rate_bytes_per_s},
-                   {"backlog_s", l.backlog_s},
-                   {"messages_received", l.messages_received},
-                   {"messages_given_up", l.messages_given_up},
-                   {"fragments_repaired", l.fragments_repaired},
-                   {"datagrams_refused", l.datagrams_refused},
-                   {"seconds_since_peer", l.seconds_since_peer}};
+    nlohmann::json links = nlohmann::json::array();
+    for (const auto& [forward, l] : a.links) {
+      links.push_back({{"forward", l.forward},
+                       {"peer", l.peer},
+                       {"authenticated", l.authenticated != 0},
+                       {"budget_bytes_per_s", l.budget_bytes_per_s},
+                       {"send_rate_bytes_per_s", l.send_rate_bytes_per_s},
+                       {"backlog_s", l.backlog_s},
+                       {"messages_received", l.messages_received},
+                       {"messages_given_up", l.messages_given_up},
+                       {"fragments_repaired", l.fragments_repaired},
+                       {"datagrams_refused", l.datagrams_refused},
+                       {"seconds_since_peer", l.seconds_since_peer}});
     }
+    if (!links.empty()) j["links"] = links;
     aircraft[agent] = j;
   }
   live["aircraft"] = aircraft;
@@ -230,7 +240,8 @@ std::string ViewerState::MapJson() const {
     for (const auto& [component, count] : members) merged_maps += count > 1;
     // Keyframe trajectories, in frame order per submap, thinned to a bound for the page.
     std::map<int64_t, std::vector<std::pair<int, Eigen::Vector3d>>> trajectories;
-    const size_t stride = std::max<size_t>(1, (global_map_->trajectory.size() + kMaxPageKeyframes - 1) / kMaxPageKeyframes);
+    const size_t stride =
+        std::max<size_t>(1, (global_map_->trajectory.size() + kMaxPageKeyframes - 1) / kMaxPageKeyframes);
     for (size_t i = 0; i < global_map_->trajectory.size(); i += stride) {
       const stitch::trajectory_pose_t& p = global_map_->trajectory[i];
       trajectories[p.submap_id].push_back(

@@ -51,7 +51,9 @@ class ViewerState {
     std::deque<double> frame_times;  // receive times of the last statuses (frame rate)
     int64_t frames = 0;
     std::optional<stitch::frame_pose_t> pose;
-    std::optional<stitch::link_status_t> link;
+    // Each link bridge's newest status, by the channels it sends (`forward`): on the ground, the
+    // ground's bridge and the aircraft's (whose status crosses the link with its channels).
+    std::map<std::string, stitch::link_status_t> links;
   };
   bool Refuse(std::string* why, const std::string& what);
 

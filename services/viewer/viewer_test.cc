@@ -2,10 +2,7 @@
 // against hostile requests: only GET and HEAD of its own paths, WebSockets only from its own
 // origin and only as many as max_pages.
 
-#include <arpa/inet.h>
-#include <netinet/in.h>
 #include <sys/socket.h>
-#include <sys/time.h>
 #include <unistd.h>
 
 #include <cmath>
@@ -130,6 +127,31 @@ TEST(ViewerState, TheCameraIsPlacedInItsMergedMapBySubmapPlacement) {
   pose.frame_index = 8;
   ASSERT_TRUE(state.OnPose(pose, &why));
   EXPECT_TRUE(nlohmann::json::parse(state.LiveJson(101.0))["aircraft"]["uav0"]["camera"]["component"].is_null());
+}
+
+TEST(ViewerState, BothSidesLinkBridgesAreShownEachByWhatItSends) {
+  ViewerState state(1000);
+  std::string why;
+  stitch::link_status_t down{}, up{};
+  down.header.agent = up.header.agent = "uav0";
+  down.forward = "uav0/(SUBMAP|SEQUENCE|TRACKING_STATUS|POSE|SERVICE|LINK_STATUS)";
+  down.backlog_s = 12.5;
+  up.forward = "uav0/SUBMAP_REQUEST";
+  for (int i = 0; i < 3; ++i) {
+    ASSERT_TRUE(state.OnLinkStatus(down, &why)) << why;
+    ASSERT_TRUE(state.OnLinkStatus(up, &why)) << why;
+  }
+  const nlohmann::json links = nlohmann::json::parse(state.LiveJson(0))["aircraft"]["uav0"]["links"];
+  ASSERT_EQ(links.size(), 2u) << links.dump();
+  EXPECT_DOUBLE_EQ(links[0]["backlog_s"].get<double>(), 12.5);
+  EXPECT_EQ(links[1]["forward"], "uav0/SUBMAP_REQUEST");
+  // A stranger's bridges beyond a few are refused rather than kept.
+  for (int i = 0; i < 2; ++i) {
+    up.forward = "uav0/OTHER" + std::to_string(i);
+    ASSERT_TRUE(state.OnLinkStatus(up, &why));
+  }
+  up.forward = "uav0/ONE_TOO_MANY";
+  EXPECT_FALSE(state.OnLinkStatus(up, &why));
 }
 
 TEST(ViewerState, ContentThatCannotBeDrawnIsRefusedAndCounted) {
@@ -278,14 +300,8 @@ TEST(ViewerServer, AWebSocketOnlyFromThePagesOwnOriginAndOnlyAsManyAsAllowed) {
             "HTTP/1.1 101 Switching Protocols");
   // The page's own origin may: two sockets held open, a third refused.
   const auto open_socket = [&] {
-    const int fd = socket(AF_INET, SOCK_STREAM, 0);
-    sockaddr_in address{};
-    address.sin_family = AF_INET;
-    address.sin_port = htons(static_cast<uint16_t>(port));
-    address.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-    timeval timeout{3, 0};
-    setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &timeout, sizeof(timeout));
-    EXPECT_EQ(connect(fd, reinterpret_cast<sockaddr*>(&address), sizeof(address)), 0);
+    const int fd = testing::ConnectToLocalPort(port);
+    EXPECT_GE(fd, 0);
     const std::string request = WebSocketRequest(port, "http://127.0.0.1:" + std::to_string(port));
     EXPECT_EQ(send(fd, request.data(), request.size(), MSG_NOSIGNAL), static_cast<ssize_t>(request.size()));
     char buffer[1024];

@@ -52,10 +52,10 @@ struct RunArgs {
   bool quiet = false;
   bool journal = false;  // keep the merger's journal in OUT/merger
   bool compare = false;
-  bool viewer = false;    // the ground's live web page (stitch-viewer), kept up after the flight
-  int viewer_port = -1;   // < 0: viewer.port
-  bool link = false;   // a link bridge pair between the aircraft's bus and the ground's
-  bool netns = false;  // and the two sides in two network namespaces
+  bool viewer = false;   // the ground's live web page (stitch-viewer), kept up after the flight
+  int viewer_port = -1;  // < 0: viewer.port
+  bool link = false;     // a link bridge pair between the aircraft's bus and the ground's
+  bool netns = false;    // and the two sides in two network namespaces
   double link_loss = -1, link_delay_ms = -1, link_budget = -1;  // < 0: as configured
   std::vector<std::string> settings;                            // --set KEY=VALUE
 };
@@ -278,7 +278,7 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
       const std::string ground = network ? SplitNetwork::kGroundAddress : "127.0.0.1";
       const std::string air_port = std::to_string(RandomPort()), ground_port = std::to_string(RandomPort());
       merger = start("merger", "stitch-merger", merger_args);
-      const std::string aircraft_sends = a.agent + "/(SUBMAP|SEQUENCE|TRACKING_STATUS|POSE|SERVICE)";
+      const std::string aircraft_sends = a.agent + "/(SUBMAP|SEQUENCE|TRACKING_STATUS|POSE|SERVICE|LINK_STATUS)";
       // Authenticated as deployed: the config's key, else one made for this run (beside its outputs).
       std::vector<std::string> key;
       if (!config.link.key_file.empty()) {

@@ -286,9 +286,8 @@
         add('submaps closed', String(t.submaps_closed));
         add('mapper', t.mapper_connected ? 'connected' : 'not heard');
       }
-      if (a.link) {
-        const l = a.link;
-        add('link', (l.authenticated ? 'authenticated, ' : 'NOT authenticated, ') + 'peer ' + l.peer);
+      for (const l of a.links || []) {
+        add('link bridge', 'sends ' + l.forward + ' to ' + l.peer + (l.authenticated ? ', authenticated' : ', NOT authenticated'));
         add('link rate', (l.send_rate_bytes_per_s / 1000).toFixed(1) + ' kB/s sent' +
             (l.budget_bytes_per_s > 0 ? ' of ' + (l.budget_bytes_per_s / 1000).toFixed(0) : ''));
         add('link backlog', l.backlog_s.toFixed(1) + ' s');

@@ -20,8 +20,8 @@ Rigid3d Placed(const Sim3d& world_from_submap, const Rigid3d& submap_from_cam) {
 }
 
 void ExpectSamePose(const Rigid3d& a, const Rigid3d& b) {
-  EXPECT_LT((a.translation - b.translation).norm(), 1e-9) << a.translation.transpose() << " vs "
-                                                          << b.translation.transpose();
+  EXPECT_LT((a.translation - b.translation).norm(), 1e-9)
+      << a.translation.transpose() << " vs " << b.translation.transpose();
   EXPECT_LT(a.rotation.angularDistance(b.rotation), 1e-9);
 }
 
@@ -30,8 +30,7 @@ TEST(PlaceTrackedFrames, AFrameFollowsTheNewestPoseOfItsReferenceKeyframe) {
   const Rigid3d cam_from_reference = Turn(0.1, {0, 0, -0.5});
   const Rigid3d keyframe_now = Turn(0.3, {1, 2, 3});  // cam_from_world in the submap
   TrackedFramePose frame{10, 1000, kSubmap.value, false, Turn(0.0, {9, 9, 9}), kKeyframe.value, cam_from_reference};
-  const std::vector<PoseRecord> poses =
-      PlaceTrackedFrames({frame}, {{kKeyframe.value, {keyframe_now, 8}}}, {}, {});
+  const std::vector<PoseRecord> poses = PlaceTrackedFrames({frame}, {{kKeyframe.value, {keyframe_now, 8}}}, {}, {});
   ASSERT_EQ(poses.size(), 1u);
   ExpectSamePose(poses[0].world_from_cam, (cam_from_reference * keyframe_now).Inverse());
   EXPECT_EQ(poses[0].component, -1);  // no placement: in its submap's own frame

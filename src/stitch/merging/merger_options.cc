@@ -59,7 +59,8 @@ bool MergerOptions::Check(std::string* why) const {
   if (!(resend_interval_s > 0)) return fail("merger.resend_interval_s must be > 0");
   if (!(live_outputs_interval_s >= 0 && live_outputs_interval_s <= 3600))
     return fail("merger.live_outputs_interval_s must be within [0, 3600]");
-  if (map_cloud_points < 0 || map_cloud_points > 5'000'000) return fail("merger.map_cloud_points must be within [0, 5000000]");
+  if (map_cloud_points < 0 || map_cloud_points > 5'000'000)
+    return fail("merger.map_cloud_points must be within [0, 5000000]");
   return connection_weights.Check(why) && merged_map.Check(why) && acceptance.Check(why) && map_export.Check(why);
 }
 
