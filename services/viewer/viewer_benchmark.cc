@@ -1,16 +1,33 @@
 // What a push costs the viewer's server for a large map: the points made into the page's binary
-// cloud (thinned to viewer.max_page_points) and the map update's JSON.
+// cloud (thinned to viewer.max_page_points) and the map update's JSON. And the page's own frame
+// rate holding that many points (BM_PageFrameRate): the page loaded in headless Chromium, asked
+// over the DevTools protocol after 10 s of drawing; in software (SwiftShader) unless
+// STITCH_CHROMIUM_GPU=1 lets Chromium use the machine's GPU.
 //   build/bin/viewer_benchmark
-// Counters: points in the map, bytes sent to a page.
+// Counters: points in the map, bytes sent to a page; the page's frames per second.
 
+#include <unistd.h>
+
+#include <chrono>
+#include <condition_variable>
+#include <cstdlib>
+#include <mutex>
 #include <random>
+#include <thread>
+
+#include <civetweb.h>
+#include <nlohmann/json.hpp>
 
 #include <benchmark/benchmark.h>
 
 #include "services/common/convert.h"
+#include "services/viewer/viewer_server.h"
 #include "services/viewer/viewer_state.h"
+#include "stitch/testing/temp_dir.h"
+#include "stitch/util/child_process.h"
 #include "stitch/util/error.h"
 #include "stitch/util/ids.h"
+#include "tests/test_process.h"
 
 namespace stitch {
 namespace {
@@ -84,6 +101,100 @@ void BM_MapUpdate(benchmark::State& bench) {
   bench.counters["bytes"] = static_cast<double>(bytes);
 }
 BENCHMARK(BM_MapUpdate)->Arg(250)->Arg(5000)->Unit(benchmark::kMillisecond);
+
+// One DevTools request over a WebSocket (civetweb's client) and its reply.
+class DevToolsPage {
+ public:
+  explicit DevToolsPage(int port, const std::string& path) {
+    char error[256] = "";
+    connection_ = mg_connect_websocket_client("127.0.0.1", port, 0, error, sizeof(error), path.c_str(), nullptr,
+                                              &DevToolsPage::OnData, nullptr, this);
+    if (!connection_) throw Error(std::string("DevTools: ") + error);
+  }
+  ~DevToolsPage() { mg_close_connection(connection_); }
+  std::string Evaluate(const std::string& expression) {
+    const std::string request = nlohmann::json{{"id", 1},
+                                               {"method", "Runtime.evaluate"},
+                                               {"params", {{"expression", expression}, {"returnByValue", true}}}}
+                                    .dump();
+    mg_websocket_client_write(connection_, MG_WEBSOCKET_OPCODE_TEXT, request.data(), request.size());
+    std::unique_lock<std::mutex> lock(mutex_);
+    if (!replied_.wait_for(lock, std::chrono::seconds(10), [&] { return !reply_.empty(); })) {
+      throw Error("DevTools: no reply");
+    }
+    return nlohmann::json::parse(reply_)["result"]["result"]["value"].get<std::string>();
+  }
+
+ private:
+  static int OnData(mg_connection*, int bits, char* data, size_t length, void* self) {
+    auto* page = static_cast<DevToolsPage*>(self);
+    if ((bits & 0x0f) != MG_WEBSOCKET_OPCODE_TEXT) return 1;
+    const std::string text(data, length);
+    if (text.find("\"id\":1") == std::string::npos) return 1;  // an event, not the reply
+    std::lock_guard<std::mutex> lock(page->mutex_);
+    page->reply_ = text;
+    page->replied_.notify_all();
+    return 1;
+  }
+  mg_connection* connection_ = nullptr;
+  std::mutex mutex_;
+  std::condition_variable replied_;
+  std::string reply_;
+};
+
+void BM_PageFrameRate(benchmark::State& bench) {
+  const char* chromium = "/usr/bin/chromium";
+  if (access(chromium, X_OK) != 0) {
+    bench.SkipWithError("Chromium is not installed (Debian's chromium)");
+    return;
+  }
+  const int points = static_cast<int>(bench.range(0));
+  ViewerState state(/*max_page_points=*/points);
+  Feed(&state, 10, points / 10, 100);
+  ViewerOptions options;
+  options.port = 18500 + getpid() % 400;
+  ViewerServer server(options, &state);
+  const int devtools = options.port + 400;
+  nlohmann::json dataset;
+  for (auto _ : bench) {
+    testing::TempDir profile;
+    std::vector<std::string> args{"--headless",
+                                  "--no-sandbox",
+                                  "--no-first-run",
+                                  "--window-size=1280,800",
+                                  "--remote-debugging-port=" + std::to_string(devtools),
+                                  "--remote-allow-origins=*",
+                                  "--user-data-dir=" + profile.path().string()};
+    if (!std::getenv("STITCH_CHROMIUM_GPU")) {
+      args.insert(args.end(), {"--disable-gpu", "--enable-unsafe-swiftshader", "--use-angle=swiftshader"});
+    }
+    args.push_back(server.url());
+    ChildProcess browser("chromium", chromium, args, profile / "chromium.log");
+    std::string path;
+    for (int i = 0; i < 100 && path.empty(); ++i) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(100));
+      const std::optional<std::string> pages = testing::HttpGet(devtools, "/json");
+      if (!pages) continue;
+      for (const auto& page : nlohmann::json::parse(*pages)) {
+        if (page["type"] == "page" && page["url"].get<std::string>().rfind(server.url(), 0) == 0) {
+          const std::string url = page["webSocketDebuggerUrl"].get<std::string>();
+          path = url.substr(url.find('/', std::string("ws://").size()));
+        }
+      }
+    }
+    if (path.empty()) {
+      bench.SkipWithError("Chromium's DevTools did not list the page");
+      return;
+    }
+    std::this_thread::sleep_for(std::chrono::seconds(10));  // loaded, then drawing
+    DevToolsPage page(devtools, path);
+    dataset = nlohmann::json::parse(page.Evaluate("JSON.stringify(document.body.dataset)"));
+    browser.Terminate(std::chrono::milliseconds(5000));
+  }
+  bench.counters["points_shown"] = std::atof(dataset.value("points", "0").c_str());
+  bench.counters["view_fps"] = std::atof(dataset.value("viewFps", "0").c_str());
+}
+BENCHMARK(BM_PageFrameRate)->Arg(100000)->Arg(500000)->Iterations(1)->Unit(benchmark::kSecond);
 
 }  // namespace
 }  // namespace stitch

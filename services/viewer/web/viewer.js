@@ -470,8 +470,8 @@
   document.getElementById('top-view').addEventListener('click', () => fitView(true));
   document.getElementById('fit').addEventListener('click', () => fitView(false));
 
-  // Drawn pixels, counted once a second (a test's proof that the canvas is not blank).
-  let lastCount = 0;
+  // Drawn pixels, counted when the map or the points change (a test's proof that the canvas is
+  // not blank; reading the pixels back stalls the GPU, so never every frame).
   const gl = renderer.getContext();
   function countDrawnPixels() {
     const width = gl.drawingBufferWidth, height = gl.drawingBufferHeight;
@@ -503,10 +503,6 @@
     controls.update();
     renderer.render(scene, camera);
     noteFrame(time);
-    if (time - lastCount > 1000) {
-      lastCount = time;
-      countDrawnPixels();
-    }
     window.requestAnimationFrame(frame);
   }
 
