@@ -40,11 +40,14 @@ bool SameOrigin(const mg_connection* connection) {
 
 int SendBody(mg_connection* connection, int status, const char* status_text, const std::string& content_type,
              const std::string& body, bool head) {
-  mg_printf(connection,
-            "HTTP/1.1 %d %s\r\nContent-Type: %s\r\nContent-Length: %zu\r\nCache-Control: no-store\r\n"
-            "X-Content-Type-Options: nosniff\r\nX-Frame-Options: DENY\r\n"
-            "Content-Security-Policy: default-src 'self'; img-src 'self' data:\r\nConnection: close\r\n\r\n",
-            status, status_text, content_type.c_str(), body.size());
+  // Written without mg_printf: its 8 kB buffer and vsnprintf overflow civetweb's small thread
+  // stacks under AddressSanitizer.
+  const std::string headers =
+      "HTTP/1.1 " + std::to_string(status) + " " + status_text + "\r\nContent-Type: " + content_type +
+      "\r\nContent-Length: " + std::to_string(body.size()) +
+      "\r\nCache-Control: no-store\r\nX-Content-Type-Options: nosniff\r\nX-Frame-Options: DENY\r\n"
+      "Content-Security-Policy: default-src 'self'; img-src 'self' data:\r\nConnection: close\r\n\r\n";
+  mg_write(connection, headers.data(), headers.size());
   if (!head) mg_write(connection, body.data(), body.size());
   return status;
 }
@@ -79,6 +82,7 @@ ViewerServer::ViewerServer(const ViewerOptions& options, const ViewerState* stat
     mg_exit_library();
     throw Error("the viewer cannot listen on " + ports + " (in use, or not this machine's address?)");
   }
+  Refresh(MonotonicSeconds());
   mg_set_request_handler(context_, "/", &ViewerServer::HandleRequest, this);
   mg_set_websocket_handler(context_, "/live", &ViewerServer::OnSocketConnect, &ViewerServer::OnSocketReady,
                            &ViewerServer::OnSocketData, &ViewerServer::OnSocketClose, this);
@@ -123,13 +127,17 @@ int ViewerServer::Serve(mg_connection* connection) {
   };
   if (method != "GET" && !head) return refuse(405, "Method Not Allowed");
   if (path == "/live") return refuse(400, "Bad Request");  // a WebSocket only
-  if (path == "/state.json") {
-    const std::string body =
-        "{\"live\":" + state_->LiveJson(MonotonicSeconds()) + ",\"map\":" + state_->MapJson() + "}";
-    return SendBody(connection, 200, "OK", "application/json", body, head);
+  if (path == "/state.json" || path == "/cloud.bin") {
+    std::shared_ptr<const std::string> live, map, cloud;
+    {
+      std::lock_guard<std::mutex> lock(updates_mutex_);
+      live = live_;
+      map = map_;
+      cloud = cloud_;
+    }
+    if (path == "/cloud.bin") return SendBody(connection, 200, "OK", "application/octet-stream", *cloud, head);
+    return SendBody(connection, 200, "OK", "application/json", "{\"live\":" + *live + ",\"map\":" + *map + "}", head);
   }
-  if (path == "/cloud.bin")
-    return SendBody(connection, 200, "OK", "application/octet-stream", state_->CloudBinary(), head);
   const auto asset = assets_.find(path);
   if (asset == assets_.end()) return refuse(404, "Not Found");
   return SendBody(connection, 200, "OK", asset->second.content_type, asset->second.body, head);
@@ -171,24 +179,55 @@ void ViewerServer::OnSocketClose(const mg_connection* connection, void* self) {
   if (server->sockets_.erase(connection) == 0 && server->pending_sockets_ > 0) --server->pending_sockets_;
 }
 
-int ViewerServer::Push(double now_s) {
-  const std::string live = state_->LiveJson(now_s);
+void ViewerServer::Refresh(double now_s) {
+  auto live = std::make_shared<const std::string>(state_->LiveJson(now_s));
   const int64_t map_revision = state_->map_revision(), cloud_revision = state_->cloud_revision();
-  std::string map, cloud;  // made once, for the pages that need them
+  bool new_map, new_cloud;
+  {
+    std::lock_guard<std::mutex> lock(updates_mutex_);
+    new_map = map_revision != map_revision_;
+    new_cloud = cloud_revision != cloud_revision_;
+  }
+  // Made outside the lock (a large cloud takes milliseconds); a revision that moved meanwhile is
+  // made again at the next push.
+  auto map = new_map ? std::make_shared<const std::string>(state_->MapJson()) : nullptr;
+  auto cloud = new_cloud ? std::make_shared<const std::string>(state_->CloudBinary()) : nullptr;
+  std::lock_guard<std::mutex> lock(updates_mutex_);
+  live_ = std::move(live);
+  if (map) {
+    map_ = std::move(map);
+    map_revision_ = map_revision;
+  }
+  if (cloud) {
+    cloud_ = std::move(cloud);
+    cloud_revision_ = cloud_revision;
+  }
+}
+
+int ViewerServer::Push(double now_s) {
+  Refresh(now_s);
+  std::shared_ptr<const std::string> live, map, cloud;
+  int64_t map_revision, cloud_revision;
+  {
+    std::lock_guard<std::mutex> lock(updates_mutex_);
+    live = live_;
+    map = map_;
+    cloud = cloud_;
+    map_revision = map_revision_;
+    cloud_revision = cloud_revision_;
+  }
   std::lock_guard<std::mutex> lock(sockets_mutex_);
   int pushed = 0;
   for (auto& [key, socket] : sockets_) {
     auto* connection = const_cast<mg_connection*>(key);
     mg_lock_connection(connection);
-    bool ok = mg_websocket_write(connection, MG_WEBSOCKET_OPCODE_TEXT, live.data(), live.size()) > 0;
+    bool ok = mg_websocket_write(connection, MG_WEBSOCKET_OPCODE_TEXT, live->data(), live->size()) > 0;
     if (ok && socket.map_revision != map_revision) {
-      if (map.empty()) map = state_->MapJson();
-      ok = mg_websocket_write(connection, MG_WEBSOCKET_OPCODE_TEXT, map.data(), map.size()) > 0;
+      ok = mg_websocket_write(connection, MG_WEBSOCKET_OPCODE_TEXT, map->data(), map->size()) > 0;
       if (ok) socket.map_revision = map_revision;
     }
     if (ok && socket.cloud_revision != cloud_revision) {
-      if (cloud.empty()) cloud = state_->CloudBinary();
-      ok = mg_websocket_write(connection, MG_WEBSOCKET_OPCODE_BINARY, cloud.data(), cloud.size()) > 0;
+      ok = mg_websocket_write(connection, MG_WEBSOCKET_OPCODE_BINARY, cloud->data(), cloud->size()) > 0;
       if (ok) socket.cloud_revision = cloud_revision;
     }
     mg_unlock_connection(connection);

@@ -7,6 +7,7 @@
 
 #include <cstdint>
 #include <map>
+#include <memory>
 #include <mutex>
 #include <string>
 
@@ -31,8 +32,10 @@ class ViewerServer {
   ViewerServer(const ViewerServer&) = delete;
   ViewerServer& operator=(const ViewerServer&) = delete;
 
-  // Sends each open page what changed since its last push: the live state always, the map and
-  // the points when newer. Returns the pages pushed to.
+  // Makes the state into what pages are sent (the live and map updates, the points) and sends
+  // each open page what changed since its last push: the live state always, the map and the
+  // points when newer. Returns the pages pushed to. Call it from a thread of the caller's: the
+  // server's own threads only copy out what the last push made (their stacks are small).
   int Push(double now_s);
   std::string url() const;
   int open_pages() const;
@@ -48,6 +51,8 @@ class ViewerServer {
   static int OnSocketData(mg_connection* connection, int bits, char* data, size_t length, void* self);
   static void OnSocketClose(const mg_connection* connection, void* self);
   int Serve(mg_connection* connection);
+  // The updates as the state is now, kept for requests and pushes.
+  void Refresh(double now_s);
 
   ViewerOptions options_;
   const ViewerState* state_;
@@ -57,6 +62,10 @@ class ViewerServer {
   std::map<const mg_connection*, Socket> sockets_;
   int pending_sockets_ = 0;  // accepted, not ready yet
   int64_t refused_ = 0;
+  // What the last Refresh made: shared, never copied, by the pushes and the requests.
+  mutable std::mutex updates_mutex_;
+  std::shared_ptr<const std::string> live_, map_, cloud_;
+  int64_t map_revision_ = -1, cloud_revision_ = -1;
 };
 
 }  // namespace stitch

@@ -318,11 +318,13 @@ std::string ViewerState::CloudBinary() const {
   char* out = bytes.data();
   std::memcpy(out, header, sizeof(header));
   out += sizeof(header);
-  std::memcpy(out, positions.data(), positions.size() * sizeof(float));
-  out += positions.size() * sizeof(float);
-  std::memcpy(out, colours.data(), colours.size());
-  out += colours.size();
-  std::memcpy(out, components.data(), components.size());
+  if (!components.empty()) {  // (an empty vector's data() may be null, which memcpy may not get)
+    std::memcpy(out, positions.data(), positions.size() * sizeof(float));
+    out += positions.size() * sizeof(float);
+    std::memcpy(out, colours.data(), colours.size());
+    out += colours.size();
+    std::memcpy(out, components.data(), components.size());
+  }
   return bytes;
 }
 
