@@ -7,6 +7,7 @@
 #include "stitch/link_status_t.hpp"
 #include "stitch/map_cloud_t.hpp"
 #include "stitch/tracking_status_t.hpp"
+#include "stitch/util/log.h"
 #include "stitch/util/time.h"
 
 namespace stitch {
@@ -80,7 +81,11 @@ void ViewerService::PushLoop() {
   const auto period = std::chrono::duration<double>(1.0 / options_.updates_per_s);
   auto next = std::chrono::steady_clock::now();
   while (running_.load()) {
-    server_->Push(MonotonicSeconds());
+    try {
+      server_->Push(MonotonicSeconds());
+    } catch (const std::exception& e) {  // never the end of the viewer: the next push tries again
+      STITCH_LOG(ERROR) << "a push to the pages failed: " << e.what();
+    }
     next += std::chrono::duration_cast<std::chrono::steady_clock::duration>(period);
     const auto now = std::chrono::steady_clock::now();
     if (next < now) next = now;

@@ -220,7 +220,7 @@ std::string ViewerState::LiveJson(double now_s) const {
     aircraft[agent] = j;
   }
   live["aircraft"] = aircraft;
-  return live.dump();
+  return live.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);  // texts from the bus may be any bytes
 }
 
 std::string ViewerState::MapJson() const {

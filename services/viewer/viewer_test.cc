@@ -194,6 +194,15 @@ TEST(ViewerState, ContentThatCannotBeDrawnIsRefusedAndCounted) {
   status.header.agent = "uav0";
   status.frame_index = -5;
   EXPECT_FALSE(state.OnTrackingStatus(status, 0, &why));
+  // Texts that are no UTF-8 (the bus fuzz test's find: the push thread threw on them) are shown
+  // with replacement characters.
+  status.frame_index = 3;
+  status.detail = "\x80\xff broken";
+  link.backlog_s = 0;
+  link.forward = "uav0/\xc3(";
+  ASSERT_TRUE(state.OnTrackingStatus(status, 0, &why));
+  ASSERT_TRUE(state.OnLinkStatus(link, &why));
+  EXPECT_NO_THROW(nlohmann::json::parse(state.LiveJson(0)));
   EXPECT_EQ(state.refused(), 7);
   EXPECT_EQ(state.map_revision(), 0);
   EXPECT_EQ(state.cloud_revision(), 0);
