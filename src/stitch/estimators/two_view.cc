@@ -229,13 +229,18 @@ std::optional<TwoViewResult> InitializeTwoView(const std::vector<Eigen::Vector2d
       for (double sign : {1.0, -1.0}) candidates.push_back(Check(ToRigid(r, sign * t), p1, p2, inliers_f, k, sigma));
     }
   }
-  // Only motions with enough parallax compete: a decomposition that explains the matches as an
-  // almost pure rotation (points near infinity) is not a reconstruction.
   const std::string model = use_h ? "homography" : "essential matrix";
   if (candidates.empty()) return fail(model + ": the model has no decomposition");
+  // Only motions with parallax compete: a decomposition that explains the matches as an almost
+  // pure rotation (points near infinity) is not a reconstruction. One with less parallax than the
+  // threshold still competes in the ambiguity check below, and only the chosen motion must reach
+  // it: the homography's twin solutions differ in parallax, and the true one may be far under the
+  // threshold (a camera flying forward over flat ground sees little parallax near the direction
+  // of flight, its twin much more: taken alone, the twin tilted the map's depth and its scale
+  // collapsed as the flight went on).
   std::vector<Candidate> valid;
   for (const Candidate& c : candidates) {
-    if (c.parallax_deg >= options.min_parallax_deg) valid.push_back(c);
+    if (c.parallax_deg >= 0.1 * options.min_parallax_deg) valid.push_back(c);
   }
   if (valid.empty()) {
     double best_parallax = 0;
@@ -246,22 +251,44 @@ std::optional<TwoViewResult> InitializeTwoView(const std::vector<Eigen::Vector2d
   std::sort(valid.begin(), valid.end(), [](const Candidate& a, const Candidate& b) { return a.num_good > b.num_good; });
   Candidate best = valid[0];
   const std::vector<char>& inliers = use_h ? inliers_h : inliers_f;
-  if (valid.size() > 1 && valid[1].num_good > 0.75 * best.num_good) {
-    // Two motions fit a (nearly) planar scene: the homography's twofold ambiguity. Refine both on
-    // their points; off the plane (relief, buildings) only the true motion fits well.
+  if (valid.size() > 1 && valid[1].num_good > 0.9 * best.num_good) {
+    // Two motions fit a (nearly) planar scene: the homography's twofold ambiguity. Where one of
+    // them triangulates a tenth more of the matches well, the points off the plane (relief,
+    // buildings) have decided. Otherwise refine both on their points and take one that fits
+    // clearly better; failing that, the one that turns the camera clearly less: the twin of a
+    // camera moving along the ground turns it by about the baseline over the depth (4-17 degrees
+    // against 0.1 for a forward camera, 2.5 against 0.7 looking down), while two frames a moment
+    // apart are seldom turned much. Two motions that turn the camera alike are not twins but a
+    // mostly rotating camera's small translation told two ways: the one with clearly more
+    // parallax (and it must reach the threshold). Else the pair cannot tell, and a later frame may.
     double cost0 = 0, cost1 = 0;
     const Candidate r0 = Check(Refine(valid[0], p1, p2, k, sigma, &cost0), p1, p2, inliers, k, sigma);
     const Candidate r1 = Check(Refine(valid[1], p1, p2, k, sigma, &cost1), p1, p2, inliers, k, sigma);
     cost0 /= std::max(1, r0.num_good);
     cost1 /= std::max(1, r1.num_good);
-    if (cost0 < 0.5 * cost1 && r0.parallax_deg >= options.min_parallax_deg) {
+    const auto turn = [](const Candidate& c) {
+      return c.cam2_from_cam1.rotation.angularDistance(Eigen::Quaterniond::Identity());
+    };
+    if (cost0 < 0.5 * cost1) {
       best = r0;
-    } else if (cost1 < 0.5 * cost0 && r1.parallax_deg >= options.min_parallax_deg) {
+    } else if (cost1 < 0.5 * cost0) {
+      best = r1;
+    } else if (turn(r0) < 0.5 * turn(r1)) {
+      best = r0;
+    } else if (turn(r1) < 0.5 * turn(r0)) {
+      best = r1;
+    } else if (r0.parallax_deg > 1.5 * r1.parallax_deg) {
+      best = r0;
+    } else if (r1.parallax_deg > 1.5 * r0.parallax_deg) {
       best = r1;
     } else {
       return fail(model + ": two motions explain the matches almost equally (" + std::to_string(valid[0].num_good) +
                   " vs " + std::to_string(valid[1].num_good) + " points)");
     }
+  }
+  if (best.parallax_deg < options.min_parallax_deg) {
+    return fail(model + ": parallax " + std::to_string(best.parallax_deg) + " deg, need " +
+                std::to_string(options.min_parallax_deg));
   }
   if (best.num_good < options.min_triangulated) {
     return fail(model + ": " + std::to_string(best.num_good) + " points triangulate, need " +

@@ -92,6 +92,57 @@ TEST(TwoView, RecoversAUavMotionOverNearlyFlatGroundFromTheHomography) {
   EXPECT_GT(result->num_triangulated, 300);
 }
 
+// An oblique camera (45 degrees from straight down) 40 m over nearly flat ground, flying level
+// and forward by `forward_m`; `count` ground points seen by both views. The homography of such a
+// pair has a twin decomposition (the camera moving towards the ground instead of along it) with
+// more parallax than the true motion: taken, the map's depth comes out tilted and its scale
+// collapses as the flight goes on.
+TwoViewCase ObliqueForwardFlight(double forward_m, int count, uint64_t seed) {
+  const double pitch = 45 * M_PI / 180;
+  Eigen::Matrix3d world_from_cam;  // columns: the camera's x (right), y (down), z (forward) in the world
+  world_from_cam.col(0) = Eigen::Vector3d::UnitX();
+  world_from_cam.col(1) = Eigen::Vector3d(0, -std::cos(pitch), -std::sin(pitch));
+  world_from_cam.col(2) = Eigen::Vector3d(0, std::sin(pitch), -std::cos(pitch));
+  const Eigen::Quaterniond cam_from_world_rotation(world_from_cam.transpose());
+  const Eigen::Vector3d centre1(0, 0, 40), centre2(0, forward_m, 40);
+  const Rigid3d cam1_from_world(cam_from_world_rotation, -(cam_from_world_rotation * centre1));
+  const Rigid3d cam2_from_world(cam_from_world_rotation, -(cam_from_world_rotation * centre2));
+  Rng rng(seed);
+  std::vector<Eigen::Vector3d> points;
+  while (static_cast<int>(points.size()) < count) {
+    // A ray through a random pixel of camera 1 down to the ground (relief of a few centimetres).
+    const Eigen::Vector3d ray =
+        world_from_cam * kCamera.Normalize({rng.Uniform(0, 639), rng.Uniform(0, 479)}).homogeneous();
+    if (ray.z() >= -0.05) continue;
+    const double ground = 0.05 * rng.Normal();
+    const Eigen::Vector3d in_world = centre1 + ray * ((ground - centre1.z()) / ray.z());
+    points.push_back(cam1_from_world * in_world);
+  }
+  return MakeCase(points, cam2_from_world * cam1_from_world.Inverse(), 0.7, 0.0, seed + 1);
+}
+
+TEST(TwoView, NeverTakesTheHomographysTwinOnAnObliqueCameraFlyingForward) {
+  // Over baselines from too short to plenty, and few or many matches: either the true motion or
+  // a refusal ("two motions explain the matches almost equally"), never the twin.
+  int recovered = 0, refused = 0;
+  for (double forward_m : {2.0, 3.0, 4.0, 5.0, 7.0, 10.0}) {
+    for (int count : {55, 80, 300}) {
+      const TwoViewCase c = ObliqueForwardFlight(forward_m, count, static_cast<uint64_t>(forward_m * 100 + count));
+      std::string why;
+      const auto result = InitializeTwoView(c.p1, c.p2, kCamera, TwoViewOptions(), &why);
+      if (!result) {
+        ++refused;
+        continue;
+      }
+      ++recovered;
+      EXPECT_LT(DirectionErrorDeg(result->cam2_from_cam1.translation, c.cam2_from_cam1.translation), 10.0)
+          << forward_m << " m forward, " << count << " matches: the twin was taken";
+    }
+  }
+  EXPECT_GT(refused, 0);  // the ambiguity is real: some pairs cannot tell
+  EXPECT_EQ(recovered + refused, 18);
+}
+
 TEST(TwoView, RefusesTooLittleParallax) {
   Rng rng(5);
   std::vector<Eigen::Vector3d> points;
