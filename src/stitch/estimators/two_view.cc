@@ -254,8 +254,11 @@ std::optional<TwoViewResult> InitializeTwoView(const std::vector<Eigen::Vector2d
   if (valid.size() > 1 && valid[1].num_good > 0.9 * best.num_good) {
     // Two motions fit a (nearly) planar scene: the homography's twofold ambiguity. Where one of
     // them triangulates a tenth more of the matches well, the points off the plane (relief,
-    // buildings) have decided. Otherwise refine both on their points and take one that fits
-    // clearly better; failing that, the one that turns the camera clearly less: the twin of a
+    // buildings) have decided. Otherwise refine both on their points: one that keeps clearly
+    // more points well triangulated wins, then one that fits clearly better while keeping its
+    // parallax (a twin may refine into a near-pure rotation, far points that fit any pair well,
+    // and lose a third of its points doing it); failing that, the one that turns the camera
+    // clearly less: the twin of a
     // camera moving along the ground turns it by about the baseline over the depth (4-17 degrees
     // against 0.1 for a forward camera, 2.5 against 0.7 looking down), while two frames a moment
     // apart are seldom turned much. Two motions that turn the camera alike are not twins but a
@@ -269,9 +272,13 @@ std::optional<TwoViewResult> InitializeTwoView(const std::vector<Eigen::Vector2d
     const auto turn = [](const Candidate& c) {
       return c.cam2_from_cam1.rotation.angularDistance(Eigen::Quaterniond::Identity());
     };
-    if (cost0 < 0.5 * cost1) {
+    if (r0.num_good > 1.2 * r1.num_good) {
       best = r0;
-    } else if (cost1 < 0.5 * cost0) {
+    } else if (r1.num_good > 1.2 * r0.num_good) {
+      best = r1;
+    } else if (cost0 < 0.5 * cost1 && r0.parallax_deg >= options.min_parallax_deg) {
+      best = r0;
+    } else if (cost1 < 0.5 * cost0 && r1.parallax_deg >= options.min_parallax_deg) {
       best = r1;
     } else if (turn(r0) < 0.5 * turn(r1)) {
       best = r0;
