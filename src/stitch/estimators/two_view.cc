@@ -116,21 +116,20 @@ double ScoreFundamental(const Eigen::Matrix3d& f, const std::vector<Eigen::Vecto
 // degree with realistic noise; this brings it to the accuracy the data allows.
 Rigid3d Refine(const Candidate& c, const std::vector<Eigen::Vector2d>& p1, const std::vector<Eigen::Vector2d>& p2,
                const PinholeIntrinsics& k, double sigma, double* final_cost = nullptr) {
+  if (final_cost) *final_cost = 1e300;
+  // Counted first: a loss function no residual took would be nobody's to delete.
+  if (std::count_if(c.good.begin(), c.good.end(), [](char good) { return good != 0; }) < 8) return c.cam2_from_cam1;
   PoseParameters camera1((Rigid3d())), camera2(c.cam2_from_cam1);
   std::vector<Eigen::Vector3d> points = c.points;
   ceres::Problem problem;
-  ceres::LossFunction* huber = new ceres::HuberLoss(std::sqrt(kChi2TwoDof));
-  int used = 0;
+  ceres::LossFunction* huber = new ceres::HuberLoss(std::sqrt(kChi2TwoDof));  // owned by `problem`
   for (size_t i = 0; i < points.size(); ++i) {
     if (!c.good[i]) continue;
     problem.AddResidualBlock(ReprojectionError::Create(p1[i], 1.0 / sigma, k.fx, k.fy, k.cx, k.cy), huber,
                              camera1.data(), points[i].data());
     problem.AddResidualBlock(ReprojectionError::Create(p2[i], 1.0 / sigma, k.fx, k.fy, k.cx, k.cy), huber,
                              camera2.data(), points[i].data());
-    ++used;
   }
-  if (final_cost) *final_cost = 1e300;
-  if (used < 8) return c.cam2_from_cam1;
   problem.SetParameterBlockConstant(camera1.data());
   // The translation's scale is not observable: it stays of unit length.
   problem.SetManifold(camera2.data(),
