@@ -106,6 +106,15 @@ InlineRun RunScript(const std::vector<int>& script, const std::string& on_loss, 
   return RunInline(sequence, options, DefaultVocabulary());
 }
 
+// The submap policy with these tracking settings.
+InlineRun RunScript(const std::vector<int>& script, const TrackingOptions& tracking) {
+  PipelineOptions options;
+  options.on_loss = "submap";
+  options.tracking = tracking;
+  ScriptedSequence sequence(script);
+  return RunInline(sequence, options, DefaultVocabulary());
+}
+
 const InlineFrame* FirstOkFrom(const InlineRun& run, int from) {
   for (const auto& f : run.frames) {
     if (f.frame_index >= from && f.result.state == TrackingState::kOk) return &f;
@@ -181,12 +190,71 @@ TEST(KeyframeWorker, GivesTheSameRunAsTheFrameLoopComputingTheBagOfWordsItself) 
   }
 }
 
+TEST(TrackingLoss, BackWhereItWasLostTheCameraGoesOnInItsSubmapAtOnce) {
+  // A blackout while hovering: the camera is back in the local map it was lost from, with no
+  // parallax to the keyframe it relocalizes at, so the submap resumes at the first frame (as the
+  // relocalize baseline would) rather than after relocalize_closed_after_frames.
+  std::vector<int> script;
+  Play(&script, 0, 79);
+  Repeat(&script, ScriptedSequence::kBlack, 8);
+  Repeat(&script, 78, 30);
+  const InlineRun run = RunScript(script, "submap");
+  const SubmapId first = run.frames[10].result.submap;
+  EXPECT_EQ(run.frames[82].result.state, TrackingState::kLost);
+  const InlineFrame* back = FirstOkFrom(run, 88);
+  ASSERT_NE(back, nullptr);
+  EXPECT_EQ(back->frame_index, 88) << "resumed at the first frame after the blackout";
+  EXPECT_TRUE(back->result.relocalized);
+  EXPECT_EQ(back->result.submap, first);
+  for (int i = 88; i < static_cast<int>(script.size()); ++i) {
+    EXPECT_EQ(run.frames[i].result.state, TrackingState::kOk) << i;
+    EXPECT_EQ(run.frames[i].result.submap, first) << i;
+  }
+  EXPECT_EQ(run.submaps, 1);
+  // With resuming off, the new map tries to initialize first (and cannot: no parallax).
+  TrackingOptions no_resume;
+  no_resume.resume_where_lost = false;
+  const InlineRun waited = RunScript(script, no_resume);
+  const InlineFrame* later = FirstOkFrom(waited, 88);
+  ASSERT_NE(later, nullptr);
+  EXPECT_GE(later->frame_index, 83 + 20) << "lost at frame 82; relocalize_closed_after_frames (20) later";
+}
+
+TEST(TrackingLoss, ACameraThatMovedOnSinceItWasLostStartsANewSubmap) {
+  // The blackout lasts while the aircraft flies on about 12 m (10 frames) at some 70 m: the
+  // first frame after it still relocalizes in the local map it was lost from, but sees those
+  // points from about 10 degrees away. A new map maps the new ground better (the merger places
+  // it), so a new submap starts; allowed any parallax, the same frames resume the old submap.
+  std::vector<int> script;
+  Play(&script, 0, 79);
+  Repeat(&script, ScriptedSequence::kBlack, 8);
+  Play(&script, 90, 119);
+  const InlineRun run = RunScript(script, "submap");
+  const SubmapId first = run.frames[10].result.submap;
+  const InlineFrame* fresh = FirstOkFrom(run, 88);
+  ASSERT_NE(fresh, nullptr);
+  EXPECT_NE(fresh->result.submap, first) << fresh->result.detail;
+  EXPECT_FALSE(fresh->result.relocalized);
+  EXPECT_EQ(run.submaps, 2);
+  TrackingOptions any;
+  any.resume_max_parallax_deg = 90;
+  const InlineRun any_parallax = RunScript(script, any);
+  const InlineFrame* resumed = FirstOkFrom(any_parallax, 88);
+  ASSERT_NE(resumed, nullptr);
+  EXPECT_TRUE(resumed->result.relocalized) << resumed->result.detail;
+  EXPECT_EQ(resumed->result.submap, first);
+  EXPECT_LT(resumed->frame_index, fresh->frame_index) << "relocalized before the new map initialized";
+}
+
 TEST(TrackingLoss, ANewMapThatCannotInitializeGivesWayToAClosedSubmapTheCameraIsBackIn) {
+  // Resuming where it was lost off: this is the way back for a camera that cannot initialize.
   std::vector<int> script;
   Play(&script, 0, 79);
   Repeat(&script, ScriptedSequence::kBlack, 8);
   Repeat(&script, 60, 40);  // hovering over a mapped place: no parallax to initialize from
-  const InlineRun run = RunScript(script, "submap");
+  TrackingOptions no_resume;
+  no_resume.resume_where_lost = false;
+  const InlineRun run = RunScript(script, no_resume);
   const SubmapId first = run.frames[10].result.submap;
   const InlineFrame* back = FirstOkFrom(run, 88);
   ASSERT_NE(back, nullptr);
@@ -213,11 +281,10 @@ TEST(TrackingLoss, AYoungSubmapGivesWayToTheClosedSubmapTheCameraIsBackIn) {
   Play(&script, 0, 79);
   Repeat(&script, ScriptedSequence::kBlack, 8);
   Play(&script, 40, 79);
-  PipelineOptions options;
-  options.on_loss = "submap";
-  options.tracking.return_to_closed_frames = 60;
-  ScriptedSequence sequence(script);
-  const InlineRun run = RunInline(sequence, options, DefaultVocabulary());
+  TrackingOptions tracking;
+  tracking.return_to_closed_frames = 60;
+  tracking.resume_where_lost = false;  // it would land in the closed submap before a new one starts
+  const InlineRun run = RunScript(script, tracking);
   const SubmapId first = run.frames[10].result.submap;
   const InlineFrame* young = FirstOkFrom(run, 88);
   ASSERT_NE(young, nullptr);
@@ -230,7 +297,7 @@ TEST(TrackingLoss, AYoungSubmapGivesWayToTheClosedSubmapTheCameraIsBackIn) {
     }
   }
   ASSERT_NE(back, nullptr) << "never went back into the closed submap";
-  EXPECT_LE(back->frame_index, young->frame_index + options.tracking.return_to_closed_frames);
+  EXPECT_LE(back->frame_index, young->frame_index + 60);
   EXPECT_NE(back->result.detail.find("back in closed submap"), std::string::npos) << back->result.detail;
   for (int i = back->frame_index; i < static_cast<int>(script.size()); ++i) {
     EXPECT_EQ(run.frames[i].result.state, TrackingState::kOk) << i;
@@ -238,7 +305,8 @@ TEST(TrackingLoss, AYoungSubmapGivesWayToTheClosedSubmapTheCameraIsBackIn) {
   }
   EXPECT_EQ(run.submaps, 2);
   // Never: without the window (the default) the young submap keeps the camera.
-  const InlineRun kept = RunScript(script, "submap");
+  tracking.return_to_closed_frames = 0;
+  const InlineRun kept = RunScript(script, tracking);
   for (int i = young->frame_index; i < static_cast<int>(script.size()); ++i) {
     EXPECT_NE(kept.frames[i].result.submap, first) << i;
   }

@@ -37,6 +37,26 @@ double MedianParallaxDeg(const Map& map, const Keyframe& reference, const Frame&
   return std::acos(std::clamp(*middle, -1.0, 1.0)) * 180.0 / M_PI;
 }
 
+double TrackedCoverage(const Frame& frame, int width, int height) {
+  constexpr int kCols = 8, kRows = 6;
+  if (width <= 0 || height <= 0) return -1;
+  int features[kCols * kRows] = {}, tracked[kCols * kRows] = {};
+  for (size_t i = 0; i < frame.size(); ++i) {
+    const cv::Point2f& p = frame.keypoints[i].pt;
+    const int col = std::clamp(static_cast<int>(p.x * kCols / width), 0, kCols - 1);
+    const int row = std::clamp(static_cast<int>(p.y * kRows / height), 0, kRows - 1);
+    ++features[row * kCols + col];
+    if (frame.points[i].valid() && !frame.outlier[i]) ++tracked[row * kCols + col];
+  }
+  int cells = 0, covered = 0;
+  for (int c = 0; c < kCols * kRows; ++c) {
+    if (features[c] < 3) continue;
+    ++cells;
+    covered += tracked[c] > 0;
+  }
+  return cells > 0 ? static_cast<double>(covered) / cells : -1;
+}
+
 bool NeedKeyframe(const KeyframeDecisionInput& input, const TrackingOptions& options, double fps) {
   if (!input.has_reference) return true;
   const int max_gap = options.max_keyframe_gap > 0 ? options.max_keyframe_gap : static_cast<int>(std::lround(fps));
@@ -49,6 +69,13 @@ bool NeedKeyframe(const KeyframeDecisionInput& input, const TrackingOptions& opt
   if (few_tracked && options.keyframe_min_parallax_deg > 0 && input.parallax_deg >= 0 &&
       input.parallax_deg < options.keyframe_min_parallax_deg) {
     few_tracked = input.tracked_points < options.keyframe_ratio_without_parallax * input.reference_points;
+  }
+  // Much of the view is ground the map does not hold (the camera moved on while it was lost,
+  // or turned): a keyframe maps it, whatever the ratio says.
+  if (!few_tracked && options.keyframe_min_coverage > 0 && input.tracked_coverage >= 0 &&
+      input.tracked_coverage < options.keyframe_min_coverage && input.tracked_points > 15 &&
+      input.parallax_deg >= options.keyframe_coverage_min_parallax_deg) {
+    few_tracked = true;
   }
   // As built: a long gap alone never makes a keyframe while the mapper is busy, and with the
   // mapper ready the gap does not matter, so the decision is few_tracked && mapper_ready.

@@ -21,6 +21,9 @@ struct KeyframeDecisionInput {
   // Median angle at the frame's tracked points between the rays from the reference keyframe's
   // centre and the frame's (MedianParallaxDeg); negative: not measured.
   double parallax_deg = -1;
+  // Share of the image's feature-holding cells in which the frame tracks a map point
+  // (TrackedCoverage); negative: not measured.
+  double tracked_coverage = -1;
 };
 
 // Points of `reference` (in `map`) observed often enough to count for the decision.
@@ -30,6 +33,11 @@ int ReferencePoints(const Map& map, const Keyframe& reference);
 // rays from `reference`'s centre and the frame's centre: what the camera's motion since the
 // reference adds to triangulation (0 for a pure rotation). -1 when no point is tracked.
 double MedianParallaxDeg(const Map& map, const Keyframe& reference, const Frame& frame);
+
+// Of the cells of an 8x6 grid over the image that hold at least 3 of the frame's features, the
+// share in which at least one feature is a tracked map point: how much of what the camera sees the
+// map already covers (1: all of it; low: the camera looks at ground the map does not hold yet).
+double TrackedCoverage(const Frame& frame, int width, int height);
 
 // `fps`: the source's frame rate (the gap since the last keyframe is measured against one
 // second of frames when options.max_keyframe_gap is 0).

@@ -14,7 +14,8 @@ Relocalizer::Relocalizer(const TrackingOptions& options, FramePlacer* placer, co
       wait_for_keyframe_bow_(std::move(wait_for_keyframe_bow)) {}
 
 std::optional<KeyframeId> Relocalizer::Relocalize(Frame* frame, SubmapStore* store, KeyframeId* reference,
-                                                  RelocalizationScope scope, size_t more_keyframes_than) {
+                                                  RelocalizationScope scope, size_t more_keyframes_than,
+                                                  const std::set<KeyframeId>* only_at) {
   const Map* current = store->current();
   if (scope == RelocalizationScope::kCurrentSubmap && !current) return std::nullopt;
   if (wait_for_keyframe_bow_) wait_for_keyframe_bow_();  // every keyframe in the database
@@ -28,6 +29,11 @@ std::optional<KeyframeId> Relocalizer::Relocalize(Frame* frame, SubmapStore* sto
     return map && map->num_keyframes() > more_keyframes_than;
   };
   std::vector<KeyframeDatabase::Candidate> candidates = store->database().Query(frame->bow, accept);
+  if (only_at) {
+    candidates.erase(std::remove_if(candidates.begin(), candidates.end(),
+                                    [&](const auto& c) { return !only_at->count(KeyframeId(c.keyframe_id)); }),
+                     candidates.end());
+  }
   if (candidates.empty()) return std::nullopt;
   int most_common = 0;
   for (const auto& c : candidates) most_common = std::max(most_common, c.common_words);

@@ -7,6 +7,7 @@
 
 #include <functional>
 #include <optional>
+#include <set>
 
 #include "stitch/features/vocabulary.h"
 #include "stitch/tracking/frame_placer.h"
@@ -30,8 +31,11 @@ class Relocalizer {
   // keyframe it was relocalized at (its submap is where the frame is); `reference` becomes the
   // keyframe sharing most points with the frame. Each candidate tried may change `reference`
   // even when none succeeds. In closed submaps, only those with more than `more_keyframes_than`.
+  // `only_at` (optional): the keyframes a relocalization may land at; candidates elsewhere are
+  // not tried.
   std::optional<KeyframeId> Relocalize(Frame* frame, SubmapStore* store, KeyframeId* reference,
-                                       RelocalizationScope scope, size_t more_keyframes_than = 0);
+                                       RelocalizationScope scope, size_t more_keyframes_than = 0,
+                                       const std::set<KeyframeId>* only_at = nullptr);
 
  private:
   bool RelocalizeAt(Frame* frame, const Map& map, KeyframeId candidate, KeyframeId* reference);

@@ -122,10 +122,12 @@ Tracking::Output Tracking::Initialize(Frame frame) {
   // The method re-initializes at once. When the new map cannot initialize (no parallax: hover,
   // pure rotation), the camera may be back over a closed submap and relocalize there.
   ++frames_initializing_;
-  const bool may_relocalize = store_.has_closed() && frames_initializing_ > options_.relocalize_closed_after_frames &&
-                              static_cast<int>(frame.size()) > options_.init_min_features;
+  const bool enough_features = static_cast<int>(frame.size()) > options_.init_min_features;
+  const bool may_relocalize =
+      store_.has_closed() && frames_initializing_ > options_.relocalize_closed_after_frames && enough_features;
+  const bool may_resume = !may_relocalize && !lost_from_.empty() && enough_features;
   std::optional<Frame> copy;
-  if (may_relocalize) copy = frame;
+  if (may_relocalize || may_resume) copy = frame;
 
   Output output;
   TrackResult& result = output.result;
@@ -136,12 +138,13 @@ Tracking::Output Tracking::Initialize(Frame frame) {
   result.reason = initialized.reason;
   result.detail = initialized.detail;
   if (!initialized.map) {
-    if (may_relocalize) {
+    if (copy) {
       Output relocalized;
-      if (TryRelocalize(&*copy, &relocalized)) return relocalized;
+      if (TryRelocalize(&*copy, &relocalized, may_resume ? &lost_from_ : nullptr)) return relocalized;
     }
     return output;
   }
+  lost_from_.clear();
   const SubmapId submap = initialized.map->id();
   const KeyframeId id0 = MakeKeyframeId(submap, 0), id1 = MakeKeyframeId(submap, 1);
   store_.StartCurrent(std::move(initialized.map), 2);
@@ -238,7 +241,9 @@ void Tracking::TrackInSubmap(Frame frame, Output* output) {
       result.detail = "lost after " + std::to_string(consecutive_failures_) + " untracked frames (" + why + ")";
       if (policy_ == LossPolicy::kNewSubmap) {
         result.detail += "; submap closed, a new one starts";
+        std::set<KeyframeId> local_map = LocalMapKeyframes();
         output->closed_submap = CloseSubmap();
+        lost_from_ = std::move(local_map);
       } else {
         result.detail += "; relocalizing in the kept map";
         lost_ = true;
@@ -277,6 +282,14 @@ void Tracking::OnTracked(Frame* frame, Output* output, bool may_make_keyframe) {
     }
     decision.frames_since_keyframe = frame->frame_index - last_keyframe_frame_index_;
     decision.mapper_ready = KeyframesInFlight() < options_.keyframes_in_flight || !mapper_connected_;
+    // New ground in view matters only to a frame the ratio does not make a keyframe.
+    if (reference && options_.keyframe_min_coverage > 0 &&
+        decision.tracked_points >= options_.keyframe_ratio * decision.reference_points) {
+      decision.tracked_coverage = TrackedCoverage(*frame, geometry_.camera.width(), geometry_.camera.height());
+      if (decision.tracked_coverage >= 0 && decision.tracked_coverage < options_.keyframe_min_coverage) {
+        decision.parallax_deg = MedianParallaxDeg(map, *reference, *frame);
+      }
+    }
     if (NeedKeyframe(decision, options_, fps_)) {
       output->new_keyframes.push_back(CreateKeyframe(*frame));
       result.is_keyframe = true;
@@ -298,12 +311,22 @@ void Tracking::OnTracked(Frame* frame, Output* output, bool may_make_keyframe) {
   last_frame_ = std::move(*frame);
 }
 
-bool Tracking::TryRelocalize(Frame* frame, Output* output) {
+bool Tracking::TryRelocalize(Frame* frame, Output* output, const std::set<KeyframeId>* only_at) {
   const bool reopening = !store_.current();
-  const std::optional<KeyframeId> at =
-      relocalizer_.Relocalize(frame, &store_, &reference_keyframe_,
-                              reopening ? RelocalizationScope::kClosedSubmaps : RelocalizationScope::kCurrentSubmap);
+  const std::optional<KeyframeId> at = relocalizer_.Relocalize(
+      frame, &store_, &reference_keyframe_,
+      reopening ? RelocalizationScope::kClosedSubmaps : RelocalizationScope::kCurrentSubmap, 0, only_at);
   if (!at) return false;
+  if (only_at) {
+    // Back where it was lost (a blackout, a turn in place), or moved on to ground seen from afar?
+    // A camera that moved on (wide parallax with the keyframe it relocalized at) maps the new
+    // ground better in a new map of its own, which the merger places.
+    const Map* map = store_.FindMap(SubmapOf(*at));
+    const Keyframe* keyframe = map ? map->FindKeyframe(*at) : nullptr;
+    const double parallax = keyframe ? MedianParallaxDeg(*map, *keyframe, *frame) : -1;
+    if (parallax < 0 || parallax > options_.resume_max_parallax_deg) return false;
+  }
+  lost_from_.clear();
   if (reopening) store_.Reopen(SubmapOf(*at));
   ++relocalizations_;
   lost_ = false;
@@ -343,6 +366,24 @@ void Tracking::TryReturnToClosed(Frame frame, Output* output) {
                            " frames, " + std::to_string(young_keyframes) + " keyframes";
   returned.reopened_submap = returned.result.submap;
   *output = std::move(returned);
+}
+
+std::set<KeyframeId> Tracking::LocalMapKeyframes() const {
+  std::set<KeyframeId> keyframes;
+  const Map* map = store_.current();
+  if (!map || !options_.resume_where_lost) return keyframes;
+  if (const Keyframe* reference = map->FindKeyframe(reference_keyframe_)) {
+    keyframes.insert(reference->id);
+    for (const auto& [id, shared] : reference->covisibility) keyframes.insert(id);
+  }
+  if (last_frame_) {
+    for (MapPointId p : last_frame_->points) {
+      const MapPoint* point = p.valid() ? map->FindPoint(p) : nullptr;
+      if (!point) continue;
+      for (const auto& [keyframe, feature] : point->observations) keyframes.insert(keyframe);
+    }
+  }
+  return keyframes;
 }
 
 Keyframe Tracking::CreateKeyframe(const Frame& frame) {

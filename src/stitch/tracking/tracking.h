@@ -13,8 +13,10 @@
 // whether the mapper has taken the keyframes sent so far. One owner thread; not thread-safe
 // (it may run a worker thread of its own: keyframe_worker).
 //
-// States: no current submap -> initializing (and, after relocalize_closed_after_frames frames,
-// also relocalizing into the closed submaps, reopening the one it lands in); tracking; lost.
+// States: no current submap -> initializing (and at once relocalizing into the local map the
+// camera was lost from, resuming that submap where the camera is back where it was lost; after
+// relocalize_closed_after_frames frames, relocalizing into any closed submap, reopening the one
+// it lands in); tracking; lost.
 // `lost_after_frames` consecutive untracked frames make tracking lost; fewer are skipped. Then,
 // by policy: kNewSubmap closes the submap and initializes a new one on the next usable frames;
 // kRelocalize (ORB-SLAM2's behaviour, the baseline) keeps the map and discards frames until one
@@ -24,6 +26,7 @@
 #include <deque>
 #include <memory>
 #include <optional>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -91,7 +94,10 @@ class Tracking {
   void OnTracked(Frame* frame, Output* output, bool may_make_keyframe);
   // Relocalizes `frame` (in the current submap, or in a closed one which is reopened); on
   // success the frame is tracked and `output` says so.
-  bool TryRelocalize(Frame* frame, Output* output);
+  // `only_at` (optional): the keyframes it may land at.
+  bool TryRelocalize(Frame* frame, Output* output, const std::set<KeyframeId>* only_at = nullptr);
+  // The keyframes of the local map the camera is tracked in now (LostFrom's definition).
+  std::set<KeyframeId> LocalMapKeyframes() const;
   // Submap policy, a young submap: relocalizes `frame` (a copy of the one tracked in it) into the
   // closed submaps; where it lands, the young submap closes, the closed one reopens and `output`
   // is replaced by the frame tracked there.
@@ -122,6 +128,12 @@ class Tracking {
   int relocalizations_ = 0;
   bool lost_ = false;            // relocalize policy: the map is kept but the camera is not in it
   int frames_initializing_ = 0;  // frames since the last submap closed (submap policy)
+  // Submap policy: the keyframes of the local map the camera was tracked in when it was lost
+  // (the reference keyframe, its covisible keyframes and those holding the last frame's points).
+  // While a new map initializes, a frame relocalized among them resumes that submap at once: the
+  // camera is back where it was lost, as the relocalize baseline would continue. Anywhere else
+  // in a closed submap is a loop, left to the merger (docs/tracking-loss.md).
+  std::set<KeyframeId> lost_from_;
   // The frame the current submap started at, while it is one started after a loss that may still
   // give way to a closed submap (return_to_closed_frames); -1 otherwise.
   int young_submap_started_at_ = -1;

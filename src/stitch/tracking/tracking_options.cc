@@ -27,9 +27,18 @@ bool TrackingOptions::Check(std::string* why) const {
   if (!(keyframe_ratio_without_parallax > 0 && keyframe_ratio_without_parallax <= keyframe_ratio)) {
     return fail("tracker.tracking.keyframe_ratio_without_parallax must be in (0, keyframe_ratio]");
   }
+  if (!(keyframe_min_coverage >= 0 && keyframe_min_coverage <= 1)) {
+    return fail("tracker.tracking.keyframe_min_coverage must be in [0, 1]");
+  }
   if (max_keyframe_gap < 0) return fail("tracker.tracking.max_keyframe_gap must be >= 0");
   if (!(min_relative_sharpness >= 0 && min_relative_sharpness < 1))
     return fail("tracker.tracking.min_relative_sharpness must be in [0, 1)");
+  if (!(resume_max_parallax_deg >= 0 && resume_max_parallax_deg <= 90)) {
+    return fail("tracker.tracking.resume_max_parallax_deg must be in [0, 90]");
+  }
+  if (!(keyframe_coverage_min_parallax_deg >= 0 && keyframe_coverage_min_parallax_deg <= 90)) {
+    return fail("tracker.tracking.keyframe_coverage_min_parallax_deg must be in [0, 90]");
+  }
   if (relocalize_closed_after_frames < 0) return fail("tracker.tracking.relocalize_closed_after_frames must be >= 0");
   if (return_to_closed_frames < 0) return fail("tracker.tracking.return_to_closed_frames must be >= 0");
   if (return_to_closed_every < 1) return fail("tracker.tracking.return_to_closed_every must be >= 1");

@@ -25,6 +25,11 @@ struct TrackingOptions {
   // default until it loses no merge in the quality gate: docs/benchmarks.md).
   double keyframe_min_parallax_deg = 0.0;
   double keyframe_ratio_without_parallax = 0.7;
+  // A frame that tracks map points in fewer than this share of its feature-holding image cells
+  // (8x6) becomes a keyframe whatever the ratio (new ground in view; 0: off). Off by default: it
+  // helps the forward camera and costs the oblique ones (docs/benchmarks.md).
+  double keyframe_min_coverage = 0.0;
+  double keyframe_coverage_min_parallax_deg = 2.0;  // ...when its median parallax with the reference is at least this
   // A new keyframe is made while fewer than this many sent ones wait for the mapper (1: only
   // when it has caught up). In lockstep the tracker waits for the mapper, so this matters to
   // live frames: a keyframe sent while the mapper adjusts the last one cuts that adjustment short.
@@ -34,6 +39,13 @@ struct TrackingOptions {
   int relocalization_candidates = 8;  // keyframes tried per frame when relocalizing
   // Submap policy: frames a new map tries to initialize before closed submaps are tried.
   int relocalize_closed_after_frames = 20;
+  // Submap policy: while a new map initializes, frames are relocalized at once into the local map
+  // the camera was lost from (its keyframes only); where one lands with at most
+  // resume_max_parallax_deg of median parallax at the keyframe it lands at (the camera is back
+  // where it was lost, not moved on to new ground), the camera goes on in that submap, as the
+  // relocalize baseline would after a blackout (docs/tracking-loss.md).
+  bool resume_where_lost = true;
+  double resume_max_parallax_deg = 5.0;
   // Submap policy: for this many frames after a new submap starts (following a loss), every
   // return_to_closed_every-th frame is also relocalized into the closed submaps; where it lands,
   // the young submap closes and the camera goes on in the closed one, as the relocalize baseline
@@ -82,6 +94,12 @@ struct TrackingOptions {
     v("keyframe_ratio_without_parallax", keyframe_ratio_without_parallax,
       "a frame with little parallax becomes a keyframe when tracking fewer than this fraction of the reference's "
       "points");
+    v("keyframe_min_coverage", keyframe_min_coverage,
+      "a frame that tracks map points in fewer than this share of its feature-holding image cells (8x6 grid) becomes "
+      "a keyframe (new ground in view; 0: off)");
+    v("keyframe_coverage_min_parallax_deg", keyframe_coverage_min_parallax_deg,
+      "a keyframe for new ground needs at least this median parallax with the reference keyframe, degrees (a turning "
+      "camera cannot triangulate what it sees newly)");
     v("keyframes_in_flight", keyframes_in_flight,
       "a keyframe is made while fewer than this many sent ones wait for the mapper (1: only when it caught up)");
     v("min_relative_sharpness", min_relative_sharpness,
@@ -89,6 +107,12 @@ struct TrackingOptions {
     v("relocalize_closed_after_frames", relocalize_closed_after_frames,
       "submap policy: frames a new map tries to initialize alone before relocalization into closed submaps is tried "
       "too");
+    v("resume_where_lost", resume_where_lost,
+      "submap policy: while a new map initializes, relocalize each frame at once into the local map the camera was "
+      "lost from; where one lands without moving on (resume_max_parallax_deg), that submap goes on");
+    v("resume_max_parallax_deg", resume_max_parallax_deg,
+      "resuming where lost: the most median parallax, degrees, between the frame and the keyframe it relocalized at "
+      "(more: the camera moved on to new ground, which a new submap maps better)");
     v("return_to_closed_frames", return_to_closed_frames,
       "submap policy: for this many frames after a new submap starts, frames are also relocalized into the closed "
       "submaps; where one lands, the young submap closes and the camera goes on in the closed one (0: never)");

@@ -4,6 +4,8 @@
 
 #include <cmath>
 
+#include <set>
+
 #include <gtest/gtest.h>
 
 #include "stitch/testing/default_vocabulary.h"
@@ -439,6 +441,67 @@ TEST(KeyframeDecision, ParallaxIsTheAngleTheCamerasMotionOpensAtThePoints) {
   EXPECT_EQ(MedianParallaxDeg(scene.map, reference, frame), -1) << "no point tracked";
 }
 
+// A 640x480 frame with 4 features in every cell of the 8x6 grid TrackedCoverage uses (80x80
+// pixels), the first of them tracked in the cells left of column `tracked_columns`.
+Frame FrameWithFeaturesInEveryCell(int tracked_columns) {
+  Frame frame;
+  for (int row = 0; row < 6; ++row) {
+    for (int col = 0; col < 8; ++col) {
+      for (int k = 0; k < 4; ++k) {
+        frame.keypoints.emplace_back(cv::Point2f(80.f * col + 10.f + 15.f * k, 80.f * row + 40.f), 31.f);
+        const bool tracked = col < tracked_columns && k == 0;
+        frame.points.push_back(tracked ? MakeMapPointId(MakeSubmapId(0, 1), frame.keypoints.size()) : MapPointId());
+        frame.outlier.push_back(0);
+      }
+    }
+  }
+  return frame;
+}
+
+TEST(KeyframeDecision, CoverageIsTheShareOfFeatureCellsWhereAMapPointIsTracked) {
+  EXPECT_DOUBLE_EQ(TrackedCoverage(FrameWithFeaturesInEveryCell(8), 640, 480), 1.0);
+  EXPECT_DOUBLE_EQ(TrackedCoverage(FrameWithFeaturesInEveryCell(4), 640, 480), 0.5);
+  EXPECT_DOUBLE_EQ(TrackedCoverage(FrameWithFeaturesInEveryCell(0), 640, 480), 0.0);
+  // An outlier is no tracked point.
+  Frame outliers = FrameWithFeaturesInEveryCell(8);
+  outliers.outlier.assign(outliers.size(), 1);
+  EXPECT_DOUBLE_EQ(TrackedCoverage(outliers, 640, 480), 0.0);
+  // Cells with fewer than 3 features do not count either way: the right half without features.
+  Frame half = FrameWithFeaturesInEveryCell(4);
+  for (size_t i = 0; i < half.size(); ++i) {
+    if (half.keypoints[i].pt.x >= 320) half.keypoints[i].pt.x = 5;  // all into column 0 instead
+  }
+  EXPECT_DOUBLE_EQ(TrackedCoverage(half, 640, 480), 1.0);
+  EXPECT_EQ(TrackedCoverage(Frame(), 640, 480), -1) << "no feature";
+}
+
+TEST(KeyframeDecision, NewGroundInViewMakesAKeyframeWhereTheCameraMovedEnoughToMapIt) {
+  TrackingOptions options;
+  options.keyframe_min_coverage = 0.8;  // with keyframe_coverage_min_parallax_deg 2
+  KeyframeDecisionInput input;
+  input.reference_points = 300;
+  input.frames_since_keyframe = 5;
+  input.tracked_points = 290;  // the ratio alone: no keyframe
+  input.tracked_coverage = 0.5;
+  input.parallax_deg = 5;
+  EXPECT_TRUE(NeedKeyframe(input, options, 20)) << "half the view is new ground, seen with parallax";
+  input.parallax_deg = 0.5;
+  EXPECT_FALSE(NeedKeyframe(input, options, 20)) << "a turning camera cannot triangulate the new ground";
+  input.parallax_deg = 5;
+  input.tracked_coverage = 0.9;
+  EXPECT_FALSE(NeedKeyframe(input, options, 20)) << "the map covers the view";
+  input.tracked_coverage = 0.5;
+  input.mapper_ready = false;
+  EXPECT_FALSE(NeedKeyframe(input, options, 20)) << "the mapper has not taken the last one";
+  input.mapper_ready = true;
+  input.tracked_points = 15;
+  EXPECT_FALSE(NeedKeyframe(input, options, 20)) << "too few points to make a keyframe of";
+  TrackingOptions off = options;
+  off.keyframe_min_coverage = 0;
+  input.tracked_points = 290;
+  EXPECT_FALSE(NeedKeyframe(input, off, 20)) << "off";
+}
+
 // ---------------------------------------------------------------- relocalization
 
 // A store whose current (or, with `close`, closed) submap holds SharedThreeKeyframes.
@@ -491,6 +554,25 @@ TEST(Relocalizer, TheClosedScopeLeavesTheCurrentSubmapOut) {
   Frame frame = Strip().Render(12);
   KeyframeId reference;
   EXPECT_FALSE(relocalizer.Relocalize(&frame, store.get(), &reference, RelocalizationScope::kClosedSubmaps));
+}
+
+TEST(Relocalizer, LandsOnlyAtTheKeyframesItIsGiven) {
+  // Resuming where the camera was lost: only the local map it was lost from may take the frame.
+  auto store = StoreWithThreeKeyframes(/*close=*/true);
+  FramePlacer placer(TrackingOptions(), &Strip().geometry(), &DefaultVocabulary());
+  Relocalizer relocalizer(TrackingOptions(), &placer, &DefaultVocabulary());
+  const std::vector<KeyframeId>& keyframes = SharedThreeKeyframes().keyframes;
+  const std::set<KeyframeId> elsewhere = {MakeKeyframeId(SharedThreeKeyframes().map.id(), 999)};
+  KeyframeId reference;
+  Frame frame = Strip().Render(12);
+  EXPECT_FALSE(
+      relocalizer.Relocalize(&frame, store.get(), &reference, RelocalizationScope::kClosedSubmaps, 0, &elsewhere));
+  const std::set<KeyframeId> local(keyframes.begin(), keyframes.end());
+  frame = Strip().Render(12);
+  const std::optional<KeyframeId> at =
+      relocalizer.Relocalize(&frame, store.get(), &reference, RelocalizationScope::kClosedSubmaps, 0, &local);
+  ASSERT_TRUE(at);
+  EXPECT_TRUE(local.count(*at));
 }
 
 TEST(Relocalizer, NeedsTheLocalMapToConfirmThePose) {
