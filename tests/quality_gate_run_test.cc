@@ -5,7 +5,10 @@
 
 #include <algorithm>
 #include <atomic>
+#include <cstdio>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
 #include <thread>
 #include <vector>
 
@@ -39,13 +42,36 @@ TEST(QualityGate, TheCiSubsetMeetsItsExpectations) {
   EXPECT_NE(result.output.find("0 regressed, 0 failed"), std::string::npos) << result.output;
   ASSERT_TRUE(std::filesystem::exists(dir / "gate/quality.json"));
   // The same figures tabled again without running anything, against themselves: nothing moved.
-  const auto again = RunProgram({Bin("stitch"), "bench", "--quality", "--ci", "--check", "--figures",
-                                 kMachineIndependentFigures, "--from", dir / "gate/quality.json", "--before",
-                                 dir / "gate/quality.json", "--markdown", dir / "table.md"},
-                                60);
+  const auto again = RunProgram(
+      {Bin("stitch"), "bench", "--quality", "--ci", "--check", "--figures", kMachineIndependentFigures, "--from",
+       dir / "gate/quality.json", "--before", dir / "gate/quality.json", "--markdown", dir / "table.md"},
+      60);
   EXPECT_EQ(again.exit_code, 0) << again.output;
   EXPECT_EQ(again.output.find("->"), std::string::npos) << again.output;
   EXPECT_TRUE(std::filesystem::exists(dir / "table.md"));
+  // Those figures as the new expectations of a copy of the matrix: with --figures, only those
+  // move (the cost figures stay the machine's that measured them).
+  const std::string matrix = dir / "quality.yaml";
+  std::filesystem::copy_file(testing::SourceFile("benchmarks/quality.yaml"), matrix);
+  const auto update = RunProgram({Bin("stitch"), "bench", "--quality", "--ci", "--expected", matrix, "--from",
+                                  dir / "gate/quality.json", "--update", "--figures", "ate_m"},
+                                 60);
+  EXPECT_EQ(update.exit_code, 0) << update.output;
+  const auto read = [](const std::string& path) {
+    std::ifstream in(path);
+    return std::string(std::istreambuf_iterator<char>(in), {});
+  };
+  const std::string before = read(testing::SourceFile("benchmarks/quality.yaml"));
+  const std::string after = read(matrix);
+  const double ate = testing::ReadJson(dir / "gate/quality.json")[0]["figures"]["ate_m"].get<double>();
+  char expected_ate[32];
+  std::snprintf(expected_ate, sizeof(expected_ate), "ate_m: %.4f", ate);
+  EXPECT_NE(after.find(expected_ate), std::string::npos) << after;
+  const auto cpu = [](const std::string& text) {
+    const size_t at = text.find("cpu_s_per_frame", text.find("name: frames-300"));
+    return text.substr(at, text.find_first_of(",}", at) - at);
+  };
+  EXPECT_EQ(cpu(after), cpu(before));
   // A file that is not a gate's output is refused, and said to be.
   const auto refused = RunProgram({Bin("stitch"), "bench", "--quality", "--from", dir / "table.md"}, 60);
   EXPECT_EQ(refused.exit_code, 2) << refused.output;
@@ -55,10 +81,10 @@ TEST(QualityGate, TheCiSubsetMeetsItsExpectations) {
 TEST(QualityGate, ALostMergeFailsTheCheckAndSaysWhy) {
   testing::TempDir dir;
   // No connection is strong enough: the submaps of the first 300 frames stay apart.
-  const auto result = RunProgram({Bin("stitch"), "bench", "--quality", "--cases", "frames-300", "--check", "--figures",
-                                  kMachineIndependentFigures, "--set", "merger.min_connection_strength=100000", "--out",
-                                  dir / "gate"},
-                                 600);
+  const auto result =
+      RunProgram({Bin("stitch"), "bench", "--quality", "--cases", "frames-300", "--check", "--figures",
+                  kMachineIndependentFigures, "--set", "merger.min_connection_strength=100000", "--out", dir / "gate"},
+                 600);
   EXPECT_EQ(result.exit_code, 1) << result.output;
   EXPECT_NE(result.output.find("REGRESSION frames-300"), std::string::npos) << result.output;
   EXPECT_NE(result.output.find("submaps_merged 1, expected"), std::string::npos) << result.output;
@@ -81,7 +107,8 @@ RunSummary Summarize(const std::string& dir) {
     r.tracking_ms = 0;
     s.frames.push_back(FormatFrameRecord(r));
   }
-  for (const KeyframeRecord& k : ReadKeyframeRecords(dir + "/keyframes.tsv")) s.keyframes.push_back(FormatKeyframeRecord(k));
+  for (const KeyframeRecord& k : ReadKeyframeRecords(dir + "/keyframes.tsv"))
+    s.keyframes.push_back(FormatKeyframeRecord(k));
   std::sort(s.keyframes.begin(), s.keyframes.end());
   s.evaluation = ReadReport(dir + "/report.json");
   return s;

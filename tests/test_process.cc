@@ -69,7 +69,11 @@ std::string Bin(const std::string& name) {
 }
 
 std::string ShortFlightConfig() {
-  return std::string(STITCH_SOURCE_DIR) + "/tests/short_flight.yaml";
+  return SourceFile("tests/short_flight.yaml");
+}
+
+std::string SourceFile(const std::string& relative) {
+  return std::string(STITCH_SOURCE_DIR) + "/" + relative;
 }
 
 nlohmann::json ReadJson(const std::string& path) {

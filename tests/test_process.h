@@ -24,6 +24,8 @@ std::string Bin(const std::string& name);
 
 // The short synthetic flight the integration tests fly (tests/short_flight.yaml).
 std::string ShortFlightConfig();
+// A file of the source tree, e.g. "benchmarks/quality.yaml".
+std::string SourceFile(const std::string& relative);
 
 // A JSON file (report.json, run.json); throws on a missing or malformed file.
 nlohmann::json ReadJson(const std::string& path);
