@@ -106,6 +106,14 @@ InlineRun RunScript(const std::vector<int>& script, const std::string& on_loss, 
   return RunInline(sequence, options, DefaultVocabulary());
 }
 
+// The strip up to frame 79, then 8 black frames (tracking is lost at frame 82).
+std::vector<int> StripThenBlackout() {
+  std::vector<int> script;
+  Play(&script, 0, 79);
+  Repeat(&script, ScriptedSequence::kBlack, 8);
+  return script;
+}
+
 // The submap policy with these tracking settings.
 InlineRun RunScript(const std::vector<int>& script, const TrackingOptions& tracking) {
   PipelineOptions options;
@@ -194,9 +202,7 @@ TEST(TrackingLoss, BackWhereItWasLostTheCameraGoesOnInItsSubmapAtOnce) {
   // A blackout while hovering: the camera is back in the local map it was lost from, with no
   // parallax to the keyframe it relocalizes at, so the submap resumes at the first frame (as the
   // relocalize baseline would) rather than after relocalize_closed_after_frames.
-  std::vector<int> script;
-  Play(&script, 0, 79);
-  Repeat(&script, ScriptedSequence::kBlack, 8);
+  std::vector<int> script = StripThenBlackout();
   Repeat(&script, 78, 30);
   const InlineRun run = RunScript(script, "submap");
   const SubmapId first = run.frames[10].result.submap;
@@ -225,9 +231,7 @@ TEST(TrackingLoss, ACameraThatMovedOnSinceItWasLostStartsANewSubmap) {
   // first frame after it still relocalizes in the local map it was lost from, but sees those
   // points from about 10 degrees away. A new map maps the new ground better (the merger places
   // it), so a new submap starts; allowed any parallax, the same frames resume the old submap.
-  std::vector<int> script;
-  Play(&script, 0, 79);
-  Repeat(&script, ScriptedSequence::kBlack, 8);
+  std::vector<int> script = StripThenBlackout();
   Play(&script, 90, 119);
   const InlineRun run = RunScript(script, "submap");
   const SubmapId first = run.frames[10].result.submap;

@@ -324,7 +324,15 @@ bool Tracking::TryRelocalize(Frame* frame, Output* output, const std::set<Keyfra
     const Map* map = store_.FindMap(SubmapOf(*at));
     const Keyframe* keyframe = map ? map->FindKeyframe(*at) : nullptr;
     const double parallax = keyframe ? MedianParallaxDeg(*map, *keyframe, *frame) : -1;
-    if (parallax < 0 || parallax > options_.resume_max_parallax_deg) return false;
+    if (parallax < 0 || parallax > options_.resume_max_parallax_deg) {
+      char text[160];
+      std::snprintf(text, sizeof(text),
+                    "frame %d: relocalized where it was lost (submap %s) but moved on: parallax %.1f degrees; the new "
+                    "map goes on initializing",
+                    frame->frame_index, SubmapName(SubmapOf(*at)).c_str(), parallax);
+      STITCH_LOG(INFO) << text;
+      return false;
+    }
   }
   lost_from_.clear();
   if (reopening) store_.Reopen(SubmapOf(*at));
