@@ -3,7 +3,9 @@
 // way (submap updates down, requests up). The merger asks again for what was lost and ends
 // with every keyframe the mapper kept; without the requests it does not.
 
+#include <atomic>
 #include <chrono>
+#include <functional>
 #include <thread>
 
 #include <gtest/gtest.h>
@@ -15,6 +17,7 @@
 #include "services/tracker/tracker_service.h"
 #include "stitch/records/keyframe_record.h"
 #include "stitch/source/source.h"
+#include "stitch/submap_update_t.hpp"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/util/rng.h"
 
@@ -23,23 +26,28 @@ namespace {
 
 using namespace std::chrono_literals;
 
-// Forwards one channel from one bus to another, dropping each message with probability `loss`.
+// Forwards one channel from one bus to another, dropping each message with probability `loss`
+// and those `drop_also` picks; `hold_ms` (settable while it runs) holds each message that long
+// first, as a ground station busy elsewhere does (it holds up the whole bus behind it).
 class LossyRelay {
  public:
-  LossyRelay(lcm::LCM* from, lcm::LCM* to, const std::string& channel, double loss, uint64_t seed)
-      : from_(from), to_(to), loss_(loss), rng_(seed) {
+  LossyRelay(lcm::LCM* from, lcm::LCM* to, const std::string& channel, double loss, uint64_t seed,
+             std::function<bool(const lcm::ReceiveBuffer&)> drop_also = nullptr)
+      : from_(from), to_(to), loss_(loss), rng_(seed), drop_also_(std::move(drop_also)) {
     subscription_ = from_->subscribe(channel, &LossyRelay::On, this);
   }
   ~LossyRelay() { from_->unsubscribe(subscription_); }
   int dropped() const { return dropped_; }
   int forwarded() const { return forwarded_; }
+  void Hold(int ms) { hold_ms_ = ms; }
 
  private:
   void On(const lcm::ReceiveBuffer* buffer, const std::string& channel) {
-    if (rng_.Uniform() < loss_) {
+    if (rng_.Uniform() < loss_ || (drop_also_ && drop_also_(*buffer))) {
       ++dropped_;
       return;
     }
+    std::this_thread::sleep_for(std::chrono::milliseconds(hold_ms_.load()));
     to_->publish(channel, buffer->data, buffer->data_size);
     ++forwarded_;
   }
@@ -47,6 +55,8 @@ class LossyRelay {
   lcm::LCM* to_;
   double loss_;
   Rng rng_;
+  std::function<bool(const lcm::ReceiveBuffer&)> drop_also_;
+  std::atomic<int> hold_ms_{0};
   lcm::Subscription* subscription_ = nullptr;
   int dropped_ = 0, forwarded_ = 0;
 };
@@ -135,6 +145,76 @@ TEST(LossyLink, TheMergerAsksAgainForWhatAFifthLostAndGetsEveryKeyframe) {
   std::printf("without: %zu of %zu keyframes, %d messages dropped\n", without.received, without.kept, without.dropped);
   EXPECT_EQ(without.requests, 0);
   EXPECT_LT(without.received, without.kept);
+}
+
+// The flight's end over a link that loses the last submap's final state, to a ground station so
+// busy that what it says reaches the aircraft 3 s late: the mapper, stopping, waits until the
+// merger says it holds that submap whole (sending the final state again when it hears nothing),
+// not for a silence of 2 s, which would have stopped it before the merger could ask.
+TEST(LossyLink, AStoppingMapperWaitsForTheMergerToHoldItsLastSubmapWhole) {
+  testing::TempDir dir;
+  StitchConfig config = LoadStitchConfig(std::string(STITCH_SOURCE_DIR) + "/tests/short_flight.yaml");
+  const Vocabulary vocabulary = LoadVocabulary(config);
+  auto aircraft = bus::OpenLcm("memq://");
+  auto ground = bus::OpenLcm("memq://");
+  bus::Publisher aircraft_publisher(aircraft.get(), "uav0"), ground_publisher(ground.get(), "uav0");
+  IngestService ingest(aircraft.get(), "memq://", &aircraft_publisher, config.ingest);
+  TrackerService tracker(aircraft.get(), &aircraft_publisher, config.tracker, &vocabulary, "");
+  MapperService mapper(aircraft.get(), &aircraft_publisher, config.mapper, config.tracker.tracking.orb, &vocabulary,
+                       dir.path().string());
+  MergerService merger(ground.get(), &ground_publisher, config.merger, config.tracker.tracking.orb, &vocabulary, "");
+  // Once armed, the first final state on the way (every part of that revision) is lost.
+  std::atomic<bool> armed{false};
+  int lost_revision = -1;
+  int64_t lost_submap = -1;
+  LossyRelay down(aircraft.get(), ground.get(), "uav0/SUBMAP", 0, 1, [&](const lcm::ReceiveBuffer& buffer) {
+    stitch::submap_update_t update;
+    if (!armed || update.decode(buffer.data, 0, static_cast<int>(buffer.data_size)) < 0 || !update.closed) {
+      return false;
+    }
+    if (lost_revision < 0) {
+      lost_revision = update.revision;
+      lost_submap = update.submap_id;
+    }
+    return update.revision == lost_revision && update.submap_id == lost_submap;
+  });
+  LossyRelay up(ground.get(), aircraft.get(), "uav0/SUBMAP_REQUEST", 0, 2);
+  bus::Dispatcher aircraft_dispatcher(aircraft.get()), ground_dispatcher(ground.get());
+  aircraft_dispatcher.Start();
+  ground_dispatcher.Start();
+  merger.Start();
+  mapper.Start();
+  tracker.Start();
+  SourceSpec spec;
+  spec.synthetic = config.synthetic;
+  spec.failures = "30:6";  // two submaps: the first is closed (and confirmed) during the flight
+  FailureSchedule spoil;
+  auto sequence = OpenSource(spec, &spoil);
+  std::atomic<bool> stop{false};
+  ingest.Play(*sequence, spoil, stop);
+  tracker.Stop();
+  armed = true;
+  up.Hold(3000);
+  mapper.Stop();  // closes the last submap: its final state is lost
+  up.Hold(0);
+  merger.Stop();
+  aircraft_dispatcher.Stop();
+  ground_dispatcher.Stop();
+
+  ASSERT_GE(lost_submap, 0) << "no final state went down the link after the tracker stopped";
+  EXPECT_GE(down.dropped(), 1);
+  EXPECT_GT(mapper.submap_resends(), 0);
+  const auto last = merger.merger().submaps().find(SubmapId(lost_submap));
+  ASSERT_NE(last, merger.merger().submaps().end());
+  EXPECT_TRUE(last->second.closed) << "the merger never got the last submap's final state";
+  size_t kept = 0, received = 0;
+  for (const KeyframeRecord& k : ReadKeyframeRecords(dir.path() / "keyframes.tsv")) {
+    if (k.culled || k.submap_id != lost_submap) continue;
+    ++kept;
+    received += last->second.map.FindKeyframe(KeyframeId(k.keyframe_id)) != nullptr;
+  }
+  EXPECT_GT(kept, 3u);
+  EXPECT_EQ(received, kept);
 }
 
 }  // namespace

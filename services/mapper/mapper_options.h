@@ -21,8 +21,9 @@ struct MapperOptions {
   // is exceeded), submap updates carry only new keyframes and new points; refined points wait
   // for a later update or the final state at close. 0: never hold back.
   double link_backlog_thin_s = 2.0;
-  // On stop, after the final state: answer the merger's requests for what the link lost until
-  // none has come for 2 s, at most this long (0: stop at once).
+  // On stop, after the final state: answer the merger's requests for what the link lost until it
+  // says it holds the last submap whole (a merger that never says so: until none has come for
+  // 2 s), at most this long (0: stop at once).
   double stop_linger_s = 10.0;
   MappingOptions mapping;
 
@@ -37,7 +38,8 @@ struct MapperOptions {
     v("link_backlog_thin_s", link_backlog_thin_s,
       "while the link bridge is more than this many seconds behind, send new keyframes and points only (0: never)");
     v("stop_linger_s", stop_linger_s,
-      "on stop, keep answering the merger's requests for lost keyframes until none came for 2 s, at most this long");
+      "on stop, keep answering the merger's requests for the last submap until it says it holds it whole (from a "
+      "merger that never says so: until none came for 2 s), at most this long");
     v("mapping", mapping, "the local mapping algorithm");
   }
   bool Check(std::string* why) const {

@@ -90,7 +90,14 @@ MapperService::MapperService(lcm::LCM* lcm, bus::Publisher* publisher, MapperOpt
       bus::Channel(publisher_->agent(), bus::kSubmapRequest),
       [this](std::unique_ptr<stitch::submap_request_t> request, const std::string&) {
         last_request_at_ = MonotonicSeconds();
+        merger_confirms_ = true;  // a merger that asks again also says when it holds a submap whole
         std::lock_guard<std::mutex> lock(requests_mutex_);
+        if (request->complete && request->num_keyframes == 0 && !request->full_state) {
+          // Bounded: ids come off the link (only the last submap's matters, when stopping).
+          if (confirmed_complete_.size() >= 1024) confirmed_complete_.erase(confirmed_complete_.begin());
+          confirmed_complete_.insert(SubmapId(request->submap_id));
+          return;
+        }
         Request& wanted = requests_[SubmapId(request->submap_id)];
         for (int64_t id : request->keyframe_ids) wanted.keyframes.insert(KeyframeId(id));
         wanted.full_state |= request->full_state;
@@ -116,17 +123,14 @@ void MapperService::Stop() {
   queue_.Close();
   if (worker_.joinable()) worker_.join();
   if (mapping_) {
-    if (const auto closed = mapping_->CloseSubmap()) PublishSubmapUpdate(mapping_->MakeFinalSubmapUpdate(*closed));
-    // The merger may still lack the last keyframes (lost on the way): answer its requests a
-    // while longer, until none has come for 2 s (at least 2.5 s, at most stop_linger_s).
-    const double start = MonotonicSeconds();
-    while (true) {
-      const double now = MonotonicSeconds();
-      const bool quiet = now - start > 2.5 && now - last_request_at_.load() > 2.0;
-      if (quiet || now - start >= options_.stop_linger_s) break;
-      ResendIfRequested();
-      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    SubmapId last;
+    if (const auto closed = mapping_->CloseSubmap()) {
+      last = *closed;
+      PublishSubmapUpdate(mapping_->MakeFinalSubmapUpdate(*closed));
+    } else if (!mapping_->closed_maps().empty()) {
+      last = mapping_->closed_maps().back()->id();
     }
+    LingerForTheMerger(last);
   }
   if (points_thinned_ > 0) {
     STITCH_LOG(INFO) << "left " << points_thinned_ << " point refinements under "
@@ -148,6 +152,40 @@ void MapperService::Stop() {
   }
   heartbeat_->SetState(stitch::service_status_t::STATE_FINISHED);
   heartbeat_->Stop();
+}
+
+void MapperService::LingerForTheMerger(SubmapId last) {
+  // The merger may still lack the last keyframes (lost on the way), or be busy refining its map
+  // before it looks (seconds on a large map).
+  const auto confirmed = [&] {
+    std::lock_guard<std::mutex> lock(requests_mutex_);
+    return confirmed_complete_.count(last) > 0;
+  };
+  const double start = MonotonicSeconds();
+  double final_sent = start;
+  while (last.valid()) {
+    const double now = MonotonicSeconds();
+    if (now - start >= options_.stop_linger_s) {
+      if (merger_confirms_.load() && options_.stop_linger_s > 0) {
+        STITCH_LOG(WARNING) << "stopping without the merger saying it holds submap " << SubmapName(last)
+                            << " whole (waited " << options_.stop_linger_s << " s)";
+      }
+      break;
+    }
+    if (merger_confirms_.load()) {
+      if (confirmed()) break;
+      // Its final state may be what was lost: once more every 2 s while nothing is asked.
+      if (now - final_sent > 2.0 && now - last_request_at_.load() > 2.0) {
+        final_sent = now;
+        std::lock_guard<std::mutex> lock(requests_mutex_);
+        requests_[last].full_state = true;
+      }
+    } else if (now - start > 2.5 && now - last_request_at_.load() > 2.0) {
+      break;  // a merger that never confirms (or none): quiet for 2 s
+    }
+    ResendIfRequested();
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
 }
 
 void MapperService::Work() {

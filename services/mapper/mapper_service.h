@@ -78,10 +78,15 @@ class MapperService {
     bool full_state = false;
   };
   std::map<SubmapId, Request> requests_;    // from the merger
+  std::set<SubmapId> confirmed_complete_;   // closed submaps the merger said it holds whole
   std::map<SubmapId, double> last_resend_;  // MonotonicSeconds()
   std::atomic<int64_t> resends_{0};
   std::atomic<double> last_request_at_{-1e9};  // MonotonicSeconds() of the merger's last request
-  double last_activity_ = 0;                   // MonotonicSeconds() of the last keyframe or manifest sent (worker only)
+  std::atomic<bool> merger_confirms_{false};   // a merger has said it holds a closed submap whole
+  // On stop, after closing `last`: answers the merger's requests until it says it holds `last`
+  // whole (at most stop_linger_s), or, from a merger that never says so, until it stays quiet.
+  void LingerForTheMerger(SubmapId last);
+  double last_activity_ = 0;  // MonotonicSeconds() of the last keyframe or manifest sent (worker only)
   int64_t points_thinned_ = 0;
   // The aircraft's link bridge's backlog (from <agent>/LINK_STATUS) and when it last said so.
   bool LinkCongested() const;

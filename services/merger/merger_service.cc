@@ -311,6 +311,13 @@ void MergerService::Process(const stitch::submap_update_t& message, bool from_jo
                         << " keyframes never received (lost on the way"
                         << (merger_.options().request_resends ? "; asking for them again)" : ")");
   }
+  const auto replica = merger_.submaps().find(update.submap);
+  if (replica == merger_.submaps().end() || !replica->second.closed) {
+    final_whole_.erase(update.submap);  // reopened (or not closed yet)
+  } else if (update.closed && message.part == message.num_parts - 1) {
+    final_whole_.insert(update.submap);
+    confirmed_complete_.erase(update.submap);  // a final state sent again is confirmed again
+  }
   const bool newly_closed = update.closed && !closed_seen_[update.submap];
   closed_seen_[update.submap] = update.closed;
   if (merger_.connections().size() != connections_seen_ || newly_closed || message.part == 0) {
@@ -323,6 +330,7 @@ void MergerService::Process(const stitch::submap_update_t& message, bool from_jo
   // ...once its final state has arrived whole (the last part of the closing update).
   if (update.closed && message.part == message.num_parts - 1 && refined_closed_.insert(update.submap).second &&
       !recovering_) {
+    RequestWhatWasLost();  // before the refinement's seconds: the mapper may be about to stop
     Refine("submap " + SubmapName(update.submap) + " closed");
   }
 }
@@ -360,11 +368,19 @@ void MergerService::RequestWhatWasLost() {
     SubmapId& n = newest[AgentNumber(id)];
     if (!n.valid() || n < id) n = id;
   }
+  const auto publish = [&](SubmapId id, stitch::submap_request_t* request) {
+    const auto agent = agent_of_.find(id);
+    publisher_->Publish(
+        bus::Channel(agent != agent_of_.end() ? agent->second : publisher_->agent(), bus::kSubmapRequest), request);
+  };
   int64_t missing_total = 0;
   std::map<KeyframeId, double> missing_since;
   for (const auto& [id, replica] : merger_.submaps()) {
     stitch::submap_request_t request{};
     request.submap_id = id.value;
+    const size_t missing_before = missing_since.size();
+    // The final state has arrived whole: what it lists and is not here was lost.
+    const bool final_whole = replica.closed && final_whole_.count(id) > 0;
     for (KeyframeId kf : replica.manifest) {
       if (replica.map.FindKeyframe(kf)) continue;
       ++missing_total;
@@ -373,7 +389,15 @@ void MergerService::RequestWhatWasLost() {
       const auto since = missing_since_.find(kf);
       const double first = since != missing_since_.end() ? since->second : now;
       missing_since[kf] = first;
-      if (now - first > 0.3 * options.resend_interval_s) request.keyframe_ids.push_back(kf.value);
+      if (final_whole || now - first > 0.3 * options.resend_interval_s) request.keyframe_ids.push_back(kf.value);
+    }
+    if (options.request_resends && final_whole && missing_since.size() == missing_before &&
+        confirmed_complete_.insert(id).second) {
+      // Nothing missing: the mapper, stopping, need not wait for more requests about it.
+      stitch::submap_request_t complete{};
+      complete.submap_id = id.value;
+      complete.complete = true;
+      publish(id, &complete);
     }
     // Left open while a newer submap of its aircraft goes on, and quiet: its final state was lost
     // (a submap the tracker reopened is not quiet).
@@ -385,9 +409,7 @@ void MergerService::RequestWhatWasLost() {
     if (now - last < options.resend_interval_s) continue;
     last = now;
     request.num_keyframes = static_cast<int32_t>(request.keyframe_ids.size());
-    const auto agent = agent_of_.find(id);
-    publisher_->Publish(
-        bus::Channel(agent != agent_of_.end() ? agent->second : publisher_->agent(), bus::kSubmapRequest), &request);
+    publish(id, &request);
     ++requests_;
     STITCH_LOG(INFO) << "asked for submap " << SubmapName(id) << " again: " << request.num_keyframes
                      << " keyframes missing" << (request.full_state ? ", final state missing" : "");

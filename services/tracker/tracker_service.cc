@@ -322,6 +322,10 @@ void TrackerService::Process(const stitch::frame_t& frame) {
   if (frame.header.sender_session == ingest_session_.load()) highest_processed_ = frame.frame_index;
   ++tracked_;
   RefreshReportedState();
+  // The frames a new map initialized from, placed now: a second, later line each (frame_record.h).
+  for (const Tracking::EarlierFrame& earlier : output.earlier_frames) {
+    RecordFrame(earlier.frame_index, earlier.t_ns, earlier.result, 0.0f);
+  }
   Report(frame, output.result, ms);
   if (publisher_thread_) {
     // Behind the frame's keyframes: a frame is acknowledged once all it made is out, so a
@@ -356,16 +360,20 @@ void TrackerService::Report(const stitch::frame_t& frame, const TrackResult& res
   status.mapper_connected = mapper_connected_.load();
   status.submaps_closed = submaps_closed_.load();
   publisher_->Publish(bus::Channel(publisher_->agent(), bus::kTrackingStatus), &status);
+  RecordFrame(frame.frame_index, frame.t_ns, result, tracking_ms);
+}
+
+void TrackerService::RecordFrame(int frame_index, int64_t t_ns, const TrackResult& result, float tracking_ms) {
   if (result.state == TrackingState::kOk && result.cam_from_submap) {
     // The thin pose stream the ground places in the merged map (trajectory.tum on the ground).
-    stitch::frame_pose_t pose = FramePoseMessage(frame.frame_index, frame.t_ns, result.submap, *result.cam_from_submap,
+    stitch::frame_pose_t pose = FramePoseMessage(frame_index, t_ns, result.submap, *result.cam_from_submap,
                                                  result.reference_keyframe, result.cam_from_reference);
     publisher_->Publish(bus::Channel(publisher_->agent(), bus::kPose), &pose);
   }
   if (record_.is_open()) {
     FrameRecord record;
-    record.frame_index = frame.frame_index;
-    record.t_ns = frame.t_ns;
+    record.frame_index = frame_index;
+    record.t_ns = t_ns;
     record.state = TrackingStateName(result.state);
     record.reason = static_cast<int>(result.reason);
     record.submap_id = result.submap.value;

@@ -55,7 +55,10 @@ class TrackerService {
   // Live frames: a mapper silent for mapper_timeout_s with keyframes unanswered is reported absent.
   void WatchMapper();
   void Process(const stitch::frame_t& frame);
+  // The frame's status, then RecordFrame.
   void Report(const stitch::frame_t& frame, const TrackResult& result, float tracking_ms);
+  // The pose stream (a tracked frame) and the frame's line in frames.tsv.
+  void RecordFrame(int frame_index, int64_t t_ns, const TrackResult& result, float tracking_ms);
   void Ack(const stitch::frame_t& frame);
   void PublishAck(stitch::frame_ack_t ack);
   void SaveState();

@@ -1,5 +1,6 @@
 #include "stitch/pipeline/inline_pipeline.h"
 
+#include <algorithm>
 #include <map>
 
 #include "stitch/util/time.h"
@@ -21,6 +22,19 @@ InlineRun RunInline(ImageSequence& sequence, const PipelineOptions& options, con
     if (const auto closed = mapping.CloseSubmap()) send(mapping.MakeFinalSubmapUpdate(*closed));
   };
   std::map<int64_t, int> component_of;
+  const auto add_pose = [&](int frame_index, int64_t t_ns, const TrackResult& result) {
+    if (result.state != TrackingState::kOk || !result.cam_from_submap) return;
+    const int64_t submap = result.submap.value;
+    component_of.try_emplace(submap, static_cast<int>(component_of.size()));
+    PoseRecord pose;
+    pose.frame_index = frame_index;
+    pose.t_ns = t_ns;
+    pose.submap_id = submap;
+    pose.component = component_of[submap];
+    pose.is_keyframe = result.is_keyframe;
+    pose.world_from_cam = result.cam_from_submap->Inverse();
+    run.poses.push_back(pose);
+  };
   SequenceFrame frame;
   while (sequence.Next(&frame)) {
     InlineFrame done;
@@ -47,25 +61,17 @@ InlineRun RunInline(ImageSequence& sequence, const PipelineOptions& options, con
         ++run.keyframes;
       }
       done.result = std::move(output.result);
-    }
-    if (done.result.state == TrackingState::kOk && done.result.cam_from_submap) {
-      const int64_t submap = done.result.submap.value;
-      if (!component_of.count(submap)) {
-        const int next = static_cast<int>(component_of.size());
-        component_of[submap] = next;
+      for (const Tracking::EarlierFrame& earlier : output.earlier_frames) {
+        add_pose(earlier.frame_index, earlier.t_ns, earlier.result);
       }
-      PoseRecord pose;
-      pose.frame_index = frame.index;
-      pose.t_ns = frame.t_ns;
-      pose.submap_id = submap;
-      pose.component = component_of[submap];
-      pose.is_keyframe = done.result.is_keyframe;
-      pose.world_from_cam = done.result.cam_from_submap->Inverse();
-      run.poses.push_back(pose);
     }
+    add_pose(frame.index, frame.t_ns, done.result);
     if (on_frame) on_frame(done);
     run.frames.push_back(std::move(done));
   }
+  // In frame order (the frames a map initialized from come after it).
+  std::stable_sort(run.poses.begin(), run.poses.end(),
+                   [](const PoseRecord& a, const PoseRecord& b) { return a.frame_index < b.frame_index; });
   run.submaps = static_cast<int>(component_of.size());
   close_submap();
   run.graph = merger.Solve();

@@ -333,6 +333,44 @@ TEST(TrackingLoss, ABlackoutDuringInitializationOnlyDelaysIt) {
   EXPECT_GE(static_cast<int>(run.poses.size()), 60 - 12);
 }
 
+// A camera that hovers before it moves: the new map initializes only once the camera moved, and
+// then places the frames it waited through (its reference, keyframe 0, and the hovering frames
+// that matched it) where they were: at the reference, not spread along the motion.
+TEST(Initialization, TheFramesANewMapWaitedThroughArePlacedInItWhereTheCameraWas) {
+  std::vector<int> script;
+  Repeat(&script, 0, 5);  // hovering over the strip's first frame
+  Play(&script, 1, 40);
+  const InlineRun run = RunScript(script, "submap");
+  const InlineFrame* first = FirstOkFrom(run, 0);
+  ASSERT_NE(first, nullptr);
+  ASSERT_GE(first->frame_index, 5) << "initialized without the camera moving";
+  std::map<int, const PoseRecord*> pose_of;
+  for (const PoseRecord& p : run.poses) pose_of[p.frame_index] = &p;
+  for (int i = 0; i < first->frame_index; ++i) {
+    EXPECT_EQ(run.frames[i].result.state, TrackingState::kInitializing) << i;  // as it was said then
+    ASSERT_TRUE(pose_of.count(i)) << "frame " << i << " was placed in no map";
+    EXPECT_EQ(pose_of[i]->submap_id, first->result.submap.value) << i;
+  }
+  EXPECT_TRUE(pose_of[0]->is_keyframe);
+  // The hovering frames sit where the reference is, a small part of the way to the frame that
+  // initialized the map (the truth: 0).
+  const Eigen::Vector3d reference = pose_of[0]->world_from_cam.translation;
+  const double baseline = (pose_of[first->frame_index]->world_from_cam.translation - reference).norm();
+  ASSERT_GT(baseline, 0);
+  for (int i = 1; i < 5; ++i) {
+    if (!pose_of.count(i)) continue;
+    EXPECT_LT((pose_of[i]->world_from_cam.translation - reference).norm(), 0.05 * baseline) << i;
+  }
+  // Frame order, and nothing placed twice.
+  for (size_t k = 1; k < run.poses.size(); ++k) EXPECT_LT(run.poses[k - 1].frame_index, run.poses[k].frame_index);
+
+  TrackingOptions without;
+  without.place_initialization_frames = false;
+  const InlineRun unplaced = RunScript(script, without);
+  ASSERT_FALSE(unplaced.poses.empty());
+  EXPECT_EQ(unplaced.poses.front().frame_index, first->frame_index);
+}
+
 TEST(TrackingLoss, ALossRightAfterAKeyframeClosesTheSubmapWithThatKeyframe) {
   // Where the clean strip makes its first keyframe after initialization (deterministic).
   std::vector<int> clean;

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cstdio>
 #include <filesystem>
+#include <map>
 #include <sstream>
 
 #include "stitch/io/trajectory.h"
@@ -29,6 +30,7 @@ std::string FormatFrameRecord(const FrameRecord& r) {
 
 std::vector<FrameRecord> ReadFrameRecords(const std::string& path) {
   std::vector<FrameRecord> records;
+  std::map<int, size_t> line_of;  // frame index -> its record
   bool truncated = false;
   ForEachDataLine(path, [&](const std::string& line, int line_number) {
     if (truncated) throw Error(Str() << path << ":" << line_number - 1 << ": malformed frame record");
@@ -46,7 +48,17 @@ std::vector<FrameRecord> ReadFrameRecords(const std::string& path) {
     }
     r.is_keyframe = keyframe != 0;
     r.cam_from_reference = reference_from_cam.Inverse();
-    records.push_back(r);
+    const auto [seen, first] = line_of.try_emplace(r.frame_index, records.size());
+    if (first) {
+      records.push_back(r);
+      return;
+    }
+    FrameRecord& earlier = records[seen->second];
+    if (r.tracking_ms == 0) {  // placed after the fact: the frame was tracked (and timed) before
+      r.tracking_ms = earlier.tracking_ms;
+      r.num_features = earlier.num_features;
+    }
+    earlier = r;
   });
   return records;
 }

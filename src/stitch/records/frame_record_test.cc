@@ -58,6 +58,30 @@ TEST(FrameRecord, AppendingDropsALastLineCutShortAndKeepsEveryWholeOne) {
   EXPECT_EQ(Contents(path), FrameRecordHeader() + FormatFrameRecord(Record(0)));
 }
 
+// A frame a new map placed once it initialized has a second, later line: it is the frame's
+// record, with the tracking time and features of the first (the later line has none).
+TEST(FrameRecord, AFramesLaterLineReplacesItsFirstKeepingItsTrackingTime) {
+  testing::TempDir dir;
+  const std::string path = dir / "frames.tsv";
+  FrameRecord waiting = Record(0);
+  waiting.state = "INITIALIZING";
+  waiting.tracking_ms = 12.5;
+  waiting.num_features = 900;
+  FrameRecord placed = Record(0);
+  placed.tracked_points = 77;
+  placed.tracking_ms = 0;
+  placed.num_features = 0;
+  AppendToFrameRecord(path) << FormatFrameRecord(waiting) << FormatFrameRecord(Record(1)) << FormatFrameRecord(placed);
+  const std::vector<FrameRecord> records = ReadFrameRecords(path);
+  ASSERT_EQ(records.size(), 2u);
+  EXPECT_EQ(records[0].frame_index, 0);
+  EXPECT_EQ(records[0].state, "OK");
+  EXPECT_EQ(records[0].tracked_points, 77);
+  EXPECT_DOUBLE_EQ(records[0].tracking_ms, 12.5);
+  EXPECT_EQ(records[0].num_features, 900);
+  EXPECT_EQ(records[1].frame_index, 1);
+}
+
 TEST(FrameRecord, AppendingWhereNothingCanBeWrittenSaysWhy) {
   try {
     AppendToFrameRecord("/nonexistent-folder/frames.tsv");

@@ -1,6 +1,10 @@
 #include "stitch/tracking/initializer.h"
 
+#include <algorithm>
+#include <utility>
+
 #include "stitch/estimators/bundle_adjustment.h"
+#include "stitch/estimators/pose_optimizer.h"
 #include "stitch/estimators/two_view.h"
 #include "stitch/map/matcher.h"
 
@@ -12,6 +16,7 @@ Initializer::Initializer(const TrackingOptions& options, const ViewGeometry* geo
 void Initializer::Reset() {
   reference_.reset();
   previous_.clear();
+  between_.clear();
 }
 
 Initializer::Result Initializer::Add(Frame frame, SubmapId submap) {
@@ -36,6 +41,7 @@ Initializer::Result Initializer::Add(Frame frame, SubmapId submap) {
     result.detail = std::to_string(count) + " matches with the reference frame; it is replaced by this frame";
     previous_ = frame.undistorted;
     reference_ = std::move(frame);
+    between_.clear();
     return result;
   }
   std::vector<Eigen::Vector2d> p1, p2;
@@ -50,6 +56,10 @@ Initializer::Result Initializer::Add(Frame frame, SubmapId submap) {
   const auto two_view = InitializeTwoView(p1, p2, geometry_->intrinsics, options_.initialization, &why);
   if (!two_view) {
     result.detail = why;
+    if (options_.place_initialization_frames) {
+      if (between_.size() == kMaxBetween) between_.erase(between_.begin());
+      between_.push_back({std::move(frame), std::move(matches)});
+    }
     return result;
   }
   // Expand the per-match result back to reference feature indices.
@@ -61,6 +71,9 @@ Initializer::Result Initializer::Add(Frame frame, SubmapId submap) {
     expanded.triangulated[index_of[m]] = two_view->triangulated[m];
   }
   result.map = BuildMap(&frame, matches, expanded, submap, &why);
+  if (result.map && options_.place_initialization_frames) {
+    result.earlier = PlaceEarlierFrames(*result.map, *reference_, frame);
+  }
   Reset();
   if (!result.map) {
     result.detail = why;
@@ -127,6 +140,48 @@ std::unique_ptr<Map> Initializer::BuildMap(Frame* frame, const std::vector<int>&
   frame->points = kf1->points;
   frame->outlier.assign(frame->size(), 0);
   return map;
+}
+
+std::vector<Frame> Initializer::PlaceEarlierFrames(const Map& map, const Frame& reference, const Frame& frame) {
+  std::vector<Frame> placed;
+  const Keyframe* kf0 = map.FindKeyframe(MakeKeyframeId(map.id(), 0));
+  const Keyframe* kf1 = map.FindKeyframe(MakeKeyframeId(map.id(), 1));
+  if (!kf0 || !kf1) return placed;
+  Frame first = reference;
+  first.cam_from_world = kf0->cam_from_world;
+  first.points = kf0->points;
+  first.outlier.assign(first.size(), 0);
+  placed.push_back(std::move(first));
+  const int span = frame.frame_index - reference.frame_index;
+  for (Between& b : between_) {
+    // From the reference's points through the frame's matches with it; the pose starts between
+    // the two keyframes' in proportion to the frame's place between them.
+    std::vector<PoseObservation> observations;
+    std::vector<std::pair<size_t, int>> matched;  // reference feature, feature of the frame
+    for (size_t i = 0; i < b.matches.size() && i < kf0->points.size(); ++i) {
+      const MapPoint* point = kf0->points[i].valid() && b.matches[i] >= 0 ? map.FindPoint(kf0->points[i]) : nullptr;
+      if (!point) continue;
+      const int j = b.matches[i];
+      observations.push_back(
+          {b.frame.undistorted[j], point->position, geometry_->pyramid.inverse_sigma2[b.frame.keypoints[j].octave]});
+      matched.emplace_back(i, j);
+    }
+    if (static_cast<int>(observations.size()) < options_.min_inliers || span <= 0) continue;
+    const double t = std::clamp((b.frame.frame_index - reference.frame_index) / static_cast<double>(span), 0.0, 1.0);
+    Rigid3d initial;
+    initial.rotation = kf0->cam_from_world.rotation.slerp(t, kf1->cam_from_world.rotation);
+    initial.translation = (1 - t) * kf0->cam_from_world.translation + t * kf1->cam_from_world.translation;
+    const PoseOptimizerResult optimized = OptimizePose(observations, initial, geometry_->intrinsics);
+    if (!optimized.converged || optimized.num_inliers < options_.min_inliers) continue;
+    b.frame.cam_from_world = optimized.cam_from_world;
+    b.frame.points.assign(b.frame.size(), MapPointId());
+    b.frame.outlier.assign(b.frame.size(), 0);
+    for (size_t o = 0; o < matched.size(); ++o) {
+      if (optimized.inlier[o]) b.frame.points[matched[o].second] = kf0->points[matched[o].first];
+    }
+    placed.push_back(std::move(b.frame));
+  }
+  return placed;
 }
 
 }  // namespace stitch

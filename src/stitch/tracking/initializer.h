@@ -28,6 +28,11 @@ class Initializer {
     // frame placed in it (pose, points, no outliers).
     std::unique_ptr<Map> map;
     Frame frame;
+    // The frames it started from, placed in the initial map once it exists: the reference
+    // (keyframe 0) and each frame since that matched it (posed from those matches, kept where at
+    // least min_inliers agree), in frame order. Without them the frames a new map waited through
+    // for parallax would be in no map.
+    std::vector<Frame> earlier;
   };
 
   // `geometry` and `vocabulary` must outlive the initializer.
@@ -49,8 +54,19 @@ class Initializer {
   TrackingOptions options_;
   const ViewGeometry* geometry_;
   const Vocabulary* vocabulary_;
+  // Places the frames in between_ in the initial map (reference keyframe 0, this frame keyframe 1).
+  std::vector<Frame> PlaceEarlierFrames(const Map& map, const Frame& reference, const Frame& frame);
+
   std::optional<Frame> reference_;
   std::vector<Eigen::Vector2d> previous_;  // where each reference feature was last matched
+  // Frames since the reference that matched it but did not initialize, with their matches
+  // (reference feature -> feature of the frame, -1 for none); at most kMaxBetween, the newest.
+  struct Between {
+    Frame frame;
+    std::vector<int> matches;
+  };
+  static constexpr size_t kMaxBetween = 60;
+  std::vector<Between> between_;
 };
 
 }  // namespace stitch

@@ -49,10 +49,17 @@ namespace stitch {
 
 class Tracking {
  public:
+  // A frame tracked before this one, placed only now (the frames a new map initialized from).
+  struct EarlierFrame {
+    int frame_index = -1;
+    int64_t t_ns = 0;
+    TrackResult result;
+  };
   struct Output {
     TrackResult result;
-    std::vector<Keyframe> new_keyframes;  // to send to the mapper, in order
-    std::vector<MapPoint> new_points;     // created with new_keyframes.front() (the initial map)
+    std::vector<EarlierFrame> earlier_frames;  // in frame order
+    std::vector<Keyframe> new_keyframes;       // to send to the mapper, in order
+    std::vector<MapPoint> new_points;          // created with new_keyframes.front() (the initial map)
     std::optional<SubmapId> closed_submap;
     std::optional<SubmapId> reopened_submap;  // relocalized into this closed submap, now current again
   };

@@ -46,6 +46,9 @@ struct TrackingOptions {
   // relocalize baseline would after a blackout (docs/tracking-loss.md).
   bool resume_where_lost = true;
   double resume_max_parallax_deg = 5.0;
+  // Once a map initializes, the frames it waited through for parallax (the reference and those
+  // since that matched it) are placed in it too, from their matches with the reference.
+  bool place_initialization_frames = true;
   // Submap policy: for this many frames after a new submap starts (following a loss), every
   // return_to_closed_every-th frame is also relocalized into the closed submaps; where it lands,
   // the young submap closes and the camera goes on in the closed one, as the relocalize baseline
@@ -113,6 +116,9 @@ struct TrackingOptions {
     v("resume_max_parallax_deg", resume_max_parallax_deg,
       "resuming where lost: the most median parallax, degrees, between the frame and the keyframe it relocalized at "
       "(more: the camera moved on to new ground, which a new submap maps better)");
+    v("place_initialization_frames", place_initialization_frames,
+      "once a map initializes, place the frames it waited through for parallax in it too (the reference frame and "
+      "those since that matched it)");
     v("return_to_closed_frames", return_to_closed_frames,
       "submap policy: for this many frames after a new submap starts, frames are also relocalized into the closed "
       "submaps; where one lands, the young submap closes and the camera goes on in the closed one (0: never)");
