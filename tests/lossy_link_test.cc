@@ -6,6 +6,7 @@
 #include <atomic>
 #include <chrono>
 #include <functional>
+#include <future>
 #include <thread>
 
 #include <gtest/gtest.h>
@@ -15,6 +16,7 @@
 #include "services/mapper/mapper_service.h"
 #include "services/merger/merger_service.h"
 #include "services/tracker/tracker_service.h"
+#include "stitch/link_status_t.hpp"
 #include "stitch/records/keyframe_record.h"
 #include "stitch/source/source.h"
 #include "stitch/submap_update_t.hpp"
@@ -215,6 +217,55 @@ TEST(LossyLink, AStoppingMapperWaitsForTheMergerToHoldItsLastSubmapWhole) {
   }
   EXPECT_GT(kept, 3u);
   EXPECT_EQ(received, kept);
+}
+
+// The flight ends with the aircraft's link bridge still behind (under its budget): what the
+// mapper sent has not reached the ground, so no merger can ask for what it lacks yet. The mapper,
+// stopping, waits for the bridge to catch up before its linger counts.
+TEST(LossyLink, AStoppingMapperWaitsForALinkBridgeThatIsStillBehind) {
+  testing::TempDir dir;
+  StitchConfig config = LoadStitchConfig(std::string(STITCH_SOURCE_DIR) + "/tests/short_flight.yaml");
+  config.synthetic.flight.num_frames = 20;
+  const Vocabulary vocabulary = LoadVocabulary(config);
+  auto aircraft = bus::OpenLcm("memq://");
+  bus::Publisher publisher(aircraft.get(), "uav0");
+  IngestService ingest(aircraft.get(), "memq://", &publisher, config.ingest);
+  TrackerService tracker(aircraft.get(), &publisher, config.tracker, &vocabulary, "");
+  MapperService mapper(aircraft.get(), &publisher, config.mapper, config.tracker.tracking.orb, &vocabulary,
+                       dir.path().string());
+  bus::Dispatcher dispatcher(aircraft.get());
+  dispatcher.Start();
+  mapper.Start();
+  tracker.Start();
+  SourceSpec spec;
+  spec.synthetic = config.synthetic;
+  spec.failures = "none";
+  FailureSchedule spoil;
+  auto sequence = OpenSource(spec, &spoil);
+  std::atomic<bool> stop{false};
+  ingest.Play(*sequence, spoil, stop);
+  tracker.Stop();
+  ASSERT_GT(mapper.keyframes_received(), 0);
+  // The bridge says it is 20 s behind, twice a second, for 4 s, then that it caught up.
+  std::atomic<bool> behind{true};
+  std::thread bridge([&] {
+    for (int i = 0; i < 12; ++i) {
+      stitch::link_status_t status{};
+      status.backlog_s = behind ? 20 : 0;
+      publisher.Publish(bus::Channel("uav0", bus::kLinkStatus), &status);
+      std::this_thread::sleep_for(500ms);
+    }
+  });
+  const auto caught_up = std::async(std::launch::async, [&] {
+    std::this_thread::sleep_for(4s);
+    behind = false;
+  });
+  const auto stopping = std::chrono::steady_clock::now();
+  mapper.Stop();  // no merger: once the bridge caught up, 2 s without a request (at least 2.5 s)
+  const double stopped_after_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - stopping).count();
+  bridge.join();
+  dispatcher.Stop();
+  EXPECT_GE(stopped_after_s, 6.0);
 }
 
 }  // namespace

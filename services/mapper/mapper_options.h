@@ -25,6 +25,10 @@ struct MapperOptions {
   // says it holds the last submap whole (a merger that never says so: until none has come for
   // 2 s), at most this long (0: stop at once).
   double stop_linger_s = 10.0;
+  // On stop, while the aircraft's link bridge reports a backlog (what the mapper sent has not
+  // reached the ground yet, so the merger cannot say what it lacks), stop_linger_s waits for the
+  // bridge to catch up, at most this many seconds more.
+  double stop_link_drain_s = 60.0;
   MappingOptions mapping;
 
   template <class Visitor>
@@ -40,6 +44,9 @@ struct MapperOptions {
     v("stop_linger_s", stop_linger_s,
       "on stop, keep answering the merger's requests for the last submap until it says it holds it whole (from a "
       "merger that never says so: until none came for 2 s), at most this long");
+    v("stop_link_drain_s", stop_link_drain_s,
+      "on stop, while the link bridge is behind, wait for it to catch up before stop_linger_s counts, at most this "
+      "many seconds more");
     v("mapping", mapping, "the local mapping algorithm");
   }
   bool Check(std::string* why) const {
@@ -53,6 +60,10 @@ struct MapperOptions {
     }
     if (!(stop_linger_s >= 0)) {
       if (why) *why = "mapper.stop_linger_s must be >= 0";
+      return false;
+    }
+    if (!(stop_link_drain_s >= 0 && stop_link_drain_s <= 3600)) {
+      if (why) *why = "mapper.stop_link_drain_s must be between 0 and 3600";
       return false;
     }
     if (!(link_backlog_thin_s >= 0)) {

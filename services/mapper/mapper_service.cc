@@ -163,9 +163,21 @@ void MapperService::LingerForTheMerger(SubmapId last) {
   };
   const double start = MonotonicSeconds();
   double final_sent = start;
+  double counting_from = start;  // the linger counts once the link bridge has caught up
+  bool waited_for_link = false;
   while (last.valid()) {
     const double now = MonotonicSeconds();
-    if (now - start >= options_.stop_linger_s) {
+    // A bridge still sending what the mapper sent: the merger cannot ask for it yet.
+    const bool link_behind = now - link_status_at_.load() < 3.0 && link_backlog_s_.load() > 1.0;
+    if (link_behind && now - start < options_.stop_link_drain_s) {
+      if (!waited_for_link) {
+        STITCH_LOG(INFO) << "waiting for the link bridge (" << link_backlog_s_.load()
+                         << " s behind) before the merger's last requests";
+      }
+      waited_for_link = true;
+      counting_from = now;
+    }
+    if (now - counting_from >= options_.stop_linger_s) {
       if (merger_confirms_.load() && options_.stop_linger_s > 0) {
         STITCH_LOG(WARNING) << "stopping without the merger saying it holds submap " << SubmapName(last)
                             << " whole (waited " << options_.stop_linger_s << " s)";
@@ -175,12 +187,12 @@ void MapperService::LingerForTheMerger(SubmapId last) {
     if (merger_confirms_.load()) {
       if (confirmed()) break;
       // Its final state may be what was lost: once more every 2 s while nothing is asked.
-      if (now - final_sent > 2.0 && now - last_request_at_.load() > 2.0) {
+      if (!link_behind && now - final_sent > 2.0 && now - last_request_at_.load() > 2.0) {
         final_sent = now;
         std::lock_guard<std::mutex> lock(requests_mutex_);
         requests_[last].full_state = true;
       }
-    } else if (now - start > 2.5 && now - last_request_at_.load() > 2.0) {
+    } else if (now - counting_from > 2.5 && now - last_request_at_.load() > 2.0) {
       break;  // a merger that never confirms (or none): quiet for 2 s
     }
     ResendIfRequested();
