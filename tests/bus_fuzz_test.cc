@@ -25,6 +25,7 @@
 #include "stitch/tracking_status_t.hpp"
 #include "stitch/util/ids.h"
 #include "stitch/util/rng.h"
+#include "tests/synthetic_flight.h"
 
 namespace stitch {
 namespace {
@@ -66,15 +67,7 @@ struct Stack {
     mapper.Start();
     tracker.Start();
   }
-  IngestSummary Fly() {
-    SourceSpec spec;
-    spec.synthetic = config.synthetic;
-    spec.failures = failures;
-    FailureSchedule spoil;
-    auto sequence = OpenSource(spec, &spoil);
-    std::atomic<bool> stop{false};
-    return ingest.Play(*sequence, spoil, stop);
-  }
+  IngestSummary Fly() { return testing::PlaySyntheticFlight(ingest, config.synthetic, failures); }
   void Stop() {
     tracker.Stop();
     mapper.Stop();

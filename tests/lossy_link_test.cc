@@ -22,6 +22,7 @@
 #include "stitch/submap_update_t.hpp"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/util/rng.h"
+#include "tests/synthetic_flight.h"
 
 namespace stitch {
 namespace {
@@ -63,6 +64,44 @@ class LossyRelay {
   int dropped_ = 0, forwarded_ = 0;
 };
 
+// The aircraft's services on one in-process bus and the merger on another; the test puts its
+// relays between them and starts the dispatchers.
+struct AircraftAndGround {
+  explicit AircraftAndGround(const StitchConfig& config_in, const std::string& record_dir)
+      : config(config_in),
+        vocabulary(LoadVocabulary(config)),
+        aircraft(bus::OpenLcm("memq://")),
+        ground(bus::OpenLcm("memq://")),
+        aircraft_publisher(aircraft.get(), "uav0"),
+        ground_publisher(ground.get(), "uav0"),
+        ingest(aircraft.get(), "memq://", &aircraft_publisher, config.ingest),
+        tracker(aircraft.get(), &aircraft_publisher, config.tracker, &vocabulary, ""),
+        mapper(aircraft.get(), &aircraft_publisher, config.mapper, config.tracker.tracking.orb, &vocabulary,
+               record_dir),
+        merger(ground.get(), &ground_publisher, config.merger, config.tracker.tracking.orb, &vocabulary, "") {}
+
+  // Starts everything, flies the short flight with `failures`, stops the tracker.
+  void Fly(const std::string& failures) {
+    aircraft_dispatcher.Start();
+    ground_dispatcher.Start();
+    merger.Start();
+    mapper.Start();
+    tracker.Start();
+    testing::PlaySyntheticFlight(ingest, config.synthetic, failures);
+    tracker.Stop();
+  }
+
+  StitchConfig config;
+  Vocabulary vocabulary;
+  std::unique_ptr<lcm::LCM> aircraft, ground;
+  bus::Publisher aircraft_publisher, ground_publisher;
+  IngestService ingest;
+  TrackerService tracker;
+  MapperService mapper;
+  MergerService merger;
+  bus::Dispatcher aircraft_dispatcher{aircraft.get()}, ground_dispatcher{ground.get()};
+};
+
 struct Outcome {
   size_t kept = 0, received = 0;  // keyframes the mapper kept / of those, in the merger's store
   bool first_closed = false;      // the first submap, closed by the gust, is closed at the merger
@@ -75,31 +114,12 @@ Outcome FlyOverALossyLink(bool request_resends) {
   StitchConfig config = LoadStitchConfig(std::string(STITCH_SOURCE_DIR) + "/tests/short_flight.yaml");
   config.merger.request_resends = request_resends;
   config.merger.resend_interval_s = 0.3;
-  const Vocabulary vocabulary = LoadVocabulary(config);
-  auto aircraft = bus::OpenLcm("memq://");
-  auto ground = bus::OpenLcm("memq://");
-  bus::Publisher aircraft_publisher(aircraft.get(), "uav0"), ground_publisher(ground.get(), "uav0");
-  IngestService ingest(aircraft.get(), "memq://", &aircraft_publisher, config.ingest);
-  TrackerService tracker(aircraft.get(), &aircraft_publisher, config.tracker, &vocabulary, "");
-  MapperService mapper(aircraft.get(), &aircraft_publisher, config.mapper, config.tracker.tracking.orb, &vocabulary,
-                       dir.path().string());
-  MergerService merger(ground.get(), &ground_publisher, config.merger, config.tracker.tracking.orb, &vocabulary, "");
-  LossyRelay down(aircraft.get(), ground.get(), "uav0/SUBMAP", 0.2, 17);
-  LossyRelay up(ground.get(), aircraft.get(), "uav0/SUBMAP_REQUEST", 0.2, 23);
-  bus::Dispatcher aircraft_dispatcher(aircraft.get()), ground_dispatcher(ground.get());
-  aircraft_dispatcher.Start();
-  ground_dispatcher.Start();
-  merger.Start();
-  mapper.Start();
-  tracker.Start();
-  SourceSpec spec;
-  spec.synthetic = config.synthetic;
-  spec.failures = "30:6";  // two submaps
-  FailureSchedule spoil;
-  auto sequence = OpenSource(spec, &spoil);
-  std::atomic<bool> stop{false};
-  ingest.Play(*sequence, spoil, stop);
-  tracker.Stop();
+  AircraftAndGround rig(config, dir.path().string());
+  MapperService& mapper = rig.mapper;
+  MergerService& merger = rig.merger;
+  LossyRelay down(rig.aircraft.get(), rig.ground.get(), "uav0/SUBMAP", 0.2, 17);
+  LossyRelay up(rig.ground.get(), rig.aircraft.get(), "uav0/SUBMAP_REQUEST", 0.2, 23);
+  rig.Fly("30:6");  // two submaps
   // The aircraft stays up (hovering) while the ground catches up: at least 3 s, until nothing
   // has been missing for a second (at most 20 s).
   const auto start = std::chrono::steady_clock::now();
@@ -115,8 +135,8 @@ Outcome FlyOverALossyLink(bool request_resends) {
   mapper.Stop();
   std::this_thread::sleep_for(300ms);
   merger.Stop();
-  aircraft_dispatcher.Stop();
-  ground_dispatcher.Stop();
+  rig.aircraft_dispatcher.Stop();
+  rig.ground_dispatcher.Stop();
   outcome.dropped = down.dropped() + up.dropped();
   outcome.requests = merger.requests_sent();
   const auto first = merger.merger().submaps().find(MakeSubmapId(0, 1));
@@ -155,21 +175,15 @@ TEST(LossyLink, TheMergerAsksAgainForWhatAFifthLostAndGetsEveryKeyframe) {
 // not for a silence of 2 s, which would have stopped it before the merger could ask.
 TEST(LossyLink, AStoppingMapperWaitsForTheMergerToHoldItsLastSubmapWhole) {
   testing::TempDir dir;
-  StitchConfig config = LoadStitchConfig(std::string(STITCH_SOURCE_DIR) + "/tests/short_flight.yaml");
-  const Vocabulary vocabulary = LoadVocabulary(config);
-  auto aircraft = bus::OpenLcm("memq://");
-  auto ground = bus::OpenLcm("memq://");
-  bus::Publisher aircraft_publisher(aircraft.get(), "uav0"), ground_publisher(ground.get(), "uav0");
-  IngestService ingest(aircraft.get(), "memq://", &aircraft_publisher, config.ingest);
-  TrackerService tracker(aircraft.get(), &aircraft_publisher, config.tracker, &vocabulary, "");
-  MapperService mapper(aircraft.get(), &aircraft_publisher, config.mapper, config.tracker.tracking.orb, &vocabulary,
-                       dir.path().string());
-  MergerService merger(ground.get(), &ground_publisher, config.merger, config.tracker.tracking.orb, &vocabulary, "");
+  AircraftAndGround rig(LoadStitchConfig(std::string(STITCH_SOURCE_DIR) + "/tests/short_flight.yaml"),
+                        dir.path().string());
+  MapperService& mapper = rig.mapper;
+  MergerService& merger = rig.merger;
   // Once armed, the first final state on the way (every part of that revision) is lost.
   std::atomic<bool> armed{false};
   int lost_revision = -1;
   int64_t lost_submap = -1;
-  LossyRelay down(aircraft.get(), ground.get(), "uav0/SUBMAP", 0, 1, [&](const lcm::ReceiveBuffer& buffer) {
+  LossyRelay down(rig.aircraft.get(), rig.ground.get(), "uav0/SUBMAP", 0, 1, [&](const lcm::ReceiveBuffer& buffer) {
     stitch::submap_update_t update;
     if (!armed || update.decode(buffer.data, 0, static_cast<int>(buffer.data_size)) < 0 || !update.closed) {
       return false;
@@ -180,28 +194,15 @@ TEST(LossyLink, AStoppingMapperWaitsForTheMergerToHoldItsLastSubmapWhole) {
     }
     return update.revision == lost_revision && update.submap_id == lost_submap;
   });
-  LossyRelay up(ground.get(), aircraft.get(), "uav0/SUBMAP_REQUEST", 0, 2);
-  bus::Dispatcher aircraft_dispatcher(aircraft.get()), ground_dispatcher(ground.get());
-  aircraft_dispatcher.Start();
-  ground_dispatcher.Start();
-  merger.Start();
-  mapper.Start();
-  tracker.Start();
-  SourceSpec spec;
-  spec.synthetic = config.synthetic;
-  spec.failures = "30:6";  // two submaps: the first is closed (and confirmed) during the flight
-  FailureSchedule spoil;
-  auto sequence = OpenSource(spec, &spoil);
-  std::atomic<bool> stop{false};
-  ingest.Play(*sequence, spoil, stop);
-  tracker.Stop();
+  LossyRelay up(rig.ground.get(), rig.aircraft.get(), "uav0/SUBMAP_REQUEST", 0, 2);
+  rig.Fly("30:6");  // two submaps: the first is closed (and confirmed) during the flight
   armed = true;
   up.Hold(3000);
   mapper.Stop();  // closes the last submap: its final state is lost
   up.Hold(0);
   merger.Stop();
-  aircraft_dispatcher.Stop();
-  ground_dispatcher.Stop();
+  rig.aircraft_dispatcher.Stop();
+  rig.ground_dispatcher.Stop();
 
   ASSERT_GE(lost_submap, 0) << "no final state went down the link after the tracker stopped";
   EXPECT_GE(down.dropped(), 1);
@@ -226,25 +227,9 @@ TEST(LossyLink, AStoppingMapperWaitsForALinkBridgeThatIsStillBehind) {
   testing::TempDir dir;
   StitchConfig config = LoadStitchConfig(std::string(STITCH_SOURCE_DIR) + "/tests/short_flight.yaml");
   config.synthetic.flight.num_frames = 20;
-  const Vocabulary vocabulary = LoadVocabulary(config);
-  auto aircraft = bus::OpenLcm("memq://");
-  bus::Publisher publisher(aircraft.get(), "uav0");
-  IngestService ingest(aircraft.get(), "memq://", &publisher, config.ingest);
-  TrackerService tracker(aircraft.get(), &publisher, config.tracker, &vocabulary, "");
-  MapperService mapper(aircraft.get(), &publisher, config.mapper, config.tracker.tracking.orb, &vocabulary,
-                       dir.path().string());
-  bus::Dispatcher dispatcher(aircraft.get());
-  dispatcher.Start();
-  mapper.Start();
-  tracker.Start();
-  SourceSpec spec;
-  spec.synthetic = config.synthetic;
-  spec.failures = "none";
-  FailureSchedule spoil;
-  auto sequence = OpenSource(spec, &spoil);
-  std::atomic<bool> stop{false};
-  ingest.Play(*sequence, spoil, stop);
-  tracker.Stop();
+  AircraftAndGround rig(config, dir.path().string());  // no relay: no merger is heard
+  MapperService& mapper = rig.mapper;
+  rig.Fly("none");
   ASSERT_GT(mapper.keyframes_received(), 0);
   // The bridge says it is 20 s behind, twice a second, for 4 s, then that it caught up.
   std::atomic<bool> behind{true};
@@ -252,7 +237,7 @@ TEST(LossyLink, AStoppingMapperWaitsForALinkBridgeThatIsStillBehind) {
     for (int i = 0; i < 12; ++i) {
       stitch::link_status_t status{};
       status.backlog_s = behind ? 20 : 0;
-      publisher.Publish(bus::Channel("uav0", bus::kLinkStatus), &status);
+      rig.aircraft_publisher.Publish(bus::Channel("uav0", bus::kLinkStatus), &status);
       std::this_thread::sleep_for(500ms);
     }
   });
@@ -264,7 +249,8 @@ TEST(LossyLink, AStoppingMapperWaitsForALinkBridgeThatIsStillBehind) {
   mapper.Stop();  // no merger: once the bridge caught up, 2 s without a request (at least 2.5 s)
   const double stopped_after_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - stopping).count();
   bridge.join();
-  dispatcher.Stop();
+  rig.aircraft_dispatcher.Stop();
+  rig.ground_dispatcher.Stop();
   EXPECT_GE(stopped_after_s, 6.0);
 }
 

@@ -25,6 +25,7 @@
 #include "stitch/testing/temp_dir.h"
 #include "stitch/tracking_status_t.hpp"
 #include "tests/memq_dispatched.h"
+#include "tests/synthetic_flight.h"
 
 namespace stitch {
 namespace {
@@ -59,15 +60,8 @@ struct InProcessStack {
     dispatcher.Start();
     if (mapper) mapper->Start();
     tracker.Start();
-    SourceSpec spec;
-    spec.synthetic = config.synthetic;
-    spec.failures = failures;
-    spec.max_frames = max_frames;
-    FailureSchedule spoil;
-    auto sequence = OpenSource(spec, &spoil);
-    ground_truth = sequence->ground_truth();
-    std::atomic<bool> stop{false};
-    const IngestSummary summary = ingest.Play(*sequence, spoil, stop);
+    const IngestSummary summary =
+        testing::PlaySyntheticFlight(ingest, config.synthetic, failures, max_frames, &ground_truth);
     tracker.Stop();
     if (mapper) mapper->Stop();
     WaitUntilDispatched();
