@@ -264,8 +264,9 @@ std::map<std::string, double> MeasureRun(const std::string& run_dir, double cpu_
     dropped += f.reason == static_cast<int>(TrackingReason::kDropped);
     if (f.state == "OK") tracked.push_back(f.tracked_points);
   }
-  // Every keyframe the mapper received, culled or not (frames.tsv marks no keyframe on the
-  // reference frame of an initialization, which becomes one); the tracker's count without a mapper.
+  // Every keyframe the mapper received, culled or not (frames.tsv marks the reference frame of an
+  // initialization, which becomes one, only where its frames are placed); the tracker's count
+  // without a mapper.
   int kept = 0;
   if (fs::exists(dir / "keyframes.tsv")) {
     const std::vector<KeyframeRecord> keyframes = ReadKeyframeRecords((dir / "keyframes.tsv").string());
