@@ -1,7 +1,6 @@
 #include "stitch/tracking/initializer.h"
 
 #include <algorithm>
-#include <utility>
 
 #include "stitch/estimators/bundle_adjustment.h"
 #include "stitch/estimators/pose_optimizer.h"
@@ -58,7 +57,17 @@ Initializer::Result Initializer::Add(Frame frame, SubmapId submap) {
     result.detail = why;
     if (options_.place_initialization_frames) {
       if (between_.size() == kMaxBetween) between_.erase(between_.begin());
-      between_.push_back({std::move(frame), std::move(matches)});
+      Between b;
+      b.frame_index = frame.frame_index;
+      b.t_ns = frame.t_ns;
+      b.num_features = static_cast<int>(frame.size());
+      for (size_t i = 0; i < matches.size(); ++i) {
+        if (matches[i] < 0) continue;
+        b.reference_features.push_back(static_cast<int>(i));
+        b.pixels.push_back(frame.undistorted[matches[i]]);
+        b.inverse_sigma2.push_back(geometry_->pyramid.inverse_sigma2[frame.keypoints[matches[i]].octave]);
+      }
+      between_.push_back(std::move(b));
     }
     return result;
   }
@@ -142,44 +151,33 @@ std::unique_ptr<Map> Initializer::BuildMap(Frame* frame, const std::vector<int>&
   return map;
 }
 
-std::vector<Frame> Initializer::PlaceEarlierFrames(const Map& map, const Frame& reference, const Frame& frame) {
-  std::vector<Frame> placed;
+std::vector<Initializer::Result::PlacedFrame> Initializer::PlaceEarlierFrames(const Map& map, const Frame& reference,
+                                                                              const Frame& frame) const {
+  std::vector<Result::PlacedFrame> placed;
   const Keyframe* kf0 = map.FindKeyframe(MakeKeyframeId(map.id(), 0));
   const Keyframe* kf1 = map.FindKeyframe(MakeKeyframeId(map.id(), 1));
   if (!kf0 || !kf1) return placed;
-  Frame first = reference;
-  first.cam_from_world = kf0->cam_from_world;
-  first.points = kf0->points;
-  first.outlier.assign(first.size(), 0);
-  placed.push_back(std::move(first));
+  placed.push_back({reference.frame_index, reference.t_ns, kf0->cam_from_world, static_cast<int>(reference.size()),
+                    kf0->CountPoints(), /*is_reference=*/true});
   const int span = frame.frame_index - reference.frame_index;
-  for (Between& b : between_) {
+  for (const Between& b : between_) {
     // From the reference's points through the frame's matches with it; the pose starts between
     // the two keyframes' in proportion to the frame's place between them.
     std::vector<PoseObservation> observations;
-    std::vector<std::pair<size_t, int>> matched;  // reference feature, feature of the frame
-    for (size_t i = 0; i < b.matches.size() && i < kf0->points.size(); ++i) {
-      const MapPoint* point = kf0->points[i].valid() && b.matches[i] >= 0 ? map.FindPoint(kf0->points[i]) : nullptr;
-      if (!point) continue;
-      const int j = b.matches[i];
-      observations.push_back(
-          {b.frame.undistorted[j], point->position, geometry_->pyramid.inverse_sigma2[b.frame.keypoints[j].octave]});
-      matched.emplace_back(i, j);
+    for (size_t m = 0; m < b.reference_features.size(); ++m) {
+      const size_t i = static_cast<size_t>(b.reference_features[m]);
+      const MapPoint* point =
+          i < kf0->points.size() && kf0->points[i].valid() ? map.FindPoint(kf0->points[i]) : nullptr;
+      if (point) observations.push_back({b.pixels[m], point->position, b.inverse_sigma2[m]});
     }
     if (static_cast<int>(observations.size()) < options_.min_inliers || span <= 0) continue;
-    const double t = std::clamp((b.frame.frame_index - reference.frame_index) / static_cast<double>(span), 0.0, 1.0);
+    const double t = std::clamp((b.frame_index - reference.frame_index) / static_cast<double>(span), 0.0, 1.0);
     Rigid3d initial;
     initial.rotation = kf0->cam_from_world.rotation.slerp(t, kf1->cam_from_world.rotation);
     initial.translation = (1 - t) * kf0->cam_from_world.translation + t * kf1->cam_from_world.translation;
     const PoseOptimizerResult optimized = OptimizePose(observations, initial, geometry_->intrinsics);
     if (!optimized.converged || optimized.num_inliers < options_.min_inliers) continue;
-    b.frame.cam_from_world = optimized.cam_from_world;
-    b.frame.points.assign(b.frame.size(), MapPointId());
-    b.frame.outlier.assign(b.frame.size(), 0);
-    for (size_t o = 0; o < matched.size(); ++o) {
-      if (optimized.inlier[o]) b.frame.points[matched[o].second] = kf0->points[matched[o].first];
-    }
-    placed.push_back(std::move(b.frame));
+    placed.push_back({b.frame_index, b.t_ns, optimized.cam_from_world, b.num_features, optimized.num_inliers, false});
   }
   return placed;
 }

@@ -32,7 +32,15 @@ class Initializer {
     // (keyframe 0) and each frame since that matched it (posed from those matches, kept where at
     // least min_inliers agree), in frame order. Without them the frames a new map waited through
     // for parallax would be in no map.
-    std::vector<Frame> earlier;
+    struct PlacedFrame {
+      int frame_index = -1;
+      int64_t t_ns = 0;
+      Rigid3d cam_from_world;  // in the initial map
+      int num_features = 0;
+      int tracked_points = 0;  // agreeing with the pose
+      bool is_reference = false;
+    };
+    std::vector<PlacedFrame> earlier;
   };
 
   // `geometry` and `vocabulary` must outlive the initializer.
@@ -54,16 +62,21 @@ class Initializer {
   TrackingOptions options_;
   const ViewGeometry* geometry_;
   const Vocabulary* vocabulary_;
-  // Places the frames in between_ in the initial map (reference keyframe 0, this frame keyframe 1).
-  std::vector<Frame> PlaceEarlierFrames(const Map& map, const Frame& reference, const Frame& frame);
+  // Places the reference and the frames in between_ in the initial map (reference keyframe 0,
+  // `frame` keyframe 1).
+  std::vector<Result::PlacedFrame> PlaceEarlierFrames(const Map& map, const Frame& reference, const Frame& frame) const;
 
   std::optional<Frame> reference_;
   std::vector<Eigen::Vector2d> previous_;  // where each reference feature was last matched
-  // Frames since the reference that matched it but did not initialize, with their matches
-  // (reference feature -> feature of the frame, -1 for none); at most kMaxBetween, the newest.
+  // Frames since the reference that matched it but did not initialize: only what places them,
+  // each match's reference feature and where the frame saw it; at most kMaxBetween, the newest.
   struct Between {
-    Frame frame;
-    std::vector<int> matches;
+    int frame_index = -1;
+    int64_t t_ns = 0;
+    int num_features = 0;
+    std::vector<int> reference_features;
+    std::vector<Eigen::Vector2d> pixels;  // undistorted
+    std::vector<double> inverse_sigma2;   // of the level each was seen at
   };
   static constexpr size_t kMaxBetween = 60;
   std::vector<Between> between_;

@@ -177,7 +177,7 @@ Tracking::Output Tracking::Initialize(Frame frame) {
   result.cam_from_reference = Rigid3d();
   result.submap_keyframes = static_cast<int>(map.num_keyframes());
   const Keyframe& kf0 = *map.FindKeyframe(id0);
-  for (const Frame& earlier : initialized.earlier) {
+  for (const Initializer::Result::PlacedFrame& earlier : initialized.earlier) {
     EarlierFrame e;
     e.frame_index = earlier.frame_index;
     e.t_ns = earlier.t_ns;
@@ -185,12 +185,12 @@ Tracking::Output Tracking::Initialize(Frame frame) {
     r.state = TrackingState::kOk;
     r.detail = "placed once the map initialized at frame " + std::to_string(placed.frame_index);
     r.submap = submap;
-    r.cam_from_submap = *earlier.cam_from_world;
+    r.cam_from_submap = earlier.cam_from_world;
     r.reference_keyframe = id0;
-    r.cam_from_reference = *earlier.cam_from_world * kf0.cam_from_world.Inverse();
-    r.num_features = static_cast<int>(earlier.size());
-    r.num_tracked_points = earlier.CountTracked();
-    r.is_keyframe = earlier.frame_index == kf0.frame_index;
+    r.cam_from_reference = earlier.cam_from_world * kf0.cam_from_world.Inverse();
+    r.num_features = earlier.num_features;
+    r.num_tracked_points = earlier.tracked_points;
+    r.is_keyframe = earlier.is_reference;
     r.tracked_by = "initialization";
     r.submap_keyframes = result.submap_keyframes;
     output.earlier_frames.push_back(std::move(e));
