@@ -163,9 +163,13 @@ int ViewerServer::OnSocketConnect(const mg_connection* connection, void* self) {
 
 void ViewerServer::OnSocketReady(mg_connection* connection, void* self) {
   auto* server = static_cast<ViewerServer*>(self);
+  // A page that opens gets what the last push made at once, not at the next push: a page loaded
+  // after the flight (or between pushes) shows the map without waiting.
+  const Updates updates = server->Latest();
   std::lock_guard<std::mutex> lock(server->sockets_mutex_);
   --server->pending_sockets_;
-  server->sockets_[connection] = Socket{};
+  Socket& socket = server->sockets_[connection] = Socket{};
+  SendTo(connection, updates, socket);
 }
 
 int ViewerServer::OnSocketData(mg_connection*, int bits, char*, size_t, void*) {
@@ -204,35 +208,32 @@ void ViewerServer::Refresh(double now_s) {
   }
 }
 
+ViewerServer::Updates ViewerServer::Latest() const {
+  std::lock_guard<std::mutex> lock(updates_mutex_);
+  return {live_, map_, cloud_, map_revision_, cloud_revision_};
+}
+
+bool ViewerServer::SendTo(mg_connection* connection, const Updates& updates, Socket& socket) {
+  mg_lock_connection(connection);
+  bool ok = mg_websocket_write(connection, MG_WEBSOCKET_OPCODE_TEXT, updates.live->data(), updates.live->size()) > 0;
+  if (ok && socket.map_revision != updates.map_revision) {
+    ok = mg_websocket_write(connection, MG_WEBSOCKET_OPCODE_TEXT, updates.map->data(), updates.map->size()) > 0;
+    if (ok) socket.map_revision = updates.map_revision;
+  }
+  if (ok && socket.cloud_revision != updates.cloud_revision) {
+    ok = mg_websocket_write(connection, MG_WEBSOCKET_OPCODE_BINARY, updates.cloud->data(), updates.cloud->size()) > 0;
+    if (ok) socket.cloud_revision = updates.cloud_revision;
+  }
+  mg_unlock_connection(connection);
+  return ok;
+}
+
 int ViewerServer::Push(double now_s) {
   Refresh(now_s);
-  std::shared_ptr<const std::string> live, map, cloud;
-  int64_t map_revision, cloud_revision;
-  {
-    std::lock_guard<std::mutex> lock(updates_mutex_);
-    live = live_;
-    map = map_;
-    cloud = cloud_;
-    map_revision = map_revision_;
-    cloud_revision = cloud_revision_;
-  }
+  const Updates updates = Latest();
   std::lock_guard<std::mutex> lock(sockets_mutex_);
   int pushed = 0;
-  for (auto& [key, socket] : sockets_) {
-    auto* connection = const_cast<mg_connection*>(key);
-    mg_lock_connection(connection);
-    bool ok = mg_websocket_write(connection, MG_WEBSOCKET_OPCODE_TEXT, live->data(), live->size()) > 0;
-    if (ok && socket.map_revision != map_revision) {
-      ok = mg_websocket_write(connection, MG_WEBSOCKET_OPCODE_TEXT, map->data(), map->size()) > 0;
-      if (ok) socket.map_revision = map_revision;
-    }
-    if (ok && socket.cloud_revision != cloud_revision) {
-      ok = mg_websocket_write(connection, MG_WEBSOCKET_OPCODE_BINARY, cloud->data(), cloud->size()) > 0;
-      if (ok) socket.cloud_revision = cloud_revision;
-    }
-    mg_unlock_connection(connection);
-    pushed += ok;
-  }
+  for (auto& [key, socket] : sockets_) pushed += SendTo(const_cast<mg_connection*>(key), updates, socket);
   return pushed;
 }
 

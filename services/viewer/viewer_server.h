@@ -45,6 +45,15 @@ class ViewerServer {
   struct Socket {
     int64_t map_revision = -1, cloud_revision = -1;
   };
+  struct Updates {
+    std::shared_ptr<const std::string> live, map, cloud;
+    int64_t map_revision, cloud_revision;
+  };
+  // What the last Refresh made.
+  Updates Latest() const;
+  // Sends one page the live state and what it has not had of the map and the points; false when
+  // the socket failed.
+  static bool SendTo(mg_connection* connection, const Updates& updates, Socket& socket);
   static int HandleRequest(mg_connection* connection, void* self);
   static int OnSocketConnect(const mg_connection* connection, void* self);
   static void OnSocketReady(mg_connection* connection, void* self);

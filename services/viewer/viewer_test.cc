@@ -2,6 +2,7 @@
 // against hostile requests: only GET and HEAD of its own paths, WebSockets only from its own
 // origin and only as many as max_pages.
 
+#include <poll.h>
 #include <sys/socket.h>
 #include <unistd.h>
 
@@ -325,6 +326,20 @@ TEST(ViewerServer, AWebSocketOnlyFromThePagesOwnOriginAndOnlyAsManyAsAllowed) {
   EXPECT_EQ(server.open_pages(), 2);
   const auto [third, third_reply] = open_socket();
   EXPECT_NE(StatusLine(third_reply), "HTTP/1.1 101 Switching Protocols");
+  // A page that opens is sent the state at once, before any push: its first frame is text (the
+  // live state), final (0x81).
+  const size_t handshake_end = first_reply.find("\r\n\r\n");
+  std::string first_frame = handshake_end == std::string::npos ? "" : first_reply.substr(handshake_end + 4);
+  if (first_frame.empty()) {
+    pollfd readable{first, POLLIN, 0};
+    char buffer[256];
+    if (poll(&readable, 1, 5000) == 1) {
+      const ssize_t n = recv(first, buffer, sizeof(buffer), 0);
+      if (n > 0) first_frame.assign(buffer, static_cast<size_t>(n));
+    }
+  }
+  ASSERT_FALSE(first_frame.empty()) << "nothing was sent to a page that opened";
+  EXPECT_EQ(static_cast<unsigned char>(first_frame[0]), 0x81);
   // A push reaches both open pages.
   EXPECT_EQ(server.Push(0), 2);
   for (int fd : {first, second, third}) close(fd);
