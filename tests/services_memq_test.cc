@@ -1,6 +1,7 @@
 // Ingest, tracker and mapper services on one in-process bus (memq://), as in a single process.
 
 #include <atomic>
+#include <filesystem>
 #include <map>
 #include <mutex>
 #include <optional>
@@ -17,11 +18,14 @@
 #include "services/tracker/tracker_service.h"
 #include "stitch/eval/evaluation.h"
 #include "stitch/frame_ack_t.hpp"
+#include "stitch/io/ply.h"
 #include "stitch/keyframe_t.hpp"
 #include "stitch/link_status_t.hpp"
 #include "stitch/records/frame_record.h"
 #include "stitch/records/keyframe_record.h"
 #include "stitch/source/source.h"
+#include "stitch/submap_request_t.hpp"
+#include "stitch/submap_update_t.hpp"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/tracking_status_t.hpp"
 #include "tests/memq_dispatched.h"
@@ -388,6 +392,46 @@ TEST(ServicesInProcess, ALossClosesTheSubmapForTheMergerBeforeTheNextOneStarts) 
   EXPECT_GE(first_closed_before_status, 32);
   EXPECT_LT(first_closed_before_status, 36);
   EXPECT_TRUE(events.back().second) << "the last submap is closed at shutdown";
+}
+
+// Memory over a long flight: submaps hand over at a keyframe cap; the mapper lets go of a closed
+// submap only once the merger says it holds it whole and the tracker has dropped it, and its
+// records still hold every submap's keyframes and points.
+TEST(ServicesInProcess, TheMapperLetsGoOfASubmapOnlyOnceTheMergerHoldsItWholeAndTheTrackerDroppedIt) {
+  stitch::testing::TempDir dir;
+  InProcessStack stack(
+      [](StitchConfig* c) {
+        c->synthetic.flight.num_frames = 170;
+        c->synthetic.flight.strip_length_m = 195;
+        c->tracker.tracking.submap_max_keyframes = 20;
+        c->tracker.tracking.handover_keyframes = 4;
+        c->tracker.tracking.closed_keyframes_held = 0;
+      },
+      /*with_mapper=*/true, dir.path().string());
+  // A merger that says it holds every submap whole but submap 2.
+  bus::Publisher ground(stack.lcm.get(), "uav0");
+  std::set<SubmapId> closed;
+  bus::Subscriber merger_side(stack.lcm.get());
+  merger_side.Subscribe<stitch::submap_update_t>(
+      bus::Channel("uav0", bus::kSubmap), [&](std::unique_ptr<stitch::submap_update_t> message, const std::string&) {
+        if (!message->closed) return;
+        closed.insert(SubmapId(message->submap_id));
+        if (SubmapId(message->submap_id) == MakeSubmapId(0, 2)) return;
+        stitch::submap_request_t confirmation{};
+        confirmation.submap_id = message->submap_id;
+        confirmation.complete = true;
+        ground.Publish(bus::Channel("uav0", bus::kSubmapRequest), &confirmation);
+      });
+  stack.Play("none");
+  ASSERT_GE(closed.size(), 3u) << "two handovers";
+  // Submap 2 is dropped by the tracker too but unconfirmed; the last one is held by the tracker.
+  EXPECT_EQ(stack.mapper->submaps_released(), 1);
+  std::map<SubmapId, int> keyframes;
+  for (const KeyframeRecord& k : ReadKeyframeRecords(dir / "keyframes.tsv")) ++keyframes[SubmapId(k.submap_id)];
+  for (SubmapId submap : closed) EXPECT_GE(keyframes[submap], 4) << SubmapName(submap);
+  EXPECT_GE(keyframes[MakeSubmapId(0, 1)], 20) << "the submap let go keeps its keyframes in keyframes.tsv";
+  EXPECT_FALSE(std::filesystem::exists(dir / ".released_points.bin"));
+  EXPECT_GT(ReadPly(dir / "submaps.ply").size(), 3000u);
 }
 
 // The security issue's row "closing statuses only from the tracker's session": two statuses from

@@ -63,6 +63,7 @@ MapperService::MapperService(lcm::LCM* lcm, bus::Publisher* publisher, MapperOpt
                                           ", not that of the tracker whose keyframes are mapped");
           return;
         }
+        tracker_first_held_ = status->first_submap_held;
         if (status->header.sender_session != tracker_session_) {
           tracker_session_ = status->header.sender_session;  // a (re)started tracker counts from 0
           tracker_submaps_closed_ = status->submaps_closed;
@@ -206,6 +207,7 @@ void MapperService::Work() {
     if (keyframe) Process(**keyframe);
     if (queue_.size() == 0) CloseIfRequested();  // after the submap's queued keyframes
     ResendIfRequested();
+    ReleaseHeldWhole();
     // Idle (the aircraft is not exploring): say once a second which keyframes the current submap
     // holds, so a merger that lost the newest one asks for it.
     const double now = MonotonicSeconds();
@@ -267,6 +269,12 @@ void MapperService::Process(const stitch::keyframe_t& message) {
     STITCH_LOG(INFO) << "camera " << received.camera.Describe();
   }
   const KeyframeId id = received.keyframe.id;
+  if (released_.count(SubmapOf(id))) {
+    ++rejected_;
+    STITCH_LOG(WARNING) << "refused keyframe " << IndexOf(id) << " of submap " << SubmapName(SubmapOf(id))
+                        << ": that submap was let go (the tracker had dropped it and the merger holds it whole)";
+    return;
+  }
   MappingHooks hooks;
   // A keyframe waiting behind this one cuts its adjustment short (the tracker is ahead).
   hooks.next_waiting = [this] { return queue_.size() > 0; };
@@ -359,6 +367,85 @@ void MapperService::PublishSubmapUpdate(const SubmapUpdate& update) {
   }
 }
 
+namespace {
+
+// One colour per submap in submaps.ply.
+ColouredPoint SubmapColoured(const Eigen::Vector3d& position, SubmapId submap) {
+  static const uint8_t kPalette[][3] = {{30, 90, 200}, {220, 40, 40}, {40, 160, 40}, {180, 40, 180},  {220, 150, 20},
+                                        {0, 140, 140}, {160, 60, 90}, {200, 110, 0}, {100, 100, 100}, {180, 180, 60}};
+  const uint8_t* colour = kPalette[SubmapNumber(submap) % 10];
+  ColouredPoint p;
+  p.position = position.cast<float>();
+  p.red = colour[0];
+  p.green = colour[1];
+  p.blue = colour[2];
+  return p;
+}
+
+}  // namespace
+
+std::string MapperService::released_points_path() const {
+  return (std::filesystem::path(record_dir_) / ".released_points.bin").string();
+}
+
+void MapperService::ReleaseHeldWhole() {
+  if (!mapping_) return;
+  int first_held;
+  {
+    std::lock_guard<std::mutex> lock(tracker_mutex_);
+    first_held = tracker_first_held_;
+  }
+  std::vector<SubmapId> release;
+  {
+    std::lock_guard<std::mutex> lock(requests_mutex_);
+    for (const auto& closed : mapping_->closed_maps()) {
+      if (SubmapNumber(closed->id()) < first_held && confirmed_complete_.count(closed->id())) {
+        release.push_back(closed->id());
+      }
+    }
+  }
+  for (SubmapId submap : release) {
+    LocalMapping::Released released = mapping_->ReleaseClosed(submap);
+    if (!released.map) continue;
+    const Map& map = *released.map;
+    for (const auto& [id, keyframe] : map.keyframes()) {
+      released_keyframes_.push_back({id.value, submap.value, keyframe.frame_index, keyframe.t_ns, /*culled=*/false,
+                                     keyframe.cam_from_world.Inverse()});
+    }
+    for (const CulledKeyframe& culled : released.culled) {
+      released_keyframes_.push_back({culled.id.value, submap.value, culled.frame_index, culled.t_ns, /*culled=*/true,
+                                     culled.cam_from_world.Inverse()});
+    }
+    if (!record_dir_.empty()) {
+      try {
+        std::filesystem::create_directories(record_dir_);
+        // (the first submap let go starts the file afresh: one left by an earlier run is not this one's)
+        std::ofstream out(released_points_path(),
+                          std::ios::binary | (released_.empty() ? std::ios::trunc : std::ios::app));
+        for (const auto& [id, point] : map.points()) {
+          const ColouredPoint p = SubmapColoured(point.position, submap);
+          out.write(reinterpret_cast<const char*>(&p), sizeof(p));
+        }
+        if (!out) throw Error(released_points_path() + ": cannot write");
+      } catch (const std::exception& e) {
+        STITCH_LOG(ERROR) << "the points of submap " << SubmapName(submap)
+                          << " are not kept for submaps.ply: " << e.what();
+      }
+    }
+    for (auto it = sent_positions_.begin(); it != sent_positions_.end();) {
+      it = SubmapOf(it->first) == submap ? sent_positions_.erase(it) : std::next(it);
+    }
+    for (auto it = sent_associations_.begin(); it != sent_associations_.end();) {
+      it = SubmapOf(it->first) == submap ? sent_associations_.erase(it) : std::next(it);
+    }
+    last_resend_.erase(submap);
+    released_.insert(submap);
+    ++released_count_;
+    STITCH_LOG(INFO) << "submap " << SubmapName(submap) << " let go (" << map.num_keyframes() << " keyframes, "
+                     << map.num_points() << " points): the merger holds it whole and the tracker has dropped it";
+  }
+}
+
 void MapperService::WriteRecords() const {
   std::filesystem::create_directories(record_dir_);
   std::vector<const Map*> maps;
@@ -366,19 +453,14 @@ void MapperService::WriteRecords() const {
     for (const auto& closed : mapping_->closed_maps()) maps.push_back(closed.get());
     if (mapping_->map()) maps.push_back(mapping_->map());
   }
-  static const uint8_t kPalette[][3] = {{30, 90, 200}, {220, 40, 40}, {40, 160, 40}, {180, 40, 180},  {220, 150, 20},
-                                        {0, 140, 140}, {160, 60, 90}, {200, 110, 0}, {100, 100, 100}, {180, 180, 60}};
   std::vector<ColouredPoint> cloud;
-  std::vector<KeyframeRecord> keyframes;
+  std::vector<KeyframeRecord> keyframes = released_keyframes_;
+  if (!released_.empty()) {
+    std::ifstream in(released_points_path(), std::ios::binary);
+    for (ColouredPoint p; in.read(reinterpret_cast<char*>(&p), sizeof(p));) cloud.push_back(p);
+  }
   for (size_t m = 0; m < maps.size(); ++m) {
-    for (const auto& [id, point] : maps[m]->points()) {
-      ColouredPoint p;
-      p.position = point.position.cast<float>();
-      p.red = kPalette[m % 10][0];
-      p.green = kPalette[m % 10][1];
-      p.blue = kPalette[m % 10][2];
-      cloud.push_back(p);
-    }
+    for (const auto& [id, point] : maps[m]->points()) cloud.push_back(SubmapColoured(point.position, maps[m]->id()));
     for (const auto& [id, keyframe] : maps[m]->keyframes()) {
       keyframes.push_back({id.value, maps[m]->id().value, keyframe.frame_index, keyframe.t_ns, /*culled=*/false,
                            keyframe.cam_from_world.Inverse()});
@@ -390,7 +472,12 @@ void MapperService::WriteRecords() const {
   }
   WriteKeyframeRecords((std::filesystem::path(record_dir_) / "keyframes.tsv").string(), keyframes);
   WritePly((std::filesystem::path(record_dir_) / "submaps.ply").string(), cloud);
-  STITCH_LOG(INFO) << "wrote " << cloud.size() << " map points of " << maps.size() << " submaps to " << record_dir_;
+  if (!released_.empty()) {
+    std::error_code ignored;
+    std::filesystem::remove(released_points_path(), ignored);
+  }
+  STITCH_LOG(INFO) << "wrote " << cloud.size() << " map points of " << maps.size() + released_.size() << " submaps to "
+                   << record_dir_;
 }
 
 }  // namespace stitch

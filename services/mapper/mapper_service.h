@@ -21,6 +21,7 @@
 #include "services/mapper/mapper_options.h"
 #include "stitch/keyframe_t.hpp"
 #include "stitch/mapping/local_mapping.h"
+#include "stitch/records/keyframe_record.h"
 #include "stitch/util/bounded_queue.h"
 
 namespace stitch {
@@ -39,6 +40,8 @@ class MapperService {
   int64_t keyframes_received() const { return received_.load(); }
   int64_t keyframes_mapped() const { return mapped_.load(); }
   int64_t submap_resends() const { return resends_.load(); }
+  // Closed submaps let go of (the merger holds them whole, the tracker has dropped them).
+  int submaps_released() const { return released_count_.load(); }
 
  private:
   void Work();
@@ -51,6 +54,10 @@ class MapperService {
   // Answers the merger's requests for what the link lost (in the worker: it owns the maps).
   void ResendIfRequested();
   void WriteRecords() const;
+  // Lets go of closed submaps the merger holds whole and the tracker has dropped (it sends no
+  // more of them): memory stays bounded over a long flight. Their keyframe poses are kept for
+  // keyframes.tsv and, with a record folder, their points go to disk for submaps.ply.
+  void ReleaseHeldWhole();
 
   bus::Publisher* publisher_;
   MapperOptions options_;
@@ -69,6 +76,7 @@ class MapperService {
   int64_t tracker_session_ = 0;
   int64_t keyframe_session_ = 0;  // the sender of the newest keyframe: the tracker
   int tracker_submaps_closed_ = 0;
+  int tracker_first_held_ = 0;  // the tracker holds no submap numbered below this
   int64_t close_requested_ = -1;
   std::unordered_map<MapPointId, Eigen::Vector3d> sent_positions_;  // what the merger was last sent
   std::unordered_map<KeyframeId, size_t> sent_associations_;        // (a hash of each keyframe's)
@@ -94,6 +102,11 @@ class MapperService {
   bool link_congested_ = false;
   int64_t points_held_back_ = 0;
   int64_t keyframes_hurried_ = 0;  // adjustments cut short or left to the next keyframe (it was waiting)
+  // Submaps let go (ReleaseHeldWhole), their keyframes' final poses, and their points on disk.
+  std::set<SubmapId> released_;
+  std::atomic<int> released_count_{0};
+  std::vector<KeyframeRecord> released_keyframes_;
+  std::string released_points_path() const;
 };
 
 }  // namespace stitch

@@ -75,12 +75,14 @@ TrackerService::TrackerService(lcm::LCM* lcm, bus::Publisher* publisher, Tracker
       options_.tracking.first_submap_number = next;
     }
   }
+  first_submap_held_ = options_.tracking.first_submap_number;
 }
 
 void TrackerService::RefreshReportedState() {
   if (!tracking_) return;
   mapper_connected_ = tracking_->mapper_connected();
   submaps_closed_ = tracking_->submaps_closed();
+  first_submap_held_ = tracking_->first_submap_held();
 }
 
 void TrackerService::SaveState() {
@@ -359,6 +361,7 @@ void TrackerService::Report(const stitch::frame_t& frame, const TrackResult& res
   status.tracking_ms = tracking_ms;
   status.mapper_connected = mapper_connected_.load();
   status.submaps_closed = submaps_closed_.load();
+  status.first_submap_held = first_submap_held_.load();
   publisher_->Publish(bus::Channel(publisher_->agent(), bus::kTrackingStatus), &status);
   RecordFrame(frame.frame_index, frame.t_ns, result, tracking_ms);
 }

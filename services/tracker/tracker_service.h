@@ -106,6 +106,7 @@ class TrackerService {
   // frames) and so must not touch tracking_; the worker refreshes them (RefreshReportedState).
   std::atomic<bool> mapper_connected_{false};
   std::atomic<int> submaps_closed_{0};
+  std::atomic<int> first_submap_held_{1};
   int saved_submap_number_ = -1;
 };
 

@@ -3,6 +3,7 @@
 
 #include <unistd.h>
 
+#include <cmath>
 #include <csignal>
 #include <cstdio>
 #include <ctime>
@@ -33,6 +34,9 @@ namespace fs = std::filesystem;
 
 namespace stitch {
 namespace {
+
+// How often the launcher writes each service's resident memory to memory.tsv.
+constexpr double kMemorySampleSeconds = 2.0;
 
 struct RunArgs {
   std::string dataset;
@@ -327,11 +331,27 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
   int last_decile = 0;
   double ingest_done_at = -1;
   const int last_frame = source.num_frames - 1;
+  // Each service's resident memory every few seconds, with the frame the tracker was at.
+  std::ofstream memory_samples(fs::path(out) / "memory.tsv");
+  memory_samples << "seconds\tframe\tservice\trss_mb\n";
+  double memory_sampled_at = -1e9;
   while (failure.empty()) {
     std::this_thread::sleep_for(std::chrono::milliseconds(200));
     const auto snapshot = monitor.Get();
     const int done = snapshot.highest_frame + 1;
     const double seconds = clock.ElapsedSeconds();
+    if (seconds - memory_sampled_at >= kMemorySampleSeconds) {
+      memory_sampled_at = seconds;
+      for (const auto& child : children) {
+        const double mb = child->ResidentMb();
+        if (mb < 0) continue;
+        char row[160];
+        std::snprintf(row, sizeof(row), "%.1f\t%d\t%s\t%.1f\n", seconds, snapshot.highest_frame, child->name().c_str(),
+                      mb);
+        memory_samples << row;
+      }
+      memory_samples.flush();
+    }
     const double fps = seconds > 0 ? done / seconds : 0;
     if (tty) {
       std::printf("\r  frame %5d/%d  %5.1f fps  tracker %-12s submap %-6s keyframes %d   ", done, source.num_frames,
@@ -387,6 +407,9 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
   }
   dispatcher.Stop();
   info.wall_seconds = clock.ElapsedSeconds();
+  for (const auto& child : children) {
+    if (child->Poll()) info.peak_rss_mb[child->name()] = child->peak_resident_mb();
+  }
   for (const ChildProcess* link : links) {
     const std::string tail = link->LogTail(3);
     const size_t said = tail.rfind("stopped: ");
@@ -426,6 +449,14 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
     SaveRunInfo(info, out);
     std::printf("%s in %.1f s\n%s", info.interrupted ? "interrupted" : (exit_code ? "failed" : "done"),
                 info.wall_seconds, Summarize(evaluation).c_str());
+    if (!info.peak_rss_mb.empty()) {
+      std::string peaks;
+      for (const auto& [service, mb] : info.peak_rss_mb) {
+        peaks +=
+            (peaks.empty() ? "" : ", ") + service + " " + std::to_string(static_cast<int>(std::lround(mb))) + " MB";
+      }
+      std::printf("  peak memory       %s (memory.tsv: every 2 s)\n", peaks.c_str());
+    }
     for (const auto& figures : info.link_figures) std::printf("%s\n", figures.c_str());
     for (const auto& note : info.notes) std::printf("note: %s\n", note.c_str());
     std::printf("outputs: %s/{trajectory.tum, map.ply, report.json, trajectory.png, logs/}\n", out.c_str());
@@ -547,7 +578,8 @@ int RunCommand(int argc, char** argv) {
       "Outputs: trajectory.tum, map.ply (the largest merged map without gross outliers; map_raw.ply\n"
       "with every point), trajectories/ (every map, index.tsv), trajectory_kitti.txt (KITTI input),\n"
       "report.json, trajectory.png,\n"
-      "frames.tsv, poses.tsv, groundtruth.tum (when known), config.yaml (resolved settings), the\n"
+      "frames.tsv, poses.tsv, memory.tsv (each service's resident memory every 2 s), groundtruth.tum (when known), "
+      "config.yaml (resolved settings), the\n"
       "merger's graph.png, graph.dot, merge_log.tsv, retrieval.tsv, submaps.tsv, keyframes_merged.tsv,\n"
       "the mapper's keyframes.tsv and submaps.ply, logs/ (one per service); with --journal,\n"
       "merger/submap_updates.lcmlog.");

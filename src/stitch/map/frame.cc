@@ -67,23 +67,32 @@ Eigen::Vector2d Undistorter::Undistort(double x, double y) const {
 }
 
 FeatureGrid::FeatureGrid(const std::vector<Eigen::Vector2d>& points, const Undistorter& bounds)
-    : cells_(kCols * kRows),
+    : cell_start_(kCols * kRows + 1, 0),
       min_x_(bounds.min_x()),
       min_y_(bounds.min_y()),
       inv_cell_w_(kCols / std::max(1e-9, bounds.max_x() - bounds.min_x())),
       inv_cell_h_(kRows / std::max(1e-9, bounds.max_y() - bounds.min_y())) {
+  // Counting sort of the features by cell, in index order within a cell.
+  std::vector<int> cell_of(points.size(), -1);
   for (size_t i = 0; i < points.size(); ++i) {
     const int cx = static_cast<int>(std::floor((points[i].x() - min_x_) * inv_cell_w_));
     const int cy = static_cast<int>(std::floor((points[i].y() - min_y_) * inv_cell_h_));
     if (cx < 0 || cy < 0 || cx >= kCols || cy >= kRows) continue;
-    cells_[cy * kCols + cx].push_back(static_cast<int>(i));
+    cell_of[i] = cy * kCols + cx;
+    ++cell_start_[cell_of[i] + 1];
+  }
+  for (int k = 0; k < kCols * kRows; ++k) cell_start_[k + 1] += cell_start_[k];
+  indices_.resize(cell_start_.back());
+  std::vector<int> next(cell_start_.begin(), cell_start_.end() - 1);
+  for (size_t i = 0; i < points.size(); ++i) {
+    if (cell_of[i] >= 0) indices_[next[cell_of[i]]++] = static_cast<int>(i);
   }
 }
 
 std::vector<int> FeatureGrid::InArea(double x, double y, double radius, const std::vector<cv::KeyPoint>& keypoints,
                                      const std::vector<Eigen::Vector2d>& points, int min_level, int max_level) const {
   std::vector<int> found;
-  if (cells_.empty()) return found;
+  if (cell_start_.empty()) return found;
   const int c0 = std::max(0, static_cast<int>(std::floor((x - radius - min_x_) * inv_cell_w_)));
   const int c1 = std::min(kCols - 1, static_cast<int>(std::floor((x + radius - min_x_) * inv_cell_w_)));
   const int r0 = std::max(0, static_cast<int>(std::floor((y - radius - min_y_) * inv_cell_h_)));
@@ -93,7 +102,9 @@ std::vector<int> FeatureGrid::InArea(double x, double y, double radius, const st
   const double r2 = radius * radius;
   for (int r = r0; r <= r1; ++r) {
     for (int c = c0; c <= c1; ++c) {
-      for (int i : cells_[r * kCols + c]) {
+      const int cell = r * kCols + c;
+      for (int k = cell_start_[cell]; k < cell_start_[cell + 1]; ++k) {
+        const int i = indices_[k];
         if (check_levels) {
           const int level = keypoints[i].octave;
           if (level < min_level) continue;

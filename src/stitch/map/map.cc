@@ -36,6 +36,15 @@ Keyframe KeyframeFromFrame(const Frame& frame, KeyframeId id) {
   return keyframe;
 }
 
+Keyframe UnlinkedCopy(const Keyframe& keyframe) {
+  Keyframe copy = keyframe;
+  copy.covisibility.clear();
+  copy.ordered.clear();
+  copy.parent = KeyframeId();
+  copy.children.clear();
+  return copy;
+}
+
 Map::Map(SubmapId id, ScalePyramid pyramid, uint32_t first_point_index)
     : id_(id), pyramid_(std::move(pyramid)), next_point_index_(first_point_index) {}
 

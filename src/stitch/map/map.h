@@ -127,5 +127,8 @@ class Map {
 
 // Keyframe from a tracked frame: copies its features and point associations.
 Keyframe KeyframeFromFrame(const Frame& frame, KeyframeId id);
+// A copy of a keyframe for another map: its features, pose and associations, without what a Map
+// maintains (covisibility, spanning tree).
+Keyframe UnlinkedCopy(const Keyframe& keyframe);
 
 }  // namespace stitch

@@ -101,7 +101,8 @@ MappingReport LocalMapping::ProcessKeyframe(Keyframe keyframe, const std::vector
   for (MapPointId point : created) recent_points_.Add(point, keyframes_processed_);
   report.new_points = static_cast<int>(created.size());
   lap(&times.triangulate);
-  if (hooks.new_points_made && !created.empty()) hooks.new_points_made(MakeNewPointsUpdate(*map_, id, created, ++revision_));
+  if (hooks.new_points_made && !created.empty())
+    hooks.new_points_made(MakeNewPointsUpdate(*map_, id, created, ++revision_));
   if (next_waiting && next_waiting()) {
     report.deferred = true;
     ++keyframes_processed_;
@@ -111,8 +112,8 @@ MappingReport LocalMapping::ProcessKeyframe(Keyframe keyframe, const std::vector
   report.fused = FuseWithNeighbours(map_.get(), id, geometry_, options_.fuse_neighbours);
   lap(&times.fuse);
   if (map_->num_keyframes() > 2) {
-    report.bundle_adjustment = LocalBundleAdjustment(map_.get(), id, geometry_.intrinsics,
-                                                     options_.local_bundle_adjustment, next_waiting);
+    report.bundle_adjustment =
+        LocalBundleAdjustment(map_.get(), id, geometry_.intrinsics, options_.local_bundle_adjustment, next_waiting);
   }
   lap(&times.bundle_adjustment);
   if (options_.cull_keyframes && !report.bundle_adjustment.interrupted) {
@@ -151,6 +152,22 @@ void LocalMapping::InsertKeyframe(Keyframe keyframe, const std::vector<MapPoint>
   }
   for (const MapPoint& point : new_points) recent_points_.Add(point.id, keyframes_processed_);
   map_->UpdateConnections(id);
+}
+
+LocalMapping::Released LocalMapping::ReleaseClosed(SubmapId submap) {
+  Released released;
+  const auto it =
+      std::find_if(closed_maps_.begin(), closed_maps_.end(), [&](const auto& m) { return m->id() == submap; });
+  if (it == closed_maps_.end()) return released;
+  for (const CulledKeyframe& culled : CulledKeyframePoses()) {  // posed through the map while it is here
+    if (SubmapOf(culled.id) == submap) released.culled.push_back(culled);
+  }
+  culled_.erase(std::remove_if(culled_.begin(), culled_.end(),
+                               [&](const CulledKeyframe& culled) { return SubmapOf(culled.id) == submap; }),
+                culled_.end());
+  released.map = std::move(*it);
+  closed_maps_.erase(it);
+  return released;
 }
 
 std::vector<CulledKeyframe> LocalMapping::CulledKeyframePoses() const {

@@ -103,6 +103,13 @@ class LocalMapping {
   // Submaps closed so far (the current one is not among them).
   const std::vector<std::unique_ptr<Map>>& closed_maps() const { return closed_maps_; }
   std::optional<SubmapId> CloseSubmap();
+  // Lets a closed submap go (the merger holds it whole and the tracker will send no more of it):
+  // its map, and its culled keyframes with their final poses. Null map for one not closed here.
+  struct Released {
+    std::unique_ptr<Map> map;
+    std::vector<CulledKeyframe> culled;
+  };
+  Released ReleaseClosed(SubmapId submap);
   // Culled keyframes with their poses as the final map places them (through their parents).
   std::vector<CulledKeyframe> CulledKeyframePoses() const;
 

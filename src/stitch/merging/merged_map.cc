@@ -84,11 +84,7 @@ MergedMap AssembleMergedMap(const std::map<SubmapId, SubmapReplica>& submaps,
       merged.map.AddPoint(std::move(copy));
     }
     for (const auto& [id, keyframe] : submap.keyframes()) {
-      Keyframe copy = keyframe;
-      copy.covisibility.clear();
-      copy.ordered.clear();
-      copy.parent = KeyframeId();
-      copy.children.clear();
+      Keyframe copy = UnlinkedCopy(keyframe);
       const Sim3d& pose = world_from_cam.at(id);
       copy.cam_from_world = Rigid3d(pose.rotation, pose.translation).Inverse();
       merged.map.AddKeyframe(std::move(copy));

@@ -123,6 +123,16 @@ InlineRun RunScript(const std::vector<int>& script, const TrackingOptions& track
   return RunInline(sequence, options, DefaultVocabulary());
 }
 
+// The poses of a run of `script` against its ground truth.
+Evaluation EvaluateScript(const std::vector<int>& script, const std::vector<PoseRecord>& poses) {
+  EvaluationInput input;
+  input.frames_total = static_cast<int>(script.size());
+  input.poses = poses;
+  ScriptedSequence truth(script);
+  input.ground_truth = truth.ground_truth();
+  return Evaluate(input);
+}
+
 const InlineFrame* FirstOkFrom(const InlineRun& run, int from) {
   for (const auto& f : run.frames) {
     if (f.frame_index >= from && f.result.state == TrackingState::kOk) return &f;
@@ -162,12 +172,7 @@ TEST(TrackingLoss, TheBaselineRelocalizesWhenTheCameraReturnsAfterABlackout) {
   }
   EXPECT_GE(compared, 36);
   // And against the ground truth (Sim3-aligned, in metres; the strip is 138 m long).
-  EvaluationInput input;
-  input.frames_total = static_cast<int>(script.size());
-  input.poses = run.poses;
-  ScriptedSequence truth(script);
-  input.ground_truth = truth.ground_truth();
-  const Evaluation e = Evaluate(input);
+  const Evaluation e = EvaluateScript(script, run.poses);
   ASSERT_TRUE(e.errors);
   EXPECT_LT(e.errors->ate_rmse_m, 0.3);
   EXPECT_LT(e.errors->ate_max_m, 0.8);
@@ -512,6 +517,45 @@ TEST(HomographyTracking, KeepsAShakingCameraOnTrackWhereTheMotionModelGoesAstray
   }
   EXPECT_LE(ate[1], ate[0]);
   EXPECT_LE(ate[2], ate[1] + 0.02);  // the region of interest costs no accuracy
+}
+
+// Memory over a long flight: a submap that reaches submap_max_keyframes hands over to a new one
+// that starts with copies of its local map. Tracking never breaks, the merger joins each pair on
+// the copies, and the merged trajectory is as good as one map's.
+TEST(SubmapHandover, AFullSubmapHandsOverWithoutABreakAndTheMergerJoinsThePieces) {
+  std::vector<int> script;
+  Play(&script, 0, 119);
+  TrackingOptions tracking;
+  tracking.submap_max_keyframes = 20;
+  tracking.handover_keyframes = 5;
+  tracking.closed_keyframes_held = 0;  // the tracker keeps only the last closed submap
+  const InlineRun run = RunScript(script, tracking);
+  int handovers = 0;
+  const InlineFrame* initialized = FirstOkFrom(run, 0);
+  ASSERT_NE(initialized, nullptr);
+  for (size_t i = initialized->frame_index; i < run.frames.size(); ++i) {
+    const TrackResult& result = run.frames[i].result;
+    EXPECT_EQ(result.state, TrackingState::kOk) << "frame " << i << ": " << result.detail;
+    if (i == 0 || result.submap == run.frames[i - 1].result.submap || !run.frames[i - 1].result.submap.valid()) {
+      continue;
+    }
+    ++handovers;
+    EXPECT_NE(result.detail.find("continues in submap"), std::string::npos) << result.detail;
+    EXPECT_GT(result.num_tracked_points, 100) << "frame " << i << ": the copies carry the frame's points";
+  }
+  EXPECT_GE(handovers, 1);
+  EXPECT_EQ(run.submaps, handovers + 1);
+  // Every piece in one merged map...
+  ASSERT_EQ(static_cast<int>(run.graph.placement.size()), run.submaps);
+  for (const auto& [submap, placement] : run.graph.placement) {
+    EXPECT_EQ(placement.component, run.graph.placement.begin()->second.component) << SubmapName(submap);
+  }
+  // ...as accurate as the strip in one map (the strip is 138 m long).
+  const Evaluation e = EvaluateScript(script, run.merged_poses);
+  ASSERT_TRUE(e.errors);
+  EXPECT_EQ(e.frames_localized, 120);
+  EXPECT_LT(e.errors->ate_rmse_m, 0.3);
+  std::printf("handed over %d times: ATE %.3f m (max %.3f m)\n", handovers, e.errors->ate_rmse_m, e.errors->ate_max_m);
 }
 
 }  // namespace

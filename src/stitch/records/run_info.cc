@@ -26,7 +26,8 @@ nlohmann::json RunInfo::ToJson() const {
           {"interrupted", interrupted},
           {"link", link},
           {"link_figures", link_figures},
-          {"notes", notes}};
+          {"notes", notes},
+          {"peak_rss_mb", peak_rss_mb}};
 }
 
 RunInfo RunInfo::FromJson(const nlohmann::json& j) {
@@ -48,6 +49,7 @@ RunInfo RunInfo::FromJson(const nlohmann::json& j) {
     info.wall_seconds = j.value("wall_seconds", 0.0);
     info.interrupted = j.value("interrupted", false);
     info.notes = j.value("notes", std::vector<std::string>{});
+    info.peak_rss_mb = j.value("peak_rss_mb", std::map<std::string, double>{});
     return info;
   } catch (const nlohmann::json::exception& e) {
     throw Error(std::string("run.json: ") + e.what());

@@ -2,6 +2,7 @@
 // run.json: what a run was (source, failures, policy, pacing, bus, link, timing, notes). Written
 // by `stitch run` when it starts and when it ends, read by `stitch eval` to rebuild the outputs.
 
+#include <map>
 #include <string>
 #include <vector>
 
@@ -26,6 +27,9 @@ struct RunInfo {
   double wall_seconds = 0;
   bool interrupted = false;
   std::vector<std::string> notes;  // what the user should know about this run
+  // Each service's peak resident memory, MB (the kernel's, once it ended); the samples during the
+  // flight are in memory.tsv.
+  std::map<std::string, double> peak_rss_mb;
 
   nlohmann::json ToJson() const;
   static RunInfo FromJson(const nlohmann::json& json);  // throws stitch::Error on missing keys

@@ -28,6 +28,26 @@ bool SubmapStore::Reopen(SubmapId id) {
   return true;
 }
 
+std::vector<SubmapId> SubmapStore::DropClosedBeyond(size_t max_keyframes, bool keep_last) {
+  size_t held = 0;
+  for (const Closed& closed : closed_) held += closed.map->num_keyframes();
+  std::vector<SubmapId> dropped;
+  while (closed_.size() > (keep_last ? 1u : 0u) && held > max_keyframes) {
+    const Map& oldest = *closed_.front().map;
+    held -= oldest.num_keyframes();
+    for (const auto& [id, keyframe] : oldest.keyframes()) database_.Remove(id.value);
+    dropped.push_back(oldest.id());
+    closed_.erase(closed_.begin());
+  }
+  return dropped;
+}
+
+int SubmapStore::LowestNumberHeld(int otherwise) const {
+  int lowest = current_ ? SubmapNumber(current_->id()) : otherwise;
+  for (const Closed& closed : closed_) lowest = std::min(lowest, SubmapNumber(closed.map->id()));
+  return lowest;
+}
+
 KeyframeId SubmapStore::NewKeyframeId() {
   return MakeKeyframeId(current_->id(), next_keyframe_index_++);
 }

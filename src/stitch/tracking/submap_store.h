@@ -26,6 +26,12 @@ class SubmapStore {
   // A closed submap becomes the current one again; false when there is no such closed submap.
   bool Reopen(SubmapId id);
   bool has_closed() const { return !closed_.empty(); }
+  // Drops closed submaps, the longest closed first, while the closed ones hold more than
+  // `max_keyframes` keyframes; with `keep_last`, the last closed one stays whatever its size.
+  // Returns the ids dropped.
+  std::vector<SubmapId> DropClosedBeyond(size_t max_keyframes, bool keep_last);
+  // The lowest submap number among those held (current and closed), or `otherwise` when none.
+  int LowestNumberHeld(int otherwise) const;
 
   // The id of the current submap's next keyframe (which it numbers in order).
   KeyframeId NewKeyframeId();

@@ -1,6 +1,8 @@
 #include "stitch/tracking/tracking.h"
 
+#include <algorithm>
 #include <cstdio>
+#include <unordered_map>
 
 #include "stitch/tracking/keyframe_decision.h"
 #include "stitch/util/error.h"
@@ -252,6 +254,7 @@ void Tracking::TrackInSubmap(Frame frame, Output* output) {
   if (ok) {
     // A frame right after untracked ones does not become a keyframe: its pose is the least sure.
     OnTracked(&frame, output, /*may_make_keyframe=*/consecutive_failures_ == 0);
+    HandOverIfFull(output);
   } else {
     ++consecutive_failures_;
     result.detail = why;
@@ -262,6 +265,7 @@ void Tracking::TrackInSubmap(Frame frame, Output* output) {
         result.detail += "; submap closed, a new one starts";
         std::set<KeyframeId> local_map = LocalMapKeyframes();
         output->closed_submap = CloseSubmap();
+        DropClosedSubmaps(/*keep_last=*/true);
         lost_from_ = std::move(local_map);
       } else {
         result.detail += "; relocalizing in the kept map";
@@ -382,6 +386,7 @@ void Tracking::TryReturnToClosed(Frame frame, Output* output) {
   returned.result.timings = output->result.timings;
   returned.closed_submap = CloseSubmap();  // also ends the young window
   store_.Reopen(SubmapOf(*at));
+  DropClosedSubmaps(/*keep_last=*/true);
   reference_keyframe_ = reference;
   ++relocalizations_;
   OnTracked(&frame, &returned, /*may_make_keyframe=*/false);
@@ -411,6 +416,98 @@ std::set<KeyframeId> Tracking::LocalMapKeyframes() const {
     }
   }
   return keyframes;
+}
+
+void Tracking::DropClosedSubmaps(bool keep_last) {
+  for (SubmapId dropped : store_.DropClosedBeyond(static_cast<size_t>(options_.closed_keyframes_held), keep_last)) {
+    STITCH_LOG(INFO) << "submap " << SubmapName(dropped)
+                     << " dropped from the tracker (closed_keyframes_held); the mapper and the merger keep it";
+  }
+}
+
+bool Tracking::HandOverIfFull(Output* output) {
+  const Map& full = *store_.current();
+  if (policy_ != LossPolicy::kNewSubmap || options_.submap_max_keyframes <= 0 ||
+      static_cast<int>(full.num_keyframes()) < options_.submap_max_keyframes || output->result.is_keyframe ||
+      !last_frame_) {
+    return false;
+  }
+  const Keyframe* reference = full.FindKeyframe(reference_keyframe_);
+  if (!reference) return false;
+  AdoptKeyframeBow(/*wait=*/true);  // the copies carry their bags of words
+  std::vector<KeyframeId> window = full.BestCovisible(reference->id, options_.handover_keyframes - 1);
+  window.push_back(reference->id);
+  std::sort(window.begin(), window.end());  // in the order they were made
+
+  const SubmapId submap = MakeSubmapId(options_.agent_number, next_submap_number_);
+  auto map = std::make_unique<Map>(submap, full.pyramid());
+  std::unordered_map<KeyframeId, KeyframeId> keyframe_ids;
+  for (KeyframeId id : window) keyframe_ids[id] = MakeKeyframeId(submap, static_cast<uint32_t>(keyframe_ids.size()));
+  // The points the copies observe, numbered in the order they are met.
+  std::unordered_map<MapPointId, MapPointId> point_ids;
+  std::vector<MapPoint> new_points;
+  for (KeyframeId id : window) {
+    for (MapPointId p : full.FindKeyframe(id)->points) {
+      const MapPoint* point = p.valid() ? full.FindPoint(p) : nullptr;
+      if (!point || point_ids.count(p)) continue;
+      MapPoint copy = *point;
+      copy.id = point_ids[p] = map->NewPointId();
+      copy.observations.clear();
+      copy.reference_keyframe = copy.first_keyframe = keyframe_ids.at(id);
+      new_points.push_back(copy);
+      map->AddPoint(std::move(copy));
+    }
+  }
+  const auto new_point_id = [&](MapPointId p) {
+    const auto it = p.valid() ? point_ids.find(p) : point_ids.end();
+    return it == point_ids.end() ? MapPointId() : it->second;
+  };
+  for (KeyframeId id : window) {
+    Keyframe copy = UnlinkedCopy(*full.FindKeyframe(id));
+    copy.id = keyframe_ids.at(id);
+    for (MapPointId& p : copy.points) p = new_point_id(p);
+    map->AddKeyframe(std::move(copy));
+  }
+  for (KeyframeId id : window) map->UpdateConnections(keyframe_ids.at(id));
+
+  // The frame goes on in the new submap: same pose, its points renamed.
+  Frame frame = std::move(*last_frame_);
+  const std::optional<Rigid3d> velocity = velocity_;
+  const double sharpness = typical_sharpness_;
+  const int last_keyframe = last_keyframe_frame_index_;
+  const SubmapId closed = *CloseSubmap();
+  for (MapPointId& p : frame.points) p = new_point_id(p);
+  store_.StartCurrent(std::move(map), static_cast<uint32_t>(window.size()));
+  ++next_submap_number_;
+  ++handovers_;
+  DropClosedSubmaps(/*keep_last=*/false);  // its local map goes on in the new submap
+  const Map& current = *store_.current();
+  reference_keyframe_ = keyframe_ids.at(reference->id);
+  velocity_ = velocity;
+  typical_sharpness_ = sharpness;
+  last_keyframe_frame_index_ = last_keyframe;
+  output->closed_submap = closed;
+  output->new_points = std::move(new_points);
+  for (KeyframeId id : window) {
+    const Keyframe& copy = *current.FindKeyframe(keyframe_ids.at(id));
+    store_.AddToDatabase(copy);
+    output->new_keyframes.push_back(copy);
+    NoteKeyframeSent(copy.id);
+  }
+  TrackResult& result = output->result;
+  result.submap = submap;
+  result.reference_keyframe = reference_keyframe_;
+  result.cam_from_reference =
+      *frame.cam_from_world * current.FindKeyframe(reference_keyframe_)->cam_from_world.Inverse();
+  result.num_tracked_points = frame.CountTracked();
+  result.submap_keyframes = static_cast<int>(current.num_keyframes());
+  result.detail = "submap " + SubmapName(closed) + " reached " + std::to_string(options_.submap_max_keyframes) +
+                  " keyframes; continues in submap " + SubmapName(submap) + " from copies of its last " +
+                  std::to_string(window.size()) + " keyframes and " + std::to_string(output->new_points.size()) +
+                  " points";
+  STITCH_LOG(INFO) << "frame " << frame.frame_index << ": " << result.detail;
+  last_frame_ = std::move(frame);
+  return true;
 }
 
 Keyframe Tracking::CreateKeyframe(const Frame& frame) {

@@ -85,6 +85,10 @@ class Tracking {
   int relocalizations() const { return relocalizations_; }
   // Number the next new submap gets (persisted by the service so ids stay unique across restarts).
   int next_submap_number() const { return next_submap_number_; }
+  // The lowest number of a submap the tracker still holds: it dropped every one below (they get
+  // no more keyframes; closed_keyframes_held).
+  int first_submap_held() const { return store_.LowestNumberHeld(next_submap_number_); }
+  int submaps_handed_over() const { return handovers_; }
   bool lost() const { return lost_; }
   const Map* map() const { return store_.current(); }
   const Camera& camera() const { return geometry_.camera; }
@@ -113,6 +117,13 @@ class Tracking {
   // `wait`: first wait for the worker to finish all.
   void AdoptKeyframeBow(bool wait);
   Keyframe CreateKeyframe(const Frame& frame);
+  // A tracked frame of a submap that reached submap_max_keyframes: the submap closes and a new one
+  // starts with copies of its local map (same poses), sent to the mapper in `output`; the frame
+  // is tracked in the new one. False (nothing done) below the cap.
+  bool HandOverIfFull(Output* output);
+  // Drops the closed submaps beyond closed_keyframes_held (after a submap closed); with
+  // `keep_last`, the one just closed stays (lost: the camera may resume it).
+  void DropClosedSubmaps(bool keep_last);
   // Forget the camera's motion (a new or reopened submap, or a lost camera).
   void ForgetMotion();
 
@@ -133,6 +144,7 @@ class Tracking {
   int next_submap_number_;
   int submaps_closed_ = 0;
   int relocalizations_ = 0;
+  int handovers_ = 0;
   bool lost_ = false;            // relocalize policy: the map is kept but the camera is not in it
   int frames_initializing_ = 0;  // frames since the last submap closed (submap policy)
   // Submap policy: the keyframes of the local map the camera was tracked in when it was lost

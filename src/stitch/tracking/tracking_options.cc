@@ -41,6 +41,13 @@ bool TrackingOptions::Check(std::string* why) const {
   }
   if (relocalize_closed_after_frames < 0) return fail("tracker.tracking.relocalize_closed_after_frames must be >= 0");
   if (return_to_closed_frames < 0) return fail("tracker.tracking.return_to_closed_frames must be >= 0");
+  if (submap_max_keyframes != 0 && submap_max_keyframes < 20) {
+    return fail("tracker.tracking.submap_max_keyframes must be 0 (no cap) or at least 20");
+  }
+  if (handover_keyframes < 2 || (submap_max_keyframes > 0 && handover_keyframes >= submap_max_keyframes / 2)) {
+    return fail("tracker.tracking.handover_keyframes must be at least 2 and below half of submap_max_keyframes");
+  }
+  if (closed_keyframes_held < 0) return fail("tracker.tracking.closed_keyframes_held must be >= 0");
   if (return_to_closed_every < 1) return fail("tracker.tracking.return_to_closed_every must be >= 1");
   if (relocalization_candidates < 1) return fail("tracker.tracking.relocalization_candidates must be >= 1");
   if (relocalization_min_inliers < min_inliers)

@@ -57,6 +57,17 @@ struct TrackingOptions {
   int return_to_closed_frames = 0;
   int return_to_closed_every = 2;
   int relocalization_min_inliers = 50;  // tracked points that accept a relocalized pose
+  // Memory over a long flight (submap policy): a submap that reaches submap_max_keyframes hands
+  // over to a new one that starts with copies of the local map (the reference keyframe and its
+  // handover_keyframes - 1 best covisible ones, their points, the same poses), so tracking goes
+  // on without a break and the merger joins the two on the copies (0: no cap). Closed submaps
+  // are dropped from the tracker, oldest first, while they hold more than closed_keyframes_held
+  // keyframes (after a loss the one just closed is kept: the camera may resume it); the tracker
+  // relocalizes only into those it holds. The mapper lets a dropped submap go once the merger
+  // holds it whole.
+  int submap_max_keyframes = 300;
+  int handover_keyframes = 10;
+  int closed_keyframes_held = 200;
   // Matching against the reference keyframe and relocalization candidates, where no pose says
   // where to look: bow (the vocabulary's direct index), lsh or brute_force (DescriptorIndex).
   std::string reference_matching = "bow";
@@ -127,6 +138,14 @@ struct TrackingOptions {
     v("relocalization_candidates", relocalization_candidates,
       "keyframes (by bag of words) tried per frame when relocalizing");
     v("relocalization_min_inliers", relocalization_min_inliers, "tracked points needed to accept a relocalized pose");
+    v("submap_max_keyframes", submap_max_keyframes,
+      "submap policy: a submap holding this many keyframes hands over to a new one that starts with copies of the "
+      "local map, so memory stays bounded over a long flight (0: no cap)");
+    v("handover_keyframes", handover_keyframes,
+      "keyframes copied into the new submap at a handover (the reference keyframe and its best covisible ones)");
+    v("closed_keyframes_held", closed_keyframes_held,
+      "closed submaps are dropped from the tracker, oldest first, while they hold more keyframes than this (after a "
+      "loss the one just closed is kept; the mapper keeps a dropped one until the merger holds it whole)");
     v("reference_matching", reference_matching,
       "matching against the reference keyframe and relocalization candidates: bow (vocabulary direct index), lsh or "
       "brute_force");

@@ -6,6 +6,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 #include <csignal>
+#include <cstdlib>
 #include <cstring>
 #include <deque>
 #include <filesystem>
@@ -87,6 +88,16 @@ int ChildProcess::Terminate(std::chrono::milliseconds grace) {
 void ChildProcess::KeepUsage(const rusage& usage) {
   cpu_seconds_ =
       usage.ru_utime.tv_sec + usage.ru_utime.tv_usec * 1e-6 + usage.ru_stime.tv_sec + usage.ru_stime.tv_usec * 1e-6;
+  peak_resident_mb_ = usage.ru_maxrss / 1024.0;  // kB on Linux
+}
+
+double ChildProcess::ResidentMb() const {
+  if (status_ || pid_ <= 0) return -1;
+  std::ifstream in("/proc/" + std::to_string(pid_) + "/status");
+  for (std::string line; std::getline(in, line);) {
+    if (line.rfind("VmRSS:", 0) == 0) return std::atof(line.c_str() + 6) / 1024.0;  // "VmRSS:  1234 kB"
+  }
+  return -1;
 }
 
 std::string ChildProcess::LogTail(int lines) const {

@@ -37,6 +37,10 @@ class ChildProcess {
   std::vector<std::string> LogErrors(int max_lines, int* total) const;
   // Once it has ended: the CPU seconds (user + system) it and the children it waited for used.
   double cpu_seconds() const { return cpu_seconds_; }
+  // Its resident memory now, in MB (VmRSS in /proc); -1 once it has ended or where /proc cannot say.
+  double ResidentMb() const;
+  // Once it has ended: its peak resident memory in MB (the kernel's ru_maxrss).
+  double peak_resident_mb() const { return peak_resident_mb_; }
 
  private:
   void KeepUsage(const rusage& usage);
@@ -46,6 +50,7 @@ class ChildProcess {
   pid_t pid_ = -1;
   std::optional<int> status_;
   double cpu_seconds_ = 0;
+  double peak_resident_mb_ = 0;
 };
 
 // Folder of the running executable (to find the service programs beside `stitch`).
