@@ -1,5 +1,6 @@
 #include "stitch/merging/merged_map.h"
 
+#include <algorithm>
 #include <set>
 
 #include "stitch/map/matcher.h"
@@ -99,6 +100,15 @@ MergedMap AssembleMergedMap(const std::map<SubmapId, SubmapReplica>& submaps,
     std::vector<KeyframeId> free;
     for (const auto& [id, keyframe] : merged.map.keyframes()) {
       if (id != anchor) free.push_back(id);
+    }
+    const size_t max_free = options.bundle_adjustment_max_free_keyframes;
+    if (max_free > 0 && free.size() > max_free) {  // the newest move; older ones hold their points
+      const auto newer = [&](KeyframeId a, KeyframeId b) {
+        const int64_t ta = merged.map.FindKeyframe(a)->t_ns, tb = merged.map.FindKeyframe(b)->t_ns;
+        return ta != tb ? ta > tb : b < a;
+      };
+      std::nth_element(free.begin(), free.begin() + max_free, free.end(), newer);
+      free.resize(max_free);
     }
     BundleAdjustmentOptions ba;
     ba.iterations = options.bundle_adjustment_iterations;

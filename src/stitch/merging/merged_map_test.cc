@@ -1,5 +1,7 @@
 #include "stitch/merging/merged_map.h"
 
+#include <algorithm>
+
 #include <gtest/gtest.h>
 
 #include "stitch/geometry/similarity.h"
@@ -136,6 +138,34 @@ TEST(MergedMap, FusedPointsLetTheBundleAdjustmentPutAMisplacedSubmapBack) {
   // Keyframes keep their submap's scale: B's are twice A's (B's frame has scale 0.5).
   EXPECT_NEAR(merged.keyframe_poses.at(MakeKeyframeId(kB, 3)).scale, 2.0, 1e-9);
   EXPECT_NEAR(merged.keyframe_poses.at(MakeKeyframeId(kA, 3)).scale, 1.0, 1e-9);
+}
+
+TEST(MergedMap, ALongFlightsAdjustmentMovesOnlyTheNewestKeyframes) {
+  const TwoSubmaps scene = MakeTwoSubmaps();
+  const Sim3d error(1.0, Eigen::Quaterniond(Eigen::AngleAxisd(1.5 * M_PI / 180, Eigen::Vector3d::UnitX())),
+                    Eigen::Vector3d(0.1, 0, 0));
+  ConnectedFrame connection;
+  connection.keyframe_a = MakeKeyframeId(kA, 5);
+  connection.keyframe_b = MakeKeyframeId(kB, 0);
+  connection.point_pairs.assign(scene.same_points.begin(), scene.same_points.begin() + 40);
+  MergedMapOptions unadjusted;
+  unadjusted.bundle_adjustment = false;
+  const MergedMap placed = AssembleMergedMap(scene.submaps, Placement(scene, error), {}, {connection}, 0,
+                                             ScalePyramid::From(OrbOptions()), kCamera.Intrinsics(), unadjusted);
+  MergedMapOptions capped;
+  capped.bundle_adjustment_max_free_keyframes = 4;
+  const MergedMap merged = AssembleMergedMap(scene.submaps, Placement(scene, error), {}, {connection}, 0,
+                                             ScalePyramid::From(OrbOptions()), kCamera.Intrinsics(), capped);
+  EXPECT_EQ(merged.bundle_adjustment.keyframes_free, 4);
+  EXPECT_LE(merged.bundle_adjustment.final_rms_px, merged.bundle_adjustment.initial_rms_px);
+  // Only the newest four (same time stamps here: the highest ids) were free; every other stayed put.
+  std::vector<KeyframeId> ids;
+  for (const auto& [id, keyframe] : merged.map.keyframes()) ids.push_back(id);
+  std::sort(ids.rbegin(), ids.rend());
+  for (size_t i = 4; i < ids.size(); ++i) {
+    EXPECT_LT((merged.map.FindKeyframe(ids[i])->Centre() - placed.map.FindKeyframe(ids[i])->Centre()).norm(), 1e-12)
+        << ids[i];
+  }
 }
 
 TEST(MergedMap, OnlyTheChosenMergedMapIsAssembled) {

@@ -21,6 +21,9 @@ bool MergedMapOptions::Check(std::string* why) const {
   if (fuse_window < 0) return fail("merger.merged_map.fuse_window must be >= 0");
   if (!(fuse_radius_px > 0)) return fail("merger.merged_map.fuse_radius_px must be > 0");
   if (bundle_adjustment_iterations < 1) return fail("merger.merged_map.bundle_adjustment_iterations must be >= 1");
+  if (bundle_adjustment_max_free_keyframes < 0) {
+    return fail("merger.merged_map.bundle_adjustment_max_free_keyframes must be >= 0 (0: all)");
+  }
   return true;
 }
 

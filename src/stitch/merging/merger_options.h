@@ -31,6 +31,10 @@ struct MergedMapOptions {
   double fuse_radius_px = 3.0;    // search radius (x level scale) when fusing by projection
   bool bundle_adjustment = true;  // global bundle adjustment after fusing
   int bundle_adjustment_iterations = 10;
+  // A long flight: at most this many keyframes move in the bundle adjustment, the newest (the
+  // pose graph has placed all; older keyframes that see their points hold them); 0: all. Without
+  // it the adjustment of a 20,000-frame survey's map grows to minutes per submap.
+  int bundle_adjustment_max_free_keyframes = 400;
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
@@ -39,6 +43,8 @@ struct MergedMapOptions {
     v("fuse_radius_px", fuse_radius_px, "search radius in pixels (times the level's scale) when fusing by projection");
     v("bundle_adjustment", bundle_adjustment, "global bundle adjustment of each merged map after the pose graph");
     v("bundle_adjustment_iterations", bundle_adjustment_iterations, "iterations of each global bundle adjustment pass");
+    v("bundle_adjustment_max_free_keyframes", bundle_adjustment_max_free_keyframes,
+      "keyframes the adjustment moves at most, the newest (older ones that see their points hold them; 0: all)");
   }
   bool Check(std::string* why) const;
 };
