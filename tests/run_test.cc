@@ -63,9 +63,23 @@ TEST(StitchRun, TracksAShortFlightWithTheServicesAsProcesses) {
        {"trajectory.tum",   "map.ply",         "report.json",     "trajectory.png",  "frames.tsv",
         "poses.tsv",        "keyframes.tsv",   "groundtruth.tum", "config.yaml",     "run.json",
         "logs/tracker.log", "logs/ingest.log", "logs/mapper.log", "logs/merger.log", "submaps.tsv",
-        "graph.dot",        "graph.png",       "merge_log.tsv",   "retrieval.tsv",   "keyframes_merged.tsv"}) {
+        "graph.dot",        "graph.png",       "merge_log.tsv",   "retrieval.tsv",   "keyframes_merged.tsv",
+        "memory.tsv"}) {
     EXPECT_TRUE(fs::exists(fs::path(out) / file)) << file;
   }
+  // Each service's memory: sampled during the flight, its peak once it ended.
+  std::ifstream memory(out + "/memory.tsv");
+  std::string header, first;
+  std::getline(memory, header);
+  std::getline(memory, first);
+  EXPECT_EQ(header, "seconds\tframe\tservice\trss_mb");
+  EXPECT_FALSE(first.empty()) << "no sample";
+  const auto peaks = ReadJson(out + "/run.json")["peak_rss_mb"];
+  for (const char* service : {"ingest", "tracker", "mapper", "merger"}) {
+    ASSERT_TRUE(peaks.contains(service)) << service;
+    EXPECT_GT(peaks[service].get<double>(), 10.0) << service;
+  }
+  EXPECT_NE(result.output.find("peak memory"), std::string::npos) << result.output;
   const auto report = ReadJson(out + "/report.json");
   for (const char* key : {"frames_total", "frames_localized", "completeness", "keyframes", "submaps", "submaps_merged",
                           "ate_rmse_m", "tracking_ms_median"}) {
