@@ -435,8 +435,9 @@ bool Tracking::HandOverIfFull(Output* output) {
   const Keyframe* reference = full.FindKeyframe(reference_keyframe_);
   if (!reference) return false;
   AdoptKeyframeBow(/*wait=*/true);  // the copies carry their bags of words
-  std::vector<KeyframeId> window = full.BestCovisible(reference->id, options_.handover_keyframes - 1);
-  window.push_back(reference->id);
+  const KeyframeId reference_id = reference->id;  // (the full submap may be dropped below)
+  std::vector<KeyframeId> window = full.BestCovisible(reference_id, options_.handover_keyframes - 1);
+  window.push_back(reference_id);
   std::sort(window.begin(), window.end());  // in the order they were made
 
   const SubmapId submap = MakeSubmapId(options_.agent_number, next_submap_number_);
@@ -482,7 +483,7 @@ bool Tracking::HandOverIfFull(Output* output) {
   ++handovers_;
   DropClosedSubmaps(/*keep_last=*/false);  // its local map goes on in the new submap
   const Map& current = *store_.current();
-  reference_keyframe_ = keyframe_ids.at(reference->id);
+  reference_keyframe_ = keyframe_ids.at(reference_id);
   velocity_ = velocity;
   typical_sharpness_ = sharpness;
   last_keyframe_frame_index_ = last_keyframe;
