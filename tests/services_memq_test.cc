@@ -401,10 +401,10 @@ TEST(ServicesInProcess, TheMapperLetsGoOfASubmapOnlyOnceTheMergerHoldsItWholeAnd
   stitch::testing::TempDir dir;
   InProcessStack stack(
       [](StitchConfig* c) {
-        c->synthetic.flight.num_frames = 170;
-        c->synthetic.flight.strip_length_m = 195;
-        c->tracker.tracking.submap_max_keyframes = 20;
-        c->tracker.tracking.handover_keyframes = 4;
+        c->synthetic.flight.num_frames = 100;
+        c->synthetic.flight.strip_length_m = 115;
+        c->tracker.tracking.submap_max_keyframes = 10;
+        c->tracker.tracking.handover_keyframes = 3;
         c->tracker.tracking.closed_keyframes_held = 0;
       },
       /*with_mapper=*/true, dir.path().string());
@@ -424,12 +424,13 @@ TEST(ServicesInProcess, TheMapperLetsGoOfASubmapOnlyOnceTheMergerHoldsItWholeAnd
       });
   stack.Play("none");
   ASSERT_GE(closed.size(), 3u) << "two handovers";
-  // Submap 2 is dropped by the tracker too but unconfirmed; the last one is held by the tracker.
-  EXPECT_EQ(stack.mapper->submaps_released(), 1);
+  // Every submap but two: submap 2 (the tracker dropped it too, but the merger never confirmed
+  // it) and the last (the tracker held it to the end).
+  EXPECT_EQ(stack.mapper->submaps_released(), static_cast<int>(closed.size()) - 2);
   std::map<SubmapId, int> keyframes;
   for (const KeyframeRecord& k : ReadKeyframeRecords(dir / "keyframes.tsv")) ++keyframes[SubmapId(k.submap_id)];
-  for (SubmapId submap : closed) EXPECT_GE(keyframes[submap], 4) << SubmapName(submap);
-  EXPECT_GE(keyframes[MakeSubmapId(0, 1)], 20) << "the submap let go keeps its keyframes in keyframes.tsv";
+  for (SubmapId submap : closed) EXPECT_GE(keyframes[submap], 3) << SubmapName(submap);
+  EXPECT_GE(keyframes[MakeSubmapId(0, 1)], 10) << "the submap let go keeps its keyframes in keyframes.tsv";
   EXPECT_FALSE(std::filesystem::exists(dir / ".released_points.bin"));
   EXPECT_GT(ReadPly(dir / "submaps.ply").size(), 3000u);
 }

@@ -41,8 +41,8 @@ bool TrackingOptions::Check(std::string* why) const {
   }
   if (relocalize_closed_after_frames < 0) return fail("tracker.tracking.relocalize_closed_after_frames must be >= 0");
   if (return_to_closed_frames < 0) return fail("tracker.tracking.return_to_closed_frames must be >= 0");
-  if (submap_max_keyframes != 0 && submap_max_keyframes < 20) {
-    return fail("tracker.tracking.submap_max_keyframes must be 0 (no cap) or at least 20");
+  if (submap_max_keyframes != 0 && submap_max_keyframes < 10) {
+    return fail("tracker.tracking.submap_max_keyframes must be 0 (no cap) or at least 10");
   }
   if (handover_keyframes < 2 || (submap_max_keyframes > 0 && handover_keyframes >= submap_max_keyframes / 2)) {
     return fail("tracker.tracking.handover_keyframes must be at least 2 and below half of submap_max_keyframes");
