@@ -106,29 +106,36 @@ double WorstCentreError(const MergedMap& merged, const TwoSubmaps& scene) {
   return worst;
 }
 
-TEST(MergedMap, FusedPointsLetTheBundleAdjustmentPutAMisplacedSubmapBack) {
-  const TwoSubmaps scene = MakeTwoSubmaps();
-  // B placed 1.5 degrees and 10 cm off, as an edge Sim3 from a few points can be.
-  const Sim3d error(1.0, Eigen::Quaterniond(Eigen::AngleAxisd(1.5 * M_PI / 180, Eigen::Vector3d::UnitX())),
-                    Eigen::Vector3d(0.1, 0, 0));
+// B placed 1.5 degrees and 10 cm off, as an edge Sim3 from a few points can be.
+const Sim3d kMisplacement(1.0, Eigen::Quaterniond(Eigen::AngleAxisd(1.5 * M_PI / 180, Eigen::Vector3d::UnitX())),
+                          Eigen::Vector3d(0.1, 0, 0));
+
+// A's keyframe 5 and B's keyframe 0 connected by only 40 verified matches (the rest of the overlap
+// must be found by projection).
+ConnectedFrame FewMatches(const TwoSubmaps& scene) {
   ConnectedFrame connection;
   connection.keyframe_a = MakeKeyframeId(kA, 5);
   connection.keyframe_b = MakeKeyframeId(kB, 0);
-  // Only 40 verified matches; the rest of the overlap must be found by projection.
   connection.point_pairs.assign(scene.same_points.begin(), scene.same_points.begin() + 40);
+  return connection;
+}
 
+MergedMap AssembleMisplaced(const TwoSubmaps& scene, const MergedMapOptions& options) {
+  return AssembleMergedMap(scene.submaps, Placement(scene, kMisplacement), {}, {FewMatches(scene)}, 0,
+                           ScalePyramid::From(OrbOptions()), kCamera.Intrinsics(), options);
+}
+
+TEST(MergedMap, FusedPointsLetTheBundleAdjustmentPutAMisplacedSubmapBack) {
+  const TwoSubmaps scene = MakeTwoSubmaps();
   MergedMapOptions unadjusted;
   unadjusted.fuse_points = false;
   unadjusted.bundle_adjustment = false;
-  const MergedMap placed = AssembleMergedMap(scene.submaps, Placement(scene, error), {}, {connection}, 0,
-                                             ScalePyramid::From(OrbOptions()), kCamera.Intrinsics(), unadjusted);
+  const MergedMap placed = AssembleMisplaced(scene, unadjusted);
   EXPECT_EQ(placed.map.num_points(), 2u * kPoints);
   EXPECT_EQ(placed.map.num_keyframes(), 2u * kKeyframesPerSubmap);
   EXPECT_GT(WorstCentreError(placed, scene), 0.03);
 
-  const MergedMap merged =
-      AssembleMergedMap(scene.submaps, Placement(scene, error), {}, {connection}, 0, ScalePyramid::From(OrbOptions()),
-                        kCamera.Intrinsics(), MergedMapOptions());
+  const MergedMap merged = AssembleMisplaced(scene, MergedMapOptions());
   EXPECT_EQ(merged.points_fused_by_connection, 40);
   EXPECT_GT(merged.points_fused_by_projection, 200);
   EXPECT_LT(merged.map.num_points(), 2u * kPoints - 240);
@@ -142,20 +149,12 @@ TEST(MergedMap, FusedPointsLetTheBundleAdjustmentPutAMisplacedSubmapBack) {
 
 TEST(MergedMap, ALongFlightsAdjustmentMovesOnlyTheNewestKeyframes) {
   const TwoSubmaps scene = MakeTwoSubmaps();
-  const Sim3d error(1.0, Eigen::Quaterniond(Eigen::AngleAxisd(1.5 * M_PI / 180, Eigen::Vector3d::UnitX())),
-                    Eigen::Vector3d(0.1, 0, 0));
-  ConnectedFrame connection;
-  connection.keyframe_a = MakeKeyframeId(kA, 5);
-  connection.keyframe_b = MakeKeyframeId(kB, 0);
-  connection.point_pairs.assign(scene.same_points.begin(), scene.same_points.begin() + 40);
   MergedMapOptions unadjusted;
   unadjusted.bundle_adjustment = false;
-  const MergedMap placed = AssembleMergedMap(scene.submaps, Placement(scene, error), {}, {connection}, 0,
-                                             ScalePyramid::From(OrbOptions()), kCamera.Intrinsics(), unadjusted);
+  const MergedMap placed = AssembleMisplaced(scene, unadjusted);
   MergedMapOptions capped;
   capped.bundle_adjustment_max_free_keyframes = 4;
-  const MergedMap merged = AssembleMergedMap(scene.submaps, Placement(scene, error), {}, {connection}, 0,
-                                             ScalePyramid::From(OrbOptions()), kCamera.Intrinsics(), capped);
+  const MergedMap merged = AssembleMisplaced(scene, capped);
   EXPECT_EQ(merged.bundle_adjustment.keyframes_free, 4);
   EXPECT_LE(merged.bundle_adjustment.final_rms_px, merged.bundle_adjustment.initial_rms_px);
   // Only the newest four (same time stamps here: the highest ids) were free; every other stayed put.
