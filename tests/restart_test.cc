@@ -82,8 +82,13 @@ TEST(TrackerRestart, SubmapIdsStayUniqueAndNoFrameIsLost) {
     (i < before_restart ? before : after).insert(number);
     posed_after += i >= before_restart && records[i].state == "OK";
   }
-  EXPECT_EQ(before, std::set<int>{1});
-  EXPECT_EQ(after, std::set<int>{2});
+  // (A tracker starved by a loaded machine may lose tracking and start another submap before
+  // the crash; under AddressSanitizer beside other tests the first one once made submaps 1 and
+  // 2. The numbers must still never repeat.)
+  ASSERT_FALSE(before.empty());
+  ASSERT_FALSE(after.empty());
+  EXPECT_EQ(*before.begin(), 1);
+  EXPECT_EQ(*after.begin(), *before.rbegin() + 1) << "the restarted tracker goes on from the next number";
   EXPECT_GE(posed_after, static_cast<int>(records.size() - before_restart) - 6);
   // Every keyframe the trackers made reached the mapper, but for the one of the frame being
   // tracked at the crash: that frame was not acknowledged and was tracked again.
@@ -97,10 +102,11 @@ TEST(TrackerRestart, SubmapIdsStayUniqueAndNoFrameIsLost) {
         << "keyframe of frame " << records[i].frame_index << " in submap " << records[i].submap_id << " not mapped";
   }
   EXPECT_GE(made, 6);
-  EXPECT_EQ(ReadNextSubmapNumber(state), 3);
+  EXPECT_EQ(ReadNextSubmapNumber(state), *after.rbegin() + 1);
   std::ifstream log(dir / "tracker2.log");
   const std::string text((std::istreambuf_iterator<char>(log)), std::istreambuf_iterator<char>());
-  EXPECT_NE(text.find("resuming: submaps continue from number 2"), std::string::npos) << text;
+  EXPECT_NE(text.find("resuming: submaps continue from number " + std::to_string(*after.begin())), std::string::npos)
+      << text;
 }
 
 }  // namespace
