@@ -434,7 +434,7 @@ bool Tracking::HandOverIfFull(Output* output) {
   }
   const Keyframe* reference = full.FindKeyframe(reference_keyframe_);
   if (!reference) return false;
-  AdoptKeyframeBow(/*wait=*/true);  // the copies carry their bags of words
+  AdoptKeyframeBow(/*wait=*/true);                // the copies carry their bags of words
   const KeyframeId reference_id = reference->id;  // (the full submap may be dropped below)
   std::vector<KeyframeId> window = full.BestCovisible(reference_id, options_.handover_keyframes - 1);
   window.push_back(reference_id);
@@ -480,7 +480,6 @@ bool Tracking::HandOverIfFull(Output* output) {
   for (MapPointId& p : frame.points) p = new_point_id(p);
   store_.StartCurrent(std::move(map), static_cast<uint32_t>(window.size()));
   ++next_submap_number_;
-  ++handovers_;
   DropClosedSubmaps(/*keep_last=*/false);  // its local map goes on in the new submap
   const Map& current = *store_.current();
   reference_keyframe_ = keyframe_ids.at(reference_id);

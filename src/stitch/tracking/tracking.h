@@ -88,7 +88,6 @@ class Tracking {
   // The lowest number of a submap the tracker still holds: it dropped every one below (they get
   // no more keyframes; closed_keyframes_held).
   int first_submap_held() const { return store_.LowestNumberHeld(next_submap_number_); }
-  int submaps_handed_over() const { return handovers_; }
   bool lost() const { return lost_; }
   const Map* map() const { return store_.current(); }
   const Camera& camera() const { return geometry_.camera; }
@@ -144,7 +143,6 @@ class Tracking {
   int next_submap_number_;
   int submaps_closed_ = 0;
   int relocalizations_ = 0;
-  int handovers_ = 0;
   bool lost_ = false;            // relocalize policy: the map is kept but the camera is not in it
   int frames_initializing_ = 0;  // frames since the last submap closed (submap policy)
   // Submap policy: the keyframes of the local map the camera was tracked in when it was lost
