@@ -63,12 +63,15 @@ bool NeedKeyframe(const KeyframeDecisionInput& input, const TrackingOptions& opt
   const bool long_gap = input.frames_since_keyframe >= max_gap;
   bool few_tracked =
       input.tracked_points < options.keyframe_ratio * input.reference_points && input.tracked_points > 15;
-  // A frame that moved too little from its reference to triangulate anything new (a camera that
-  // mostly rotates) becomes a keyframe only when it sees much new ground: it tracks fewer than
-  // keyframe_ratio_without_parallax of the reference's points.
+  // A frame that moved too little from its reference to triangulate much (a camera that mostly
+  // rotates) becomes a keyframe at the pace a mapper can take (once
+  // keyframe_gap_without_parallax_s has passed since the last), or at once when it sees much new
+  // ground: it tracks fewer than keyframe_ratio_without_parallax of the reference's points.
   if (few_tracked && options.keyframe_min_parallax_deg > 0 && input.parallax_deg >= 0 &&
       input.parallax_deg < options.keyframe_min_parallax_deg) {
-    few_tracked = input.tracked_points < options.keyframe_ratio_without_parallax * input.reference_points;
+    const bool paced = options.keyframe_gap_without_parallax_s > 0 &&
+                       input.frames_since_keyframe >= options.keyframe_gap_without_parallax_s * fps;
+    few_tracked = paced || input.tracked_points < options.keyframe_ratio_without_parallax * input.reference_points;
   }
   // Much of the view is ground the map does not hold (the camera moved on while it was lost,
   // or turned): a keyframe maps it, whatever the ratio says.

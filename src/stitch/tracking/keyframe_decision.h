@@ -4,8 +4,10 @@
 // at least 3 keyframes, 2 while the map has two), but more than 15, and the mapper has taken
 // every keyframe sent so far (or is not connected). A frame whose median parallax with the
 // reference is under options.keyframe_min_parallax_deg (a camera that mostly rotates: a keyframe
-// there adds no triangulation, only cost) needs to track fewer than
-// options.keyframe_ratio_without_parallax of the points instead (much new ground in view).
+// there adds little triangulation, only cost) becomes one only once
+// options.keyframe_gap_without_parallax_s of the sequence has passed since the last keyframe, or
+// at once when it tracks fewer than options.keyframe_ratio_without_parallax of the points (much
+// new ground in view).
 
 #include "stitch/map/map.h"
 #include "stitch/tracking/tracking_options.h"

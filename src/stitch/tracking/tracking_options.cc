@@ -27,6 +27,9 @@ bool TrackingOptions::Check(std::string* why) const {
   if (!(keyframe_ratio_without_parallax > 0 && keyframe_ratio_without_parallax <= keyframe_ratio)) {
     return fail("tracker.tracking.keyframe_ratio_without_parallax must be in (0, keyframe_ratio]");
   }
+  if (!(keyframe_gap_without_parallax_s >= 0 && keyframe_gap_without_parallax_s <= 60)) {
+    return fail("tracker.tracking.keyframe_gap_without_parallax_s must be in [0, 60]");
+  }
   if (!(keyframe_min_coverage >= 0 && keyframe_min_coverage <= 1)) {
     return fail("tracker.tracking.keyframe_min_coverage must be in [0, 1]");
   }

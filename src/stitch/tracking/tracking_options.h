@@ -20,11 +20,13 @@ struct TrackingOptions {
   int lost_after_frames = 3;           // consecutive untracked frames that make tracking lost
   double keyframe_ratio = 0.9;         // new keyframe when the frame tracks fewer than this x reference's points
   int max_keyframe_gap = 0;            // frames between keyframes at most (0: one second of frames)
-  // Below this median parallax with the reference keyframe (degrees), a frame needs to track
-  // fewer than keyframe_ratio_without_parallax of its points to become a keyframe (0: off; off by
-  // default until it loses no merge in the quality gate: docs/benchmarks.md).
-  double keyframe_min_parallax_deg = 0.0;
-  double keyframe_ratio_without_parallax = 0.7;
+  // Below this median parallax with the reference keyframe (degrees: a camera that mostly
+  // rotates), a frame becomes a keyframe only when keyframe_gap_without_parallax_s has passed
+  // since the last one or it tracks fewer than keyframe_ratio_without_parallax of the
+  // reference's points (0: off). docs/benchmarks.md "Keyframes without parallax".
+  double keyframe_min_parallax_deg = 1.0;
+  double keyframe_ratio_without_parallax = 0.5;
+  double keyframe_gap_without_parallax_s = 0.2;  // of the sequence's time (0: only the ratio)
   // A frame that tracks map points in fewer than this share of its feature-holding image cells
   // (8x6) becomes a keyframe whatever the ratio (new ground in view; 0: off). Off by default: it
   // helps the forward camera and costs the oblique ones (docs/benchmarks.md).
@@ -104,10 +106,13 @@ struct TrackingOptions {
     v("max_keyframe_gap", max_keyframe_gap, "frames between keyframes at most (0: one second)");
     v("keyframe_min_parallax_deg", keyframe_min_parallax_deg,
       "below this median parallax with the reference keyframe, degrees, a keyframe needs "
-      "keyframe_ratio_without_parallax (0: off)");
+      "keyframe_gap_without_parallax_s since the last one or keyframe_ratio_without_parallax (0: off)");
     v("keyframe_ratio_without_parallax", keyframe_ratio_without_parallax,
-      "a frame with little parallax becomes a keyframe when tracking fewer than this fraction of the reference's "
-      "points");
+      "a frame with little parallax becomes a keyframe at once when tracking fewer than this fraction of the "
+      "reference's points");
+    v("keyframe_gap_without_parallax_s", keyframe_gap_without_parallax_s,
+      "a frame with little parallax becomes a keyframe only this long after the last one, seconds of the sequence "
+      "(unless keyframe_ratio_without_parallax; 0: only the ratio)");
     v("keyframe_min_coverage", keyframe_min_coverage,
       "a frame that tracks map points in fewer than this share of its feature-holding image cells (8x6 grid) becomes "
       "a keyframe (new ground in view; 0: off)");

@@ -405,6 +405,7 @@ TEST(KeyframeDecision, LittleParallaxNeedsMuchNewGround) {
   TrackingOptions options;
   options.keyframe_min_parallax_deg = 2;
   options.keyframe_ratio_without_parallax = 0.6;
+  options.keyframe_gap_without_parallax_s = 0;  // the ratio alone
   KeyframeDecisionInput input;
   input.reference_points = 300;
   input.frames_since_keyframe = 5;
@@ -421,6 +422,36 @@ TEST(KeyframeDecision, LittleParallaxNeedsMuchNewGround) {
   options.keyframe_min_parallax_deg = 0;
   input.parallax_deg = 0.5;
   EXPECT_TRUE(NeedKeyframe(input, options, 20)) << "off";
+}
+
+TEST(KeyframeDecision, LittleParallaxMakesKeyframesAtTheMappersPace) {
+  TrackingOptions options;
+  options.keyframe_min_parallax_deg = 1;
+  options.keyframe_ratio_without_parallax = 0.5;
+  options.keyframe_gap_without_parallax_s = 0.2;  // 6 frames at 30 fps, 2 at 10 fps
+  KeyframeDecisionInput input;
+  input.reference_points = 300;
+  input.tracked_points = 250;  // under 0.9 x 300, over 0.5 x 300
+  input.parallax_deg = 0.3;
+  input.frames_since_keyframe = 3;
+  EXPECT_FALSE(NeedKeyframe(input, options, 30)) << "a rotation, 0.1 s after the last keyframe";
+  EXPECT_TRUE(NeedKeyframe(input, options, 10)) << "0.3 s after it";
+  input.frames_since_keyframe = 6;
+  EXPECT_TRUE(NeedKeyframe(input, options, 30)) << "0.2 s after it";
+  input.frames_since_keyframe = 1;
+  input.tracked_points = 140;  // under 0.5 x 300: much new ground
+  EXPECT_TRUE(NeedKeyframe(input, options, 30));
+  input.tracked_points = 250;
+  input.parallax_deg = 1.5;
+  EXPECT_TRUE(NeedKeyframe(input, options, 30)) << "moved enough to triangulate: no pace";
+  input.parallax_deg = 0.3;
+  input.mapper_ready = false;
+  input.frames_since_keyframe = 30;
+  EXPECT_FALSE(NeedKeyframe(input, options, 30)) << "the pace does not overrule a busy mapper";
+  options.keyframe_min_parallax_deg = 0;
+  input.mapper_ready = true;
+  input.frames_since_keyframe = 1;
+  EXPECT_TRUE(NeedKeyframe(input, options, 30)) << "off: the plain ratio";
 }
 
 TEST(KeyframeDecision, ParallaxIsTheAngleTheCamerasMotionOpensAtThePoints) {
