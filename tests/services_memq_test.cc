@@ -397,6 +397,56 @@ TEST(ServicesInProcess, ALossClosesTheSubmapForTheMergerBeforeTheNextOneStarts) 
 // Memory over a long flight: submaps hand over at a keyframe cap; the mapper lets go of a closed
 // submap only once the merger says it holds it whole and the tracker has dropped it, and its
 // records still hold every submap's keyframes and points.
+// A 474-frame flight behind a 100 kB/s link (the merge campaign's flight-026): the merger asked
+// for the keyframes it lacked while they still waited in the bridge's queue, and the mapper
+// queued them again at every request, once every half second: 610 keyframes sent again, the
+// flight's bytes tripled. A ground that keeps asking for one keyframe of the first submap: how
+// many times it is sent, with the bridge reporting `link_backlog_s` all along (0: no bridge).
+int TimesAKeyframeIsSentWhileTheMergerKeepsAskingForIt(double link_backlog_s) {
+  InProcessStack stack([](StitchConfig* c) { c->mapper.stop_linger_s = 0; }, /*with_mapper=*/true, "");
+  const KeyframeId wanted = MakeKeyframeId(MakeSubmapId(0, 1), 1);
+  std::atomic<int> sent{0};
+  bus::Subscriber merger_side(stack.lcm.get());
+  merger_side.Subscribe<stitch::submap_update_t>(
+      bus::Channel("uav0", bus::kSubmap), [&](std::unique_ptr<stitch::submap_update_t> message, const std::string&) {
+        for (const stitch::keyframe_t& keyframe : message->keyframes)
+          sent += KeyframeId(keyframe.keyframe_id) == wanted;
+      });
+  std::atomic<bool> flying{true};
+  std::thread ground([&] {
+    bus::Publisher publisher(stack.lcm.get(), "uav0");
+    while (flying.load()) {
+      if (link_backlog_s > 0) {
+        stitch::link_status_t status{};
+        status.budget_bytes_per_s = 100000;
+        status.backlog_s = link_backlog_s;
+        publisher.Publish(bus::Channel("uav0", bus::kLinkStatus), &status);
+      }
+      if (sent.load() > 0) {
+        stitch::submap_request_t request{};
+        request.submap_id = SubmapOf(wanted).value;
+        request.num_keyframes = 1;
+        request.keyframe_ids = {wanted.value};
+        publisher.Publish(bus::Channel("uav0", bus::kSubmapRequest), &request);
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    }
+  });
+  stack.Play("none", 60);
+  flying = false;
+  ground.join();
+  return sent.load();
+}
+
+TEST(ServicesInProcess, BehindALinkTheMapperSendsAKeyframeAgainOnlyOnceTheBacklogHadTimeToGoOut) {
+  const int without_link = TimesAKeyframeIsSentWhileTheMergerKeepsAskingForIt(0);
+  const int behind = TimesAKeyframeIsSentWhileTheMergerKeepsAskingForIt(30);
+  std::printf("the keyframe asked for was sent %d times without a link, %d behind a 30 s backlog\n", without_link,
+              behind);
+  EXPECT_GE(without_link, 3) << "answered every half second";
+  EXPECT_EQ(behind, 1) << "the first sending is still on its way";
+}
+
 TEST(ServicesInProcess, TheMapperLetsGoOfASubmapOnlyOnceTheMergerHoldsItWholeAndTheTrackerDroppedIt) {
   stitch::testing::TempDir dir;
   InProcessStack stack(

@@ -29,6 +29,11 @@ struct MapperOptions {
   // reached the ground yet, so the merger cannot say what it lacks), stop_linger_s waits for the
   // bridge to catch up, at most this many seconds more.
   double stop_link_drain_s = 60.0;
+  // What was sent cannot reach the ground before the link bridge's backlog has gone out, so a
+  // keyframe or a submap's whole state is sent again (the merger asks until it holds it) only
+  // that long after it was last sent, at most this many seconds (the bridge drops what waited
+  // longer than link.max_queue_s: then it is lost, and sent again) and at least half a second.
+  double resend_max_hold_s = 60.0;
   MappingOptions mapping;
 
   template <class Visitor>
@@ -47,6 +52,9 @@ struct MapperOptions {
     v("stop_link_drain_s", stop_link_drain_s,
       "on stop, while the link bridge is behind, wait for it to catch up before stop_linger_s counts, at most this "
       "many seconds more");
+    v("resend_max_hold_s", resend_max_hold_s,
+      "a keyframe or a submap's whole state is sent again at the merger's request only once the link bridge's "
+      "backlog at its last sending has gone out, at most this many seconds later (link.max_queue_s)");
     v("mapping", mapping, "the local mapping algorithm");
   }
   bool Check(std::string* why) const {
@@ -64,6 +72,10 @@ struct MapperOptions {
     }
     if (!(stop_link_drain_s >= 0 && stop_link_drain_s <= 3600)) {
       if (why) *why = "mapper.stop_link_drain_s must be between 0 and 3600";
+      return false;
+    }
+    if (!(resend_max_hold_s >= 0 && resend_max_hold_s <= 3600)) {
+      if (why) *why = "mapper.resend_max_hold_s must be between 0 and 3600";
       return false;
     }
     if (!(link_backlog_thin_s >= 0)) {

@@ -240,15 +240,23 @@ void MapperService::ResendIfRequested() {
   }
   if (requests.empty() || !mapping_) return;
   const double now = MonotonicSeconds();
+  const auto due = [now](const auto& holds, const auto& key) {
+    const auto it = holds.find(key);
+    return it == holds.end() || it->second <= now;
+  };
   for (const auto& [submap, wanted] : requests) {
-    // Requests repeat until the merger has what it asked for; one answer per half second is enough.
-    double& last = last_resend_[submap];
-    if (now - last < 0.5) continue;
-    last = now;
-    const SubmapUpdate update =
-        mapping_->MakeResendUpdate(submap, {wanted.keyframes.begin(), wanted.keyframes.end()}, wanted.full_state);
+    // Requests repeat until the merger has what it asked for: what was sent and has not had the
+    // time to arrive is not sent again.
+    std::vector<KeyframeId> keyframes;
+    for (KeyframeId id : wanted.keyframes) {
+      if (due(keyframe_resend_after_, id)) keyframes.push_back(id);
+    }
+    const bool full_state = wanted.full_state && due(state_resend_after_, submap);
+    if (keyframes.empty() && !full_state) continue;
+    const SubmapUpdate update = mapping_->MakeResendUpdate(submap, keyframes, full_state);
     if (!update.submap.valid()) continue;
     for (auto& part : ToMessages(update)) publisher_->Publish(bus::Channel(publisher_->agent(), bus::kSubmap), &part);
+    HoldResends(update, full_state);
     ++resends_;
     STITCH_LOG(INFO) << "sent " << update.new_keyframes.size() << " keyframes of submap " << SubmapName(submap)
                      << (wanted.full_state ? " and its whole state" : "") << " again: the merger lacked them";
@@ -358,9 +366,28 @@ bool MapperService::LinkCongested() const {
   return limit > 0 && MonotonicSeconds() - link_status_at_.load() < 3.0 && link_backlog_s_.load() > limit;
 }
 
+double MapperService::ResendHoldSeconds() const {
+  const bool reporting = MonotonicSeconds() - link_status_at_.load() < 3.0;
+  const double backlog = reporting ? std::clamp(link_backlog_s_.load(), 0.0, options_.resend_max_hold_s) : 0.0;
+  return 0.5 + backlog;
+}
+
+void MapperService::HoldResends(const SubmapUpdate& update, bool whole_state) {
+  const double now = MonotonicSeconds();
+  const double until = now + ResendHoldSeconds();
+  if (keyframe_resend_after_.size() > 4096) {  // holds that have passed mean nothing: forget them
+    for (auto it = keyframe_resend_after_.begin(); it != keyframe_resend_after_.end();) {
+      it = it->second <= now ? keyframe_resend_after_.erase(it) : std::next(it);
+    }
+  }
+  for (const Keyframe& keyframe : update.new_keyframes) keyframe_resend_after_[keyframe.id] = until;
+  if (whole_state) state_resend_after_[update.submap] = until;
+}
+
 void MapperService::PublishSubmapUpdate(const SubmapUpdate& update) {
   if (!update.submap.valid()) return;
   for (auto& part : ToMessages(update)) publisher_->Publish(bus::Channel(publisher_->agent(), bus::kSubmap), &part);
+  HoldResends(update, update.closed);
   if (update.closed) {
     STITCH_LOG(INFO) << "submap " << SubmapName(update.submap) << " closed: " << update.manifest.size()
                      << " keyframes, " << update.changes.points.size() << " points sent to the merger";
@@ -438,7 +465,10 @@ void MapperService::ReleaseHeldWhole() {
     for (auto it = sent_associations_.begin(); it != sent_associations_.end();) {
       it = SubmapOf(it->first) == submap ? sent_associations_.erase(it) : std::next(it);
     }
-    last_resend_.erase(submap);
+    state_resend_after_.erase(submap);
+    for (auto it = keyframe_resend_after_.begin(); it != keyframe_resend_after_.end();) {
+      it = SubmapOf(it->first) == submap ? keyframe_resend_after_.erase(it) : std::next(it);
+    }
     released_.insert(submap);
     ++released_count_;
     STITCH_LOG(INFO) << "submap " << SubmapName(submap) << " let go (" << map.num_keyframes() << " keyframes, "

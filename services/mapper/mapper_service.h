@@ -85,9 +85,15 @@ class MapperService {
     std::set<KeyframeId> keyframes;
     bool full_state = false;
   };
-  std::map<SubmapId, Request> requests_;    // from the merger
-  std::set<SubmapId> confirmed_complete_;   // closed submaps the merger said it holds whole
-  std::map<SubmapId, double> last_resend_;  // MonotonicSeconds()
+  std::map<SubmapId, Request> requests_;   // from the merger
+  std::set<SubmapId> confirmed_complete_;  // closed submaps the merger said it holds whole
+  // When each keyframe and each submap's whole state may be sent again (MonotonicSeconds();
+  // worker only): not while what was last sent is still behind the link bridge's backlog, or the
+  // merger's repeated requests would each queue it again (ResendHoldSeconds).
+  std::map<KeyframeId, double> keyframe_resend_after_;
+  std::map<SubmapId, double> state_resend_after_;
+  double ResendHoldSeconds() const;
+  void HoldResends(const SubmapUpdate& update, bool whole_state);
   std::atomic<int64_t> resends_{0};
   std::atomic<double> last_request_at_{-1e9};  // MonotonicSeconds() of the merger's last request
   std::atomic<bool> merger_confirms_{false};   // a merger has said it holds a closed submap whole
