@@ -259,7 +259,7 @@ void MapperService::ResendIfRequested() {
     HoldResends(update, full_state);
     ++resends_;
     STITCH_LOG(INFO) << "sent " << update.new_keyframes.size() << " keyframes of submap " << SubmapName(submap)
-                     << (wanted.full_state ? " and its whole state" : "") << " again: the merger lacked them";
+                     << (full_state ? " and its whole state" : "") << " again: the merger lacked them";
   }
 }
 
