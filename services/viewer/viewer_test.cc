@@ -314,9 +314,17 @@ TEST(ViewerServer, AWebSocketOnlyFromThePagesOwnOriginAndOnlyAsManyAsAllowed) {
     EXPECT_GE(fd, 0);
     const std::string request = WebSocketRequest(port, "http://127.0.0.1:" + std::to_string(port));
     EXPECT_EQ(send(fd, request.data(), request.size(), MSG_NOSIGNAL), static_cast<ssize_t>(request.size()));
+    // The reply may come in pieces (the handshake's blank line in one, the first frame in the next).
+    std::string reply;
     char buffer[1024];
-    const ssize_t n = recv(fd, buffer, sizeof(buffer), 0);
-    return std::pair<int, std::string>{fd, n > 0 ? std::string(buffer, static_cast<size_t>(n)) : ""};
+    for (int i = 0; i < 50 && reply.find("\r\n\r\n") == std::string::npos; ++i) {
+      pollfd readable{fd, POLLIN, 0};
+      if (poll(&readable, 1, 100) != 1) continue;
+      const ssize_t n = recv(fd, buffer, sizeof(buffer), 0);
+      if (n <= 0) break;
+      reply.append(buffer, static_cast<size_t>(n));
+    }
+    return std::pair<int, std::string>{fd, reply};
   };
   const auto [first, first_reply] = open_socket();
   const auto [second, second_reply] = open_socket();
