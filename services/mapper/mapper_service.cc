@@ -169,7 +169,7 @@ void MapperService::LingerForTheMerger(SubmapId last) {
   while (last.valid()) {
     const double now = MonotonicSeconds();
     // A bridge still sending what the mapper sent: the merger cannot ask for it yet.
-    const bool link_behind = now - link_status_at_.load() < 3.0 && link_backlog_s_.load() > 1.0;
+    const bool link_behind = LinkBacklogSeconds() > 1.0;
     if (link_behind && now - start < options_.stop_link_drain_s) {
       if (!waited_for_link) {
         STITCH_LOG(INFO) << "waiting for the link bridge (" << link_backlog_s_.load()
@@ -360,16 +360,18 @@ void MapperService::ThinForTheLink(SubmapUpdate* update) {
                      associations.end());
 }
 
+double MapperService::LinkBacklogSeconds() const {
+  // A bridge that stopped reporting (gone, or never there) is not waited for.
+  return MonotonicSeconds() - link_status_at_.load() < 3.0 ? link_backlog_s_.load() : 0.0;
+}
+
 bool MapperService::LinkCongested() const {
   const double limit = options_.link_backlog_thin_s;
-  // A bridge that stopped reporting (gone, or never there) is not waited for.
-  return limit > 0 && MonotonicSeconds() - link_status_at_.load() < 3.0 && link_backlog_s_.load() > limit;
+  return limit > 0 && LinkBacklogSeconds() > limit;
 }
 
 double MapperService::ResendHoldSeconds() const {
-  const bool reporting = MonotonicSeconds() - link_status_at_.load() < 3.0;
-  const double backlog = reporting ? std::clamp(link_backlog_s_.load(), 0.0, options_.resend_max_hold_s) : 0.0;
-  return 0.5 + backlog;
+  return 0.5 + std::clamp(LinkBacklogSeconds(), 0.0, options_.resend_max_hold_s);
 }
 
 void MapperService::HoldResends(const SubmapUpdate& update, bool whole_state) {

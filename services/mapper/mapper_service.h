@@ -103,6 +103,7 @@ class MapperService {
   double last_activity_ = 0;  // MonotonicSeconds() of the last keyframe or manifest sent (worker only)
   int64_t points_thinned_ = 0;
   // The aircraft's link bridge's backlog (from <agent>/LINK_STATUS) and when it last said so.
+  double LinkBacklogSeconds() const;  // 0 while the bridge does not report
   bool LinkCongested() const;
   std::atomic<double> link_backlog_s_{0}, link_status_at_{-1e9};
   bool link_congested_ = false;

@@ -434,8 +434,9 @@ bool Tracking::HandOverIfFull(Output* output) {
   }
   const Keyframe* reference = full.FindKeyframe(reference_keyframe_);
   if (!reference) return false;
-  AdoptKeyframeBow(/*wait=*/true);                // the copies carry their bags of words
-  const KeyframeId reference_id = reference->id;  // (the full submap may be dropped below)
+  AdoptKeyframeBow(/*wait=*/true);  // the copies carry their bags of words
+  // The reference's id, kept: the full submap may be dropped below.
+  const KeyframeId reference_id = reference->id;
   std::vector<KeyframeId> window = full.BestCovisible(reference_id, options_.handover_keyframes - 1);
   window.push_back(reference_id);
   std::sort(window.begin(), window.end());  // in the order they were made
