@@ -215,6 +215,7 @@ SubmapBytes FlyAndCountSubmapBytes(bool thin, double link_backlog_s = 0) {
       [thin](StitchConfig* c) {
         c->mapper.submap_point_resend_fraction = thin ? 0.01 : 0.0;
         c->mapper.submap_window_associations = !thin;
+        c->mapper.stop_link_drain_s = 0;  // the reported backlog never goes out here
       },
       /*with_mapper=*/true, dir.path().string());
   MergerSide merger(stack.lcm.get(), ScalePyramid::From(stack.config.tracker.tracking.orb));
@@ -409,6 +410,7 @@ int TimesAKeyframeIsSentWhileTheMergerKeepsAskingForIt(double link_backlog_s) {
         c->mapper.stop_linger_s = 2;
         c->mapper.stop_link_drain_s = 0;     // the reported backlog never goes out here
         c->mapper.resend_max_hold_s = 3600;  // longer than the flight takes under any sanitizer
+        c->mapper.link_backlog_defer_s = 0;  // answered behind any backlog (the test below waits)
       },
       /*with_mapper=*/true, "");
   const KeyframeId wanted = MakeKeyframeId(MakeSubmapId(0, 1), 1);
@@ -454,6 +456,70 @@ TEST(ServicesInProcess, BehindALinkTheMapperSendsAKeyframeAgainOnlyOnceTheBacklo
   EXPECT_EQ(behind, 1) << "the first sending is still on its way";
 }
 
+// Behind a link bridge more than mapper.link_backlog_defer_s behind, what the mapper queues there
+// would wait until it expires: new keyframes stay on the aircraft (the manifests list them) and
+// the merger's requests wait until the backlog falls, here when the flight has ended.
+struct DeferredFlight {
+  int keyframes_in_flight = 0;  // keyframes the mapper sent before the flight's final state
+  bool wanted_in_a_manifest = false;
+  int wanted_sent_after = 0;  // the keyframe asked for, sent once the backlog had fallen
+};
+
+DeferredFlight FlyBehindALinkThatFallsBehind(double defer_s) {
+  InProcessStack stack(
+      [defer_s](StitchConfig* c) {
+        c->mapper.stop_linger_s = 2;
+        c->mapper.stop_link_drain_s = 0;
+        c->mapper.link_backlog_defer_s = defer_s;
+      },
+      /*with_mapper=*/true, "");
+  const KeyframeId wanted = MakeKeyframeId(MakeSubmapId(0, 1), 3);
+  std::mutex mutex;
+  DeferredFlight flight;
+  std::atomic<bool> landed{false}, flying{true};
+  bus::Subscriber merger_side(stack.lcm.get());
+  merger_side.Subscribe<stitch::submap_update_t>(
+      bus::Channel("uav0", bus::kSubmap), [&](std::unique_ptr<stitch::submap_update_t> message, const std::string&) {
+        std::lock_guard<std::mutex> lock(mutex);
+        if (message->closed && message->full_state) landed = true;
+        for (const stitch::keyframe_t& keyframe : message->keyframes) {
+          if (!landed) ++flight.keyframes_in_flight;
+          if (landed && KeyframeId(keyframe.keyframe_id) == wanted) ++flight.wanted_sent_after;
+        }
+        for (int64_t id : message->manifest_keyframe_ids) flight.wanted_in_a_manifest |= KeyframeId(id) == wanted;
+      });
+  std::thread ground([&] {
+    bus::Publisher publisher(stack.lcm.get(), "uav0");
+    while (flying.load()) {
+      stitch::link_status_t status{};
+      status.budget_bytes_per_s = 100000;
+      status.backlog_s = landed ? 0 : 30;  // the link catches up once the aircraft has landed
+      publisher.Publish(bus::Channel("uav0", bus::kLinkStatus), &status);
+      stitch::submap_request_t request{};
+      request.submap_id = SubmapOf(wanted).value;
+      request.num_keyframes = 1;
+      request.keyframe_ids = {wanted.value};
+      publisher.Publish(bus::Channel("uav0", bus::kSubmapRequest), &request);
+      std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    }
+  });
+  stack.Play("none", 20);
+  flying = false;
+  ground.join();
+  std::lock_guard<std::mutex> lock(mutex);
+  return flight;
+}
+
+TEST(ServicesInProcess, FarBehindALinkTheMapperKeepsKeyframesUntilAskedOnceTheBacklogFalls) {
+  const DeferredFlight deferred = FlyBehindALinkThatFallsBehind(20), sent = FlyBehindALinkThatFallsBehind(0);
+  std::printf("keyframes sent during the flight: %d behind a 30 s backlog, %d when not waiting for it\n",
+              deferred.keyframes_in_flight, sent.keyframes_in_flight);
+  EXPECT_GT(sent.keyframes_in_flight, 4);
+  EXPECT_LE(deferred.keyframes_in_flight, 2) << "only what went before the bridge's first report";
+  EXPECT_TRUE(deferred.wanted_in_a_manifest) << "the merger learns that the keyframe exists";
+  EXPECT_GE(deferred.wanted_sent_after, 1) << "and gets it once the link has caught up";
+}
+
 TEST(ServicesInProcess, TheMapperLetsGoOfASubmapOnlyOnceTheMergerHoldsItWholeAndTheTrackerDroppedIt) {
   stitch::testing::TempDir dir;
   InProcessStack stack(
@@ -463,6 +529,7 @@ TEST(ServicesInProcess, TheMapperLetsGoOfASubmapOnlyOnceTheMergerHoldsItWholeAnd
         c->tracker.tracking.submap_max_keyframes = 10;
         c->tracker.tracking.handover_keyframes = 3;
         c->tracker.tracking.closed_keyframes_held = 0;
+        c->mapper.stop_linger_s = 1;  // submap 2 is never confirmed: the stop need not wait 10 s for it
       },
       /*with_mapper=*/true, dir.path().string());
   // A merger that says it holds every submap whole but submap 2.

@@ -21,14 +21,21 @@ struct MapperOptions {
   // is exceeded), submap updates carry only new keyframes and new points; refined points wait
   // for a later update or the final state at close. 0: never hold back.
   double link_backlog_thin_s = 2.0;
+  // While it reports more than this many seconds (below link.max_queue_s, past which the bridge
+  // drops what waits), new keyframes are not sent (the manifest lists them, so the merger asks)
+  // and the merger's requests are answered only once the backlog falls below it again, a few
+  // keyframes at a time: the flight's data then waits on the aircraft, not in the bridge's queue
+  // where it would expire. Final states always go. 0: never wait.
+  double link_backlog_defer_s = 20.0;
   // On stop, after the final state: answer the merger's requests for what the link lost until it
-  // says it holds the last submap whole (a merger that never says so: until none has come for
+  // says it holds every submap whole (a merger that never says so: until none has come for
   // 2 s), at most this long (0: stop at once).
   double stop_linger_s = 10.0;
   // On stop, while the aircraft's link bridge reports a backlog (what the mapper sent has not
-  // reached the ground yet, so the merger cannot say what it lacks), stop_linger_s waits for the
-  // bridge to catch up, at most this many seconds more.
-  double stop_link_drain_s = 60.0;
+  // reached the ground yet, or keyframes still wait for a link that carries less than the flight
+  // made: link_backlog_defer_s), stop_linger_s waits for the bridge to catch up, at most this
+  // many seconds more. A 100 kB/s link takes about 2 minutes after a 40 s survey.
+  double stop_link_drain_s = 300.0;
   // What was sent cannot reach the ground before the link bridge's backlog has gone out, so a
   // keyframe or a submap's whole state is sent again (the merger asks until it holds it) only
   // that long after it was last sent, at most this many seconds (the bridge drops what waited
@@ -46,9 +53,12 @@ struct MapperOptions {
       "send the window keyframes' changed associations with every submap update (else at close only)");
     v("link_backlog_thin_s", link_backlog_thin_s,
       "while the link bridge is more than this many seconds behind, send new keyframes and points only (0: never)");
+    v("link_backlog_defer_s", link_backlog_defer_s,
+      "while the link bridge is more than this many seconds behind, new keyframes wait for the merger to ask for "
+      "them and its requests wait for the backlog to fall (0: never)");
     v("stop_linger_s", stop_linger_s,
-      "on stop, keep answering the merger's requests for the last submap until it says it holds it whole (from a "
-      "merger that never says so: until none came for 2 s), at most this long");
+      "on stop, keep answering the merger's requests until it says it holds every submap whole (from a merger that "
+      "never says so: until none came for 2 s), at most this long");
     v("stop_link_drain_s", stop_link_drain_s,
       "on stop, while the link bridge is behind, wait for it to catch up before stop_linger_s counts, at most this "
       "many seconds more");
@@ -76,6 +86,10 @@ struct MapperOptions {
     }
     if (!(resend_max_hold_s >= 0 && resend_max_hold_s <= 3600)) {
       if (why) *why = "mapper.resend_max_hold_s must be between 0 and 3600";
+      return false;
+    }
+    if (!(link_backlog_defer_s >= 0 && link_backlog_defer_s <= 3600)) {
+      if (why) *why = "mapper.link_backlog_defer_s must be between 0 and 3600";
       return false;
     }
     if (!(link_backlog_thin_s >= 0)) {

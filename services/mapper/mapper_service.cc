@@ -1,9 +1,11 @@
 #include "services/mapper/mapper_service.h"
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <sstream>
 #include <thread>
 
 #include "services/common/map_convert.h"
@@ -84,6 +86,10 @@ MapperService::MapperService(lcm::LCM* lcm, bus::Publisher* publisher, MapperOpt
           return;
         }
         link_backlog_s_ = status->backlog_s;
+        link_budget_ = std::isfinite(status->budget_bytes_per_s) && status->budget_bytes_per_s > 0
+                           ? status->budget_bytes_per_s
+                           : 0.0;
+        bytes_since_link_status_ = 0;
         link_status_at_ = MonotonicSeconds();
       });
   // The merger asks again for what the link lost.
@@ -127,7 +133,7 @@ void MapperService::Stop() {
     SubmapId last;
     if (const auto closed = mapping_->CloseSubmap()) {
       last = *closed;
-      PublishSubmapUpdate(mapping_->MakeFinalSubmapUpdate(*closed));
+      PublishSubmapUpdate(mapping_->MakeFinalSubmapUpdate(*closed), Sent::kFinalState);
     } else if (!mapping_->closed_maps().empty()) {
       last = mapping_->closed_maps().back()->id();
     }
@@ -140,6 +146,12 @@ void MapperService::Stop() {
   if (keyframes_hurried_ > 0) {
     STITCH_LOG(INFO) << keyframes_hurried_ << " of " << mapped_.load()
                      << " keyframes had their adjustment cut short or left to the next keyframe, which was waiting";
+  }
+  LogSentBytes();
+  if (keyframes_deferred_ > 0) {
+    STITCH_LOG(INFO) << keyframes_deferred_
+                     << " keyframes waited for the merger to ask for them: the link bridge was over "
+                     << options_.link_backlog_defer_s << " s behind";
   }
   if (points_held_back_ > 0) {
     STITCH_LOG(INFO) << "held back " << points_held_back_ << " point refinements while the link had a backlog";
@@ -155,43 +167,88 @@ void MapperService::Stop() {
   heartbeat_->Stop();
 }
 
+void MapperService::LogSentBytes() const {
+  static const char* kWhy[] = {"with their keyframes", "final states", "manifests", "sent again"};
+  int64_t total = 0;
+  std::ostringstream parts;
+  for (size_t i = 0; i < sent_bytes_.size(); ++i) {
+    const SentBytes& sent = sent_bytes_[i];
+    total += sent.bytes;
+    if (sent.messages == 0) continue;
+    parts << (parts.tellp() > 0 ? "; " : "") << kWhy[i] << " " << sent.bytes / 1000 << " kB in " << sent.messages
+          << " messages";
+    if (sent.keyframes > 0) parts << " (" << sent.keyframes << " keyframes, " << sent.keyframe_bytes / 1000 << " kB)";
+  }
+  if (total > 0) {
+    STITCH_LOG(INFO) << "sent " << total / 1000 << " kB of submap updates: " << parts.str();
+  }
+}
+
 void MapperService::LingerForTheMerger(SubmapId last) {
   // The merger may still lack the last keyframes (lost on the way), or be busy refining its map
   // before it looks (seconds on a large map).
-  const auto confirmed = [&] {
+  // ...and every submap closed before it (behind a slow link the merger may still be asking for
+  // their keyframes, or its word on one was lost).
+  const auto unconfirmed = [&] {
+    std::vector<SubmapId> waiting;
     std::lock_guard<std::mutex> lock(requests_mutex_);
-    return confirmed_complete_.count(last) > 0;
+    for (const auto& closed : mapping_->closed_maps()) {
+      if (!confirmed_complete_.count(closed->id())) waiting.push_back(closed->id());
+    }
+    if (!confirmed_complete_.count(last) && std::find(waiting.begin(), waiting.end(), last) == waiting.end()) {
+      waiting.push_back(last);
+    }
+    return waiting;
   };
   const double start = MonotonicSeconds();
   double final_sent = start;
   double counting_from = start;  // the linger counts once the link bridge has caught up
   bool waited_for_link = false;
+  double last_progress = start;
   while (last.valid()) {
     const double now = MonotonicSeconds();
     // A bridge still sending what the mapper sent: the merger cannot ask for it yet.
     const bool link_behind = LinkBacklogSeconds() > 1.0;
     if (link_behind && now - start < options_.stop_link_drain_s) {
       if (!waited_for_link) {
-        STITCH_LOG(INFO) << "waiting for the link bridge (" << link_backlog_s_.load()
-                         << " s behind) before the merger's last requests";
+        STITCH_LOG(INFO) << "waiting for the link bridge (" << LinkBacklogSeconds()
+                         << " s behind) before the merger's last requests, at most " << options_.stop_link_drain_s
+                         << " s";
+        last_progress = now;
+      } else if (now - last_progress >= 15.0) {
+        last_progress = now;
+        size_t asked = 0;
+        {
+          std::lock_guard<std::mutex> lock(requests_mutex_);
+          for (const auto& [submap, wanted] : requests_) asked += wanted.keyframes.size();
+        }
+        STITCH_LOG(INFO) << "still delivering to the ground (" << static_cast<int>(now - start)
+                         << " s): the link bridge is " << LinkBacklogSeconds() << " s behind, " << asked
+                         << " keyframes asked for wait, " << unconfirmed().size()
+                         << " submaps not yet held whole by the merger";
       }
       waited_for_link = true;
       counting_from = now;
     }
+    const std::vector<SubmapId> waiting = unconfirmed();
     if (now - counting_from >= options_.stop_linger_s) {
-      if (merger_confirms_.load() && options_.stop_linger_s > 0) {
-        STITCH_LOG(WARNING) << "stopping without the merger saying it holds submap " << SubmapName(last)
-                            << " whole (waited " << options_.stop_linger_s << " s)";
+      if (merger_confirms_.load() && options_.stop_linger_s > 0 && !waiting.empty()) {
+        std::string names;
+        for (SubmapId id : waiting) names += (names.empty() ? "" : ", ") + SubmapName(id);
+        STITCH_LOG(WARNING) << "stopping without the merger saying it holds submap" << (waiting.size() > 1 ? "s " : " ")
+                            << names << " whole (waited " << options_.stop_linger_s << " s)";
       }
       break;
     }
     if (merger_confirms_.load()) {
-      if (confirmed()) break;
-      // Its final state may be what was lost: once more every 2 s while nothing is asked.
-      if (!link_behind && now - final_sent > 2.0 && now - last_request_at_.load() > 2.0) {
+      if (waiting.empty()) break;
+      // A final state may be what was lost (or the merger's word on it): once more every 2 s
+      // while nothing is asked, one submap at a time, the last first (not before what was sent
+      // last has had the time to go out: ResendIfRequested holds it).
+      if (now - final_sent > 2.0 && now - last_request_at_.load() > 2.0) {
         final_sent = now;
         std::lock_guard<std::mutex> lock(requests_mutex_);
-        requests_[last].full_state = true;
+        requests_[waiting.back()].full_state = true;
       }
     } else if (now - counting_from > 2.5 && now - last_request_at_.load() > 2.0) {
       break;  // a merger that never confirms (or none): quiet for 2 s
@@ -215,7 +272,7 @@ void MapperService::Work() {
       last_activity_ = now;
     } else if (mapping_ && now - last_activity_ > 1.0) {
       last_activity_ = now;
-      PublishSubmapUpdate(mapping_->MakeManifestUpdate());
+      PublishSubmapUpdate(mapping_->MakeManifestUpdate(), Sent::kManifest);
     }
     if (!keyframe && queue_.closed()) return;
   }
@@ -229,7 +286,8 @@ void MapperService::CloseIfRequested() {
     close_requested_ = -1;
   }
   if (requested < 0 || !mapping_ || !mapping_->map() || mapping_->map()->id().value != requested) return;
-  if (const auto closed = mapping_->CloseSubmap()) PublishSubmapUpdate(mapping_->MakeFinalSubmapUpdate(*closed));
+  if (const auto closed = mapping_->CloseSubmap())
+    PublishSubmapUpdate(mapping_->MakeFinalSubmapUpdate(*closed), Sent::kFinalState);
 }
 
 void MapperService::ResendIfRequested() {
@@ -244,22 +302,47 @@ void MapperService::ResendIfRequested() {
     const auto it = holds.find(key);
     return it == holds.end() || it->second <= now;
   };
+  std::map<SubmapId, Request> later;  // not answered while the link bridge is far behind
   for (const auto& [submap, wanted] : requests) {
+    if (!mapping_->Holds(submap)) continue;  // let go of, or never this mapper's (ids off the link)
     // Requests repeat until the merger has what it asked for: what was sent and has not had the
     // time to arrive is not sent again.
     std::vector<KeyframeId> keyframes;
     for (KeyframeId id : wanted.keyframes) {
-      if (due(keyframe_resend_after_, id)) keyframes.push_back(id);
+      if (due(keyframe_resend_after_, id) && mapping_->Holds(id)) keyframes.push_back(id);
     }
-    const bool full_state = wanted.full_state && due(state_resend_after_, submap);
+    bool full_state = wanted.full_state && due(state_resend_after_, submap);
     if (keyframes.empty() && !full_state) continue;
-    const SubmapUpdate update = mapping_->MakeResendUpdate(submap, keyframes, full_state);
-    if (!update.submap.valid()) continue;
-    for (auto& part : ToMessages(update)) publisher_->Publish(bus::Channel(publisher_->agent(), bus::kSubmap), &part);
-    HoldResends(update, full_state);
-    ++resends_;
-    STITCH_LOG(INFO) << "sent " << update.new_keyframes.size() << " keyframes of submap " << SubmapName(submap)
-                     << (full_state ? " and its whole state" : "") << " again: the merger lacked them";
+    // Behind a link that carries less than the flight makes, what is queued behind the backlog
+    // would wait there until it expires: answer in pieces, each once the backlog has gone out.
+    size_t next = 0;
+    while (next < keyframes.size() || full_state) {
+      if (LinkDeferring()) {
+        Request& rest = later[submap];
+        rest.keyframes.insert(keyframes.begin() + static_cast<std::ptrdiff_t>(next), keyframes.end());
+        rest.full_state |= full_state;
+        break;
+      }
+      const size_t end = std::min(keyframes.size(), next + kKeyframesPerAnswer);
+      const std::vector<KeyframeId> piece(keyframes.begin() + static_cast<std::ptrdiff_t>(next),
+                                          keyframes.begin() + static_cast<std::ptrdiff_t>(end));
+      next = end;
+      const SubmapUpdate update = mapping_->MakeResendUpdate(submap, piece, full_state);
+      if (!update.submap.valid()) break;
+      PublishParts(update, Sent::kResend);
+      HoldResends(update, full_state);
+      ++resends_;
+      STITCH_LOG(INFO) << "sent " << update.new_keyframes.size() << " keyframes of submap " << SubmapName(submap)
+                       << (full_state ? " and its whole state" : "") << " again: the merger lacked them";
+      full_state = false;
+    }
+  }
+  if (later.empty()) return;
+  std::lock_guard<std::mutex> lock(requests_mutex_);
+  for (auto& [submap, rest] : later) {
+    Request& wanted = requests_[submap];
+    wanted.keyframes.insert(rest.keyframes.begin(), rest.keyframes.end());
+    wanted.full_state |= rest.full_state;
   }
 }
 
@@ -294,7 +377,7 @@ void MapperService::Process(const stitch::keyframe_t& message) {
   const MappingReport& report = mapped.report;
   if (!report.duplicate) ++mapped_;
   if (report.deferred || report.bundle_adjustment.interrupted) ++keyframes_hurried_;
-  if (mapped.closed_final) PublishSubmapUpdate(*mapped.closed_final);
+  if (mapped.closed_final) PublishSubmapUpdate(*mapped.closed_final, Sent::kFinalState);
   if (report.reopened_submap) {
     STITCH_LOG(INFO) << "submap " << SubmapName(*report.reopened_submap) << " reopened (the tracker relocalized in it)";
   }
@@ -302,8 +385,15 @@ void MapperService::Process(const stitch::keyframe_t& message) {
   for (auto& part : ToMessages(mapped.for_tracker)) {
     publisher_->Publish(bus::Channel(publisher_->agent(), bus::kLocalMap), &part);
   }
-  ThinForTheLink(&mapped.for_merger);
-  PublishSubmapUpdate(mapped.for_merger);
+  if (LinkDeferring()) {
+    // Far behind: the keyframe waits for the merger to ask for it (the manifest says it exists;
+    // small messages overtake the bridge's queue), so nothing queued there expires unsent.
+    ++keyframes_deferred_;
+    PublishSubmapUpdate(mapping_->MakeManifestUpdate(), Sent::kManifest);
+  } else {
+    ThinForTheLink(&mapped.for_merger);
+    PublishSubmapUpdate(mapped.for_merger, Sent::kKeyframeUpdate);
+  }
   STITCH_LOG(DEBUG) << "keyframe " << id << ": " << report.new_points << " new points, " << report.fused << " fused, "
                     << report.culled_points << " points and " << report.culled_keyframes.size()
                     << " keyframes culled, BA " << report.bundle_adjustment.initial_rms_px << " -> "
@@ -362,7 +452,24 @@ void MapperService::ThinForTheLink(SubmapUpdate* update) {
 
 double MapperService::LinkBacklogSeconds() const {
   // A bridge that stopped reporting (gone, or never there) is not waited for.
-  return MonotonicSeconds() - link_status_at_.load() < 3.0 ? link_backlog_s_.load() : 0.0;
+  if (MonotonicSeconds() - link_status_at_.load() >= 3.0) return 0.0;
+  // What this mapper published since the bridge's report waits behind it (reports come at 1 Hz).
+  const double budget = link_budget_.load();
+  const double since = budget > 0 ? static_cast<double>(bytes_since_link_status_.load()) / budget : 0.0;
+  return link_backlog_s_.load() + since;
+}
+
+bool MapperService::LinkDeferring() const {
+  const double limit = options_.link_backlog_defer_s;
+  const bool deferring = limit > 0 && LinkBacklogSeconds() > limit;
+  if (deferring != link_deferring_) {
+    link_deferring_ = deferring;
+    STITCH_LOG(INFO) << (deferring ? "the link bridge is " + std::to_string(LinkBacklogSeconds()) +
+                                         " s behind: new keyframes and answers to the merger wait for it"
+                                   : std::string("the link bridge is back under ") + std::to_string(limit) +
+                                         " s behind: keyframes go again");
+  }
+  return deferring;
 }
 
 bool MapperService::LinkCongested() const {
@@ -371,7 +478,9 @@ bool MapperService::LinkCongested() const {
 }
 
 double MapperService::ResendHoldSeconds() const {
-  return 0.5 + std::clamp(LinkBacklogSeconds(), 0.0, options_.resend_max_hold_s);
+  // The backlog is bytes over the budget; the datagrams' headers and the repairs of a lossy link
+  // take their share of the budget too, so what waits takes longer than that to go out.
+  return 0.5 + std::clamp(1.5 * LinkBacklogSeconds(), 0.0, options_.resend_max_hold_s);
 }
 
 void MapperService::HoldResends(const SubmapUpdate& update, bool whole_state) {
@@ -386,9 +495,23 @@ void MapperService::HoldResends(const SubmapUpdate& update, bool whole_state) {
   if (whole_state) state_resend_after_[update.submap] = until;
 }
 
-void MapperService::PublishSubmapUpdate(const SubmapUpdate& update) {
+void MapperService::PublishParts(const SubmapUpdate& update, Sent why) {
+  SentBytes& sent = sent_bytes_[static_cast<size_t>(why)];
+  for (auto& part : ToMessages(update)) {
+    ++sent.messages;
+    sent.bytes += part.getEncodedSize();
+    for (const auto& keyframe : part.keyframes) {
+      ++sent.keyframes;
+      sent.keyframe_bytes += keyframe._getEncodedSizeNoHash();
+    }
+    publisher_->Publish(bus::Channel(publisher_->agent(), bus::kSubmap), &part);
+    bytes_since_link_status_ += part.getEncodedSize();
+  }
+}
+
+void MapperService::PublishSubmapUpdate(const SubmapUpdate& update, Sent why) {
   if (!update.submap.valid()) return;
-  for (auto& part : ToMessages(update)) publisher_->Publish(bus::Channel(publisher_->agent(), bus::kSubmap), &part);
+  PublishParts(update, why);
   HoldResends(update, update.closed);
   if (update.closed) {
     STITCH_LOG(INFO) << "submap " << SubmapName(update.submap) << " closed: " << update.manifest.size()

@@ -7,6 +7,7 @@
 // When given a record folder it writes, at the end, submaps.ply (every submap's points in its own frame, one colour
 // per submap) and keyframes.tsv (final keyframe poses, culled keyframes included).
 
+#include <array>
 #include <atomic>
 #include <map>
 #include <memory>
@@ -44,12 +45,19 @@ class MapperService {
   int submaps_released() const { return released_count_.load(); }
 
  private:
+  // What submap updates were published for (their bytes are counted by kind: the stop's log line
+  // says where the link's bytes went).
+  enum class Sent { kKeyframeUpdate, kFinalState, kManifest, kResend, kCount };
+  struct SentBytes {
+    int64_t messages = 0, bytes = 0, keyframes = 0, keyframe_bytes = 0;
+  };
   void Work();
   void Process(const stitch::keyframe_t& message);
   // Leaves out of a keyframe's submap update the refined points the merger already has close
   // enough (MapperOptions::submap_point_resend_fraction) and associations it already has.
   void ThinForTheLink(SubmapUpdate* update);
-  void PublishSubmapUpdate(const SubmapUpdate& update);
+  void PublishSubmapUpdate(const SubmapUpdate& update, Sent why);
+  void PublishParts(const SubmapUpdate& update, Sent why);  // counted in sent_bytes_
   void CloseIfRequested();
   // Answers the merger's requests for what the link lost (in the worker: it owns the maps).
   void ResendIfRequested();
@@ -98,16 +106,26 @@ class MapperService {
   std::atomic<double> last_request_at_{-1e9};  // MonotonicSeconds() of the merger's last request
   std::atomic<bool> merger_confirms_{false};   // a merger has said it holds a closed submap whole
   // On stop, after closing `last`: answers the merger's requests until it says it holds `last`
-  // whole (at most stop_linger_s), or, from a merger that never says so, until it stays quiet.
+  // and every submap closed before it whole (at most stop_linger_s once the link bridge has
+  // caught up, stop_link_drain_s at most before that), or, from a merger that never says so,
+  // until it stays quiet.
   void LingerForTheMerger(SubmapId last);
+  void LogSentBytes() const;
   double last_activity_ = 0;  // MonotonicSeconds() of the last keyframe or manifest sent (worker only)
   int64_t points_thinned_ = 0;
   // The aircraft's link bridge's backlog (from <agent>/LINK_STATUS) and when it last said so.
   double LinkBacklogSeconds() const;  // 0 while the bridge does not report
   bool LinkCongested() const;
-  std::atomic<double> link_backlog_s_{0}, link_status_at_{-1e9};
+  // More than link_backlog_defer_s behind: new keyframes and answers wait (worker only).
+  bool LinkDeferring() const;
+  mutable bool link_deferring_ = false;
+  int64_t keyframes_deferred_ = 0;
+  static constexpr size_t kKeyframesPerAnswer = 4;  // ~180 kB: under 2 s of a 100 kB/s link
+  std::atomic<double> link_backlog_s_{0}, link_status_at_{-1e9}, link_budget_{0};
+  std::atomic<int64_t> bytes_since_link_status_{0};  // published since the bridge's last report
   bool link_congested_ = false;
   int64_t points_held_back_ = 0;
+  std::array<SentBytes, static_cast<size_t>(Sent::kCount)> sent_bytes_{};
   int64_t keyframes_hurried_ = 0;  // adjustments cut short or left to the next keyframe (it was waiting)
   // Submaps let go (ReleaseHeldWhole), their keyframes' final poses, and their points on disk.
   std::set<SubmapId> released_;

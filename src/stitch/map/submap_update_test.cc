@@ -134,6 +134,43 @@ TEST(SubmapUpdate, ASubmapReopenedAfterItsFinalStateIsOpenAgain) {
   EXPECT_EQ(receiver.map.num_keyframes(), 3u);
 }
 
+// What the mapper sends when the merger asks for a closed submap's keyframes but not its state
+// (LocalMapping::MakeResendUpdate): the keyframes alone, as revision 0.
+TEST(SubmapUpdate, AClosedSubmapsKeyframeSentAgainAloneNeitherClosesNorReopensIt) {
+  Sender sender;
+  const SubmapUpdate first = sender.AddKeyframe(0);
+  const SubmapUpdate lost = sender.AddKeyframe(1);
+  SubmapUpdate again;
+  again.submap = kSubmap;
+  again.revision = 0;
+  again.camera = lost.camera;
+  again.new_keyframes = lost.new_keyframes;
+  again.changes.submap = kSubmap;
+  const SubmapUpdate final_state = MakeFullSubmapUpdate(&sender.map, ++sender.revision, /*closed=*/true);
+
+  // Holding the final state: the keyframe joins, the submap stays closed and whole.
+  SubmapReplica whole(kSubmap, ScalePyramid::From(OrbOptions()));
+  ApplySubmapUpdate(first, &whole);
+  ASSERT_EQ(ApplySubmapUpdate(final_state, &whole).size(), 1u);
+  EXPECT_TRUE(ApplySubmapUpdate(again, &whole).empty());
+  EXPECT_TRUE(whole.closed);
+  ExpectSameSubmap(sender.map, whole.map);
+
+  // Lacking it: the keyframe joins, and the submap is not taken for closed (its final state,
+  // still to come, is what closes it).
+  SubmapReplica partial(kSubmap, ScalePyramid::From(OrbOptions()));
+  ApplySubmapUpdate(first, &partial);
+  SubmapUpdate manifest_only = lost;  // the part with the keyframe was lost, the first arrived
+  manifest_only.new_keyframes.clear();
+  ASSERT_EQ(ApplySubmapUpdate(manifest_only, &partial).size(), 1u);
+  EXPECT_TRUE(ApplySubmapUpdate(again, &partial).empty());
+  EXPECT_FALSE(partial.closed);
+  EXPECT_EQ(partial.map.num_keyframes(), 2u);
+  ApplySubmapUpdate(final_state, &partial);
+  EXPECT_TRUE(partial.closed);
+  ExpectSameSubmap(sender.map, partial.map);
+}
+
 TEST(SubmapUpdate, AnUpdateOfAnotherSubmapChangesNothing) {
   Sender sender;
   SubmapReplica receiver(MakeSubmapId(1, 5), ScalePyramid::From(OrbOptions()));

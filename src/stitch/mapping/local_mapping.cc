@@ -228,23 +228,24 @@ SubmapUpdate LocalMapping::MakeFinalSubmapUpdate(SubmapId submap) {
 
 SubmapUpdate LocalMapping::MakeResendUpdate(SubmapId submap, const std::vector<KeyframeId>& keyframes,
                                             bool full_state) {
-  Map* found = map_ && map_->id() == submap ? map_.get() : nullptr;
-  for (const auto& closed : closed_maps_) {
-    if (closed->id() == submap) found = closed.get();
-  }
+  Map* found = FindSubmap(submap);
   if (!found) return {};
   const bool closed = found != map_.get();
-  // A closed submap goes in full: its final state is what settles it at the receiver, and a
-  // partial update marked closed would let the receiver think it had it.
-  full_state = full_state || closed;
+  // A closed submap's keyframes alone go without their points, as revision 0, older than any
+  // state: a receiver takes the keyframes, and the points and associations they observe come
+  // with the final state (it asks for that on its own). Sent with the final state each time, a
+  // keyframe or two the link lost cost the submap's whole state again (1-2 MB, behind a link that
+  // may carry 100 kB/s); with their points, a few keyframes at a time sent most points many times.
+  const bool keyframes_alone = closed && !full_state;
+  const int revision = keyframes_alone ? 0 : ++revision_;
   LocalMapUpdate changes;
   SubmapUpdate update;
   if (full_state) {
-    update = MakeFullSubmapUpdate(found, ++revision_, closed);
+    update = MakeFullSubmapUpdate(found, revision, closed);
   } else {
-    changes.revision = ++revision_;
+    changes.revision = revision;
     std::set<MapPointId> points;
-    for (KeyframeId id : keyframes) {
+    for (KeyframeId id : keyframes_alone ? std::vector<KeyframeId>() : keyframes) {
       const Keyframe* keyframe = found->FindKeyframe(id);
       if (!keyframe) continue;
       changes.associations.push_back({id, keyframe->points});
@@ -262,14 +263,31 @@ SubmapUpdate LocalMapping::MakeResendUpdate(SubmapId submap, const std::vector<K
     if (!found->FindKeyframe(id)) continue;  // culled since: the manifest no longer lists it
     SubmapUpdate one = MakeKeyframeSubmapUpdate(*found, id, geometry_.camera, changes);
     if (!full_state && update.new_keyframes.empty()) {
-      update = one;  // carries `changes` and the manifest
-      update.closed = closed;
+      update = one;                         // carries `changes` and the manifest
+      if (closed) update.manifest.clear();  // the final state's stands
       continue;
     }
     for (Keyframe& keyframe : one.new_keyframes) update.new_keyframes.push_back(std::move(keyframe));
   }
   update.camera = geometry_.camera;
   return update;
+}
+
+Map* LocalMapping::FindSubmap(SubmapId submap) const {
+  if (map_ && map_->id() == submap) return map_.get();  // a reopened submap is no longer closed
+  for (const auto& closed : closed_maps_) {
+    if (closed->id() == submap) return closed.get();
+  }
+  return nullptr;
+}
+
+bool LocalMapping::Holds(KeyframeId keyframe) const {
+  const Map* map = FindSubmap(SubmapOf(keyframe));
+  return map && map->FindKeyframe(keyframe);
+}
+
+bool LocalMapping::Holds(SubmapId submap) const {
+  return FindSubmap(submap) != nullptr;
 }
 
 SubmapUpdate LocalMapping::MakeManifestUpdate() {

@@ -92,9 +92,15 @@ class LocalMapping {
   // The final state of a closed submap (empty update for one it does not know).
   SubmapUpdate MakeFinalSubmapUpdate(SubmapId submap);
   // Part of a submap again, open or closed, for a receiver that lost it: those of `keyframes` it
-  // still holds, in full with the points they observe, and with `full_state` (always, for a
-  // closed submap) every pose, association and point. Empty for a submap it does not know.
+  // still holds, in full with the points they observe, and with `full_state` every pose,
+  // association and point (closed as it is). A closed submap's keyframes without its state go
+  // alone (no points: the final state has them) as revision 0, no news of the submap's state.
+  // Empty for a submap it does not know.
   SubmapUpdate MakeResendUpdate(SubmapId submap, const std::vector<KeyframeId>& keyframes, bool full_state);
+  // Whether the current or a closed submap holds this keyframe (not culled, not let go), or is
+  // this submap.
+  bool Holds(KeyframeId keyframe) const;
+  bool Holds(SubmapId submap) const;
   // The current submap's manifest alone (a few bytes per keyframe): lets a receiver that lost
   // the newest keyframe's update notice it while the aircraft makes no new keyframe.
   SubmapUpdate MakeManifestUpdate();
@@ -114,6 +120,7 @@ class LocalMapping {
   std::vector<CulledKeyframe> CulledKeyframePoses() const;
 
  private:
+  Map* FindSubmap(SubmapId submap) const;  // the current or a closed one; null if neither
   void InsertKeyframe(Keyframe keyframe, const std::vector<MapPoint>& new_points);
 
   MappingOptions options_;
