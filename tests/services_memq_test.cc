@@ -395,6 +395,24 @@ TEST(ServicesInProcess, ALossClosesTheSubmapForTheMergerBeforeTheNextOneStarts) 
   EXPECT_TRUE(events.back().second) << "the last submap is closed at shutdown";
 }
 
+// What a 100 kB/s link bridge and a merger tell the mapper in the tests below: how far behind the
+// bridge is (nothing when negative) and which keyframe the merger asks for (none when invalid).
+void SayToTheMapper(bus::Publisher* publisher, double link_backlog_s, KeyframeId wanted) {
+  if (link_backlog_s >= 0) {
+    stitch::link_status_t status{};
+    status.budget_bytes_per_s = 100000;
+    status.backlog_s = link_backlog_s;
+    publisher->Publish(bus::Channel("uav0", bus::kLinkStatus), &status);
+  }
+  if (wanted.valid()) {
+    stitch::submap_request_t request{};
+    request.submap_id = SubmapOf(wanted).value;
+    request.num_keyframes = 1;
+    request.keyframe_ids = {wanted.value};
+    publisher->Publish(bus::Channel("uav0", bus::kSubmapRequest), &request);
+  }
+}
+
 // Memory over a long flight: submaps hand over at a keyframe cap; the mapper lets go of a closed
 // submap only once the merger says it holds it whole and the tracker has dropped it, and its
 // records still hold every submap's keyframes and points.
@@ -425,19 +443,7 @@ int TimesAKeyframeIsSentWhileTheMergerKeepsAskingForIt(double link_backlog_s) {
   std::thread ground([&] {
     bus::Publisher publisher(stack.lcm.get(), "uav0");
     while (flying.load()) {
-      if (link_backlog_s > 0) {
-        stitch::link_status_t status{};
-        status.budget_bytes_per_s = 100000;
-        status.backlog_s = link_backlog_s;
-        publisher.Publish(bus::Channel("uav0", bus::kLinkStatus), &status);
-      }
-      if (sent.load() > 0) {
-        stitch::submap_request_t request{};
-        request.submap_id = SubmapOf(wanted).value;
-        request.num_keyframes = 1;
-        request.keyframe_ids = {wanted.value};
-        publisher.Publish(bus::Channel("uav0", bus::kSubmapRequest), &request);
-      }
+      SayToTheMapper(&publisher, link_backlog_s > 0 ? link_backlog_s : -1, sent.load() > 0 ? wanted : KeyframeId());
       std::this_thread::sleep_for(std::chrono::milliseconds(100));
     }
   });
@@ -491,15 +497,7 @@ DeferredFlight FlyBehindALinkThatFallsBehind(double defer_s) {
   std::thread ground([&] {
     bus::Publisher publisher(stack.lcm.get(), "uav0");
     while (flying.load()) {
-      stitch::link_status_t status{};
-      status.budget_bytes_per_s = 100000;
-      status.backlog_s = landed ? 0 : 30;  // the link catches up once the aircraft has landed
-      publisher.Publish(bus::Channel("uav0", bus::kLinkStatus), &status);
-      stitch::submap_request_t request{};
-      request.submap_id = SubmapOf(wanted).value;
-      request.num_keyframes = 1;
-      request.keyframe_ids = {wanted.value};
-      publisher.Publish(bus::Channel("uav0", bus::kSubmapRequest), &request);
+      SayToTheMapper(&publisher, landed ? 0 : 30, wanted);  // the link catches up once the aircraft has landed
       std::this_thread::sleep_for(std::chrono::milliseconds(100));
     }
   });
