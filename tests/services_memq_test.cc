@@ -186,6 +186,9 @@ struct MergerSide {
         bus::Channel("uav0", bus::kSubmap),
         [this](std::unique_ptr<stitch::submap_update_t> message, const std::string&) {
           bytes += message->getEncodedSize();
+          bytes_besides_keyframes += message->getEncodedSize();
+          for (const stitch::keyframe_t& keyframe : message->keyframes)
+            bytes_besides_keyframes -= keyframe._getEncodedSizeNoHash();
           const SubmapUpdate update = FromMessage(*message, this->pyramid);
           auto it = replicas.try_emplace(update.submap, update.submap, this->pyramid).first;
           if (!update.closed) {
@@ -198,12 +201,14 @@ struct MergerSide {
   ScalePyramid pyramid;
   bus::Subscriber subscriber;
   int64_t bytes = 0;
-  int64_t points_sent_again = 0;  // before the final (closed) state: refinements of points sent before
+  int64_t bytes_besides_keyframes = 0;  // points, poses, associations: what thinning can leave out
+  int64_t points_sent_again = 0;        // before the final (closed) state: refinements of points sent before
   std::map<SubmapId, SubmapReplica> replicas;
 };
 
 struct SubmapBytes {
   int64_t all = 0;
+  int64_t besides_keyframes = 0;  // MergerSide::bytes_besides_keyframes
   int64_t points_sent_again = 0;  // MergerSide::points_sent_again
 };
 
@@ -239,7 +244,7 @@ SubmapBytes FlyAndCountSubmapBytes(bool thin, double link_backlog_s = 0) {
     // The final state brings the replica to the mapper's submap whatever was left out before.
     ExpectReplicaIsTheMappersSubmap(merger.replicas.begin()->second, dir / "keyframes.tsv");
   }
-  return {merger.bytes, merger.points_sent_again};
+  return {merger.bytes, merger.bytes_besides_keyframes, merger.points_sent_again};
 }
 
 TEST(ServicesInProcess, ThinnedSubmapUpdatesCostLessAndStillEndInTheMappersExactSubmap) {
@@ -254,11 +259,14 @@ TEST(ServicesInProcess, ThinnedSubmapUpdatesCostLessAndStillEndInTheMappersExact
 TEST(ServicesInProcess, WhileTheLinkIsBehindTheMapperHoldsRefinementsBackAndTheFinalStateCatchesUp) {
   const SubmapBytes thin = FlyAndCountSubmapBytes(true), behind = FlyAndCountSubmapBytes(true, 10);
   std::printf(
-      "SUBMAP bytes (points sent again before the final state): %lld (%lld) thinned, %lld (%lld) with the link "
-      "behind\n",
-      static_cast<long long>(thin.all), static_cast<long long>(thin.points_sent_again),
-      static_cast<long long>(behind.all), static_cast<long long>(behind.points_sent_again));
-  EXPECT_LT(behind.all, thin.all);
+      "SUBMAP bytes, besides keyframes (points sent again before the final state): %lld, %lld (%lld) thinned, "
+      "%lld, %lld (%lld) with the link behind\n",
+      static_cast<long long>(thin.all), static_cast<long long>(thin.besides_keyframes),
+      static_cast<long long>(thin.points_sent_again), static_cast<long long>(behind.all),
+      static_cast<long long>(behind.besides_keyframes), static_cast<long long>(behind.points_sent_again));
+  // Not the keyframes' bytes: how many keyframes a flight makes follows its timing (under
+  // ThreadSanitizer the run behind the link once made a few more, 1.81 MB in all against 1.75).
+  EXPECT_LT(behind.besides_keyframes, thin.besides_keyframes);
   EXPECT_LT(behind.points_sent_again, thin.points_sent_again / 4);
 }
 
