@@ -188,15 +188,12 @@ void MapperService::LingerForTheMerger(SubmapId last) {
   // The merger may still lack the last keyframes (lost on the way), or be busy refining its map
   // before it looks (seconds on a large map).
   // ...and every submap closed before it (behind a slow link the merger may still be asking for
-  // their keyframes, or its word on one was lost).
+  // their keyframes, or its word on one was lost). `last` is the newest of the closed submaps.
   const auto unconfirmed = [&] {
     std::vector<SubmapId> waiting;
     std::lock_guard<std::mutex> lock(requests_mutex_);
     for (const auto& closed : mapping_->closed_maps()) {
       if (!confirmed_complete_.count(closed->id())) waiting.push_back(closed->id());
-    }
-    if (!confirmed_complete_.count(last) && std::find(waiting.begin(), waiting.end(), last) == waiting.end()) {
-      waiting.push_back(last);
     }
     return waiting;
   };
@@ -459,7 +456,7 @@ double MapperService::LinkBacklogSeconds() const {
   return link_backlog_s_.load() + since;
 }
 
-bool MapperService::LinkDeferring() const {
+bool MapperService::LinkDeferring() {
   const double limit = options_.link_backlog_defer_s;
   const bool deferring = limit > 0 && LinkBacklogSeconds() > limit;
   if (deferring != link_deferring_) {
@@ -498,14 +495,15 @@ void MapperService::HoldResends(const SubmapUpdate& update, bool whole_state) {
 void MapperService::PublishParts(const SubmapUpdate& update, Sent why) {
   SentBytes& sent = sent_bytes_[static_cast<size_t>(why)];
   for (auto& part : ToMessages(update)) {
+    const int64_t bytes = part.getEncodedSize();
     ++sent.messages;
-    sent.bytes += part.getEncodedSize();
+    sent.bytes += bytes;
     for (const auto& keyframe : part.keyframes) {
       ++sent.keyframes;
       sent.keyframe_bytes += keyframe._getEncodedSizeNoHash();
     }
     publisher_->Publish(bus::Channel(publisher_->agent(), bus::kSubmap), &part);
-    bytes_since_link_status_ += part.getEncodedSize();
+    bytes_since_link_status_ += bytes;
   }
 }
 

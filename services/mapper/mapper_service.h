@@ -117,8 +117,8 @@ class MapperService {
   double LinkBacklogSeconds() const;  // 0 while the bridge does not report
   bool LinkCongested() const;
   // More than link_backlog_defer_s behind: new keyframes and answers wait (worker only).
-  bool LinkDeferring() const;
-  mutable bool link_deferring_ = false;
+  bool LinkDeferring();  // logs when it changes
+  bool link_deferring_ = false;
   int64_t keyframes_deferred_ = 0;
   static constexpr size_t kKeyframesPerAnswer = 4;  // ~180 kB: under 2 s of a 100 kB/s link
   std::atomic<double> link_backlog_s_{0}, link_status_at_{-1e9}, link_budget_{0};
