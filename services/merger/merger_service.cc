@@ -35,6 +35,9 @@ constexpr int64_t kMaxRevisionsPerSecond = 100;
 constexpr size_t kMaxFramePoses = 1'000'000;
 // Between two map clouds while submaps grow (a refinement publishes one at once).
 constexpr double kCloudInterval_s = 10.0;
+// Merges rolled back by the check after placement in one refinement, at most (each round solves
+// and adjusts the largest map again).
+constexpr int kMaxRollbacksPerRefinement = 3;
 // Lines of the merge log each global map carries.
 constexpr size_t kGlobalMapLogLines = 100;
 }  // namespace
@@ -167,6 +170,10 @@ std::optional<MergedMap> MergerService::MergeLargestMap(Merger::Graph* graph) co
                    << merged.points_fused_by_projection << " by projection; bundle adjustment " << ba.initial_rms_px
                    << " -> " << ba.final_rms_px << " px rms (" << ba.observations << " observations, "
                    << ba.outliers_removed << " outliers removed) in " << clock.ElapsedMs() << " ms";
+  for (const auto& [pair, junction] : merged.junctions) {
+    STITCH_LOG(INFO) << "junction " << SubmapName(pair.first) << "-" << SubmapName(pair.second) << ": " << junction.kept
+                     << " of " << junction.joined << " joining observations kept";
+  }
   return merged;
 }
 
@@ -429,6 +436,22 @@ void MergerService::Refine(const std::string& why) {
   }
   Refined refined{merger_.Solve(/*refine=*/true), std::nullopt};
   refined.merged = MergeLargestMap(&refined.graph);
+  // Checked after placement: a merge whose junction the adjustment could not hold is rolled back
+  // (its edge refused until more connected frames arrive) and the maps are solved again.
+  const bool check = merger_.options().merged_map.fuse_points;  // junctions are made by fusing
+  for (int round = 0; check && refined.merged && round < kMaxRollbacksPerRefinement; ++round) {
+    const std::vector<DoubtedEdge> doubted =
+        CheckJunctions(*refined.merged, refined.graph.tree, merger_.options().acceptance);
+    if (doubted.empty()) break;
+    for (const DoubtedEdge& d : doubted) {
+      STITCH_LOG(WARNING) << "merge of submaps " << SubmapName(d.edge.a) << " and " << SubmapName(d.edge.b)
+                          << " rolled back: " << d.reason;
+      merger_.RefuseAfterPlacement(d.edge, d.reason);
+    }
+    OnGraphChange("merge rolled back after placement (" + why + ")");
+    refined = Refined{merger_.Solve(/*refine=*/true), std::nullopt};
+    refined.merged = MergeLargestMap(&refined.graph);
+  }
   PublishGlobalMap(refined.graph);
   refined_ = std::move(refined);
   refined_at_ = processed_.load();

@@ -18,16 +18,6 @@ struct ObservationRecord {
   ceres::ResidualBlockId residual;
 };
 
-// Squared reprojection error in pixels, and its normalized (chi-square) form; infinite behind
-// the camera.
-std::pair<double, double> Errors(const Keyframe& keyframe, int feature, const Eigen::Vector3d& point,
-                                 const PinholeIntrinsics& k, const ScalePyramid& pyramid) {
-  const Eigen::Vector3d p = keyframe.cam_from_world * point;
-  if (p.z() <= 0) return {1e18, 1e18};
-  const double e2 = (keyframe.undistorted[feature] - k.Project(p)).squaredNorm();
-  return {e2, e2 * pyramid.inverse_sigma2[keyframe.keypoints[feature].octave]};
-}
-
 // Stops the solver when the caller's interruption says so.
 class InterruptionCallback : public ceres::IterationCallback {
  public:
@@ -58,6 +48,14 @@ ceres::Solver::Summary Solve(ceres::Problem* problem, int iterations, Interrupti
 }
 
 }  // namespace
+
+std::pair<double, double> ObservationErrors(const Keyframe& keyframe, int feature, const Eigen::Vector3d& point,
+                                            const PinholeIntrinsics& k, const ScalePyramid& pyramid) {
+  const Eigen::Vector3d p = keyframe.cam_from_world * point;
+  if (p.z() <= 0) return {1e18, 1e18};
+  const double e2 = (keyframe.undistorted[feature] - k.Project(p)).squaredNorm();
+  return {e2, e2 * pyramid.inverse_sigma2[keyframe.keypoints[feature].octave]};
+}
 
 bool BundleAdjustmentOptions::Check(std::string* why) const {
   if (iterations < 1 || refine_iterations < 0 || !(chi2_threshold > 0) || max_free_keyframes < 0) {
@@ -126,7 +124,7 @@ BundleAdjustmentReport BundleAdjust(Map* map, const std::vector<KeyframeId>& fre
       const ceres::ResidualBlockId residual =
           problem.AddResidualBlock(cost, huber, pose->second.data(), positions[p].data());
       records.push_back({kf, p, feature, residual});
-      initial_sq += std::min(1e6, Errors(*keyframe, feature, positions[p], k, pyramid).first);
+      initial_sq += std::min(1e6, ObservationErrors(*keyframe, feature, positions[p], k, pyramid).first);
     }
   }
   report.observations = static_cast<int>(records.size());
@@ -171,7 +169,7 @@ BundleAdjustmentReport BundleAdjust(Map* map, const std::vector<KeyframeId>& fre
     const Keyframe* keyframe = map->FindKeyframe(r.keyframe);
     const MapPoint* point = map->FindPoint(r.point);
     if (!keyframe || !point || keyframe->points[r.feature] != r.point) continue;
-    const auto [e2, chi2] = Errors(*keyframe, r.feature, point->position, k, pyramid);
+    const auto [e2, chi2] = ObservationErrors(*keyframe, r.feature, point->position, k, pyramid);
     if (options.remove_outliers && chi2 > options.chi2_threshold) {
       map->EraseObservation(r.keyframe, r.point);
       ++report.outliers_removed;
@@ -186,8 +184,7 @@ BundleAdjustmentReport BundleAdjust(Map* map, const std::vector<KeyframeId>& fre
 }
 
 BundleAdjustmentReport LocalBundleAdjustment(Map* map, KeyframeId keyframe, const PinholeIntrinsics& k,
-                                             const BundleAdjustmentOptions& options,
-                                             const Interruption& interrupted) {
+                                             const BundleAdjustmentOptions& options, const Interruption& interrupted) {
   std::vector<KeyframeId> window{keyframe};
   if (const Keyframe* kf = map->FindKeyframe(keyframe)) {
     for (const auto& [weight, other] : kf->ordered) {

@@ -5,6 +5,7 @@
 // initial map.
 
 #include <functional>
+#include <utility>
 #include <vector>
 
 #include "stitch/map/map.h"
@@ -30,6 +31,11 @@ struct BundleAdjustmentOptions {
   }
   bool Check(std::string* why) const;
 };
+
+// The squared reprojection error in pixels of `keyframe`'s `feature` as an observation of `point`,
+// and its normalized (chi-square) form; 1e18 behind the camera.
+std::pair<double, double> ObservationErrors(const Keyframe& keyframe, int feature, const Eigen::Vector3d& point,
+                                            const PinholeIntrinsics& k, const ScalePyramid& pyramid);
 
 struct BundleAdjustmentReport {
   int keyframes_free = 0, keyframes_fixed = 0, points = 0, observations = 0;

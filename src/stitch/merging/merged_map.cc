@@ -1,6 +1,7 @@
 #include "stitch/merging/merged_map.h"
 
 #include <algorithm>
+#include <cstdio>
 #include <set>
 
 #include "stitch/map/matcher.h"
@@ -37,6 +38,30 @@ std::vector<KeyframeId> Window(const Map& submap, KeyframeId id, int size) {
   std::vector<KeyframeId> window = submap.BestCovisible(id, size);
   window.push_back(id);
   return window;
+}
+
+// Observations of a point of one submap by a keyframe of another, by the pair (smaller id
+// first): all, and those within `chi2_threshold` of their point where the map has them now.
+struct JoiningCount {
+  int all = 0, agreeing = 0;
+};
+std::map<std::pair<SubmapId, SubmapId>, JoiningCount> CountJoiningObservations(const Map& map,
+                                                                               const PinholeIntrinsics& k,
+                                                                               double chi2_threshold) {
+  std::map<std::pair<SubmapId, SubmapId>, JoiningCount> counts;
+  for (const auto& [id, point] : map.points()) {
+    const SubmapId from = SubmapOf(id);
+    for (const auto& [keyframe, feature] : point.observations) {
+      const SubmapId by = SubmapOf(keyframe);
+      if (by == from) continue;
+      JoiningCount& count = counts[SubmapPair(from, by)];
+      ++count.all;
+      const Keyframe* observer = map.FindKeyframe(keyframe);
+      count.agreeing +=
+          observer && ObservationErrors(*observer, feature, point.position, k, map.pyramid()).second <= chi2_threshold;
+    }
+  }
+  return counts;
 }
 
 }  // namespace
@@ -146,7 +171,24 @@ MergedMap AssembleMergedMap(const std::map<SubmapId, SubmapReplica>& submaps,
       }
     }
   }
+  // What fusing joins, and what each adjustment leaves of it (the check after placement).
+  const double chi2 = BundleAdjustmentOptions().chi2_threshold;
+  for (const auto& [pair, count] : CountJoiningObservations(merged.map, intrinsics, chi2)) {
+    merged.junctions[pair].joined += count.all;
+  }
+  // After each adjustment: what is left of the joining observations (`left`: to tell what
+  // fusing by projection adds next) and how many of them are within the bound (`kept`).
+  std::map<std::pair<SubmapId, SubmapId>, int> left;
+  const auto count_kept = [&] {
+    left.clear();
+    for (auto& [pair, junction] : merged.junctions) junction.kept = 0;
+    for (const auto& [pair, count] : CountJoiningObservations(merged.map, intrinsics, chi2)) {
+      merged.junctions[pair].kept = count.agreeing;
+      left[pair] = count.all;
+    }
+  };
   adjust();
+  count_kept();
   if (options.fuse_points) {
     // Around each connection, each side's points are searched in the other side's keyframes.
     std::map<std::pair<SubmapId, SubmapId>, std::pair<std::set<KeyframeId>, std::set<KeyframeId>>> windows;
@@ -177,7 +219,12 @@ MergedMap AssembleMergedMap(const std::map<SubmapId, SubmapReplica>& submaps,
         }
       }
     }
+    for (const auto& [pair, count] : CountJoiningObservations(merged.map, intrinsics, chi2)) {
+      Junction& junction = merged.junctions[pair];
+      junction.joined += std::max(0, count.all - left[pair]);  // what fusing by projection added
+    }
     adjust();
+    count_kept();
   }
   // Keyframes keep their submap's scale (frames between keyframes follow it); rotation and
   // position come from the adjustment.
@@ -188,6 +235,31 @@ MergedMap AssembleMergedMap(const std::map<SubmapId, SubmapReplica>& submaps,
     pose = Sim3d(pose.scale, world_from_cam.rotation, world_from_cam.translation);
   }
   return merged;
+}
+
+std::vector<DoubtedEdge> CheckJunctions(const MergedMap& merged, const std::vector<SubmapEdge>& tree,
+                                        const AcceptanceOptions& options) {
+  std::vector<DoubtedEdge> doubted;
+  for (const SubmapEdge& edge : tree) {
+    const auto found = merged.junctions.find(SubmapPair(edge.a, edge.b));
+    const Junction j = found != merged.junctions.end() ? found->second : Junction();
+    char why[200];
+    if (j.joined < options.min_junction_observations) {
+      std::snprintf(why, sizeof(why),
+                    "after placement fusing found too few points of either submap in the other (%d observations join "
+                    "them, needs %d)",
+                    j.joined, options.min_junction_observations);
+    } else if (j.kept < options.min_junction_kept * j.joined) {
+      std::snprintf(why, sizeof(why),
+                    "after placement the bundle adjustment kept %d of the %d observations joining the submaps (%.1f%%, "
+                    "needs %.1f%%)",
+                    j.kept, j.joined, 100.0 * j.kept / j.joined, 100.0 * options.min_junction_kept);
+    } else {
+      continue;
+    }
+    doubted.push_back({edge, why});
+  }
+  return doubted;
 }
 
 }  // namespace stitch

@@ -8,6 +8,8 @@
 // Sim3 alone rests on a few dozen points.
 
 #include <map>
+#include <string>
+#include <utility>
 #include <vector>
 
 #include "stitch/estimators/bundle_adjustment.h"
@@ -18,6 +20,18 @@
 
 namespace stitch {
 
+// The observations that join two submaps of a merged map: of a point from one submap, made by a
+// keyframe of the other (fusing makes them). `joined`: made by fusing; `kept`: those within the
+// adjustment's outlier bound (chi-square 5.991) after the bundle adjustments, which drop an
+// observation its point and keyframe cannot agree on. A placement the points around the
+// junction confirm keeps nearly all (docs/merger.md, "Checked after placement").
+struct Junction {
+  int joined = 0;
+  int kept = 0;
+  int agreeing_as_placed = 0;
+  int joined_as_placed = 0;  // of those fusing the connections' matches, within the outlier bound before adjusting
+};
+
 struct MergedMap {
   int component = -1;
   Map map;                                     // in the merged map's frame; ids as in the submaps
@@ -25,6 +39,7 @@ struct MergedMap {
   int points_fused_by_connection = 0;          // verified matches of connected frames made one point
   int points_fused_by_projection = 0;
   BundleAdjustmentReport bundle_adjustment;
+  std::map<std::pair<SubmapId, SubmapId>, Junction> junctions;  // by the pair's ids, smaller first
 
   explicit MergedMap(const ScalePyramid& pyramid) : map(SubmapId(), pyramid) {}
 };
@@ -37,5 +52,17 @@ MergedMap AssembleMergedMap(const std::map<SubmapId, SubmapReplica>& submaps,
                             const std::map<KeyframeId, Sim3d>& keyframe_poses,
                             const std::vector<ConnectedFrame>& connections, int component, const ScalePyramid& pyramid,
                             const PinholeIntrinsics& intrinsics, const MergedMapOptions& options);
+
+// The check after placement: the edges of `tree` inside `merged` (assembled with fused points)
+// whose junction does not confirm them: fewer than `min_junction_observations` joining
+// observations (fusing found too few points of either submap in the other where the merge put
+// them), or less than `min_junction_kept` of them kept by the adjustment; each with why. Their
+// merges are to be rolled back.
+struct DoubtedEdge {
+  SubmapEdge edge;
+  std::string reason;
+};
+std::vector<DoubtedEdge> CheckJunctions(const MergedMap& merged, const std::vector<SubmapEdge>& tree,
+                                        const AcceptanceOptions& options);
 
 }  // namespace stitch

@@ -1,6 +1,7 @@
 #include "stitch/merging/merged_map.h"
 
 #include <algorithm>
+#include <cstdio>
 
 #include <gtest/gtest.h>
 
@@ -165,6 +166,72 @@ TEST(MergedMap, ALongFlightsAdjustmentMovesOnlyTheNewestKeyframes) {
     EXPECT_LT((merged.map.FindKeyframe(ids[i])->Centre() - placed.map.FindKeyframe(ids[i])->Centre()).norm(), 1e-12)
         << ids[i];
   }
+}
+
+SubmapEdge TreeEdge() {
+  SubmapEdge edge;
+  edge.a = kA;
+  edge.b = kB;
+  edge.connected_frames = 2;
+  return edge;
+}
+
+TEST(MergedMap, AJunctionTheAdjustmentHoldsPassesTheCheckAfterPlacement) {
+  const TwoSubmaps scene = MakeTwoSubmaps();
+  const MergedMap merged = AssembleMisplaced(scene, MergedMapOptions());
+  ASSERT_EQ(merged.junctions.size(), 1u);
+  const Junction& junction = merged.junctions.at(SubmapPair(kB, kA));
+  // Each fused point joins six keyframes of the other submap; exact observations all stay.
+  EXPECT_GT(junction.joined, 240 * kKeyframesPerSubmap);
+  EXPECT_EQ(junction.kept, junction.joined);
+  EXPECT_TRUE(CheckJunctions(merged, {TreeEdge()}, AcceptanceOptions()).empty());
+}
+
+TEST(MergedMap, AMergeOnPointsThatAreNotTheSameIsDoubtedAfterPlacement) {
+  const TwoSubmaps scene = MakeTwoSubmaps();
+  // The connection's matches pair each point with another one (repeated texture, say), and B is
+  // placed 20 degrees off by them: fusing joins points the adjustment cannot reconcile, and
+  // fusing by projection finds nothing where B wrongly lies.
+  ConnectedFrame wrong = FewMatches(scene);
+  for (size_t m = 0; m < wrong.point_pairs.size(); ++m) {
+    wrong.point_pairs[m].second = scene.same_points[(m + 97) % kPoints].second;
+  }
+  const Sim3d far_off(1.0, Eigen::Quaterniond(Eigen::AngleAxisd(20 * M_PI / 180, Eigen::Vector3d::UnitX())),
+                      Eigen::Vector3d(1, 0, 0));
+  const MergedMap merged =
+      AssembleMergedMap(scene.submaps, Placement(scene, far_off), {}, {wrong}, 0, ScalePyramid::From(OrbOptions()),
+                        kCamera.Intrinsics(), MergedMapOptions());
+  const Junction& junction = merged.junctions.at(SubmapPair(kA, kB));
+  std::printf("joining observations: %d made, %d kept\n", junction.joined, junction.kept);
+  EXPECT_GE(junction.joined, 40 * kKeyframesPerSubmap);
+  EXPECT_LT(junction.kept, junction.joined / 2);
+  const std::vector<DoubtedEdge> doubted = CheckJunctions(merged, {TreeEdge()}, AcceptanceOptions());
+  ASSERT_EQ(doubted.size(), 1u);
+  EXPECT_EQ(doubted[0].edge.b, kB);
+  EXPECT_NE(doubted[0].reason.find("after placement"), std::string::npos) << doubted[0].reason;
+  AcceptanceOptions lenient;
+  lenient.min_junction_kept = 0;
+  EXPECT_TRUE(CheckJunctions(merged, {TreeEdge()}, lenient).empty());
+}
+
+TEST(MergedMap, AMergeNoFusedPointConfirmsIsDoubtedAfterPlacement) {
+  const TwoSubmaps scene = MakeTwoSubmaps();
+  // B placed 2 m off and no verified matches to fuse (its connections' points culled since, say):
+  // fusing by projection finds none of A's points in B's keyframes.
+  ConnectedFrame unmatched = FewMatches(scene);
+  unmatched.point_pairs.clear();
+  const Sim3d far_off(1.0, Eigen::Quaterniond::Identity(), Eigen::Vector3d(0, 2, 0));
+  const MergedMap merged =
+      AssembleMergedMap(scene.submaps, Placement(scene, far_off), {}, {unmatched}, 0, ScalePyramid::From(OrbOptions()),
+                        kCamera.Intrinsics(), MergedMapOptions());
+  const auto junction = merged.junctions.find(SubmapPair(kA, kB));
+  EXPECT_TRUE(junction == merged.junctions.end() || junction->second.joined < 30);
+  const std::vector<DoubtedEdge> doubted = CheckJunctions(merged, {TreeEdge()}, AcceptanceOptions());
+  ASSERT_EQ(doubted.size(), 1u);
+  EXPECT_NE(doubted[0].reason.find("fusing found too few points"), std::string::npos) << doubted[0].reason;
+  AcceptanceOptions none_needed;
+  none_needed.min_junction_observations = 0;
+  EXPECT_TRUE(CheckJunctions(merged, {TreeEdge()}, none_needed).empty());
 }
 
 TEST(MergedMap, OnlyTheChosenMergedMapIsAssembled) {

@@ -525,11 +525,22 @@ Merger::Graph Merger::Solve(bool refine) const {
   CheckEdges(&graph.edges, options_.min_connection_strength, options_.acceptance);
   CheckCompleteness(&graph.edges, options_.min_connection_strength, completeness,
                     options_.acceptance.max_missing_keyframes);
+  for (SubmapEdge& e : graph.edges) {
+    const auto refusal = refused_after_placement_.find(SubmapPair(e.a, e.b));
+    if (e.refused.empty() && refusal != refused_after_placement_.end() &&
+        e.connected_frames <= refusal->second.connected_frames) {
+      e.refused = refusal->second.reason;
+    }
+  }
   graph.tree = MinimumSpanningForest(ids, graph.edges, options_.min_connection_strength);
   graph.placement = PlaceSubmaps(keyframes, graph.tree);
   CheckCycles(&graph.edges, graph.tree, graph.placement);
   if (refine) graph.keyframe_poses = RefineKeyframePoses(graph.placement, &graph);
   return graph;
+}
+
+void Merger::RefuseAfterPlacement(const SubmapEdge& edge, const std::string& reason) {
+  refused_after_placement_[SubmapPair(edge.a, edge.b)] = {edge.connected_frames, reason};
 }
 
 std::map<KeyframeId, Sim3d> Merger::RefineKeyframePoses(const std::map<SubmapId, SubmapPlacement>& placement,

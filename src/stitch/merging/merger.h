@@ -67,6 +67,10 @@ class Merger {
   };
   Reverification ReverifyStaleConnections();
 
+  // The check after placement (CheckJunctions) doubted `edge`'s merge: Solve refuses the edge,
+  // with `reason`, until its pair has more agreeing connected frames than now.
+  void RefuseAfterPlacement(const SubmapEdge& edge, const std::string& reason);
+
   const std::map<SubmapId, SubmapReplica>& submaps() const { return submaps_; }
   const std::vector<ConnectedFrame>& connections() const { return connections_; }
   const std::vector<ConnectedFrame>& loops() const { return loops_; }  // both ends in one submap
@@ -114,6 +118,11 @@ class Merger {
   std::vector<ConnectedFrame> loops_;
   std::vector<ConnectedFrame> refused_;
   std::vector<RetrievalRecord> retrievals_;
+  struct PlacementRefusal {
+    int connected_frames = 0;  // the edge's when refused
+    std::string reason;
+  };
+  std::map<std::pair<SubmapId, SubmapId>, PlacementRefusal> refused_after_placement_;  // smaller id first
 };
 
 }  // namespace stitch

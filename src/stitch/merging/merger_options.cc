@@ -38,6 +38,10 @@ bool AcceptanceOptions::Check(std::string* why) const {
   }
   if (min_connected_frames < 1) return fail("merger.acceptance.min_connected_frames must be >= 1");
   if (!(min_agreement >= 0 && min_agreement <= 1)) return fail("merger.acceptance.min_agreement must be in [0, 1]");
+  if (!(min_junction_kept >= 0 && min_junction_kept <= 1)) {
+    return fail("merger.acceptance.min_junction_kept must be in [0, 1]");
+  }
+  if (min_junction_observations < 0) return fail("merger.acceptance.min_junction_observations must be >= 0");
   if (!(max_missing_keyframes >= 0 && max_missing_keyframes <= 1)) {
     return fail("merger.acceptance.max_missing_keyframes must be in [0, 1]");
   }

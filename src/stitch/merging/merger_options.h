@@ -59,6 +59,10 @@ struct AcceptanceOptions {
   double min_agreement = 0.6;              // share of the pair's points whose rotation agrees with the edge's Sim3
   bool reverify_stale_connections = true;  // verify connections again on newer points before each refinement
   double max_missing_keyframes = 0.25;     // share of a submap's keyframes its copy may lack and still be placed
+  // Checked after placement (CheckJunctions): a merge whose junction the global adjustment
+  // cannot hold is rolled back.
+  double min_junction_kept = 0.5;      // share of the observations joining two submaps the adjustment must keep
+  int min_junction_observations = 30;  // joining observations a merge needs (fewer: the points do not confirm it)
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
@@ -78,6 +82,14 @@ struct AcceptanceOptions {
     v("max_missing_keyframes", max_missing_keyframes,
       "a submap whose copy lacks more than this share of the keyframes its manifest lists (the link has not "
       "brought them) is placed by no edge until they arrive: what it holds may be early, unrefined points");
+    v("min_junction_kept", min_junction_kept,
+      "checked after placement: share of the observations that fusing made between two merged submaps the global "
+      "bundle adjustment must keep (it drops those its points and keyframes cannot agree on); below it the merge is "
+      "rolled back and its edge waits for more connected frames (0: not checked)");
+    v("min_junction_observations", min_junction_observations,
+      "checked after placement: observations joining two merged submaps a merge needs (a point of one seen by a "
+      "keyframe of the other, made by fusing); fewer, and no points confirm where the merge put them: it is rolled "
+      "back (0: none needed)");
   }
   bool Check(std::string* why) const;
 };

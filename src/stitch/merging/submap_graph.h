@@ -70,6 +70,11 @@ bool SimilaritiesAgree(const Sim3d& x, const Sim3d& y);
 double ConnectionStrength(int connected_frames, int map_points, double median_angle_deg,
                           const ConnectionWeights& weights = ConnectionWeights());
 
+// A pair of submaps as a key, the smaller id first.
+inline std::pair<SubmapId, SubmapId> SubmapPair(SubmapId a, SubmapId b) {
+  return a < b ? std::make_pair(a, b) : std::make_pair(b, a);
+}
+
 struct SubmapEdge {
   SubmapId a, b;
   int connected_frames = 0;     // F

@@ -114,5 +114,29 @@ TEST(Merge, DroppedRepeatedAndReorderedUpdatesStillMerge) {
   }
 }
 
+TEST(Merge, AMergeRolledBackAfterPlacementWaitsForMoreConnectedFrames) {
+  const GustRun& g = Gust();
+  Merger merger(g.options.merger, &testing::DefaultVocabulary(), ScalePyramid::From(g.options.tracking.orb));
+  for (const SubmapUpdate& update : g.run.submap_updates) merger.Apply(update);
+  const Merger::Graph merged = merger.Solve();
+  ASSERT_EQ(merged.tree.size(), 1u);
+  const SubmapEdge edge = merged.tree.front();
+
+  merger.RefuseAfterPlacement(edge, "after placement: doubted by the test");
+  const Merger::Graph rolled_back = merger.Solve();
+  EXPECT_TRUE(rolled_back.tree.empty());
+  EXPECT_NE(rolled_back.placement.at(edge.a).component, rolled_back.placement.at(edge.b).component);
+  ASSERT_EQ(rolled_back.edges.size(), 1u);
+  EXPECT_EQ(rolled_back.edges[0].refused, "after placement: doubted by the test");
+  EXPECT_EQ(EdgeStatus(rolled_back.edges[0], rolled_back.tree, g.options.merger.min_connection_strength),
+            "refused: after placement: doubted by the test");
+
+  // Refused when it had one connected frame fewer: it has more evidence now, and merges again.
+  SubmapEdge with_less = edge;
+  --with_less.connected_frames;
+  merger.RefuseAfterPlacement(with_less, "after placement: doubted on less");
+  EXPECT_EQ(merger.Solve().tree.size(), 1u);
+}
+
 }  // namespace
 }  // namespace stitch
