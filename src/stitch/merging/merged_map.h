@@ -28,8 +28,6 @@ namespace stitch {
 struct Junction {
   int joined = 0;
   int kept = 0;
-  int agreeing_as_placed = 0;
-  int joined_as_placed = 0;  // of those fusing the connections' matches, within the outlier bound before adjusting
 };
 
 struct MergedMap {

@@ -121,9 +121,15 @@ ConnectedFrame FewMatches(const TwoSubmaps& scene) {
   return connection;
 }
 
-MergedMap AssembleMisplaced(const TwoSubmaps& scene, const MergedMapOptions& options) {
-  return AssembleMergedMap(scene.submaps, Placement(scene, kMisplacement), {}, {FewMatches(scene)}, 0,
+// The two submaps merged along `connection`, B placed by the true similarity made wrong by `error`.
+MergedMap AssembleAlong(const TwoSubmaps& scene, const Sim3d& error, const ConnectedFrame& connection,
+                        const MergedMapOptions& options = MergedMapOptions()) {
+  return AssembleMergedMap(scene.submaps, Placement(scene, error), {}, {connection}, 0,
                            ScalePyramid::From(OrbOptions()), kCamera.Intrinsics(), options);
+}
+
+MergedMap AssembleMisplaced(const TwoSubmaps& scene, const MergedMapOptions& options) {
+  return AssembleAlong(scene, kMisplacement, FewMatches(scene), options);
 }
 
 TEST(MergedMap, FusedPointsLetTheBundleAdjustmentPutAMisplacedSubmapBack) {
@@ -198,9 +204,7 @@ TEST(MergedMap, AMergeOnPointsThatAreNotTheSameIsDoubtedAfterPlacement) {
   }
   const Sim3d far_off(1.0, Eigen::Quaterniond(Eigen::AngleAxisd(20 * M_PI / 180, Eigen::Vector3d::UnitX())),
                       Eigen::Vector3d(1, 0, 0));
-  const MergedMap merged =
-      AssembleMergedMap(scene.submaps, Placement(scene, far_off), {}, {wrong}, 0, ScalePyramid::From(OrbOptions()),
-                        kCamera.Intrinsics(), MergedMapOptions());
+  const MergedMap merged = AssembleAlong(scene, far_off, wrong);
   const Junction& junction = merged.junctions.at(SubmapPair(kA, kB));
   std::printf("joining observations: %d made, %d kept\n", junction.joined, junction.kept);
   EXPECT_GE(junction.joined, 40 * kKeyframesPerSubmap);
@@ -208,7 +212,7 @@ TEST(MergedMap, AMergeOnPointsThatAreNotTheSameIsDoubtedAfterPlacement) {
   const std::vector<DoubtedEdge> doubted = CheckJunctions(merged, {TreeEdge()}, AcceptanceOptions());
   ASSERT_EQ(doubted.size(), 1u);
   EXPECT_EQ(doubted[0].edge.b, kB);
-  EXPECT_NE(doubted[0].reason.find("after placement"), std::string::npos) << doubted[0].reason;
+  EXPECT_NE(doubted[0].reason.find("after placement the bundle adjustment kept"), std::string::npos) << doubted[0].reason;
   AcceptanceOptions lenient;
   lenient.min_junction_kept = 0;
   EXPECT_TRUE(CheckJunctions(merged, {TreeEdge()}, lenient).empty());
@@ -221,9 +225,7 @@ TEST(MergedMap, AMergeNoFusedPointConfirmsIsDoubtedAfterPlacement) {
   ConnectedFrame unmatched = FewMatches(scene);
   unmatched.point_pairs.clear();
   const Sim3d far_off(1.0, Eigen::Quaterniond::Identity(), Eigen::Vector3d(0, 2, 0));
-  const MergedMap merged =
-      AssembleMergedMap(scene.submaps, Placement(scene, far_off), {}, {unmatched}, 0, ScalePyramid::From(OrbOptions()),
-                        kCamera.Intrinsics(), MergedMapOptions());
+  const MergedMap merged = AssembleAlong(scene, far_off, unmatched);
   const auto junction = merged.junctions.find(SubmapPair(kA, kB));
   EXPECT_TRUE(junction == merged.junctions.end() || junction->second.joined < 30);
   const std::vector<DoubtedEdge> doubted = CheckJunctions(merged, {TreeEdge()}, AcceptanceOptions());
