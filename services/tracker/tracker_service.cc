@@ -324,7 +324,8 @@ void TrackerService::Process(const stitch::frame_t& frame) {
   if (frame.header.sender_session == ingest_session_.load()) highest_processed_ = frame.frame_index;
   ++tracked_;
   RefreshReportedState();
-  // The frames a new map initialized from, placed now: a second, later line each (frame_record.h).
+  // Frames placed only now (those a new map initialized from, or missed ones placed backward): a
+  // second, later line each (frame_record.h).
   for (const Tracking::EarlierFrame& earlier : output.earlier_frames) {
     RecordFrame(earlier.frame_index, earlier.t_ns, earlier.result, 0.0f);
   }

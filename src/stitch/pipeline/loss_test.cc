@@ -321,6 +321,51 @@ TEST(TrackingLoss, AYoungSubmapGivesWayToTheClosedSubmapTheCameraIsBackIn) {
   }
 }
 
+TEST(TrackingLoss, FramesMissedBeforeTheCameraIsPlacedAgainArePlacedBackwardFromIt) {
+  // After a blackout the camera comes back from ground the map never saw (strip frames 110 down
+  // to 40): the first frames over mapped ground see too little of it to relocalize, the first
+  // that does is placed, and the frames missed just before it are placed backward from it.
+  std::vector<int> script = StripThenBlackout();
+  for (int i = 110; i >= 40; --i) script.push_back(i);
+  const auto run_with = [&](int retrack) {
+    PipelineOptions options;
+    options.on_loss = "relocalize";
+    options.tracking.retrack_missed_frames = retrack;
+    ScriptedSequence sequence(script);
+    return RunInline(sequence, options, DefaultVocabulary());
+  };
+  const InlineRun run = run_with(20);
+  const InlineFrame* back = FirstOkFrom(run, 88);
+  ASSERT_NE(back, nullptr);
+  ASSERT_TRUE(back->result.relocalized);
+  std::set<int> placed;
+  for (const PoseRecord& pose : run.poses) placed.insert(pose.frame_index);
+  // The missed frames placed: a run right before the relocalized frame, each lost at first.
+  int backward = 0;
+  for (int i = back->frame_index - 1; i >= 88 && placed.count(i); --i) {
+    EXPECT_EQ(run.frames[i].result.state, TrackingState::kLost) << i;
+    ++backward;
+  }
+  EXPECT_GE(backward, 2);
+  for (int i = 88; i < back->frame_index - backward; ++i) EXPECT_FALSE(placed.count(i)) << i;
+  // Off, they stay missed.
+  const InlineRun without = run_with(0);
+  std::set<int> placed_without;
+  for (const PoseRecord& pose : without.poses) placed_without.insert(pose.frame_index);
+  EXPECT_EQ(placed_without.size() + backward, placed.size());
+  // Where the camera was (the strip is 138 m long): no farther off than the frames placed
+  // forward at the edge of the map (about a metre at 70 m).
+  const Evaluation e = EvaluateScript(script, run.poses), e_without = EvaluateScript(script, without.poses);
+  ASSERT_TRUE(e.errors && e_without.errors);
+  EXPECT_LT(e.errors->ate_rmse_m, 0.3);
+  EXPECT_LE(e.errors->ate_max_m, 1.05 * e_without.errors->ate_max_m);
+  std::printf(
+      "relocalized at frame %d, %d missed frames placed backward: ATE %.3f m (max %.3f m); without: %.3f m "
+      "(max %.3f m)\n",
+      back->frame_index, backward, e.errors->ate_rmse_m, e.errors->ate_max_m, e_without.errors->ate_rmse_m,
+      e_without.errors->ate_max_m);
+}
+
 TEST(TrackingLoss, ABlackoutDuringInitializationOnlyDelaysIt) {
   std::vector<int> script;
   Play(&script, 0, 0);  // the reference frame of the first initialization attempt

@@ -1,6 +1,7 @@
 #include "stitch/tracking/frame_placer.h"
 
 #include <algorithm>
+#include <cstdlib>
 #include <map>
 #include <set>
 
@@ -87,7 +88,8 @@ FramePlacer::Placement FramePlacer::Place(Frame* frame, const Map& map, const Fr
     result.local_map_ms += clock.ElapsedMs() - t1;
     if (result.tracked) result.tracked_by = method;
   };
-  const int gap = last ? frame->frame_index - last->frame_index : 0;
+  // `last` may be a later frame (frames placed backward): the velocity then runs backward too.
+  const int gap = last ? std::abs(frame->frame_index - last->frame_index) : 0;
   int motion_inliers = 0;
   if (velocity && last && gap >= 1) {
     Rigid3d predicted = *last->cam_from_world;

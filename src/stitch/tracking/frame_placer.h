@@ -42,7 +42,8 @@ class FramePlacer {
               std::function<void()> wait_for_keyframe_bow = nullptr);
 
   // Places `frame` in `map` (methods above), given the last tracked frame of this map (or null)
-  // and the velocity cam_from_world(k) * world_from_cam(k - 1) (or none). The local map must
+  // and the velocity cam_from_world(k) * world_from_cam(k - 1) (or none). Backward (`last` a
+  // later frame), the velocity is cam_from_world(k) * world_from_cam(k + 1). The local map must
   // confirm it with `min_inliers` points. `reference` (in: the reference keyframe, out: the
   // keyframe sharing most points with the placed frame) is kept when nothing is placed.
   Placement Place(Frame* frame, const Map& map, const Frame* last, const std::optional<Rigid3d>& velocity,

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <iterator>
 #include <unordered_map>
 
 #include "stitch/tracking/keyframe_decision.h"
@@ -128,8 +129,8 @@ Tracking::Output Tracking::Initialize(Frame frame) {
   const bool may_relocalize =
       store_.has_closed() && frames_initializing_ > options_.relocalize_closed_after_frames && enough_features;
   const bool may_resume = !may_relocalize && !lost_from_.empty() && enough_features;
-  std::optional<Frame> copy;
-  if (may_relocalize || may_resume) copy = frame;
+  std::optional<Frame> copy;  // to relocalize, or to place backward later
+  if (may_relocalize || may_resume || options_.retrack_missed_frames > 0) copy = frame;
 
   Output output;
   TrackResult& result = output.result;
@@ -140,13 +141,15 @@ Tracking::Output Tracking::Initialize(Frame frame) {
   result.reason = initialized.reason;
   result.detail = initialized.detail;
   if (!initialized.map) {
-    if (copy) {
+    if (copy && (may_relocalize || may_resume)) {
       Output relocalized;
       if (TryRelocalize(&*copy, &relocalized, may_resume ? &lost_from_ : nullptr)) return relocalized;
     }
+    if (copy) NoteMissed(std::move(*copy));
     return output;
   }
   lost_from_.clear();
+  missed_.clear();  // before the new map: the initializer placed those it could
   const SubmapId submap = initialized.map->id();
   const KeyframeId id0 = MakeKeyframeId(submap, 0), id1 = MakeKeyframeId(submap, 1);
   store_.StartCurrent(std::move(initialized.map), 2);
@@ -204,6 +207,7 @@ Tracking::Output Tracking::Initialize(Frame frame) {
 Tracking::Output Tracking::Relocalize(Frame frame, Output output) {
   // Relocalize policy: every frame is tried against the kept map, or discarded.
   if (frame.size() >= 20 && TryRelocalize(&frame, &output)) return output;
+  NoteMissed(std::move(frame));
   TrackResult& result = output.result;
   result.state = TrackingState::kLost;
   result.reason = TrackingReason::kNotRelocalized;
@@ -275,6 +279,7 @@ void Tracking::TrackInSubmap(Frame frame, Output* output) {
     } else {
       result.state = TrackingState::kSkipped;
     }
+    NoteMissed(std::move(frame));
   }
   result.submap_keyframes = store_.current() ? static_cast<int>(store_.current()->num_keyframes()) : 0;
   result.timings.keyframe = clock.ElapsedMs() - before_keyframe;
@@ -332,6 +337,74 @@ void Tracking::OnTracked(Frame* frame, Output* output, bool may_make_keyframe) {
   }
   result.submap_keyframes = static_cast<int>(map.num_keyframes());
   last_frame_ = std::move(*frame);
+  if (!missed_.empty()) RetrackMissed(output);
+}
+
+void Tracking::NoteMissed(Frame frame) {
+  if (options_.retrack_missed_frames <= 0) return;
+  if (frame.size() < 20) {
+    missed_.clear();  // nothing to place it by: the chain backward ends here
+    return;
+  }
+  std::fill(frame.points.begin(), frame.points.end(), MapPointId());
+  std::fill(frame.outlier.begin(), frame.outlier.end(), 0);
+  frame.cam_from_world.reset();
+  missed_.push_back(std::move(frame));
+  while (static_cast<int>(missed_.size()) > options_.retrack_missed_frames) missed_.pop_front();
+}
+
+void Tracking::RetrackMissed(Output* output) {
+  const Map* map = store_.current();
+  if (!map || !last_frame_) {
+    missed_.clear();
+    return;
+  }
+  // Backward, each frame from the one after it: the velocity cam_from_world(k) *
+  // world_from_cam(k + 1) is unknown at first (the camera held still), then the last step's.
+  const Frame* later = &*last_frame_;
+  std::optional<Rigid3d> velocity = Rigid3d();
+  KeyframeId reference = reference_keyframe_;
+  std::vector<EarlierFrame> placed;
+  for (auto it = missed_.rbegin(); it != missed_.rend(); ++it) {
+    Frame& frame = *it;
+    const bool blurred =
+        typical_sharpness_ > 0 && frame.sharpness < options_.min_relative_sharpness * typical_sharpness_;
+    if (frame.frame_index >= later->frame_index || blurred) break;
+    const FramePlacer::Placement placement =
+        placer_.Place(&frame, *map, later, velocity, options_.relocalization_min_inliers, &reference);
+    if (!placement.tracked) break;
+    for (size_t i = 0; i < frame.size(); ++i) {
+      if (frame.outlier[i]) frame.points[i] = MapPointId();
+    }
+    velocity = later->frame_index - frame.frame_index == 1 ? *frame.cam_from_world * later->cam_from_world->Inverse()
+                                                           : Rigid3d();
+    EarlierFrame e;
+    e.frame_index = frame.frame_index;
+    e.t_ns = frame.t_ns;
+    TrackResult& r = e.result;
+    r.state = TrackingState::kOk;
+    r.detail = "placed backward from frame " + std::to_string(last_frame_->frame_index) + " (missed at first)";
+    r.submap = map->id();
+    r.cam_from_submap = frame.cam_from_world;
+    r.reference_keyframe = reference;
+    if (const Keyframe* keyframe = map->FindKeyframe(reference)) {
+      r.cam_from_reference = *frame.cam_from_world * keyframe->cam_from_world.Inverse();
+    }
+    r.num_features = static_cast<int>(frame.size());
+    r.num_tracked_points = frame.CountTracked();
+    r.tracked_by = "backward";
+    r.submap_keyframes = static_cast<int>(map->num_keyframes());
+    placed.push_back(std::move(e));
+    later = &frame;
+  }
+  const size_t missed = missed_.size();
+  missed_.clear();
+  if (placed.empty()) return;
+  STITCH_LOG(INFO) << "frames " << placed.back().frame_index << "-" << placed.front().frame_index
+                   << " placed backward from frame " << last_frame_->frame_index << " (" << placed.size() << " of "
+                   << missed << " missed)";
+  output->earlier_frames.insert(output->earlier_frames.end(), std::make_move_iterator(placed.rbegin()),
+                                std::make_move_iterator(placed.rend()));
 }
 
 bool Tracking::TryRelocalize(Frame* frame, Output* output, const std::set<KeyframeId>* only_at) {
@@ -384,7 +457,8 @@ void Tracking::TryReturnToClosed(Frame frame, Output* output) {
   Output returned;
   returned.result.num_features = output->result.num_features;
   returned.result.timings = output->result.timings;
-  returned.closed_submap = CloseSubmap();  // also ends the young window
+  returned.earlier_frames = std::move(output->earlier_frames);  // placed in the young submap
+  returned.closed_submap = CloseSubmap();                       // also ends the young window
   store_.Reopen(SubmapOf(*at));
   DropClosedSubmaps(/*keep_last=*/true);
   reference_keyframe_ = reference;

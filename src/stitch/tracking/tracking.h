@@ -49,7 +49,8 @@ namespace stitch {
 
 class Tracking {
  public:
-  // A frame tracked before this one, placed only now (the frames a new map initialized from).
+  // A frame tracked before this one, placed only now (the frames a new map initialized from, and
+  // frames missed before this one placed backward from it).
   struct EarlierFrame {
     int frame_index = -1;
     int64_t t_ns = 0;
@@ -125,6 +126,12 @@ class Tracking {
   void DropClosedSubmaps(bool keep_last);
   // Forget the camera's motion (a new or reopened submap, or a lost camera).
   void ForgetMotion();
+  // A frame that found no pose: kept for RetrackMissed (a frame too poor to track ends the chain
+  // backward, so it empties the queue instead).
+  void NoteMissed(Frame frame);
+  // The frame just placed (last_frame_) follows missed ones: they are placed backward from it,
+  // newest first, until one fails, and added to `output->earlier_frames`. Forgets them all.
+  void RetrackMissed(Output* output);
 
   TrackingOptions options_;
   ViewGeometry geometry_;
@@ -157,6 +164,7 @@ class Tracking {
   TrackingState last_state_ = TrackingState::kNotTracked;
 
   std::optional<Frame> last_frame_;  // last tracked frame
+  std::deque<Frame> missed_;         // frames since last_frame_ that found no pose, oldest first
   std::optional<Rigid3d> velocity_;  // cam_from_world(k) * world_from_cam(k - 1)
   KeyframeId reference_keyframe_;
   int last_keyframe_frame_index_ = -1;

@@ -52,6 +52,8 @@ bool TrackingOptions::Check(std::string* why) const {
   }
   if (closed_keyframes_held < 0) return fail("tracker.tracking.closed_keyframes_held must be >= 0");
   if (return_to_closed_every < 1) return fail("tracker.tracking.return_to_closed_every must be >= 1");
+  if (retrack_missed_frames < 0 || retrack_missed_frames > 300)
+    return fail("tracker.tracking.retrack_missed_frames must be in [0, 300]");
   if (relocalization_candidates < 1) return fail("tracker.tracking.relocalization_candidates must be >= 1");
   if (relocalization_min_inliers < min_inliers)
     return fail("tracker.tracking.relocalization_min_inliers must be >= min_inliers");

@@ -59,6 +59,12 @@ struct TrackingOptions {
   int return_to_closed_frames = 0;
   int return_to_closed_every = 2;
   int relocalization_min_inliers = 50;  // tracked points that accept a relocalized pose
+  // Frames that found no pose (skipped, lost, waiting for a new map) are kept, at most this many,
+  // and once a later frame is placed again they are placed backward from it, newest first, each
+  // from the one after it and confirmed by relocalization_min_inliers local-map points (a pose
+  // from a weaker prediction, as a relocalized one), until one fails (0: off). A frame missed on
+  // the way into a fast turn is often placed from the way out.
+  int retrack_missed_frames = 20;
   // Memory over a long flight (submap policy): a submap that reaches submap_max_keyframes hands
   // over to a new one that starts with copies of the local map (the reference keyframe and its
   // handover_keyframes - 1 best covisible ones, their points, the same poses), so tracking goes
@@ -143,6 +149,9 @@ struct TrackingOptions {
     v("relocalization_candidates", relocalization_candidates,
       "keyframes (by bag of words) tried per frame when relocalizing");
     v("relocalization_min_inliers", relocalization_min_inliers, "tracked points needed to accept a relocalized pose");
+    v("retrack_missed_frames", retrack_missed_frames,
+      "frames that found no pose are kept (at most this many) and placed backward from the next frame placed, "
+      "newest first, each confirmed by relocalization_min_inliers points, until one fails (0: off)");
     v("submap_max_keyframes", submap_max_keyframes,
       "submap policy: a submap holding this many keyframes hands over to a new one that starts with copies of the "
       "local map, so memory stays bounded over a long flight (0: no cap)");
