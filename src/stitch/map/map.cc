@@ -36,6 +36,22 @@ Keyframe KeyframeFromFrame(const Frame& frame, KeyframeId id) {
   return keyframe;
 }
 
+Frame FrameFromKeyframe(const Keyframe& keyframe) {
+  Frame frame;
+  frame.frame_index = keyframe.frame_index;
+  frame.t_ns = keyframe.t_ns;
+  frame.keypoints = keyframe.keypoints;
+  frame.undistorted = keyframe.undistorted;
+  frame.descriptors = keyframe.descriptors;
+  frame.bow = keyframe.bow;
+  frame.bow_features = keyframe.bow_features;
+  frame.grid = keyframe.grid;
+  frame.points = keyframe.points;
+  frame.outlier.assign(keyframe.points.size(), 0);
+  frame.cam_from_world = keyframe.cam_from_world;
+  return frame;
+}
+
 Keyframe UnlinkedCopy(const Keyframe& keyframe) {
   Keyframe copy = keyframe;
   copy.covisibility.clear();

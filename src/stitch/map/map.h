@@ -127,6 +127,9 @@ class Map {
 
 // Keyframe from a tracked frame: copies its features and point associations.
 Keyframe KeyframeFromFrame(const Frame& frame, KeyframeId id);
+// The frame a keyframe was made from, as tracked: its features, pose and point associations (no
+// outliers; no sharpness).
+Frame FrameFromKeyframe(const Keyframe& keyframe);
 // A copy of a keyframe for another map: its features, pose and associations, without what a Map
 // maintains (covisibility, spanning tree).
 Keyframe UnlinkedCopy(const Keyframe& keyframe);

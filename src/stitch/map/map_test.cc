@@ -47,6 +47,27 @@ TEST(Ids, PackAgentSubmapAndIndex) {
   EXPECT_NE(MakeKeyframeId(MakeSubmapId(5, 18), 1), MakeKeyframeId(MakeSubmapId(6, 17), 1));
 }
 
+TEST(Map, AKeyframeGivesBackTheFrameItWasMadeFrom) {
+  const Map map(MakeSubmapId(0, 1), ScalePyramid::From(OrbOptions()));
+  Keyframe keyframe = MakeKeyframe(map, 4, {MakeMapPointId(map.id(), 7), MapPointId(), MakeMapPointId(map.id(), 9)});
+  keyframe.frame_index = 12;
+  keyframe.t_ns = 34;
+  const Frame frame = FrameFromKeyframe(keyframe);
+  EXPECT_EQ(frame.frame_index, 12);
+  EXPECT_EQ(frame.t_ns, 34);
+  ASSERT_EQ(frame.size(), keyframe.keypoints.size());
+  EXPECT_EQ(frame.points, keyframe.points);
+  EXPECT_EQ(frame.outlier, std::vector<char>(frame.size(), 0));
+  EXPECT_EQ(frame.CountTracked(), 2);
+  ASSERT_TRUE(frame.cam_from_world);
+  EXPECT_LT((frame.cam_from_world->translation - keyframe.cam_from_world.translation).norm(), 1e-12);
+  EXPECT_EQ(cv::norm(frame.descriptors, keyframe.descriptors, cv::NORM_HAMMING), 0);
+  // And back: the same keyframe.
+  const Keyframe again = KeyframeFromFrame(frame, keyframe.id);
+  EXPECT_EQ(again.points, keyframe.points);
+  EXPECT_EQ(again.frame_index, 12);
+}
+
 TEST(Map, ObservationsAndCovisibilityFollowSharedPoints) {
   Fixture f;
   // Keyframe 0 sees points 0-29, keyframe 1 points 10-39 (20 shared), keyframe 2 points 25-34 (5 with kf0, 10 with

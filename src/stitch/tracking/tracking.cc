@@ -149,7 +149,6 @@ Tracking::Output Tracking::Initialize(Frame frame) {
     return output;
   }
   lost_from_.clear();
-  missed_.clear();  // before the new map: the initializer placed those it could
   const SubmapId submap = initialized.map->id();
   const KeyframeId id0 = MakeKeyframeId(submap, 0), id1 = MakeKeyframeId(submap, 1);
   store_.StartCurrent(std::move(initialized.map), 2);
@@ -200,6 +199,8 @@ Tracking::Output Tracking::Initialize(Frame frame) {
     r.submap_keyframes = result.submap_keyframes;
     output.earlier_frames.push_back(std::move(e));
   }
+  // Frames missed before the new map's first frame (a new submap after a loss): backward from it.
+  if (!missed_.empty()) RetrackMissed(FrameFromKeyframe(kf0), &output);
   last_frame_ = std::move(placed);
   return output;
 }
@@ -337,7 +338,7 @@ void Tracking::OnTracked(Frame* frame, Output* output, bool may_make_keyframe) {
   }
   result.submap_keyframes = static_cast<int>(map.num_keyframes());
   last_frame_ = std::move(*frame);
-  if (!missed_.empty()) RetrackMissed(output);
+  if (!missed_.empty()) RetrackMissed(*last_frame_, output);
 }
 
 void Tracking::NoteMissed(Frame frame) {
@@ -353,19 +354,21 @@ void Tracking::NoteMissed(Frame frame) {
   while (static_cast<int>(missed_.size()) > options_.retrack_missed_frames) missed_.pop_front();
 }
 
-void Tracking::RetrackMissed(Output* output) {
+void Tracking::RetrackMissed(const Frame& from, Output* output) {
   const Map* map = store_.current();
-  if (!map || !last_frame_) {
+  if (!map || !from.cam_from_world) {
     missed_.clear();
     return;
   }
   // Backward, each frame from the one after it: the velocity cam_from_world(k) *
   // world_from_cam(k + 1) is unknown at first (the camera held still), then the last step's.
-  const Frame* later = &*last_frame_;
+  const Frame* later = &from;
   std::optional<Rigid3d> velocity = Rigid3d();
   KeyframeId reference = reference_keyframe_;
   std::vector<EarlierFrame> placed;
-  for (auto it = missed_.rbegin(); it != missed_.rend(); ++it) {
+  auto it = missed_.rbegin();
+  while (it != missed_.rend() && it->frame_index >= from.frame_index) ++it;  // placed otherwise
+  for (; it != missed_.rend(); ++it) {
     Frame& frame = *it;
     const bool blurred =
         typical_sharpness_ > 0 && frame.sharpness < options_.min_relative_sharpness * typical_sharpness_;
@@ -383,7 +386,7 @@ void Tracking::RetrackMissed(Output* output) {
     e.t_ns = frame.t_ns;
     TrackResult& r = e.result;
     r.state = TrackingState::kOk;
-    r.detail = "placed backward from frame " + std::to_string(last_frame_->frame_index) + " (missed at first)";
+    r.detail = "placed backward from frame " + std::to_string(from.frame_index) + " (missed at first)";
     r.submap = map->id();
     r.cam_from_submap = frame.cam_from_world;
     r.reference_keyframe = reference;
@@ -401,9 +404,9 @@ void Tracking::RetrackMissed(Output* output) {
   missed_.clear();
   if (placed.empty()) return;
   STITCH_LOG(INFO) << "frames " << placed.back().frame_index << "-" << placed.front().frame_index
-                   << " placed backward from frame " << last_frame_->frame_index << " (" << placed.size() << " of "
-                   << missed << " missed)";
-  output->earlier_frames.insert(output->earlier_frames.end(), std::make_move_iterator(placed.rbegin()),
+                   << " placed backward from frame " << from.frame_index << " (" << placed.size() << " of " << missed
+                   << " missed)";
+  output->earlier_frames.insert(output->earlier_frames.begin(), std::make_move_iterator(placed.rbegin()),
                                 std::make_move_iterator(placed.rend()));
 }
 

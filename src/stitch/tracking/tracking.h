@@ -129,9 +129,10 @@ class Tracking {
   // A frame that found no pose: kept for RetrackMissed (a frame too poor to track ends the chain
   // backward, so it empties the queue instead).
   void NoteMissed(Frame frame);
-  // The frame just placed (last_frame_) follows missed ones: they are placed backward from it,
-  // newest first, until one fails, and added to `output->earlier_frames`. Forgets them all.
-  void RetrackMissed(Output* output);
+  // `from`, a frame of the current submap placed just now (the last frame, or a new map's first),
+  // follows missed ones: those before it are placed backward from it, newest first, until one
+  // fails, and put first in `output->earlier_frames`. Forgets them all.
+  void RetrackMissed(const Frame& from, Output* output);
 
   TrackingOptions options_;
   ViewGeometry geometry_;
