@@ -30,9 +30,9 @@ std::string FrameRecordHeader();                           // "# ..." line, with
 std::string FormatFrameRecord(const FrameRecord& record);  // one line, with newline
 // One record per frame, in the order of each frame's first line: a frame may have a later line
 // (a new map placed the frames it initialized from once it existed, or missed frames were placed
-// backward from a later one; a restarted tracker tracked an unacknowledged frame again), which replaces the first,
-// keeping the first's tracking time and feature count where the later one has none. Throws stitch::Error naming the
-// line for a malformed record.
+// backward from a later one; a restarted tracker tracked an unacknowledged frame again), which
+// replaces the first, keeping the first's tracking time and feature count where the later one has
+// none. Throws stitch::Error naming the line for a malformed record.
 std::vector<FrameRecord> ReadFrameRecords(const std::string& path);
 // Opens a record to add lines to (a restarted tracker goes on with the same file): a new or empty
 // file gets the header; an existing one keeps its records, less a last line cut short by a writer

@@ -222,7 +222,7 @@ void Tracking::TrackInSubmap(Frame frame, Output* output) {
   TrackResult& result = output->result;
   bool ok = false;
   std::string why;
-  const bool blurred = typical_sharpness_ > 0 && frame.sharpness < options_.min_relative_sharpness * typical_sharpness_;
+  const bool blurred = Blurred(frame);
   if (frame.size() < 20) {
     why = std::to_string(frame.size()) + " features";
     result.reason = TrackingReason::kTooFewFeatures;
@@ -324,9 +324,7 @@ void Tracking::OnTracked(Frame* frame, Output* output, bool may_make_keyframe) {
       result.is_keyframe = true;
     }
   }
-  for (size_t i = 0; i < frame->size(); ++i) {
-    if (frame->outlier[i]) frame->points[i] = MapPointId();
-  }
+  DropOutliers(frame);
   result.state = TrackingState::kOk;
   result.reason = TrackingReason::kNone;
   result.submap = map.id();
@@ -339,6 +337,16 @@ void Tracking::OnTracked(Frame* frame, Output* output, bool may_make_keyframe) {
   result.submap_keyframes = static_cast<int>(map.num_keyframes());
   last_frame_ = std::move(*frame);
   if (!missed_.empty()) RetrackMissed(*last_frame_, output);
+}
+
+bool Tracking::Blurred(const Frame& frame) const {
+  return typical_sharpness_ > 0 && frame.sharpness < options_.min_relative_sharpness * typical_sharpness_;
+}
+
+void Tracking::DropOutliers(Frame* frame) {
+  for (size_t i = 0; i < frame->size(); ++i) {
+    if (frame->outlier[i]) frame->points[i] = MapPointId();
+  }
 }
 
 void Tracking::NoteMissed(Frame frame) {
@@ -370,15 +378,11 @@ void Tracking::RetrackMissed(const Frame& from, Output* output) {
   while (it != missed_.rend() && it->frame_index >= from.frame_index) ++it;  // placed otherwise
   for (; it != missed_.rend(); ++it) {
     Frame& frame = *it;
-    const bool blurred =
-        typical_sharpness_ > 0 && frame.sharpness < options_.min_relative_sharpness * typical_sharpness_;
-    if (frame.frame_index >= later->frame_index || blurred) break;
+    if (Blurred(frame)) break;
     const FramePlacer::Placement placement =
         placer_.Place(&frame, *map, later, velocity, options_.relocalization_min_inliers, &reference);
     if (!placement.tracked) break;
-    for (size_t i = 0; i < frame.size(); ++i) {
-      if (frame.outlier[i]) frame.points[i] = MapPointId();
-    }
+    DropOutliers(&frame);
     velocity = later->frame_index - frame.frame_index == 1 ? *frame.cam_from_world * later->cam_from_world->Inverse()
                                                            : Rigid3d();
     EarlierFrame e;

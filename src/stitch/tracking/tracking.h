@@ -126,6 +126,10 @@ class Tracking {
   void DropClosedSubmaps(bool keep_last);
   // Forget the camera's motion (a new or reopened submap, or a lost camera).
   void ForgetMotion();
+  // Less sharp than min_relative_sharpness of the recent tracked frames (a gust smears the image).
+  bool Blurred(const Frame& frame) const;
+  // A placed frame forgets the points its pose optimization set aside as outliers.
+  static void DropOutliers(Frame* frame);
   // A frame that found no pose: kept for RetrackMissed (a frame too poor to track ends the chain
   // backward, so it empties the queue instead).
   void NoteMissed(Frame frame);
