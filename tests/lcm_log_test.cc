@@ -33,8 +33,7 @@ TEST(LcmLog, LoggerRecordsFramesAndLogplayerReplaysThem) {
     GTEST_SKIP() << "lcm-logger / lcm-logplayer not installed (Debian package liblcm-bin)";
   }
   testing::TempDir dir;
-  const int port = 7600 + getpid() % 90;
-  const std::string record_url = bus::LocalUdpUrl(port);
+  const std::string record_url = bus::UnusedLocalUdpUrl();
   const std::string log = dir / "run.lcmlog";
   const std::string logger = "/usr/bin/lcm-logger";
   // Record while ingest plays 10 frames in real time (no tracker needed).
@@ -50,7 +49,8 @@ TEST(LcmLog, LoggerRecordsFramesAndLogplayerReplaysThem) {
   ASSERT_GT(std::filesystem::file_size(log), 10000u);
 
   // Replay onto another bus and count the frames that come back.
-  const std::string replay_url = bus::LocalUdpUrl(port + 100);
+  std::string replay_url = bus::UnusedLocalUdpUrl();
+  while (replay_url == record_url) replay_url = bus::UnusedLocalUdpUrl();
   auto lcm = bus::OpenLcm(replay_url);
   std::atomic<int> frames{0};
   bus::Subscriber subscriber(lcm.get());
@@ -68,7 +68,7 @@ TEST(LcmLog, LoggerRecordsFramesAndLogplayerReplaysThem) {
 TEST(LcmLog, StitchRecordKeepsWhatCrossesToTheGroundAndNoImages) {
   if (!testing::OnPath("lcm-logger")) GTEST_SKIP() << "lcm-logger not installed (Debian package liblcm-bin)";
   testing::TempDir dir;
-  const std::string url = bus::LocalUdpUrl(7500 + getpid() % 90);
+  const std::string url = bus::UnusedLocalUdpUrl();
   const std::string log = dir / "flight.lcmlog";
   std::thread recorder([&] { RunProgram({Bin("stitch"), "record", "--lcm-url", url, log}, 30, 3, SIGINT); });
   std::this_thread::sleep_for(1s);
@@ -109,7 +109,7 @@ TEST(LcmLog, StitchSpyDecodesEveryChannelOfARecordedRun) {
     GTEST_SKIP() << "stitch was built without its Java types (Debian packages default-jdk-headless, liblcm-java)";
   }
   testing::TempDir dir;
-  const std::string url = bus::LocalUdpUrl(7700 + getpid() % 90);
+  const std::string url = bus::UnusedLocalUdpUrl();
   const std::string log = dir / "run.lcmlog";
   ChildProcess recorder("recorder", Bin("stitch"), {"record", "--all", "--lcm-url", url, log}, dir / "record.log");
   std::this_thread::sleep_for(1s);
@@ -157,8 +157,8 @@ TEST(LcmLog, StitchSpyDecodesEveryChannelOfARecordedRun) {
                                                        {"uav0/SUBMAP", "stitch.submap_update_t"},
                                                        {"uav0/GLOBAL_MAP", "stitch.global_map_t"},
                                                        {"uav0/SERVICE", "stitch.service_status_t"},
-      {"uav0/LINK_STATUS", "stitch.link_status_t"},
-      {"uav0/SUBMAP_REQUEST", "stitch.submap_request_t"}};
+                                                       {"uav0/LINK_STATUS", "stitch.link_status_t"},
+                                                       {"uav0/SUBMAP_REQUEST", "stitch.submap_request_t"}};
   for (const auto& [channel, type] : expected) EXPECT_EQ(types[channel], type) << channel << "\n" << spy.output;
   // The same log decoded in Lua with the generated Lua types (Debian's liblcm-lua).
   if (testing::OnPath("lua5.2") && std::filesystem::exists("/usr/lib/lua/5.2/lcm.so")) {

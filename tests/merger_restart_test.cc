@@ -129,7 +129,7 @@ TEST(MergerRestart, AMergerKilledHalfwayResumesFromItsJournalAndLosesNothing) {
   std::vector<stitch::submap_update_t> messages = GustStripUpdates();
   ASSERT_GT(messages.size(), 20u);
   testing::TempDir dir;
-  const std::string url = bus::LocalUdpUrl(7800 + getpid() % 90);
+  const std::string url = bus::UnusedLocalUdpUrl();
   auto lcm = bus::OpenLcm(url);
   bus::Publisher publisher(lcm.get(), "uav0");
   const size_t half = messages.size() / 2;
@@ -213,7 +213,7 @@ TEST(MergerRestart, ADamagedJournalCostsOnlyTheDamagedRecords) {
   EXPECT_FALSE(MergedKeyframes(dir / "map/keyframes_merged.tsv").empty());
 
   // The merger starts on it (no crash loop), keeps every intact record and sets the damage aside.
-  const std::string url = bus::LocalUdpUrl(7800 + (getpid() + 45) % 90);
+  const std::string url = bus::UnusedLocalUdpUrl();
   {
     MergerProcess merger(url, dir / "state", dir / "resumed", dir / "resumed.log");
     EXPECT_EQ(merger.process().Terminate(30s), 0) << merger.process().LogTail(10);
@@ -240,7 +240,7 @@ TEST(MergerLiveOutputs, AMergerKilledMidFlightLeavesItsMapAndPerFrameTrajectoryO
   }
   ASSERT_LT(first_closed, strip.updates.size());
   testing::TempDir dir;
-  const std::string url = bus::LocalUdpUrl(7800 + (getpid() + 30) % 90);
+  const std::string url = bus::UnusedLocalUdpUrl();
   auto lcm = bus::OpenLcm(url);
   bus::Publisher publisher(lcm.get(), "uav0");
   const std::string out = dir / "ground";

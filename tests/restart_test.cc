@@ -35,7 +35,7 @@ size_t CountRecords(const std::string& path) {
 
 TEST(TrackerRestart, SubmapIdsStayUniqueAndNoFrameIsLost) {
   testing::TempDir dir;
-  const std::string url = bus::LocalUdpUrl(7700 + getpid() % 90);
+  const std::string url = bus::UnusedLocalUdpUrl();
   const std::vector<std::string> common = {"--lcm-url", url, "--config",
                                            std::string(STITCH_SOURCE_DIR) + "/tests/short_flight.yaml"};
   const auto with = [&](std::vector<std::string> extra) {

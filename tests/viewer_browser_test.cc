@@ -32,10 +32,6 @@ using testing::Bin;
 
 const char kChromium[] = "/usr/bin/chromium";
 
-std::string BusUrl(int base) {
-  return bus::LocalUdpUrl(base + getpid() % 90);
-}
-
 // <body data-*> of the page as Chromium left it: data-submaps -> "2", ...
 std::map<std::string, std::string> BodyData(const std::string& dom) {
   std::map<std::string, std::string> data;
@@ -164,7 +160,9 @@ TEST(ViewerInBrowser, ThePageShowsTheFlightsSubmapsKeyframesPointsAndTrackingSta
 TEST(ViewerOnAReplay, ARecordedFlightPlayedBackShowsAsItWasFlown) {
   if (!testing::OnPath("lcm-logger")) GTEST_SKIP() << "lcm-logger not installed (Debian package liblcm-bin)";
   stitch::testing::TempDir dir;
-  const std::string url = BusUrl(7300), replay_url = BusUrl(7400);
+  const std::string url = bus::UnusedLocalUdpUrl();
+  std::string replay_url = bus::UnusedLocalUdpUrl();
+  while (replay_url == url) replay_url = bus::UnusedLocalUdpUrl();
   const std::string log = dir / "flight.lcmlog";
   {
     ChildProcess recorder("record", Bin("stitch"), {"record", "--lcm-url", url, log}, dir / "record.log");

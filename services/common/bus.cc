@@ -1,5 +1,9 @@
 #include "services/common/bus.h"
 
+#include <netinet/in.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
 #include <algorithm>
 #include <cctype>
 #include <random>
@@ -39,6 +43,29 @@ std::string DefaultLcmUrl() {
 
 std::string LocalUdpUrl(int port) {
   return "udpm://239.255.76.67:" + std::to_string(port) + "?ttl=0&recv_buf_size=2097152";
+}
+
+int UnusedUdpPort(int first, int count) {
+  std::random_device device;
+  int port = 0;
+  for (int attempt = 0; attempt < 200; ++attempt) {
+    port = first + static_cast<int>(device() % static_cast<unsigned>(std::max(count, 1)));
+    // A bind without SO_REUSEADDR fails while any socket (LCM's share theirs) holds the port.
+    const int fd = socket(AF_INET, SOCK_DGRAM, 0);
+    if (fd < 0) break;
+    sockaddr_in address{};
+    address.sin_family = AF_INET;
+    address.sin_addr.s_addr = htonl(INADDR_ANY);
+    address.sin_port = htons(static_cast<uint16_t>(port));
+    const bool free = bind(fd, reinterpret_cast<const sockaddr*>(&address), sizeof(address)) == 0;
+    close(fd);
+    if (free) break;
+  }
+  return port;
+}
+
+std::string UnusedLocalUdpUrl() {
+  return LocalUdpUrl(UnusedUdpPort());
 }
 
 std::unique_ptr<lcm::LCM> OpenLcm(const std::string& url) {

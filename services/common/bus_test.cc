@@ -65,7 +65,20 @@ TEST(Bus, PublishesAndReceivesInProcess) {
 
 TEST(Bus, PublishesAndReceivesOverUdpMulticast) {
   // A port of this test's own (ttl=0 keeps it on this machine).
-  PublishAndReceive(LocalUdpUrl(7800 + getpid() % 150));
+  PublishAndReceive(UnusedLocalUdpUrl());
+}
+
+TEST(Bus, AnUnusedPortIsNeverOneABusHolds) {
+  const int held = UnusedUdpPort();
+  const int other = held % 2 == 0 ? held + 1 : held - 1;
+  const int first = std::min(held, other);
+  auto lcm = OpenLcm(LocalUdpUrl(held));
+  // LCM binds its port at the first subscription.
+  struct Ignore {
+    void Handle(const lcm::ReceiveBuffer*, const std::string&) {}
+  } ignore;
+  lcm->subscribe("ANY", &Ignore::Handle, &ignore);
+  for (int i = 0; i < 50; ++i) EXPECT_EQ(UnusedUdpPort(first, 2), other);
 }
 
 TEST(Bus, MalformedAndForeignMessagesNeverReachTheHandler) {

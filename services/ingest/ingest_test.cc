@@ -181,7 +181,7 @@ TEST(Ingest, EveryAcknowledgedFrameIsAlreadyInTheTrackersRecord) {
 }
 
 TEST(Ingest, RealtimeOverUdpMulticastPublishesAtTheCameraRate) {
-  const std::string url = bus::LocalUdpUrl(7950 + getpid() % 40);
+  const std::string url = bus::UnusedLocalUdpUrl();
   auto lcm = bus::OpenLcm(url);
   bus::Publisher publisher(lcm.get(), "uav1");
   IngestOptions options;

@@ -138,11 +138,6 @@ std::string NewRunFolder() {
   return path;
 }
 
-int RandomPort() {
-  std::random_device device;
-  return 20000 + static_cast<int>(device() % 20000);
-}
-
 RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
   RunOutcome outcome;
   outcome.out = out;
@@ -186,11 +181,11 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
   outcome.on_loss = config.tracker.on_loss;
 
   const bool linked = a.link || a.netns;
-  const std::string url = a.lcm_url.empty() ? bus::LocalUdpUrl(RandomPort()) : a.lcm_url;
+  const std::string url = a.lcm_url.empty() ? bus::UnusedLocalUdpUrl() : a.lcm_url;
   // With a link, the merger is on a bus of its own, reached only through the bridges.
   std::string ground_url = url;
   if (linked) {
-    do ground_url = bus::LocalUdpUrl(RandomPort());
+    do ground_url = bus::UnusedLocalUdpUrl();
     while (ground_url == url);
     char text[160];
     std::snprintf(text, sizeof(text), "loss %g, delay %g ms, jitter %g ms, budget %s%s", config.link.loss,
@@ -280,7 +275,9 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
     if (linked) {
       const std::string air = network ? SplitNetwork::kAircraftAddress : "127.0.0.1";
       const std::string ground = network ? SplitNetwork::kGroundAddress : "127.0.0.1";
-      const std::string air_port = std::to_string(RandomPort()), ground_port = std::to_string(RandomPort());
+      int air_udp_port = bus::UnusedUdpPort(), ground_udp_port = bus::UnusedUdpPort();
+      while (ground_udp_port == air_udp_port) ground_udp_port = bus::UnusedUdpPort();
+      const std::string air_port = std::to_string(air_udp_port), ground_port = std::to_string(ground_udp_port);
       merger = start("merger", "stitch-merger", merger_args);
       const std::string aircraft_sends = a.agent + "/(SUBMAP|SEQUENCE|TRACKING_STATUS|POSE|SERVICE|LINK_STATUS)";
       // Authenticated as deployed: the config's key, else one made for this run (beside its outputs).
