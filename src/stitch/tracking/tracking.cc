@@ -319,7 +319,12 @@ void Tracking::OnTracked(Frame* frame, Output* output, bool may_make_keyframe) {
         decision.parallax_deg = MedianParallaxDeg(map, *reference, *frame);
       }
     }
-    if (NeedKeyframe(decision, options_, fps_)) {
+    const bool need_keyframe = NeedKeyframe(decision, options_, fps_);
+    STITCH_LOG(DEBUG) << "frame " << frame->frame_index << ": " << decision.tracked_points << " tracked of "
+                      << decision.reference_points << " at the reference, parallax " << decision.parallax_deg
+                      << " deg, " << decision.frames_since_keyframe << " frames since the last keyframe, mapper "
+                      << (decision.mapper_ready ? "ready" : "busy") << (need_keyframe ? ": keyframe" : "");
+    if (need_keyframe) {
       output->new_keyframes.push_back(CreateKeyframe(*frame));
       result.is_keyframe = true;
     }
