@@ -7,6 +7,7 @@
 #include "stitch/estimators/bundle_adjustment.h"
 #include "stitch/mapping/culling.h"
 #include "stitch/mapping/local_mapping.h"
+#include "stitch/mapping/mapping_options.h"
 #include "stitch/mapping/new_points.h"
 #include "stitch/testing/default_vocabulary.h"
 #include "stitch/testing/rendered_views.h"
@@ -19,7 +20,9 @@ using testing::RotationErrorDeg;
 using testing::TranslationError;
 
 // The default flight's strip: 70 m above the terrain, 1 m a frame.
-RenderedViews& Strip() { return testing::SharedStrip(); }
+RenderedViews& Strip() {
+  return testing::SharedStrip();
+}
 
 // A submap with keyframes at the given frames of the strip, each added at its true pose: its
 // features matching earlier points observe them, every `stride`-th other feature with depth
@@ -86,6 +89,28 @@ TEST(Triangulation, NoBaselineNoNewPoints) {
     scene.keyframes.push_back(Strip().AddKeyframe(&scene.map, frame, depth, i, i == 0 ? 4 : 1 << 30));
   }
   EXPECT_TRUE(TriangulateNewPoints(&scene.map, scene.keyframes[1], Strip().geometry(), 20, 0.01).empty());
+}
+
+TEST(Triangulation, AShortBaselineMakesNoPointsWhoseRaysAreNearlyParallel) {
+  // 0.5 m apart 70 m up: a baseline of 0.007 of the depth passes the default pre-filter, but no
+  // point of the terrain shows the 1.1 degrees of parallax each new point needs (0.4 here).
+  const double ratio = MappingOptions().min_baseline_ratio;
+  ASSERT_LT(ratio, 0.5 / 70);
+  Scene scene;
+  for (int i = 0; i < 2; ++i) {
+    Rigid3d pose = Strip().WorldFromCam(0);
+    pose.translation += pose.rotation * Eigen::Vector3d(0.5 * i, 0, 0);
+    cv::Mat depth;
+    Frame frame = Strip().RenderPose(pose, i, &depth);
+    ComputeBow(testing::DefaultVocabulary(), &frame);
+    scene.keyframes.push_back(Strip().AddKeyframe(&scene.map, frame, depth, i, i == 0 ? 4 : 1 << 30));
+  }
+  // Without the parallax check each of its hundreds of matches would become a point; a stray
+  // false match (a point far off the terrain) may still pass, and recent-point culling takes it.
+  EXPECT_LE(TriangulateNewPoints(&scene.map, scene.keyframes[1], Strip().geometry(), 20, ratio).size(), 5u);
+  // 8 m apart, the same pair makes points.
+  Scene wide = MakeScene({0, 8}, /*stride=*/4, /*max_matches=*/1 << 30, /*later_stride=*/1 << 30);
+  EXPECT_GT(TriangulateNewPoints(&wide.map, wide.keyframes[1], Strip().geometry(), 20, ratio).size(), 100u);
 }
 
 // Keyframe 1 made every point anew (a duplicate of keyframe 0's) but for 30 shared ones that make
