@@ -33,7 +33,8 @@ TEST(LcmLog, LoggerRecordsFramesAndLogplayerReplaysThem) {
     GTEST_SKIP() << "lcm-logger / lcm-logplayer not installed (Debian package liblcm-bin)";
   }
   testing::TempDir dir;
-  const std::string record_url = bus::UnusedLocalUdpUrl();
+  const std::vector<int> ports = bus::UnusedUdpPorts(2);  // record, replay
+  const std::string record_url = bus::LocalUdpUrl(ports[0]);
   const std::string log = dir / "run.lcmlog";
   const std::string logger = "/usr/bin/lcm-logger";
   // Record while ingest plays 10 frames in real time (no tracker needed).
@@ -49,8 +50,7 @@ TEST(LcmLog, LoggerRecordsFramesAndLogplayerReplaysThem) {
   ASSERT_GT(std::filesystem::file_size(log), 10000u);
 
   // Replay onto another bus and count the frames that come back.
-  std::string replay_url = bus::UnusedLocalUdpUrl();
-  while (replay_url == record_url) replay_url = bus::UnusedLocalUdpUrl();
+  const std::string replay_url = bus::LocalUdpUrl(ports[1]);
   auto lcm = bus::OpenLcm(replay_url);
   std::atomic<int> frames{0};
   bus::Subscriber subscriber(lcm.get());

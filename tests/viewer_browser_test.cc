@@ -160,9 +160,8 @@ TEST(ViewerInBrowser, ThePageShowsTheFlightsSubmapsKeyframesPointsAndTrackingSta
 TEST(ViewerOnAReplay, ARecordedFlightPlayedBackShowsAsItWasFlown) {
   if (!testing::OnPath("lcm-logger")) GTEST_SKIP() << "lcm-logger not installed (Debian package liblcm-bin)";
   stitch::testing::TempDir dir;
-  const std::string url = bus::UnusedLocalUdpUrl();
-  std::string replay_url = bus::UnusedLocalUdpUrl();
-  while (replay_url == url) replay_url = bus::UnusedLocalUdpUrl();
+  const std::vector<int> ports = bus::UnusedUdpPorts(2);
+  const std::string url = bus::LocalUdpUrl(ports[0]), replay_url = bus::LocalUdpUrl(ports[1]);
   const std::string log = dir / "flight.lcmlog";
   {
     ChildProcess recorder("record", Bin("stitch"), {"record", "--lcm-url", url, log}, dir / "record.log");

@@ -45,23 +45,37 @@ std::string LocalUdpUrl(int port) {
   return "udpm://239.255.76.67:" + std::to_string(port) + "?ttl=0&recv_buf_size=2097152";
 }
 
-int UnusedUdpPort(int first, int count) {
+namespace {
+
+// A bind without SO_REUSEADDR fails while any socket (LCM's share theirs) holds the port.
+bool UdpPortFree(int port) {
+  const int fd = socket(AF_INET, SOCK_DGRAM, 0);
+  if (fd < 0) return false;
+  sockaddr_in address{};
+  address.sin_family = AF_INET;
+  address.sin_addr.s_addr = htonl(INADDR_ANY);
+  address.sin_port = htons(static_cast<uint16_t>(port));
+  const bool free = bind(fd, reinterpret_cast<const sockaddr*>(&address), sizeof(address)) == 0;
+  close(fd);
+  return free;
+}
+
+}  // namespace
+
+std::vector<int> UnusedUdpPorts(int n, int first, int count) {
   std::random_device device;
-  int port = 0;
-  for (int attempt = 0; attempt < 200; ++attempt) {
+  std::vector<int> ports;
+  int port = first;
+  for (int attempt = 0; attempt < 200 * n && static_cast<int>(ports.size()) < n; ++attempt) {
     port = first + static_cast<int>(device() % static_cast<unsigned>(std::max(count, 1)));
-    // A bind without SO_REUSEADDR fails while any socket (LCM's share theirs) holds the port.
-    const int fd = socket(AF_INET, SOCK_DGRAM, 0);
-    if (fd < 0) break;
-    sockaddr_in address{};
-    address.sin_family = AF_INET;
-    address.sin_addr.s_addr = htonl(INADDR_ANY);
-    address.sin_port = htons(static_cast<uint16_t>(port));
-    const bool free = bind(fd, reinterpret_cast<const sockaddr*>(&address), sizeof(address)) == 0;
-    close(fd);
-    if (free) break;
+    if (std::find(ports.begin(), ports.end(), port) == ports.end() && UdpPortFree(port)) ports.push_back(port);
   }
-  return port;
+  while (static_cast<int>(ports.size()) < n) ports.push_back(port);  // every port tried is held
+  return ports;
+}
+
+int UnusedUdpPort(int first, int count) {
+  return UnusedUdpPorts(1, first, count).front();
 }
 
 std::string UnusedLocalUdpUrl() {

@@ -52,11 +52,12 @@ std::vector<std::string> SplitAgents(const std::string& list);
 std::string DefaultLcmUrl();
 // udpm URL on the default group with a given port, ttl=0 (tests and `stitch run` use their own).
 std::string LocalUdpUrl(int port);
-// A UDP port in [first, first + count) (by default below Linux's ephemeral range) that no socket
-// on this machine is bound to now, picked at random: runs and tests side by side then never hear
-// each other, as ports derived from process ids did (neighbouring tests get neighbouring ids).
-// When every port tried is held, the last one tried.
-int UnusedUdpPort(int first = 20000, int count = 12000);
+// `n` distinct UDP ports in [first, first + count) (by default below Linux's ephemeral range)
+// that no socket on this machine is bound to now, picked at random: runs and tests side by side
+// then never hear each other, as ports derived from process ids did (neighbouring tests get
+// neighbouring ids). When every port tried is held, the last one tried fills the rest.
+std::vector<int> UnusedUdpPorts(int n, int first = 20000, int count = 12000);
+int UnusedUdpPort(int first = 20000, int count = 12000);  // UnusedUdpPorts(1, ...)
 // LocalUdpUrl(UnusedUdpPort()).
 std::string UnusedLocalUdpUrl();
 

@@ -275,9 +275,8 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
     if (linked) {
       const std::string air = network ? SplitNetwork::kAircraftAddress : "127.0.0.1";
       const std::string ground = network ? SplitNetwork::kGroundAddress : "127.0.0.1";
-      int air_udp_port = bus::UnusedUdpPort(), ground_udp_port = bus::UnusedUdpPort();
-      while (ground_udp_port == air_udp_port) ground_udp_port = bus::UnusedUdpPort();
-      const std::string air_port = std::to_string(air_udp_port), ground_port = std::to_string(ground_udp_port);
+      const std::vector<int> link_ports = bus::UnusedUdpPorts(2);
+      const std::string air_port = std::to_string(link_ports[0]), ground_port = std::to_string(link_ports[1]);
       merger = start("merger", "stitch-merger", merger_args);
       const std::string aircraft_sends = a.agent + "/(SUBMAP|SEQUENCE|TRACKING_STATUS|POSE|SERVICE|LINK_STATUS)";
       // Authenticated as deployed: the config's key, else one made for this run (beside its outputs).
