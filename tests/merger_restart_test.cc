@@ -101,7 +101,13 @@ class MergerProcess {
  public:
   MergerProcess(const std::string& url, const std::string& state, const std::string& record, const std::string& log)
       : process_("merger", Bin("stitch-merger"), {"--lcm-url", url, "--state", state, "--record", record}, log) {
-    std::this_thread::sleep_for(700ms);  // subscribed (and resumed) before the first message
+    // "listening on" comes once it has resumed from its journal, subscribed and set its stop
+    // signals (a fixed wait let a SIGTERM on a loaded machine kill it before: exit 143).
+    const auto deadline = std::chrono::steady_clock::now() + 60s;
+    while (process_.LogTail(200).find("listening on ") == std::string::npos && !process_.Poll() &&
+           std::chrono::steady_clock::now() < deadline) {
+      std::this_thread::sleep_for(20ms);
+    }
   }
   ChildProcess& process() { return process_; }
 
