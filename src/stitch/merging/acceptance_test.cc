@@ -362,5 +362,46 @@ TEST(Acceptance, ConnectionsVerifiedOnOlderPointsAreVerifiedAgainOnTheNewer) {
   EXPECT_EQ(stale.ReverifyStaleConnections().reverified, 0);
 }
 
+// TUM fr1/rpy of issue #20: the mapper culls most keyframes of a rotating camera, and with them
+// the keyframes of most connected frames. Their matched points remain, so fusing after placement
+// still searches the two submaps for each other's points around them (in the keyframes that see
+// those points), and the check after placement confirms the merge.
+TEST(Acceptance, AConnectionWhoseKeyframeWasCulledStillJoinsItsSubmapsAfterPlacement) {
+  const GroundSubmaps scene;
+  const Sim3d b_frame(1.0, Eigen::Quaterniond(Eigen::AngleAxisd(0.5, Eigen::Vector3d::UnitZ())),
+                      Eigen::Vector3d(2, -1, 0));
+  const std::vector<double> a_path = {0, 1, 2, 3, 4, 5};
+  std::vector<SubmapUpdate> updates;
+  scene.Fly(S('A'), a_path, Sim3d(), &updates);
+  scene.Fly(S('B'), {4, 5, 6, 7, 8, 9}, b_frame, &updates);
+  Merger merger(MergerOptions(), &testing::DefaultVocabulary(), ScalePyramid::From(OrbOptions()));
+  for (const SubmapUpdate& update : updates) merger.Apply(update);
+  // A's final state lacks every keyframe of A that a connected frame names (culled by its mapper).
+  std::vector<SubmapUpdate> unused;
+  Map a_final = scene.Fly(S('A'), a_path, Sim3d(), &unused);
+  std::set<KeyframeId> culled;
+  for (const ConnectedFrame& c : merger.connections()) {
+    culled.insert(SubmapOf(c.keyframe_a) == S('A') ? c.keyframe_a : c.keyframe_b);
+  }
+  ASSERT_GE(merger.connections().size(), 2u);
+  ASSERT_LE(culled.size(), a_path.size() - 2) << "A keeps keyframes enough to keep points";
+  for (KeyframeId id : culled) a_final.RemoveKeyframe(id);
+  merger.Apply(MakeFullSubmapUpdate(&a_final, 100, /*closed=*/true));
+  merger.ReverifyStaleConnections();
+
+  Merger::Graph graph = merger.Solve(/*refine=*/true);
+  ASSERT_EQ(graph.tree.size(), 1u);
+  const MergerOptions& options = merger.options();
+  const MergedMap merged =
+      AssembleMergedMap(merger.submaps(), graph.placement, graph.keyframe_poses, graph.agreeing, 0,
+                        ScalePyramid::From(OrbOptions()), kCamera.Intrinsics(), options.merged_map);
+  EXPECT_EQ(merged.points_fused_by_connection, 0) << "pairs verified before the cull are not fused as they are";
+  EXPECT_GT(merged.points_fused_by_projection, 0);
+  const auto junction = merged.junctions.find(SubmapPair(S('A'), S('B')));
+  ASSERT_NE(junction, merged.junctions.end());
+  EXPECT_GE(junction->second.joined, options.acceptance.min_junction_observations);
+  EXPECT_TRUE(CheckJunctions(merged, graph.tree, options.acceptance).empty());
+}
+
 }  // namespace
 }  // namespace stitch

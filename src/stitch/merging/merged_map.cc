@@ -33,11 +33,35 @@ void RefreshGeometry(Map* map) {
   for (MapPointId id : ids) map->UpdatePointGeometry(id);
 }
 
-// The submap's keyframe `id` and its best covisible keyframes.
-std::vector<KeyframeId> Window(const Map& submap, KeyframeId id, int size) {
-  std::vector<KeyframeId> window = submap.BestCovisible(id, size);
-  window.push_back(id);
+// The submap's keyframe `id` and its best covisible keyframes. Where its mapper has culled `id`
+// since, the keyframes that see most of `points` (the connection's matched points of this submap,
+// which outlive the keyframe) instead.
+std::vector<KeyframeId> Window(const Map& submap, KeyframeId id, const std::vector<MapPointId>& points, int size) {
+  if (submap.FindKeyframe(id)) {
+    std::vector<KeyframeId> window = submap.BestCovisible(id, size);
+    window.push_back(id);
+    return window;
+  }
+  std::map<KeyframeId, int> seen;
+  for (MapPointId p : points) {
+    const MapPoint* point = submap.FindPoint(p);
+    if (!point) continue;
+    for (const auto& [keyframe, feature] : point->observations) ++seen[keyframe];
+  }
+  std::vector<std::pair<int, KeyframeId>> by_count;
+  for (const auto& [keyframe, count] : seen) by_count.emplace_back(-count, keyframe);
+  std::sort(by_count.begin(), by_count.end());
+  std::vector<KeyframeId> window;
+  for (size_t i = 0; i < by_count.size() && window.size() < static_cast<size_t>(size) + 1; ++i) {
+    window.push_back(by_count[i].second);
+  }
   return window;
+}
+
+// Whether both keyframes of `c` are still in their submaps (the mappers cull keyframes).
+bool BothKeyframesRemain(const std::map<SubmapId, SubmapReplica>& submaps, const ConnectedFrame& c) {
+  return submaps.at(SubmapOf(c.keyframe_a)).map.FindKeyframe(c.keyframe_a) &&
+         submaps.at(SubmapOf(c.keyframe_b)).map.FindKeyframe(c.keyframe_b);
 }
 
 // Observations of a point of one submap by a keyframe of another, by the pair (smaller id
@@ -163,6 +187,9 @@ MergedMap AssembleMergedMap(const std::map<SubmapId, SubmapReplica>& submaps,
   if (options.fuse_points) {
     for (const ConnectedFrame* connection : inside) {
       const ConnectedFrame& c = *connection;
+      // A connection verified before its keyframe was culled cannot be verified again: its
+      // pairs may be of points that have moved apart since, so only projection fuses around it.
+      if (!BothKeyframesRemain(submaps, c)) continue;
       for (const auto& [a, b] : c.point_pairs) {
         const MapPointId pa = Resolve(replaced, a), pb = Resolve(replaced, b);
         if (pa == pb || !merged.map.FindPoint(pa) || !merged.map.FindPoint(pb)) continue;
@@ -196,8 +223,13 @@ MergedMap AssembleMergedMap(const std::map<SubmapId, SubmapReplica>& submaps,
       const ConnectedFrame& c = *connection;
       const SubmapId a = SubmapOf(c.keyframe_a), b = SubmapOf(c.keyframe_b);
       auto& [side_a, side_b] = windows[{a, b}];
-      for (KeyframeId id : Window(submaps.at(a).map, c.keyframe_a, options.fuse_window)) side_a.insert(id);
-      for (KeyframeId id : Window(submaps.at(b).map, c.keyframe_b, options.fuse_window)) side_b.insert(id);
+      std::vector<MapPointId> points_a, points_b;
+      for (const auto& [pa, pb] : c.point_pairs) {
+        points_a.push_back(pa);
+        points_b.push_back(pb);
+      }
+      for (KeyframeId id : Window(submaps.at(a).map, c.keyframe_a, points_a, options.fuse_window)) side_a.insert(id);
+      for (KeyframeId id : Window(submaps.at(b).map, c.keyframe_b, points_b, options.fuse_window)) side_b.insert(id);
     }
     const auto points_of = [&](const std::set<KeyframeId>& keyframes) {
       std::set<MapPointId> points;
@@ -239,8 +271,13 @@ MergedMap AssembleMergedMap(const std::map<SubmapId, SubmapReplica>& submaps,
 
 std::vector<DoubtedEdge> CheckJunctions(const MergedMap& merged, const std::vector<SubmapEdge>& tree,
                                         const AcceptanceOptions& options) {
+  // Only the merges inside `merged` have had their junctions fused; a merge in another merged map
+  // (the largest is the one assembled) is judged when that map is.
+  std::set<SubmapId> inside;
+  for (const auto& [keyframe, pose] : merged.keyframe_poses) inside.insert(SubmapOf(keyframe));
   std::vector<DoubtedEdge> doubted;
   for (const SubmapEdge& edge : tree) {
+    if (!inside.count(edge.a) || !inside.count(edge.b)) continue;
     const auto found = merged.junctions.find(SubmapPair(edge.a, edge.b));
     const Junction j = found != merged.junctions.end() ? found->second : Junction();
     char why[200];

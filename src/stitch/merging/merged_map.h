@@ -55,7 +55,8 @@ MergedMap AssembleMergedMap(const std::map<SubmapId, SubmapReplica>& submaps,
 // whose junction does not confirm them: fewer than `min_junction_observations` joining
 // observations (fusing found too few points of either submap in the other where the merge put
 // them), or less than `min_junction_kept` of them kept by the adjustment; each with why. Their
-// merges are to be rolled back.
+// merges are to be rolled back. Edges of `tree` in other merged maps are not judged (their
+// junctions were not made).
 struct DoubtedEdge {
   SubmapEdge edge;
   std::string reason;

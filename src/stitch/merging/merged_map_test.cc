@@ -212,7 +212,8 @@ TEST(MergedMap, AMergeOnPointsThatAreNotTheSameIsDoubtedAfterPlacement) {
   const std::vector<DoubtedEdge> doubted = CheckJunctions(merged, {TreeEdge()}, AcceptanceOptions());
   ASSERT_EQ(doubted.size(), 1u);
   EXPECT_EQ(doubted[0].edge.b, kB);
-  EXPECT_NE(doubted[0].reason.find("after placement the bundle adjustment kept"), std::string::npos) << doubted[0].reason;
+  EXPECT_NE(doubted[0].reason.find("after placement the bundle adjustment kept"), std::string::npos)
+      << doubted[0].reason;
   AcceptanceOptions lenient;
   lenient.min_junction_kept = 0;
   EXPECT_TRUE(CheckJunctions(merged, {TreeEdge()}, lenient).empty());
@@ -234,6 +235,21 @@ TEST(MergedMap, AMergeNoFusedPointConfirmsIsDoubtedAfterPlacement) {
   AcceptanceOptions none_needed;
   none_needed.min_junction_observations = 0;
   EXPECT_TRUE(CheckJunctions(merged, {TreeEdge()}, none_needed).empty());
+}
+
+// TUM fr1/rpy with two blackouts (issue #20): the largest merged map was a submap alone, and the
+// merge of two smaller submaps, never assembled, was rolled back for the junction it had not had
+// the chance to make ("0 observations join them").
+TEST(MergedMap, AMergeOutsideTheAssembledMapIsNotJudgedByIt) {
+  const TwoSubmaps scene = MakeTwoSubmaps();
+  const MergedMap merged = AssembleMisplaced(scene, MergedMapOptions());
+  SubmapEdge elsewhere = TreeEdge();
+  elsewhere.a = MakeSubmapId(0, 3);
+  elsewhere.b = MakeSubmapId(0, 4);
+  EXPECT_TRUE(CheckJunctions(merged, {elsewhere}, AcceptanceOptions()).empty());
+  AcceptanceOptions strict;  // that the edge inside would be doubted under it
+  strict.min_junction_observations = 1000000;
+  EXPECT_EQ(CheckJunctions(merged, {TreeEdge(), elsewhere}, strict).size(), 1u);
 }
 
 TEST(MergedMap, OnlyTheChosenMergedMapIsAssembled) {

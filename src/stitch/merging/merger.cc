@@ -23,7 +23,8 @@ constexpr double kIntraSubmapWeight = 10.0;
 // Connected frames that disagree with the tree's placement by more than this (and by more than
 // kAgreeingRotationRad or kAgreeingLogScale) stay out of the pose graph. Measured on the default
 // gust flight, correct connections disagree by at most 3 degrees, 12% of their translation and
-// 0.016 in log scale (90%: 0.7 degrees, 2.4%, 0.006).
+// 0.016 in log scale (90%: 0.7 degrees, 2.4%, 0.006). The translation is measured against a
+// tenth of the scene's depth where it is shorter.
 constexpr double kMaxConnectionRelativeTranslation = 0.25;
 
 double Median(std::vector<double> values) {
@@ -587,13 +588,25 @@ std::map<KeyframeId, Sim3d> Merger::RefineKeyframePoses(const std::map<SubmapId,
     if (pa == placement.end() || pb == placement.end() || pa->second.component != pb->second.component) continue;
     const Keyframe* ka = submaps_.at(a).map.FindKeyframe(c.keyframe_a);
     const Keyframe* kb = submaps_.at(b).map.FindKeyframe(c.keyframe_b);
-    if (!ka || !kb) continue;
+    if (!ka || !kb) {
+      // A keyframe the mapper has culled since: no pose to join in the graph, but its matched
+      // points remain, and fusing by projection around the keyframes that see them joins the two
+      // submaps (which the check after placement needs) if its similarity agrees with the
+      // placement. On a rotating camera the mapper culls most keyframes, and with them those of
+      // most connected frames (docs/merger.md).
+      const Sim3d placed_b_from_a = pb->second.world_from_submap.Inverse() * pa->second.world_from_submap;
+      if (SimilaritiesAgree(c.b_from_a, placed_b_from_a)) graph->agreeing.push_back(c);
+      continue;
+    }
     const Sim3d measured = as_sim3(ka->cam_from_world) * c.b_from_a.Inverse() * as_sim3(kb->cam_from_world.Inverse());
     // A connection that disagrees with the placement along the tree is left out: a wrong one
     // would bend the submaps it joins (see merger.md for the thresholds' origin).
     const Sim3d placed = poses[c.keyframe_a].Inverse() * poses[c.keyframe_b];
+    // Against the scene's depth where the keyframes are nearer each other than a tenth of it: a
+    // rotating camera's connected keyframes can be millimetres apart.
+    const double depth = submaps_.at(a).map.MedianDepth(c.keyframe_a);
     const double relative_translation =
-        (placed.translation - measured.translation).norm() / std::max(measured.translation.norm(), 1e-3);
+        (placed.translation - measured.translation).norm() / std::max({measured.translation.norm(), 0.1 * depth, 1e-3});
     if (!SimilaritiesAgree(measured, placed) || relative_translation > kMaxConnectionRelativeTranslation) {
       continue;
     }

@@ -48,8 +48,10 @@ class Merger {
     // With `refine`: every keyframe's world_from_cam in its merged map after the Sim3 pose-graph
     // optimization over all verified connections (not only the tree's).
     std::map<KeyframeId, Sim3d> keyframe_poses;
-    std::vector<ConnectedFrame> agreeing;  // with `refine`: the connections and loops the pose graph used
-    int loops_used = 0;                    // of those, loops (both ends in one submap)
+    // With `refine`: the connections and loops the pose graph used, and the connections whose
+    // keyframe was culled that agree with the placement (for fusing around them).
+    std::vector<ConnectedFrame> agreeing;
+    int loops_used = 0;  // of those, loops (both ends in one submap)
   };
   Graph Solve(bool refine = false) const;
 
