@@ -4,7 +4,6 @@
 // memory, each counts what it rejected, and the system still maps a flight afterwards.
 
 #include <sys/resource.h>
-#include <unistd.h>
 
 #include <map>
 #include <mutex>
@@ -26,6 +25,7 @@
 #include "stitch/util/ids.h"
 #include "stitch/util/rng.h"
 #include "tests/synthetic_flight.h"
+#include "tests/test_process.h"
 
 namespace stitch {
 namespace {
@@ -44,7 +44,7 @@ StitchConfig PatientConfig() {
 
 ViewerOptions ViewerOnAPortOfItsOwn() {
   ViewerOptions options;
-  options.port = 20000 + getpid() % 1000;
+  options.port = testing::UnusedTcpPort();
   return options;
 }
 

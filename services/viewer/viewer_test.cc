@@ -244,10 +244,6 @@ TEST(ViewerState, TheCloudIsThinnedToThePagesBoundAndLeavesOutNonFinitePoints) {
 
 // --- The web server ---------------------------------------------------------------------------
 
-int TestPort(int offset) {
-  return 18000 + (getpid() * 7 + offset) % 1000;  // the browser test takes 19000-19999, the bus fuzz test 20000-20999
-}
-
 std::string Exchange(int port, const std::string& request, bool until_close = true) {
   return testing::HttpExchange(port, request, until_close);
 }
@@ -263,10 +259,20 @@ std::string WebSocketRequest(int port, const std::string& origin) {
          origin + "\r\n\r\n";
 }
 
+// The tests' servers take their ports from testing::UnusedTcpPort: never one a server holds.
+TEST(ViewerServer, AnUnusedTestPortIsNeverOneAServerHolds) {
+  ViewerState state(1000);
+  ViewerOptions options;
+  options.port = testing::UnusedTcpPort();
+  ViewerServer server(options, &state);
+  ASSERT_EQ(StatusLine(Exchange(options.port, "GET / HTTP/1.1\r\nHost: x\r\n\r\n")), "HTTP/1.1 200 OK");
+  for (int i = 0; i < 50; ++i) EXPECT_NE(testing::UnusedTcpPort(options.port, 2), options.port);
+}
+
 TEST(ViewerServer, ServesThePageAndThreeJsAndNothingElse) {
   ViewerState state(1000);
   ViewerOptions options;
-  options.port = TestPort(1);
+  options.port = testing::UnusedTcpPort();
   ViewerServer server(options, &state);
   const int port = options.port;
   const std::string page = Exchange(port, "GET / HTTP/1.1\r\nHost: x\r\n\r\n");
@@ -301,7 +307,7 @@ TEST(ViewerServer, ServesThePageAndThreeJsAndNothingElse) {
 TEST(ViewerServer, AWebSocketOnlyFromThePagesOwnOriginAndOnlyAsManyAsAllowed) {
   ViewerState state(1000);
   ViewerOptions options;
-  options.port = TestPort(2);
+  options.port = testing::UnusedTcpPort();
   options.max_pages = 2;
   ViewerServer server(options, &state);
   const int port = options.port;
@@ -358,7 +364,7 @@ TEST(ViewerServer, AWebSocketOnlyFromThePagesOwnOriginAndOnlyAsManyAsAllowed) {
 TEST(ViewerServer, WithoutThreeJsItSaysWhatToInstall) {
   ViewerState state(1000);
   ViewerOptions options;
-  options.port = TestPort(3);
+  options.port = testing::UnusedTcpPort();
   options.three_dir = "/nonexistent/three";
   try {
     ViewerServer server(options, &state);
