@@ -102,10 +102,10 @@ TEST(MergerServiceInProcess, AForgedRevisionFarAheadIsRefusedAndTheRealUpdatesSt
   }
 }
 
-// The check after placement in the service: a merge whose junction does not confirm it as well as
-// asked is rolled back, its edge refused with the reason, and the submaps stay two maps. Asked for
-// more joining observations than two short submaps can have, the check doubts the merge that the
-// default keeps (a junction the adjustment does not hold: merged_map_test).
+// The check after placement in the service: a merge whose junction the final adjustment does not
+// hold as well as asked is rolled back, its edge refused with the reason, and the submaps stay two
+// maps. Asked to keep every joining observation (no real adjustment does), the check doubts the
+// merge that the default keeps.
 TEST(MergerServiceInProcess, AMergeWhoseJunctionTheAdjustmentDoesNotHoldIsRolledBack) {
   StitchConfig config = ShortFlight();
   config.synthetic.flight.num_frames = 200;
@@ -119,13 +119,13 @@ TEST(MergerServiceInProcess, AMergeWhoseJunctionTheAdjustmentDoesNotHoldIsRolled
   ASSERT_EQ(merged.placement.size(), 2u);
   ASSERT_EQ(merged.tree.size(), 1u) << "merged";
 
-  config.merger.acceptance.min_junction_observations = 1000000;
+  config.merger.acceptance.min_junction_kept = 1.0;
   MergerOnMemq strict(config, vocabulary);
   for (const auto& update : updates) strict.Send(update);
   const Merger::Graph rolled_back = strict.Finish().Solve();
   EXPECT_TRUE(rolled_back.tree.empty());
   ASSERT_EQ(rolled_back.edges.size(), 1u);
-  EXPECT_EQ(rolled_back.edges[0].refused.rfind("after placement fusing found too few points", 0), 0u)
+  EXPECT_EQ(rolled_back.edges[0].refused.rfind("after placement the bundle adjustment kept ", 0), 0u)
       << rolled_back.edges[0].refused;
   EXPECT_NE(rolled_back.placement.begin()->second.component, rolled_back.placement.rbegin()->second.component);
 }

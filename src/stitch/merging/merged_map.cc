@@ -34,17 +34,19 @@ void RefreshGeometry(Map* map) {
 }
 
 // The submap's keyframe `id` and its best covisible keyframes. Where its mapper has culled `id`
-// since, the keyframes that see most of `points` (the connection's matched points of this submap,
-// which outlive the keyframe) instead.
-std::vector<KeyframeId> Window(const Map& submap, KeyframeId id, const std::vector<MapPointId>& points, int size) {
+// since, the keyframes that see most of the connection's matched points on this side (`first`:
+// the pairs' first points; they outlive the keyframe) instead.
+std::vector<KeyframeId> Window(const Map& submap, KeyframeId id,
+                               const std::vector<std::pair<MapPointId, MapPointId>>& point_pairs, bool first,
+                               int size) {
   if (submap.FindKeyframe(id)) {
     std::vector<KeyframeId> window = submap.BestCovisible(id, size);
     window.push_back(id);
     return window;
   }
   std::map<KeyframeId, int> seen;
-  for (MapPointId p : points) {
-    const MapPoint* point = submap.FindPoint(p);
+  for (const auto& pair : point_pairs) {
+    const MapPoint* point = submap.FindPoint(first ? pair.first : pair.second);
     if (!point) continue;
     for (const auto& [keyframe, feature] : point->observations) ++seen[keyframe];
   }
@@ -223,13 +225,12 @@ MergedMap AssembleMergedMap(const std::map<SubmapId, SubmapReplica>& submaps,
       const ConnectedFrame& c = *connection;
       const SubmapId a = SubmapOf(c.keyframe_a), b = SubmapOf(c.keyframe_b);
       auto& [side_a, side_b] = windows[{a, b}];
-      std::vector<MapPointId> points_a, points_b;
-      for (const auto& [pa, pb] : c.point_pairs) {
-        points_a.push_back(pa);
-        points_b.push_back(pb);
+      for (KeyframeId id : Window(submaps.at(a).map, c.keyframe_a, c.point_pairs, true, options.fuse_window)) {
+        side_a.insert(id);
       }
-      for (KeyframeId id : Window(submaps.at(a).map, c.keyframe_a, points_a, options.fuse_window)) side_a.insert(id);
-      for (KeyframeId id : Window(submaps.at(b).map, c.keyframe_b, points_b, options.fuse_window)) side_b.insert(id);
+      for (KeyframeId id : Window(submaps.at(b).map, c.keyframe_b, c.point_pairs, false, options.fuse_window)) {
+        side_b.insert(id);
+      }
     }
     const auto points_of = [&](const std::set<KeyframeId>& keyframes) {
       std::set<MapPointId> points;
