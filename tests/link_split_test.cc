@@ -18,6 +18,7 @@
 #include "stitch/records/keyframe_record.h"
 #include "stitch/records/merger_records.h"
 #include "stitch/testing/temp_dir.h"
+#include "stitch/util/ids.h"
 #include "tests/test_process.h"
 
 namespace fs = std::filesystem;
@@ -46,6 +47,7 @@ std::set<int64_t> MergedKeyframes(const std::string& path) {
 }
 
 struct RunResult {
+  fs::path dir;
   nlohmann::json report, info;
   std::set<int64_t> kept, merged;
   size_t posed = 0, posed_on_the_ground = 0;  // frames in trajectory.tum and trajectory_ground.tum
@@ -59,6 +61,7 @@ RunResult RunStitch(const fs::path& out, const std::vector<std::string>& extra) 
   const auto result = RunProgram(args, 240);
   EXPECT_EQ(result.exit_code, 0) << result.output;
   RunResult run;
+  run.dir = out;
   run.output = result.output;
   if (result.exit_code != 0) return run;
   run.report = ReadJson((out / "report.json").string());
@@ -72,6 +75,31 @@ RunResult RunStitch(const fs::path& out, const std::vector<std::string>& extra) 
   return run;
 }
 
+// Where kept keyframes are missing from the merged map: which ones (submap:number), and what the
+// merger and the mapper said of asking for them again (the run folder is deleted with the test).
+std::string WhyKeyframesAreMissing(const RunResult& run) {
+  std::ostringstream why;
+  why << "missing:";
+  for (int64_t id : run.kept) {
+    if (!run.merged.count(id)) why << " " << SubmapName(SubmapOf(KeyframeId(id))) << "#" << IndexOf(KeyframeId(id));
+  }
+  for (const char* service : {"merger", "mapper"}) {
+    std::ifstream log(run.dir / "logs" / (std::string(service) + ".log"));
+    std::vector<std::string> said;
+    for (std::string line; std::getline(log, line);) {
+      for (const char* word : {"again", "never received", "whole", "gave up", "request", "linger", "stopped"}) {
+        if (line.find(word) != std::string::npos) {
+          said.push_back(line);
+          break;
+        }
+      }
+    }
+    why << "\n" << service << ".log (" << said.size() << " lines on asking again, the last 25):";
+    for (size_t i = said.size() > 25 ? said.size() - 25 : 0; i < said.size(); ++i) why << "\n  " << said[i];
+  }
+  return why.str();
+}
+
 // The split run against the unsplit one: every submap merged, every kept keyframe in the
 // merged map, the trajectory as good within a few centimetres, and the link really lossy.
 void ExpectSameResult(const RunResult& plain, const RunResult& split, const std::string& what) {
@@ -79,7 +107,8 @@ void ExpectSameResult(const RunResult& plain, const RunResult& split, const std:
   EXPECT_EQ(split.report["submaps"], plain.report["submaps"]) << what;
   EXPECT_EQ(split.report["submaps_merged"], split.report["submaps"]) << what << ": a submap is missing";
   EXPECT_GT(split.kept.size(), 10u) << what;
-  EXPECT_EQ(split.merged, split.kept) << what << ": keyframes missing from the merged map";
+  EXPECT_EQ(split.merged, split.kept) << what << ": keyframes missing from the merged map\n"
+                                      << (split.merged != split.kept ? WhyKeyframesAreMissing(split) : "");
   EXPECT_NEAR(split.report["ate_rmse_m"].get<double>(), plain.report["ate_rmse_m"].get<double>(), 0.05) << what;
   // The merger's verdict on each pair of submaps is in the report: the merges, none refused.
   ASSERT_TRUE(split.report.contains("merges")) << what;

@@ -387,7 +387,7 @@ std::vector<std::pair<int, int>> SearchForTriangulation(const Keyframe& kf1, con
 }
 
 int Fuse(Map* map, KeyframeId keyframe_id, const std::vector<MapPointId>& candidates, const PinholeIntrinsics& k,
-         double radius) {
+         double radius, FuseSearch search) {
   Keyframe* keyframe = map->FindKeyframe(keyframe_id);
   if (!keyframe) return 0;
   const ScalePyramid& pyramid = map->pyramid();
@@ -411,7 +411,10 @@ int Fuse(Map* map, KeyframeId keyframe_id, const std::vector<MapPointId>& candid
     for (int j : nearby) {
       const int feature_level = keyframe->keypoints[j].octave;
       if (feature_level < level - 1 || feature_level > level) continue;
-      if ((keyframe->undistorted[j] - pixel).squaredNorm() * pyramid.inverse_sigma2[feature_level] > 5.99) continue;
+      if (search == FuseSearch::kWithinNoise &&
+          (keyframe->undistorted[j] - pixel).squaredNorm() * pyramid.inverse_sigma2[feature_level] > 5.99) {
+        continue;
+      }
       const int d = HammingDistance(point->descriptor.data(), keyframe->descriptors.ptr<uint8_t>(j));
       if (d < best) {
         best = d;

@@ -84,10 +84,21 @@ std::vector<std::pair<int, int>> SearchForTriangulation(const Keyframe& kf1, con
 Eigen::Matrix3d FundamentalMatrix(const Rigid3d& cam1_from_world, const Rigid3d& cam2_from_world,
                                   const PinholeIntrinsics& k);
 
-// Projects `candidates` into `keyframe` and, for each that lands on a matching feature, either
-// adds the observation (feature unmatched) or merges the two points (feature already has one;
-// the one with more observations is kept). Returns the number of points fused or added.
+// Which features around a candidate's projection `Fuse` compares it with.
+enum class FuseSearch {
+  // Those within the 95% bound of their level's noise too (chi2 5.99): the keyframe and the
+  // candidates were placed together (a mapper's own keyframes).
+  kWithinNoise,
+  // The whole radius: the candidates come from another submap, whose placement can be a few
+  // pixels off until the adjustment that the fused points then make possible.
+  kWholeRadius,
+};
+
+// Projects `candidates` into `keyframe` and, for each that lands on a matching feature within
+// `radius` pixels (times the level's scale), either adds the observation (feature unmatched) or
+// merges the two points (feature already has one; the one with more observations is kept).
+// Returns the number of points fused or added.
 int Fuse(Map* map, KeyframeId keyframe, const std::vector<MapPointId>& candidates, const PinholeIntrinsics& k,
-         double radius = 3.0);
+         double radius = 3.0, FuseSearch search = FuseSearch::kWithinNoise);
 
 }  // namespace stitch

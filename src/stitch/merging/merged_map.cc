@@ -245,10 +245,13 @@ MergedMap AssembleMergedMap(const std::map<SubmapId, SubmapReplica>& submaps,
     };
     for (const auto& [pair, sides] : windows) {
       const auto& [side_a, side_b] = sides;
+      // Two submaps' first placement can be pixels off; a loop's ends are of one mapper's map.
+      const FuseSearch search = pair.first != pair.second ? FuseSearch::kWholeRadius : FuseSearch::kWithinNoise;
       for (const auto& [into, from] : {std::make_pair(&side_a, &side_b), std::make_pair(&side_b, &side_a)}) {
         const std::vector<MapPointId> candidates = points_of(*from);
         for (KeyframeId id : *into) {
-          merged.points_fused_by_projection += Fuse(&merged.map, id, candidates, intrinsics, options.fuse_radius_px);
+          merged.points_fused_by_projection +=
+              Fuse(&merged.map, id, candidates, intrinsics, options.fuse_radius_px, search);
         }
       }
     }

@@ -28,7 +28,7 @@ struct ConnectionWeights {
 struct MergedMapOptions {
   bool fuse_points = true;        // fuse duplicates across submaps
   int fuse_window = 10;           // covisible keyframes taken around each connected keyframe
-  double fuse_radius_px = 3.0;    // search radius (x level scale) when fusing by projection
+  double fuse_radius_px = 4.0;    // search radius (x level scale) when fusing by projection
   bool bundle_adjustment = true;  // global bundle adjustment after fusing
   int bundle_adjustment_iterations = 10;
   // A long flight: at most this many keyframes move in the bundle adjustment, the newest (the
@@ -40,7 +40,9 @@ struct MergedMapOptions {
   void VisitFields(Visitor& v) {
     v("fuse_points", fuse_points, "fuse the same point seen from two merged submaps into one");
     v("fuse_window", fuse_window, "covisible keyframes around each connected keyframe searched for duplicates");
-    v("fuse_radius_px", fuse_radius_px, "search radius in pixels (times the level's scale) when fusing by projection");
+    v("fuse_radius_px", fuse_radius_px,
+      "search radius in pixels (times the level's scale) when fusing by projection: between two submaps the whole "
+      "radius (their first placement can be a few pixels off), around a loop only within the noise bound");
     v("bundle_adjustment", bundle_adjustment, "global bundle adjustment of each merged map after the pose graph");
     v("bundle_adjustment_iterations", bundle_adjustment_iterations, "iterations of each global bundle adjustment pass");
     v("bundle_adjustment_max_free_keyframes", bundle_adjustment_max_free_keyframes,
