@@ -25,7 +25,6 @@
 #include "stitch/util/ids.h"
 #include "stitch/util/rng.h"
 #include "tests/synthetic_flight.h"
-#include "tests/test_process.h"
 
 namespace stitch {
 namespace {
@@ -44,7 +43,7 @@ StitchConfig PatientConfig() {
 
 ViewerOptions ViewerOnAPortOfItsOwn() {
   ViewerOptions options;
-  options.port = testing::UnusedTcpPort();
+  options.port = bus::UnusedTcpPort();
   return options;
 }
 

@@ -8,11 +8,9 @@
 #include <sys/time.h>
 #include <sys/wait.h>
 #include <unistd.h>
-#include <algorithm>
 #include <chrono>
 #include <cstdlib>
 #include <fstream>
-#include <random>
 #include <thread>
 
 namespace stitch::testing {
@@ -85,24 +83,6 @@ nlohmann::json ReadJson(const std::string& path) {
 
 bool OnPath(const std::string& program) {
   return std::system(("command -v " + program + " > /dev/null 2>&1").c_str()) == 0;
-}
-
-int UnusedTcpPort(int first, int count) {
-  std::random_device device;
-  int port = first;
-  for (int attempt = 0; attempt < 200; ++attempt) {
-    port = first + static_cast<int>(device() % static_cast<unsigned>(std::max(count, 1)));
-    const int fd = socket(AF_INET, SOCK_STREAM, 0);
-    if (fd < 0) break;
-    sockaddr_in address{};
-    address.sin_family = AF_INET;
-    address.sin_port = htons(static_cast<uint16_t>(port));
-    address.sin_addr.s_addr = htonl(INADDR_ANY);
-    const bool free = bind(fd, reinterpret_cast<sockaddr*>(&address), sizeof(address)) == 0;
-    close(fd);
-    if (free) return port;
-  }
-  return port;  // every port tried is held: the server will say so
 }
 
 int ConnectToLocalPort(int port) {

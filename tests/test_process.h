@@ -33,12 +33,6 @@ nlohmann::json ReadJson(const std::string& path);
 // Whether a program is on the PATH.
 bool OnPath(const std::string& program);
 
-// A TCP port in [first, first + count), below Linux's ephemeral range, that no socket holds now
-// (a bind without SO_REUSEADDR to it succeeds), chosen at random: for a server a test starts.
-// Tests that ran side by side with ports derived from their process ids met on one port when the
-// ids lined up (the UDP version: bus::UnusedUdpPorts).
-int UnusedTcpPort(int first = 18000, int count = 2000);
-
 // A TCP socket connected to 127.0.0.1:`port`, receiving with a 3 s timeout; -1 when nothing
 // listens there. The caller closes it.
 int ConnectToLocalPort(int port);

@@ -78,7 +78,7 @@ TEST(ViewerInBrowser, ThePageShowsTheFlightsSubmapsKeyframesPointsAndTrackingSta
   GTEST_SKIP() << "under AddressSanitizer civetweb's WebSocket handshake overflows its 100 kB thread stacks";
 #endif
   stitch::testing::TempDir dir;
-  const int port = testing::UnusedTcpPort();
+  const int port = bus::UnusedTcpPort();
   const std::string url = "http://127.0.0.1:" + std::to_string(port) + "/";
   const std::string log = dir / "run.log";
   ChildProcess run("run", Bin("stitch"),
@@ -173,7 +173,7 @@ TEST(ViewerOnAReplay, ARecordedFlightPlayedBackShowsAsItWasFlown) {
     std::this_thread::sleep_for(500ms);
     recorder.Terminate(5000ms);
   }
-  const int port = testing::UnusedTcpPort();
+  const int port = bus::UnusedTcpPort();
   ChildProcess viewer("viewer", Bin("stitch-viewer"), {"--lcm-url", replay_url, "--port", std::to_string(port)},
                       dir / "viewer.log");
   for (int i = 0; i < 100 && !testing::HttpGet(port, "/state.json"); ++i) std::this_thread::sleep_for(50ms);

@@ -48,8 +48,9 @@ std::string LocalUdpUrl(int port) {
 namespace {
 
 // A bind without SO_REUSEADDR fails while any socket (LCM's share theirs) holds the port.
-bool UdpPortFree(int port) {
-  const int fd = socket(AF_INET, SOCK_DGRAM, 0);
+// `type`: SOCK_DGRAM or SOCK_STREAM.
+bool PortFree(int port, int type) {
+  const int fd = socket(AF_INET, type, 0);
   if (fd < 0) return false;
   sockaddr_in address{};
   address.sin_family = AF_INET;
@@ -60,22 +61,30 @@ bool UdpPortFree(int port) {
   return free;
 }
 
-}  // namespace
-
-std::vector<int> UnusedUdpPorts(int n, int first, int count) {
+std::vector<int> UnusedPorts(int n, int first, int count, int type) {
   std::random_device device;
   std::vector<int> ports;
   int port = first;
   for (int attempt = 0; attempt < 200 * n && static_cast<int>(ports.size()) < n; ++attempt) {
     port = first + static_cast<int>(device() % static_cast<unsigned>(std::max(count, 1)));
-    if (std::find(ports.begin(), ports.end(), port) == ports.end() && UdpPortFree(port)) ports.push_back(port);
+    if (std::find(ports.begin(), ports.end(), port) == ports.end() && PortFree(port, type)) ports.push_back(port);
   }
   while (static_cast<int>(ports.size()) < n) ports.push_back(port);  // every port tried is held
   return ports;
 }
 
+}  // namespace
+
+std::vector<int> UnusedUdpPorts(int n, int first, int count) {
+  return UnusedPorts(n, first, count, SOCK_DGRAM);
+}
+
 int UnusedUdpPort(int first, int count) {
   return UnusedUdpPorts(1, first, count).front();
+}
+
+int UnusedTcpPort(int first, int count) {
+  return UnusedPorts(1, first, count, SOCK_STREAM).front();
 }
 
 std::string UnusedLocalUdpUrl() {

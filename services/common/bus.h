@@ -58,6 +58,9 @@ std::string LocalUdpUrl(int port);
 // neighbouring ids). When every port tried is held, the last one tried fills the rest.
 std::vector<int> UnusedUdpPorts(int n, int first = 20000, int count = 12000);
 int UnusedUdpPort(int first = 20000, int count = 12000);  // UnusedUdpPorts(1, ...)
+// A TCP port in [first, first + count) that no socket holds now, the same way: for a web server
+// a test starts (18000-19999, below the UDP ones).
+int UnusedTcpPort(int first = 18000, int count = 2000);
 // LocalUdpUrl(UnusedUdpPort()).
 std::string UnusedLocalUdpUrl();
 

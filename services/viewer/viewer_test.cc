@@ -14,6 +14,7 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
+#include "services/common/bus.h"
 #include "services/common/convert.h"
 #include "services/viewer/viewer_server.h"
 #include "services/viewer/viewer_state.h"
@@ -259,20 +260,20 @@ std::string WebSocketRequest(int port, const std::string& origin) {
          origin + "\r\n\r\n";
 }
 
-// The tests' servers take their ports from testing::UnusedTcpPort: never one a server holds.
+// The tests' servers take their ports from bus::UnusedTcpPort: never one a server holds.
 TEST(ViewerServer, AnUnusedTestPortIsNeverOneAServerHolds) {
   ViewerState state(1000);
   ViewerOptions options;
-  options.port = testing::UnusedTcpPort();
+  options.port = bus::UnusedTcpPort();
   ViewerServer server(options, &state);
   ASSERT_EQ(StatusLine(Exchange(options.port, "GET / HTTP/1.1\r\nHost: x\r\n\r\n")), "HTTP/1.1 200 OK");
-  for (int i = 0; i < 50; ++i) EXPECT_NE(testing::UnusedTcpPort(options.port, 2), options.port);
+  for (int i = 0; i < 50; ++i) EXPECT_NE(bus::UnusedTcpPort(options.port, 2), options.port);
 }
 
 TEST(ViewerServer, ServesThePageAndThreeJsAndNothingElse) {
   ViewerState state(1000);
   ViewerOptions options;
-  options.port = testing::UnusedTcpPort();
+  options.port = bus::UnusedTcpPort();
   ViewerServer server(options, &state);
   const int port = options.port;
   const std::string page = Exchange(port, "GET / HTTP/1.1\r\nHost: x\r\n\r\n");
@@ -307,7 +308,7 @@ TEST(ViewerServer, ServesThePageAndThreeJsAndNothingElse) {
 TEST(ViewerServer, AWebSocketOnlyFromThePagesOwnOriginAndOnlyAsManyAsAllowed) {
   ViewerState state(1000);
   ViewerOptions options;
-  options.port = testing::UnusedTcpPort();
+  options.port = bus::UnusedTcpPort();
   options.max_pages = 2;
   ViewerServer server(options, &state);
   const int port = options.port;
@@ -364,7 +365,7 @@ TEST(ViewerServer, AWebSocketOnlyFromThePagesOwnOriginAndOnlyAsManyAsAllowed) {
 TEST(ViewerServer, WithoutThreeJsItSaysWhatToInstall) {
   ViewerState state(1000);
   ViewerOptions options;
-  options.port = testing::UnusedTcpPort();
+  options.port = bus::UnusedTcpPort();
   options.three_dir = "/nonexistent/three";
   try {
     ViewerServer server(options, &state);
