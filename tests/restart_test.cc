@@ -33,6 +33,17 @@ size_t CountRecords(const std::string& path) {
   return std::filesystem::exists(path) ? ReadFrameRecords(path).size() : 0;
 }
 
+std::string ReadWholeFile(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+}
+
+// The records in some of a frame record's lines (written to `path` to be read).
+std::vector<FrameRecord> RecordsIn(const std::string& path, const std::string& lines) {
+  std::ofstream(path, std::ios::binary) << lines;
+  return ReadFrameRecords(path);
+}
+
 TEST(TrackerRestart, SubmapIdsStayUniqueAndNoFrameIsLost) {
   testing::TempDir dir;
   const std::string url = bus::UnusedLocalUdpUrl();
@@ -56,7 +67,12 @@ TEST(TrackerRestart, SubmapIdsStayUniqueAndNoFrameIsLost) {
   while (CountRecords(frames) < 30 && std::chrono::steady_clock::now() < deadline) std::this_thread::sleep_for(20ms);
   ASSERT_GE(CountRecords(frames), 30u) << tracker->LogTail(10);
   EXPECT_EQ(tracker->Terminate(0ms), 128 + SIGKILL);
-  const size_t before_restart = CountRecords(frames);
+  // The first tracker's whole lines. The second appends after them (a line cut short by the kill
+  // is dropped first); a frame in flight at the crash is tracked again, and its later line
+  // replaces the first one's when the whole file is read, so which tracker wrote a record is told
+  // by where its line lies, not by its place among the records.
+  const std::string at_crash = ReadWholeFile(frames);
+  const size_t first_trackers_bytes = at_crash.rfind('\n') + 1;
   tracker = std::make_unique<ChildProcess>("tracker", Bin("stitch-tracker"), tracker_args, dir / "tracker2.log");
 
   while (!ingest.Poll() && std::chrono::steady_clock::now() < deadline + 60s) std::this_thread::sleep_for(50ms);
@@ -73,38 +89,60 @@ TEST(TrackerRestart, SubmapIdsStayUniqueAndNoFrameIsLost) {
   for (const auto& r : records) indices.insert(r.frame_index);
   EXPECT_EQ(indices.size(), 60u);
   EXPECT_EQ(*indices.rbegin(), 59);
+  // Each tracker's lines apart.
+  const std::string whole = ReadWholeFile(frames);
+  ASSERT_GE(whole.size(), first_trackers_bytes);
+  ASSERT_EQ(whole.compare(0, first_trackers_bytes, at_crash, 0, first_trackers_bytes), 0)
+      << "the restarted tracker kept the first one's lines";
+  const std::vector<FrameRecord> first_trackers =
+      RecordsIn(dir / "first.tsv", at_crash.substr(0, first_trackers_bytes));
+  const std::vector<FrameRecord> second_trackers = RecordsIn(dir / "second.tsv", whole.substr(first_trackers_bytes));
+  ASSERT_FALSE(first_trackers.empty());
   // Before the crash: submap 1. After: a new submap with a new number, tracking again.
   std::set<int> before, after;
   int posed_after = 0;
-  for (size_t i = 0; i < records.size(); ++i) {
-    if (records[i].submap_id < 0) continue;
-    const int number = SubmapNumber(SubmapId(records[i].submap_id));
-    (i < before_restart ? before : after).insert(number);
-    posed_after += i >= before_restart && records[i].state == "OK";
+  for (const FrameRecord& r : first_trackers) {
+    if (r.submap_id >= 0) before.insert(SubmapNumber(SubmapId(r.submap_id)));
+  }
+  for (const FrameRecord& r : second_trackers) {
+    if (r.submap_id >= 0) after.insert(SubmapNumber(SubmapId(r.submap_id)));
+    posed_after += r.state == "OK";
   }
   // (A tracker starved by a loaded machine may lose tracking and start another submap before
   // the crash; under AddressSanitizer beside other tests the first one once made submaps 1 and
   // 2. The numbers must still never repeat.)
-  ASSERT_FALSE(before.empty());
-  ASSERT_FALSE(after.empty());
-  EXPECT_EQ(*before.begin(), 1);
-  EXPECT_EQ(*after.begin(), *before.rbegin() + 1) << "the restarted tracker goes on from the next number";
-  EXPECT_GE(posed_after, static_cast<int>(records.size() - before_restart) - 6);
+  // On a failure: each tracker's lines (frame, state, submap) and both trackers' logs.
+  std::string story;
+  for (const auto* lines : {&first_trackers, &second_trackers}) {
+    story += lines == &first_trackers ? "first tracker:\n" : "second tracker:\n";
+    for (const FrameRecord& r : *lines) {
+      story += std::to_string(r.frame_index) + " " + r.state + " " +
+               (r.submap_id < 0 ? "-" : SubmapName(SubmapId(r.submap_id))) + "\n";
+    }
+  }
+  const auto log_of = [&](const char* name) { return std::string(name) + ":\n" + ReadWholeFile(dir / name); };
+  story += log_of("tracker1.log") + log_of("tracker2.log");
+  ASSERT_FALSE(before.empty()) << story;
+  ASSERT_FALSE(after.empty()) << story;
+  EXPECT_EQ(*before.begin(), 1) << story;
+  EXPECT_EQ(*after.begin(), *before.rbegin() + 1) << "the restarted tracker goes on from the next number\n" << story;
+  EXPECT_GE(posed_after, static_cast<int>(second_trackers.size()) - 6) << story;
   // Every keyframe the trackers made reached the mapper, but for the one of the frame being
   // tracked at the crash: that frame was not acknowledged and was tracked again.
   std::set<std::pair<int64_t, int>> mapped;  // submap, frame index
   for (const KeyframeRecord& k : ReadKeyframeRecords(dir / "keyframes.tsv")) mapped.emplace(k.submap_id, k.frame_index);
   int made = 0;
-  for (size_t i = 0; i < records.size(); ++i) {
-    if (!records[i].is_keyframe || i + 1 == before_restart) continue;
-    ++made;
-    EXPECT_TRUE(mapped.count({records[i].submap_id, records[i].frame_index}))
-        << "keyframe of frame " << records[i].frame_index << " in submap " << records[i].submap_id << " not mapped";
+  for (const auto* lines : {&first_trackers, &second_trackers}) {
+    for (const FrameRecord& r : *lines) {
+      if (!r.is_keyframe || (lines == &first_trackers && r.frame_index == first_trackers.back().frame_index)) continue;
+      ++made;
+      EXPECT_TRUE(mapped.count({r.submap_id, r.frame_index}))
+          << "keyframe of frame " << r.frame_index << " in submap " << r.submap_id << " not mapped";
+    }
   }
   EXPECT_GE(made, 6);
   EXPECT_EQ(ReadNextSubmapNumber(state), *after.rbegin() + 1);
-  std::ifstream log(dir / "tracker2.log");
-  const std::string text((std::istreambuf_iterator<char>(log)), std::istreambuf_iterator<char>());
+  const std::string text = ReadWholeFile(dir / "tracker2.log");
   EXPECT_NE(text.find("resuming: submaps continue from number " + std::to_string(*after.begin())), std::string::npos)
       << text;
 }
