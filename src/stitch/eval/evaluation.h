@@ -66,6 +66,7 @@ struct Evaluation {
   int largest_component = -1;
   std::optional<TrajectoryErrors> errors;  // largest map vs ground truth
   double ground_truth_extent_m = 0;        // diagonal of the box around the posed frames' true positions
+  double ground_truth_path_m = 0;          // length of the true path through the largest map's frames, in time order
   int wrong_merges = 0;                    // submaps of the largest map with wrong_merge
   std::vector<SubmapEvaluation> per_submap;
   std::optional<double> tracking_ms_median, tracking_ms_p95;

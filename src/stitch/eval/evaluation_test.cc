@@ -100,6 +100,38 @@ TEST(Evaluation, CompletenessCountsTheLargestMergedMapOnly) {
   }
 }
 
+TEST(Evaluation, ThePathFlownIsTheTruePathThroughTheLargestMapsFramesInTimeOrder) {
+  // A straight line, 0.5 m a frame; frames 0-29 in the largest map (listed out of order), 30-39 in
+  // a smaller one, frame 12 without ground truth (its neighbours' step spans it).
+  std::vector<StampedPose> truth;
+  for (int i = 0; i < 40; ++i) {
+    if (i != 12)
+      truth.push_back({static_cast<int64_t>(i) * 100'000'000,
+                       Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0.5 * i, 0, 0))});
+  }
+  EvaluationInput input;
+  input.frames_total = 40;
+  input.ground_truth = Trajectory(truth);
+  input.max_association_gap_ns = 10'000'000;
+  for (int i = 39; i >= 0; --i) {
+    PoseRecord r;
+    r.frame_index = i;
+    r.t_ns = static_cast<int64_t>(i) * 100'000'000;
+    r.submap_id = i < 30 ? 1 : 2;
+    r.component = i < 30 ? 0 : 1;
+    r.world_from_cam =
+        Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0.5 * i + (i % 2 ? 0.01 : -0.01), 0.01 * (i % 3), 0));
+    input.poses.push_back(r);
+  }
+  const Evaluation e = Evaluate(input);
+  ASSERT_EQ(e.largest_component, 0);
+  ASSERT_TRUE(e.errors);
+  EXPECT_NEAR(e.ground_truth_path_m, 14.5, 1e-9);  // frames 0 to 29
+  const std::string summary = Summarize(e);
+  EXPECT_NE(summary.find("14.5 m flown in the largest map"), std::string::npos) << summary;
+  EXPECT_NEAR(EvaluationFromJson(ToJson(e)).ground_truth_path_m, 14.5, 1e-9);
+}
+
 TEST(Evaluation, AMisplacedSubmapShowsInItsAteInTheMergedMap) {
   const Trajectory gt = GroundTruth(100);
   std::vector<PoseRecord> poses = Estimate(gt, kEstFromGt, 0.0, 0);
