@@ -62,8 +62,7 @@ TEST(Campaign, AnEarlierCampaignIsTabledWithoutRunningAnything) {
   EXPECT_EQ(result.exit_code, 1) << result.output;  // the campaign it tables had a wrong merge
   EXPECT_NE(result.output.find("1 flights (seed 5): 2 submaps, 2 of them"), std::string::npos) << result.output;
   EXPECT_NE(result.output.find("wrong merge in flight-000"), std::string::npos) << result.output;
-  std::ifstream in(dir / "doc.md");
-  const std::string doc((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::string doc = testing::ReadWholeFile(dir / "doc.md");
   EXPECT_EQ(doc.rfind("before\n<!-- merge-campaign -->\n`build/bin/stitch campaign --runs 1 --seed 5`", 0), 0u) << doc;
   EXPECT_NE(doc.find("| flight-000 | 256 | 97:13 | - | 2 | 2 | 1 | 3.2500 | 4.5000 |"), std::string::npos) << doc;
   EXPECT_EQ(doc.find("old table"), std::string::npos) << doc;

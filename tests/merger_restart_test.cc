@@ -161,8 +161,7 @@ TEST(MergerRestart, AMergerKilledHalfwayResumesFromItsJournalAndLosesNothing) {
     Publish(&publisher, &messages, half, messages.size());
     ASSERT_TRUE(WaitForJournal(journal, messages.size(), 60s)) << merger.process().LogTail(10);
     EXPECT_EQ(merger.process().Terminate(30s), 0) << merger.process().LogTail(10);
-    std::ifstream log(dir / "resumed.log");
-    const std::string text((std::istreambuf_iterator<char>(log)), std::istreambuf_iterator<char>());
+    const std::string text = testing::ReadWholeFile(dir / "resumed.log");
     EXPECT_NE(text.find("resumed from"), std::string::npos) << text;
   }
   EXPECT_EQ(JournalRecords(journal), static_cast<int64_t>(messages.size()));
@@ -224,8 +223,7 @@ TEST(MergerRestart, ADamagedJournalCostsOnlyTheDamagedRecords) {
     MergerProcess merger(url, dir / "state", dir / "resumed", dir / "resumed.log");
     EXPECT_EQ(merger.process().Terminate(30s), 0) << merger.process().LogTail(10);
   }
-  std::ifstream log(dir / "resumed.log");
-  const std::string text((std::istreambuf_iterator<char>(log)), std::istreambuf_iterator<char>());
+  const std::string text = testing::ReadWholeFile(dir / "resumed.log");
   EXPECT_NE(text.find("resumed from " + journal_path + ": " + std::to_string(kept) + " submap updates"),
             std::string::npos)
       << text;

@@ -57,12 +57,8 @@ TEST(QualityGate, TheCiSubsetMeetsItsExpectations) {
                                   dir / "gate/quality.json", "--update", "--figures", "ate_m"},
                                  60);
   EXPECT_EQ(update.exit_code, 0) << update.output;
-  const auto read = [](const std::string& path) {
-    std::ifstream in(path);
-    return std::string(std::istreambuf_iterator<char>(in), {});
-  };
-  const std::string before = read(testing::SourceFile("benchmarks/quality.yaml"));
-  const std::string after = read(matrix);
+  const std::string before = testing::ReadWholeFile(testing::SourceFile("benchmarks/quality.yaml"));
+  const std::string after = testing::ReadWholeFile(matrix);
   const double ate = testing::ReadJson(dir / "gate/quality.json")[0]["figures"]["ate_m"].get<double>();
   char expected_ate[32];
   std::snprintf(expected_ate, sizeof(expected_ate), "ate_m: %.4f", ate);

@@ -27,15 +27,11 @@ namespace {
 
 using namespace std::chrono_literals;
 using testing::Bin;
+using testing::ReadWholeFile;
 
 // Whole records so far (the file is being written: its last line may be cut short).
 size_t CountRecords(const std::string& path) {
   return std::filesystem::exists(path) ? ReadFrameRecords(path).size() : 0;
-}
-
-std::string ReadWholeFile(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
 }
 
 // The records in some of a frame record's lines (written to `path` to be read).

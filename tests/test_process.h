@@ -30,6 +30,9 @@ std::string SourceFile(const std::string& relative);
 // A JSON file (report.json, run.json); throws on a missing or malformed file.
 nlohmann::json ReadJson(const std::string& path);
 
+// The whole of a file as it is now ("" when it cannot be read).
+std::string ReadWholeFile(const std::string& path);
+
 // Whether a program is on the PATH.
 bool OnPath(const std::string& program);
 
