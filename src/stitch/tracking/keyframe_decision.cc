@@ -37,6 +37,29 @@ double MedianParallaxDeg(const Map& map, const Keyframe& reference, const Frame&
   return std::acos(std::clamp(*middle, -1.0, 1.0)) * 180.0 / M_PI;
 }
 
+double MotionAxisAngleDeg(const Keyframe& reference, const Frame& frame) {
+  if (!frame.cam_from_world) return -1;
+  const Eigen::Vector3d displacement = frame.cam_from_world->CentreInWorld() - reference.cam_from_world.CentreInWorld();
+  const double length = displacement.norm();
+  if (!(length > 0)) return -1;
+  // The optical axis in the world: the camera's z axis, the rotation's third row.
+  const Eigen::Vector3d axis = frame.cam_from_world->RotationMatrix().row(2).transpose();
+  return std::acos(std::clamp(std::abs(axis.dot(displacement)) / length, 0.0, 1.0)) * 180.0 / M_PI;
+}
+
+namespace {
+
+bool MovesAlongAxis(const KeyframeDecisionInput& input, const TrackingOptions& options) {
+  return input.motion_axis_angle_deg >= 0 && input.motion_axis_angle_deg <= options.keyframe_along_axis_max_angle_deg;
+}
+
+}  // namespace
+
+double KeyframeRatio(const KeyframeDecisionInput& input, const TrackingOptions& options) {
+  return MovesAlongAxis(input, options) ? std::max(options.keyframe_ratio, options.keyframe_ratio_along_axis)
+                                        : options.keyframe_ratio;
+}
+
 double TrackedCoverage(const Frame& frame, int width, int height) {
   constexpr int kCols = 8, kRows = 6;
   if (width <= 0 || height <= 0) return -1;
@@ -72,6 +95,13 @@ bool NeedKeyframe(const KeyframeDecisionInput& input, const TrackingOptions& opt
     const bool paced = options.keyframe_gap_without_parallax_s > 0 &&
                        input.frames_since_keyframe >= options.keyframe_gap_without_parallax_s * fps;
     few_tracked = paced || input.tracked_points < options.keyframe_ratio_without_parallax * input.reference_points;
+  }
+  // A camera that moves along its viewing direction (a forward camera) and so has parallax keeps
+  // more of its reference's points: they leave its view at every edge and grow as it nears them.
+  if (!few_tracked && MovesAlongAxis(input, options) && input.tracked_points > 15 &&
+      input.tracked_points < options.keyframe_ratio_along_axis * input.reference_points &&
+      (options.keyframe_min_parallax_deg <= 0 || input.parallax_deg >= options.keyframe_min_parallax_deg)) {
+    few_tracked = true;
   }
   // Much of the view is ground the map does not hold (the camera moved on while it was lost,
   // or turned): a keyframe maps it, whatever the ratio says.

@@ -7,7 +7,8 @@
 // there adds little triangulation, only cost) becomes one only once
 // options.keyframe_gap_without_parallax_s of the sequence has passed since the last keyframe, or
 // at once when it tracks fewer than options.keyframe_ratio_without_parallax of the points (much
-// new ground in view).
+// new ground in view). A frame with that parallax moving along its viewing direction (a forward
+// camera) becomes one below options.keyframe_ratio_along_axis instead of keyframe_ratio.
 
 #include "stitch/map/map.h"
 #include "stitch/tracking/tracking_options.h"
@@ -23,6 +24,9 @@ struct KeyframeDecisionInput {
   // Median angle at the frame's tracked points between the rays from the reference keyframe's
   // centre and the frame's (MedianParallaxDeg); negative: not measured.
   double parallax_deg = -1;
+  // Angle between the frame's optical axis and its displacement since the reference keyframe
+  // (either way along it), degrees (MotionAxisAngleDeg); negative: not measured or no motion.
+  double motion_axis_angle_deg = -1;
   // Share of the image's feature-holding cells in which the frame tracks a map point
   // (TrackedCoverage); negative: not measured.
   double tracked_coverage = -1;
@@ -35,6 +39,17 @@ int ReferencePoints(const Map& map, const Keyframe& reference);
 // rays from `reference`'s centre and the frame's centre: what the camera's motion since the
 // reference adds to triangulation (0 for a pure rotation). -1 when no point is tracked.
 double MedianParallaxDeg(const Map& map, const Keyframe& reference, const Frame& frame);
+
+// The angle, degrees, between `frame`'s optical axis and the line from `reference`'s centre to the
+// frame's (0: moving straight ahead or back; 90: sideways, as a downward camera flying level). -1
+// when the frame is not posed or has not moved.
+double MotionAxisAngleDeg(const Keyframe& reference, const Frame& frame);
+
+// The tracked share of the reference's points under which NeedKeyframe may make this input a
+// keyframe: options.keyframe_ratio, or keyframe_ratio_along_axis when higher and the camera moves
+// along its viewing direction (motion_axis_angle_deg within keyframe_along_axis_max_angle_deg);
+// the latter needs keyframe_min_parallax_deg of parallax, so a rotating camera keeps the former.
+double KeyframeRatio(const KeyframeDecisionInput& input, const TrackingOptions& options);
 
 // Of the cells of an 8x6 grid over the image that hold at least 3 of the frame's features, the
 // share in which at least one feature is a tracked map point: how much of what the camera sees the

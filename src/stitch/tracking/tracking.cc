@@ -304,16 +304,20 @@ void Tracking::OnTracked(Frame* frame, Output* output, bool may_make_keyframe) {
     const Keyframe* reference = map.FindKeyframe(reference_keyframe_);
     decision.has_reference = reference != nullptr;
     decision.reference_points = reference ? ReferencePoints(map, *reference) : 0;
+    if (reference && options_.keyframe_ratio_along_axis != options_.keyframe_ratio) {
+      decision.motion_axis_angle_deg = MotionAxisAngleDeg(*reference, *frame);
+    }
+    const double ratio = KeyframeRatio(decision, options_);
     // Parallax matters only to a frame that would otherwise become a keyframe.
     if (reference && options_.keyframe_min_parallax_deg > 0 &&
-        decision.tracked_points < options_.keyframe_ratio * decision.reference_points) {
+        decision.tracked_points < ratio * decision.reference_points) {
       decision.parallax_deg = MedianParallaxDeg(map, *reference, *frame);
     }
     decision.frames_since_keyframe = frame->frame_index - last_keyframe_frame_index_;
     decision.mapper_ready = KeyframesInFlight() < options_.keyframes_in_flight || !mapper_connected_;
     // New ground in view matters only to a frame the ratio does not make a keyframe.
     if (reference && options_.keyframe_min_coverage > 0 &&
-        decision.tracked_points >= options_.keyframe_ratio * decision.reference_points) {
+        decision.tracked_points >= ratio * decision.reference_points) {
       decision.tracked_coverage = TrackedCoverage(*frame, geometry_.camera.width(), geometry_.camera.height());
       if (decision.tracked_coverage >= 0 && decision.tracked_coverage < options_.keyframe_min_coverage) {
         decision.parallax_deg = MedianParallaxDeg(map, *reference, *frame);
@@ -322,7 +326,8 @@ void Tracking::OnTracked(Frame* frame, Output* output, bool may_make_keyframe) {
     const bool need_keyframe = NeedKeyframe(decision, options_, fps_);
     STITCH_LOG(DEBUG) << "frame " << frame->frame_index << ": " << decision.tracked_points << " tracked of "
                       << decision.reference_points << " at the reference, parallax " << decision.parallax_deg
-                      << " deg, " << decision.frames_since_keyframe << " frames since the last keyframe, mapper "
+                      << " deg, moving " << decision.motion_axis_angle_deg << " deg off its axis, "
+                      << decision.frames_since_keyframe << " frames since the last keyframe, mapper "
                       << (decision.mapper_ready ? "ready" : "busy") << (need_keyframe ? ": keyframe" : "");
     if (need_keyframe) {
       output->new_keyframes.push_back(CreateKeyframe(*frame));

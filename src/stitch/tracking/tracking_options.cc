@@ -18,6 +18,12 @@ bool TrackingOptions::Check(std::string* why) const {
   }
   if (lost_after_frames < 1) return fail("tracker.tracking.lost_after_frames must be >= 1");
   if (!(keyframe_ratio > 0 && keyframe_ratio < 1)) return fail("tracker.tracking.keyframe_ratio must be in (0, 1)");
+  if (!(keyframe_ratio_along_axis >= keyframe_ratio && keyframe_ratio_along_axis < 1)) {
+    return fail("tracker.tracking.keyframe_ratio_along_axis must be in [keyframe_ratio, 1)");
+  }
+  if (!(keyframe_along_axis_max_angle_deg >= 0 && keyframe_along_axis_max_angle_deg <= 90)) {
+    return fail("tracker.tracking.keyframe_along_axis_max_angle_deg must be in [0, 90]");
+  }
   if (!(keyframe_min_parallax_deg >= 0 && keyframe_min_parallax_deg <= 90)) {
     return fail("tracker.tracking.keyframe_min_parallax_deg must be in [0, 90]");
   }

@@ -19,7 +19,14 @@ struct TrackingOptions {
   int min_inliers_after_failure = 30;  // ...right after an untracked frame (as ORB-SLAM after relocalization)
   int lost_after_frames = 3;           // consecutive untracked frames that make tracking lost
   double keyframe_ratio = 0.9;         // new keyframe when the frame tracks fewer than this x reference's points
-  int max_keyframe_gap = 0;            // frames between keyframes at most (0: one second of frames)
+  // ...or this x while the camera moves along its viewing direction (its displacement since the
+  // reference keyframe within keyframe_along_axis_max_angle_deg of its optical axis): a forward
+  // camera, whose points leave the view at every edge and grow as it nears them, holds a thin
+  // local map and drifts in scale at 0.9; a downward or oblique survey camera is not affected.
+  // docs/benchmarks.md "Keyframes for a forward camera".
+  double keyframe_ratio_along_axis = 0.95;
+  double keyframe_along_axis_max_angle_deg = 25.0;
+  int max_keyframe_gap = 0;  // frames between keyframes at most (0: one second of frames)
   // Below this median parallax with the reference keyframe (degrees: a camera that mostly
   // rotates), a frame becomes a keyframe only when keyframe_gap_without_parallax_s has passed
   // since the last one or it tracks fewer than keyframe_ratio_without_parallax of the
@@ -109,6 +116,11 @@ struct TrackingOptions {
       "consecutive untracked frames that make tracking lost (one bad frame is skipped)");
     v("keyframe_ratio", keyframe_ratio,
       "new keyframe when tracking fewer than this fraction of the reference keyframe's points");
+    v("keyframe_ratio_along_axis", keyframe_ratio_along_axis,
+      "the keyframe ratio while the camera moves along its viewing direction (a forward camera)");
+    v("keyframe_along_axis_max_angle_deg", keyframe_along_axis_max_angle_deg,
+      "the camera moves along its viewing direction when its displacement since the reference keyframe is within "
+      "this angle of its optical axis, degrees");
     v("max_keyframe_gap", max_keyframe_gap, "frames between keyframes at most (0: one second)");
     v("keyframe_min_parallax_deg", keyframe_min_parallax_deg,
       "below this median parallax with the reference keyframe, degrees, a keyframe needs "

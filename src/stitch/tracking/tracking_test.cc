@@ -472,6 +472,55 @@ TEST(KeyframeDecision, ParallaxIsTheAngleTheCamerasMotionOpensAtThePoints) {
   EXPECT_EQ(MedianParallaxDeg(scene.map, reference, frame), -1) << "no point tracked";
 }
 
+TEST(KeyframeDecision, MotionAxisAngleIsBetweenTheOpticalAxisAndTheMotionSinceTheReference) {
+  // A camera at the origin looking along world x (its z axis), then moved.
+  Keyframe reference;
+  const Eigen::Matrix3d world_from_cam_rotation =
+      (Eigen::Matrix3d() << 0, 0, 1, -1, 0, 0, 0, -1, 0).finished();  // columns: cam x, y, z in the world
+  const Rigid3d world_from_reference(Eigen::Quaterniond(world_from_cam_rotation), Eigen::Vector3d::Zero());
+  reference.cam_from_world = world_from_reference.Inverse();
+  Frame frame;
+  const auto moved_to = [&](const Eigen::Vector3d& centre) {
+    frame.cam_from_world = Rigid3d(world_from_reference.rotation, centre).Inverse();
+    return MotionAxisAngleDeg(reference, frame);
+  };
+  EXPECT_NEAR(moved_to({2, 0, 0}), 0, 1e-9) << "straight ahead";
+  EXPECT_NEAR(moved_to({-2, 0, 0}), 0, 1e-9) << "straight back";
+  EXPECT_NEAR(moved_to({0, 3, 0}), 90, 1e-9) << "sideways";
+  EXPECT_NEAR(moved_to({1, 0, -1}), 45, 1e-9) << "ahead and down";
+  EXPECT_EQ(moved_to({0, 0, 0}), -1) << "not moved";
+  frame.cam_from_world.reset();
+  EXPECT_EQ(MotionAxisAngleDeg(reference, frame), -1) << "not posed";
+}
+
+TEST(KeyframeDecision, ACameraMovingAlongItsViewingDirectionKeepsMoreOfItsPoints) {
+  TrackingOptions options;
+  options.keyframe_ratio = 0.9;
+  options.keyframe_ratio_along_axis = 0.95;
+  options.keyframe_along_axis_max_angle_deg = 25;
+  KeyframeDecisionInput input;
+  input.reference_points = 300;
+  input.frames_since_keyframe = 5;
+  input.tracked_points = 280;  // 0.93 of the reference's
+  input.parallax_deg = 3;
+  input.motion_axis_angle_deg = 90;
+  EXPECT_FALSE(NeedKeyframe(input, options, 20)) << "a downward camera flying level: the ratio is 0.9";
+  EXPECT_DOUBLE_EQ(KeyframeRatio(input, options), 0.9);
+  input.motion_axis_angle_deg = 10;
+  EXPECT_TRUE(NeedKeyframe(input, options, 20)) << "a forward camera: the ratio is 0.95";
+  EXPECT_DOUBLE_EQ(KeyframeRatio(input, options), 0.95);
+  input.motion_axis_angle_deg = 30;
+  EXPECT_FALSE(NeedKeyframe(input, options, 20)) << "beyond the angle";
+  input.motion_axis_angle_deg = -1;
+  EXPECT_FALSE(NeedKeyframe(input, options, 20)) << "not measured";
+  input.motion_axis_angle_deg = 10;
+  input.parallax_deg = 0.5;
+  EXPECT_FALSE(NeedKeyframe(input, options, 20)) << "too little parallax: a rotating camera keeps 0.9";
+  input.parallax_deg = 3;
+  input.tracked_points = 290;
+  EXPECT_FALSE(NeedKeyframe(input, options, 20)) << "tracks nearly all";
+}
+
 // A 640x480 frame with 4 features in every cell of the 8x6 grid TrackedCoverage uses (80x80
 // pixels), the first of them tracked in the cells left of column `tracked_columns`.
 Frame FrameWithFeaturesInEveryCell(int tracked_columns) {
