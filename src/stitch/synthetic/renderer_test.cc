@@ -132,6 +132,79 @@ TEST(Renderer, RendersDistortedCamerasThroughTheModel) {
   EXPECT_LT((MarkerCentroid(image, projected, depth, distorted.fx()) - projected).norm(), 0.5);
 }
 
+// The horizontal distance from a point to a building's footprint (0 inside it).
+double FootprintDistance(const Building& b, const Eigen::Vector2d& p) {
+  const Eigen::Vector2d ax(std::cos(b.yaw), std::sin(b.yaw)), ay(-ax.y(), ax.x());
+  const Eigen::Vector2d d = p - b.centre;
+  return Eigen::Vector2d(std::max(std::abs(d.dot(ax)) - b.half_length, 0.0),
+                         std::max(std::abs(d.dot(ay)) - b.half_width, 0.0))
+      .norm();
+}
+
+TEST(SyntheticWorld, NoBuildingStandsWhereTheCameraPassesBelowItsRoof) {
+  // A low flight through a crowded town: every camera centre that is below a roof keeps 3 m from
+  // that building; a route above every roof leaves the town as it is without one.
+  SyntheticOptions options;
+  options.flight.num_frames = 300;
+  options.flight.num_strips = 2;
+  options.flight.strip_length_m = 150;
+  options.flight.altitude_m = 8;
+  options.flight.camera_pitch_deg = 70;
+  options.world.num_buildings = 60;
+  const SyntheticSequence low(options, FailureSchedule());
+  int below_a_roof = 0;
+  for (const Building& b : low.world().buildings()) {
+    for (const Rigid3d& pose : low.flight().world_from_cam()) {
+      if (pose.translation.z() >= b.base_z + b.height + 2) continue;
+      ++below_a_roof;
+      ASSERT_GE(FootprintDistance(b, pose.translation.head<2>()), 3.0 - 1e-9)
+          << "a building of " << b.height << " m stands in the way of a camera " << pose.translation.z() << " m up";
+    }
+  }
+  EXPECT_GT(below_a_roof, 0) << "the flight passes no building below its roof: the test proves nothing";
+  // Without a route, or above every roof, the same town.
+  const SyntheticWorld& world = low.world();
+  const SyntheticWorld anywhere(options.world, 5, world.min_xy(), world.max_xy());
+  WorldRoute high;
+  for (const Rigid3d& pose : low.flight().world_from_cam())
+    high.camera_centres.push_back(pose.translation + Eigen::Vector3d(0, 0, 40));
+  const SyntheticWorld above(options.world, 5, world.min_xy(), world.max_xy(), high);
+  ASSERT_EQ(above.buildings().size(), anywhere.buildings().size());
+  for (size_t i = 0; i < above.buildings().size(); ++i) {
+    EXPECT_EQ(above.buildings()[i].centre, anywhere.buildings()[i].centre);
+  }
+}
+
+TEST(SyntheticWorld, ACarsRoadIsPavedAndLinedWithBuildingsThatKeepOffIt) {
+  SyntheticOptions options;
+  options.flight.path = "road";
+  options.flight.num_frames = 200;
+  options.flight.fps = 10;
+  options.flight.num_strips = 2;
+  options.flight.strip_length_m = 80;
+  options.flight.altitude_m = 1.5;
+  options.flight.camera_pitch_deg = 88;
+  options.world.relief_m = 0;
+  const SyntheticSequence road(options, FailureSchedule());
+  const auto& centres = road.flight().world_from_cam();
+  int beside_the_road = 0;
+  for (const Building& b : road.world().buildings()) {
+    double nearest = 1e9;
+    for (const Rigid3d& pose : centres) nearest = std::min(nearest, FootprintDistance(b, pose.translation.head<2>()));
+    ASSERT_GE(nearest, 5.5 - 1e-9) << "a building on the road or its pavement";
+    beside_the_road += nearest < 15;
+  }
+  EXPECT_GE(beside_the_road, 6) << "a street: buildings along both sides of 200 m of road";
+  // The asphalt under the car is dark, the pavement beside it light.
+  const MipTexture& ground = road.world().ground();
+  const Eigen::Vector2d on_road = centres[50].translation.head<2>();
+  const auto texel_at = [&](const Eigen::Vector2d& w) {
+    const Eigen::Vector2d t = (w - road.world().min_xy()) / ground.texel_m;
+    return static_cast<int>(ground.levels[3].at<uint8_t>(static_cast<int>(t.y()) / 8, static_cast<int>(t.x()) / 8));
+  };
+  EXPECT_LT(texel_at(on_road + Eigen::Vector2d(0, 1.5)), texel_at(on_road + Eigen::Vector2d(0, 5.5)) - 30);
+}
+
 TEST(SyntheticSequence, IsDeterministicFromTheSeed) {
   SyntheticOptions options = SmallFlight();
   SyntheticSequence a(options, FailureSchedule());

@@ -29,8 +29,12 @@ SyntheticSequence::SyntheticSequence(const SyntheticOptions& options, const Fail
     : options_((CheckOptions(options, "synthetic"), options)),
       camera_(options.MakeCamera()),
       flight_(options.flight, options.gust, camera_, gusts, static_cast<uint64_t>(options.seed)) {
+  WorldRoute route;
+  for (const Rigid3d& world_from_cam : flight_.world_from_cam())
+    route.camera_centres.push_back(world_from_cam.translation);
+  route.paved = options_.flight.path == "road";
   world_ = std::make_unique<SyntheticWorld>(options_.world, static_cast<uint64_t>(options_.seed) * 7919 + 17,
-                                            flight_.min_ground_xy(), flight_.max_ground_xy());
+                                            flight_.min_ground_xy(), flight_.max_ground_xy(), route);
   renderer_ = std::make_unique<Renderer>(*world_, camera_);
   std::vector<StampedPose> poses;
   for (int i = 0; i < flight_.num_frames(); ++i) {

@@ -11,6 +11,9 @@
 namespace stitch {
 namespace {
 
+constexpr double kRouteCell = 5.0;      // metres: the grid the route's camera centres are looked up in
+constexpr double kRoadHalfWidth = 3.5;  // metres: a paved route's road is 7 m wide
+
 // Smooth value noise in [-1, 1] on an integer lattice.
 double ValueNoise(uint64_t seed, double x, double y) {
   const double fx = std::floor(x), fy = std::floor(y);
@@ -137,8 +140,8 @@ std::array<Eigen::Vector2d, 4> Building::Corners() const {
 }
 
 SyntheticWorld::SyntheticWorld(const WorldOptions& options, uint64_t seed, const Eigen::Vector2d& min_xy,
-                               const Eigen::Vector2d& max_xy)
-    : options_(options), min_xy_(min_xy), max_xy_(max_xy) {
+                               const Eigen::Vector2d& max_xy, const WorldRoute& route)
+    : options_(options), min_xy_(min_xy), max_xy_(max_xy), route_(route) {
   std::string why;
   if (!options_.Check(&why)) throw Error(why);
   if (!((max_xy - min_xy).minCoeff() > 2 * options_.grid_spacing_m)) {
@@ -146,8 +149,13 @@ SyntheticWorld::SyntheticWorld(const WorldOptions& options, uint64_t seed, const
   }
   sun_direction_ =
       Eigen::Vector3d(std::cos(0.8) * std::cos(2.3), std::cos(0.8) * std::sin(2.3), std::sin(0.8)).normalized();
+  for (const Eigen::Vector3d& c : route_.camera_centres) {
+    route_cells_[{static_cast<int>(std::floor(c.x() / kRouteCell)), static_cast<int>(std::floor(c.y() / kRouteCell))}]
+        .push_back(c);
+  }
   BuildTerrain(seed);
   PlaceBuildings(seed + 101);
+  if (route_.paved) PlaceStreetBuildings(seed + 404);
   FlattenUnderBuildings();
   ComputeShading();
   PaintGround(seed + 202);
@@ -192,21 +200,80 @@ void SyntheticWorld::PlaceBuildings(uint64_t seed) {
     b.height = rng.Uniform(options_.building_min_height_m, options_.building_max_height_m);
     b.facade_offset_m = rng.Uniform(0, 400);
     b.wall_brightness = static_cast<float>(rng.Uniform(0.75, 1.2));
-    const double radius = std::hypot(b.half_length, b.half_width);
-    if (b.centre.x() - radius < min_xy_.x() + 10 || b.centre.y() - radius < min_xy_.y() + 10 ||
-        b.centre.x() + radius > max_xy_.x() - 10 || b.centre.y() + radius > max_xy_.y() - 10) {
-      continue;
+    if (CanStand(&b, 4.0)) buildings_.push_back(b);
+  }
+}
+
+bool SyntheticWorld::CanStand(Building* b, double spacing) const {
+  const double radius = std::hypot(b->half_length, b->half_width);
+  if (b->centre.x() - radius < min_xy_.x() + 10 || b->centre.y() - radius < min_xy_.y() + 10 ||
+      b->centre.x() + radius > max_xy_.x() - 10 || b->centre.y() + radius > max_xy_.y() - 10) {
+    return false;
+  }
+  for (const auto& other : buildings_) {
+    if ((other.centre - b->centre).norm() < radius + std::hypot(other.half_length, other.half_width) + spacing) {
+      return false;
     }
-    bool overlaps = false;
-    for (const auto& other : buildings_) {
-      if ((other.centre - b.centre).norm() < radius + std::hypot(other.half_length, other.half_width) + 4) {
-        overlaps = true;
-        break;
+  }
+  b->base_z = TerrainHeight(b->centre.x(), b->centre.y());
+  return !InTheWay(*b);
+}
+
+bool SyntheticWorld::InTheWay(const Building& b) const {
+  // Room for a camera to pass by, or the road's half width and a pavement.
+  const double margin = route_.paved ? kRoadHalfWidth + 2.0 : 3.0;
+  return RouteDistance(b, b.base_z + b.height + 2.0, margin) < margin;
+}
+
+double SyntheticWorld::RouteDistance(const Building& b, double roof_z, double reach) const {
+  if (route_cells_.empty()) return reach;
+  const double radius = std::hypot(b.half_length, b.half_width) + reach;
+  const int x0 = static_cast<int>(std::floor((b.centre.x() - radius) / kRouteCell));
+  const int x1 = static_cast<int>(std::floor((b.centre.x() + radius) / kRouteCell));
+  const int y0 = static_cast<int>(std::floor((b.centre.y() - radius) / kRouteCell));
+  const int y1 = static_cast<int>(std::floor((b.centre.y() + radius) / kRouteCell));
+  const Eigen::Vector2d ax(std::cos(b.yaw), std::sin(b.yaw)), ay(-ax.y(), ax.x());
+  double nearest = reach;
+  for (int x = x0; x <= x1; ++x) {
+    for (int y = y0; y <= y1; ++y) {
+      const auto it = route_cells_.find({x, y});
+      if (it == route_cells_.end()) continue;
+      for (const Eigen::Vector3d& c : it->second) {
+        if (!route_.paved && c.z() >= roof_z) continue;
+        const Eigen::Vector2d d = c.head<2>() - b.centre;
+        const Eigen::Vector2d outside(std::max(std::abs(d.dot(ax)) - b.half_length, 0.0),
+                                      std::max(std::abs(d.dot(ay)) - b.half_width, 0.0));
+        nearest = std::min(nearest, outside.norm());
       }
     }
-    if (overlaps) continue;
-    b.base_z = TerrainHeight(b.centre.x(), b.centre.y());
-    buildings_.push_back(b);
+  }
+  return nearest;
+}
+
+void SyntheticWorld::PlaceStreetBuildings(uint64_t seed) {
+  // Houses and blocks along both sides of the road, facing it, with gaps between them.
+  Rng rng(seed);
+  const auto& centres = route_.camera_centres;
+  double travelled = 0, next = rng.Uniform(5, 15);
+  for (size_t i = 1; i < centres.size(); ++i) {
+    const Eigen::Vector2d step = (centres[i] - centres[i - 1]).head<2>();
+    travelled += step.norm();
+    if (travelled < next || step.norm() <= 0) continue;
+    next = travelled + rng.Uniform(14, 30);
+    const Eigen::Vector2d along = step.normalized(), across(-along.y(), along.x());
+    for (const double side : {-1.0, 1.0}) {
+      if (rng.Uniform() < 0.2) continue;  // a gap: a yard, a side street
+      Building b;
+      b.half_length = 0.5 * rng.Uniform(std::max(options_.building_min_side_m, 8.0), 18.0);  // along the road
+      b.half_width = 0.5 * rng.Uniform(options_.building_min_side_m, std::max(options_.building_min_side_m, 14.0));
+      const double setback = rng.Uniform(3.0, 9.0);
+      b.centre = centres[i].head<2>() + side * (kRoadHalfWidth + setback + b.half_width) * across;
+      b.yaw = std::atan2(along.y(), along.x());
+      b.height = rng.Uniform(options_.building_min_height_m, options_.building_max_height_m);
+      b.facade_offset_m = rng.Uniform(0, 400);
+      b.wall_brightness = static_cast<float>(rng.Uniform(0.75, 1.2));
+      if (CanStand(&b, 1.0)) buildings_.push_back(b);
+    }
   }
 }
 
@@ -328,6 +395,8 @@ void SyntheticWorld::PaintGround(uint64_t seed) {
     }
   }
 
+  if (route_.paved) PaintRoad(seed + 505, &texture);
+
   // Building shadows, cast away from the sun, then the roofs.
   const Eigen::Vector2d shadow_per_metre = -sun_direction_.head<2>() / sun_direction_.z();
   for (const auto& b : buildings_) {
@@ -432,6 +501,54 @@ void SyntheticWorld::PaintGround(uint64_t seed) {
   ground_.wrap_u = false;
   ground_.levels = {texture};
   BuildMipLevels(&ground_);
+}
+
+void SyntheticWorld::PaintRoad(uint64_t seed, cv::Mat* texture) const {
+  Rng rng(seed);
+  const double texel = options_.texel_m;
+  const auto to_texel = [&](const Eigen::Vector2d& w) { return ToTexel(w, min_xy_, texel); };
+  // The route's ground track, a point every metre or so, each with its arc length and its left.
+  std::vector<Eigen::Vector2d> track;
+  std::vector<double> arc;
+  for (const Eigen::Vector3d& c : route_.camera_centres) {
+    if (!track.empty() && (c.head<2>() - track.back()).norm() < 1.0) continue;
+    arc.push_back(track.empty() ? 0.0 : arc.back() + (c.head<2>() - track.back()).norm());
+    track.push_back(c.head<2>());
+  }
+  if (track.size() < 2) return;
+  std::vector<Eigen::Vector2d> left(track.size());
+  for (size_t i = 0; i < track.size(); ++i) {
+    const Eigen::Vector2d along = (track[std::min(i + 1, track.size() - 1)] - track[i > 0 ? i - 1 : 0]).normalized();
+    left[i] = Eigen::Vector2d(-along.y(), along.x());
+  }
+  const auto offset_line = [&](double offset) {
+    std::vector<cv::Point> line;
+    for (size_t i = 0; i < track.size(); ++i) line.push_back(to_texel(track[i] + offset * left[i]));
+    return line;
+  };
+  const auto thick = [&](double metres) { return std::max(1, static_cast<int>(std::lround(metres / texel))); };
+  // Pavements, kerbs, asphalt.
+  cv::polylines(*texture, offset_line(0), false, cv::Scalar(rng.UniformInt(135, 160)), thick(2 * kRoadHalfWidth + 5),
+                cv::LINE_AA);
+  cv::polylines(*texture, offset_line(0), false, cv::Scalar(rng.UniformInt(185, 210)), thick(2 * kRoadHalfWidth + 0.6),
+                cv::LINE_AA);
+  cv::polylines(*texture, offset_line(0), false, cv::Scalar(rng.UniformInt(60, 80)), thick(2 * kRoadHalfWidth),
+                cv::LINE_AA);
+  // Patches of newer and older asphalt, and manhole covers.
+  for (size_t i = 0; i < track.size(); i += 4) {
+    if (rng.Uniform() < 0.15) {
+      const Eigen::Vector2d c = track[i] + rng.Uniform(-2.5, 2.5) * left[i];
+      cv::circle(*texture, to_texel(c), thick(rng.Uniform(0.3, 1.2)), cv::Scalar(rng.UniformInt(40, 110)), cv::FILLED,
+                 cv::LINE_AA);
+    }
+  }
+  // Edge lines, and a centre line of 3 m dashes 6 m apart.
+  cv::polylines(*texture, offset_line(kRoadHalfWidth - 0.3), false, cv::Scalar(225), thick(0.15), cv::LINE_AA);
+  cv::polylines(*texture, offset_line(-(kRoadHalfWidth - 0.3)), false, cv::Scalar(225), thick(0.15), cv::LINE_AA);
+  for (size_t i = 0; i + 1 < track.size(); ++i) {
+    if (std::fmod(arc[i], 9.0) < 3.0)
+      cv::line(*texture, to_texel(track[i]), to_texel(track[i + 1]), cv::Scalar(235), thick(0.15), cv::LINE_AA);
+  }
 }
 
 void SyntheticWorld::PaintFacades(uint64_t seed) {

@@ -4,6 +4,7 @@
 // construction, so one world can be rendered from several threads.
 
 #include <cstdint>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -64,11 +65,23 @@ struct MipTexture {
   bool wrap_u = false;          // repeat horizontally (facades)
 };
 
+// The way the camera takes through the world, so the world is built around it.
+struct WorldRoute {
+  // The planned camera centres (world x, y, z). No building stands where the camera passes below
+  // its roof (with 3 m to spare around it and 2 m above it): an aircraft flies round or over
+  // buildings, and a car's road runs between them.
+  std::vector<Eigen::Vector3d> camera_centres;
+  // A road along the route, as a car drives on: asphalt 7 m wide with edge lines and a dashed
+  // centre line, and buildings along both sides (a street).
+  bool paved = false;
+};
+
 class SyntheticWorld {
  public:
-  // The world covers [min_xy, max_xy] (metres). Throws stitch::Error on invalid options.
+  // The world covers [min_xy, max_xy] (metres), built around `route`. Throws stitch::Error on
+  // invalid options.
   SyntheticWorld(const WorldOptions& options, uint64_t seed, const Eigen::Vector2d& min_xy,
-                 const Eigen::Vector2d& max_xy);
+                 const Eigen::Vector2d& max_xy, const WorldRoute& route = {});
 
   const WorldOptions& options() const { return options_; }
   const Eigen::Vector2d& min_xy() const { return min_xy_; }
@@ -99,6 +112,16 @@ class SyntheticWorld {
  private:
   void BuildTerrain(uint64_t seed);
   void PlaceBuildings(uint64_t seed);
+  void PlaceStreetBuildings(uint64_t seed);
+  // Whether building `b` fits: inside the world, `spacing` metres from every other, out of the
+  // route's way. Sets its base height.
+  bool CanStand(Building* b, double spacing) const;
+  // Whether building `b` would stand where the route passes below its roof, or on its road.
+  bool InTheWay(const Building& b) const;
+  // The least horizontal distance from the footprint of `b` to a camera centre of the route that
+  // passes below `roof_z` (any, when the route is paved), within `reach`; `reach` when none is.
+  double RouteDistance(const Building& b, double roof_z, double reach) const;
+  void PaintRoad(uint64_t seed, cv::Mat* texture) const;
   void FlattenUnderBuildings();
   void ComputeShading();
   void PaintGround(uint64_t seed);
@@ -110,6 +133,9 @@ class SyntheticWorld {
   std::vector<float> heights_;
   std::vector<float> shades_;
   std::vector<Building> buildings_;
+  WorldRoute route_;
+  // The route's camera centres by the 5 m cell they pass over (x cell, y cell).
+  std::map<std::pair<int, int>, std::vector<Eigen::Vector3d>> route_cells_;
   MipTexture ground_;
   MipTexture facade_;
   Eigen::Vector3d sun_direction_;  // unit, towards the sun

@@ -88,6 +88,9 @@ Tracking::Output Tracking::Track(const cv::Mat& image, int frame_index, int64_t 
     if (!result.detail.empty()) text += ": " + result.detail;
     STITCH_LOG(INFO) << text;
     last_state_ = result.state;
+  } else if (!result.detail.empty()) {
+    // Why a frame stays where it was (initialization waiting, relocalization failing): at debug.
+    STITCH_LOG(DEBUG) << "frame " << frame_index << ": " << TrackingStateName(result.state) << ": " << result.detail;
   }
   return output;
 }

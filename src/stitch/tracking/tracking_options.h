@@ -33,7 +33,9 @@ struct TrackingOptions {
   // reference's points (0: off). docs/benchmarks.md "Keyframes without parallax".
   double keyframe_min_parallax_deg = 1.0;
   double keyframe_ratio_without_parallax = 0.5;
-  double keyframe_gap_without_parallax_s = 0.2;  // of the sequence's time (0: only the ratio)
+  // Of the sequence's time (0: only the ratio). The tracker service does not know its source's
+  // rate and counts it in frames at 30 fps (6 frames; docs/benchmarks.md "A street for the car").
+  double keyframe_gap_without_parallax_s = 0.2;
   // A frame that tracks map points in fewer than this share of its feature-holding image cells
   // (8x6) becomes a keyframe whatever the ratio (new ground in view; 0: off). Off by default: it
   // helps the forward camera and costs the oblique ones (docs/benchmarks.md).
