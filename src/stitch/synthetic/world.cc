@@ -149,9 +149,10 @@ SyntheticWorld::SyntheticWorld(const WorldOptions& options, uint64_t seed, const
   }
   sun_direction_ =
       Eigen::Vector3d(std::cos(0.8) * std::cos(2.3), std::cos(0.8) * std::sin(2.3), std::sin(0.8)).normalized();
-  for (const Eigen::Vector3d& c : route_.camera_centres) {
+  for (size_t i = 0; i < route_.camera_centres.size(); ++i) {
+    const Eigen::Vector3d& c = route_.camera_centres[i];
     route_cells_[{static_cast<int>(std::floor(c.x() / kRouteCell)), static_cast<int>(std::floor(c.y() / kRouteCell))}]
-        .push_back(c);
+        .push_back(i);
   }
   BuildTerrain(seed);
   PlaceBuildings(seed + 101);
@@ -238,7 +239,8 @@ double SyntheticWorld::RouteDistance(const Building& b, double roof_z, double re
     for (int y = y0; y <= y1; ++y) {
       const auto it = route_cells_.find({x, y});
       if (it == route_cells_.end()) continue;
-      for (const Eigen::Vector3d& c : it->second) {
+      for (const size_t i : it->second) {
+        const Eigen::Vector3d& c = route_.camera_centres[i];
         if (!route_.paved && c.z() >= roof_z) continue;
         const Eigen::Vector2d d = c.head<2>() - b.centre;
         const Eigen::Vector2d outside(std::max(std::abs(d.dot(ax)) - b.half_length, 0.0),

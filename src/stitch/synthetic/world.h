@@ -134,8 +134,9 @@ class SyntheticWorld {
   std::vector<float> shades_;
   std::vector<Building> buildings_;
   WorldRoute route_;
-  // The route's camera centres by the 5 m cell they pass over (x cell, y cell).
-  std::map<std::pair<int, int>, std::vector<Eigen::Vector3d>> route_cells_;
+  // Which of the route's camera centres pass over each 5 m cell (x cell, y cell): indices into
+  // route_.camera_centres.
+  std::map<std::pair<int, int>, std::vector<size_t>> route_cells_;
   MipTexture ground_;
   MipTexture facade_;
   Eigen::Vector3d sun_direction_;  // unit, towards the sun

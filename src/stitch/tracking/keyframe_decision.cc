@@ -56,8 +56,7 @@ bool MovesAlongAxis(const KeyframeDecisionInput& input, const TrackingOptions& o
 }  // namespace
 
 double KeyframeRatio(const KeyframeDecisionInput& input, const TrackingOptions& options) {
-  return MovesAlongAxis(input, options) ? std::max(options.keyframe_ratio, options.keyframe_ratio_along_axis)
-                                        : options.keyframe_ratio;
+  return MovesAlongAxis(input, options) ? options.keyframe_ratio_along_axis : options.keyframe_ratio;
 }
 
 double TrackedCoverage(const Frame& frame, int width, int height) {

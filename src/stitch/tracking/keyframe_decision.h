@@ -46,8 +46,8 @@ double MedianParallaxDeg(const Map& map, const Keyframe& reference, const Frame&
 double MotionAxisAngleDeg(const Keyframe& reference, const Frame& frame);
 
 // The tracked share of the reference's points under which NeedKeyframe may make this input a
-// keyframe: options.keyframe_ratio, or keyframe_ratio_along_axis when higher and the camera moves
-// along its viewing direction (motion_axis_angle_deg within keyframe_along_axis_max_angle_deg);
+// keyframe: options.keyframe_ratio, or keyframe_ratio_along_axis (at least keyframe_ratio) when
+// the camera moves along its viewing direction (motion_axis_angle_deg within keyframe_along_axis_max_angle_deg);
 // the latter needs keyframe_min_parallax_deg of parallax, so a rotating camera keeps the former.
 double KeyframeRatio(const KeyframeDecisionInput& input, const TrackingOptions& options);
 
