@@ -1,5 +1,6 @@
 // Ingest, tracker and mapper services on one in-process bus (memq://), as in a single process.
 
+#include <algorithm>
 #include <atomic>
 #include <filesystem>
 #include <map>
@@ -143,6 +144,54 @@ TEST(ServicesInProcess, IngestTrackerAndMapperTrackAShortFlightOverMemq) {
   EXPECT_GE(e.frames_localized, 56);
   ASSERT_TRUE(e.errors);
   EXPECT_LT(e.errors->ate_rmse_m, 0.3);
+}
+
+// The tracker sends a keyframe again when the mapper is slow to answer it (a loaded machine: CI
+// with two busy loops beside the run), and a lossy link repeats messages. Such a copy landing
+// in the mapper's queue while the keyframe is being mapped cut its adjustment short as if a new
+// keyframe waited, so a lockstep run's final poses depended on the machine's load. Every
+// keyframe here arrives twice in a row: the mapper ends with the same keyframes at the same
+// poses as without the copies, and no adjustment was cut short.
+TEST(ServicesInProcess, AKeyframeSentTwiceDoesNotCutItsOwnAdjustmentShort) {
+  struct Records {
+    std::vector<std::string> frames, keyframes;  // frames.tsv without its timing column; keyframes.tsv
+  };
+  const auto fly = [](bool send_twice, int64_t* hurried) {
+    testing::TempDir dir;
+    InProcessStack stack(nullptr, /*with_mapper=*/true, dir.path().string());
+    bus::Subscriber echo(stack.lcm.get());
+    std::set<int64_t> echoed;
+    if (send_twice) {
+      // Sent again by the tracker's own publisher (its session), as the tracker does.
+      echo.Subscribe<stitch::keyframe_t>(
+          bus::Channel("uav0", bus::kKeyframe), [&](std::unique_ptr<stitch::keyframe_t> keyframe, const std::string&) {
+            if (echoed.insert(keyframe->keyframe_id).second)
+              stack.publisher.Publish(bus::Channel("uav0", bus::kKeyframe), keyframe.get());
+          });
+    }
+    stack.Play("30:6");
+    *hurried = stack.mapper->keyframes_hurried();
+    if (send_twice) {
+      EXPECT_EQ(static_cast<int64_t>(echoed.size()), stack.tracker.keyframes_published());
+    }
+    Records records;
+    for (FrameRecord r : ReadFrameRecords(dir / "frames.tsv")) {
+      r.tracking_ms = 0;
+      records.frames.push_back(FormatFrameRecord(r));
+    }
+    for (const KeyframeRecord& k : ReadKeyframeRecords(dir / "keyframes.tsv"))
+      records.keyframes.push_back(FormatKeyframeRecord(k));
+    std::sort(records.keyframes.begin(), records.keyframes.end());
+    return records;
+  };
+  int64_t hurried_once = -1, hurried_twice = -1;
+  const Records once = fly(false, &hurried_once);
+  const Records twice = fly(true, &hurried_twice);
+  ASSERT_GT(once.keyframes.size(), 10u);
+  EXPECT_EQ(hurried_once, 0) << "lockstep: no keyframe waits behind another";
+  EXPECT_EQ(hurried_twice, 0) << "a copy of a keyframe the mapper holds is only answered";
+  EXPECT_EQ(once.frames, twice.frames) << "every frame's state, pose, points and keyframe";
+  EXPECT_EQ(once.keyframes, twice.keyframes) << "the mapper's final keyframe poses";
 }
 
 // Keyframes are sent from a thread of their own; a frame's ack waits behind them, so a tracker
@@ -569,6 +618,50 @@ TEST(ServicesInProcess, TheMapperLetsGoOfASubmapOnlyOnceTheMergerHoldsItWholeAnd
 // another session in mid-flight (the first set the count the mapper compared with, the second
 // said one more submap had closed) made the mapper close the submap the tracker was still
 // mapping. They are refused; the submap closes only at shutdown.
+// The tracker's status that says it closed a submap (on a loss) can be lost on the way; the next
+// one that arrives counts the closure but names the submap the tracker is in now. The mapper
+// closed that one, the submap being tracked, and sent the merger its "final" state mid-flight.
+// Here the tracker's own publisher tells of a closure at frame 31 while it tracks on in submap 1.
+TEST(ServicesInProcess, ALateClosingStatusDoesNotCloseTheSubmapBeingTracked) {
+  InProcessStack stack(nullptr, /*with_mapper=*/true, "");
+  std::mutex mutex;
+  int last_status_frame = -1, closed_during_flight = 0;
+  bus::Subscriber merger_side(stack.lcm.get());
+  merger_side.Subscribe<stitch::submap_update_t>(
+      bus::Channel("uav0", bus::kSubmap), [&](std::unique_ptr<stitch::submap_update_t> message, const std::string&) {
+        std::lock_guard<std::mutex> lock(mutex);
+        if (message->closed && last_status_frame < 59) ++closed_during_flight;
+      });
+  merger_side.Subscribe<stitch::tracking_status_t>(
+      bus::Channel("uav0", bus::kTrackingStatus),
+      [&](std::unique_ptr<stitch::tracking_status_t> status, const std::string&) {
+        std::lock_guard<std::mutex> lock(mutex);
+        last_status_frame = std::max(last_status_frame, status->frame_index);
+      });
+  std::atomic<bool> flying{true};
+  std::thread late([&] {
+    for (bool sent = false; flying.load() && !sent; std::this_thread::sleep_for(std::chrono::milliseconds(5))) {
+      {
+        std::lock_guard<std::mutex> lock(mutex);
+        if (last_status_frame < 30) continue;
+      }
+      stitch::tracking_status_t status{};
+      status.frame_index = 31;
+      status.state = stitch::tracking_status_t::STATE_OK;
+      status.submap_id = MakeSubmapId(0, 1).value;
+      status.submaps_closed = 1;
+      stack.publisher.Publish(bus::Channel("uav0", bus::kTrackingStatus), &status);
+      sent = true;
+    }
+  });
+  stack.Play("none");
+  flying = false;
+  late.join();
+  std::lock_guard<std::mutex> lock(mutex);
+  EXPECT_EQ(last_status_frame, 59);
+  EXPECT_EQ(closed_during_flight, 0);
+}
+
 TEST(ServicesInProcess, AClosingStatusFromAnotherSessionClosesNothing) {
   InProcessStack stack(nullptr, /*with_mapper=*/true, "");
   std::mutex mutex;

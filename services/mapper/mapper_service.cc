@@ -73,7 +73,9 @@ MapperService::MapperService(lcm::LCM* lcm, bus::Publisher* publisher, MapperOpt
         }
         if (status->submaps_closed > tracker_submaps_closed_) {
           tracker_submaps_closed_ = status->submaps_closed;
-          close_requested_ = status->submap_id;
+          // A status tracking in its submap says nothing about which one was closed (the one
+          // that did was lost on the way): that one closes when the next submap's keyframe comes.
+          if (status->state != stitch::tracking_status_t::STATE_OK) close_requested_ = status->submap_id;
         }
       });
   // The aircraft's link bridge says how far behind it is.
@@ -144,7 +146,7 @@ void MapperService::Stop() {
                      << options_.submap_point_resend_fraction << " of their distance out of the submap updates";
   }
   if (keyframes_hurried_ > 0) {
-    STITCH_LOG(INFO) << keyframes_hurried_ << " of " << mapped_.load()
+    STITCH_LOG(INFO) << keyframes_hurried_.load() << " of " << mapped_.load()
                      << " keyframes had their adjustment cut short or left to the next keyframe, which was waiting";
   }
   LogSentBytes();
@@ -343,6 +345,13 @@ void MapperService::ResendIfRequested() {
   }
 }
 
+int MapperService::NewKeyframesWaiting() const {
+  // A copy of a keyframe the mapper holds (sent again by a tracker tired of waiting for its
+  // answer, or repeated by the link) is only answered: it is no work waiting.
+  return static_cast<int>(queue_.CountIf(
+      [this](const auto& waiting) { return !mapping_ || !mapping_->Holds(KeyframeId(waiting->keyframe_id)); }));
+}
+
 void MapperService::Process(const stitch::keyframe_t& message) {
   ReceivedKeyframe received;
   try {
@@ -364,8 +373,8 @@ void MapperService::Process(const stitch::keyframe_t& message) {
     return;
   }
   MappingHooks hooks;
-  // A keyframe waiting behind this one cuts its adjustment short (the tracker is ahead).
-  hooks.next_waiting = [this] { return queue_.size() > 0; };
+  // A new keyframe waiting behind this one cuts its adjustment short (the tracker is ahead).
+  hooks.next_waiting = [this] { return NewKeyframesWaiting() > 0; };
   // The tracker gets the new points before the adjustment (it may not be waiting for it).
   hooks.new_points_made = [this](const LocalMapUpdate& update) {
     for (auto& part : ToMessages(update)) publisher_->Publish(bus::Channel(publisher_->agent(), bus::kLocalMap), &part);
@@ -378,7 +387,7 @@ void MapperService::Process(const stitch::keyframe_t& message) {
   if (report.reopened_submap) {
     STITCH_LOG(INFO) << "submap " << SubmapName(*report.reopened_submap) << " reopened (the tracker relocalized in it)";
   }
-  mapped.for_tracker.queued_keyframes = static_cast<int>(queue_.size());
+  mapped.for_tracker.queued_keyframes = NewKeyframesWaiting();
   for (auto& part : ToMessages(mapped.for_tracker)) {
     publisher_->Publish(bus::Channel(publisher_->agent(), bus::kLocalMap), &part);
   }

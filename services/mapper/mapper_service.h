@@ -41,6 +41,8 @@ class MapperService {
   int64_t keyframes_received() const { return received_.load(); }
   int64_t keyframes_mapped() const { return mapped_.load(); }
   int64_t submap_resends() const { return resends_.load(); }
+  // Keyframes whose fusion and adjustment were cut short or left to the next one (it was waiting).
+  int64_t keyframes_hurried() const { return keyframes_hurried_.load(); }
   // Closed submaps let go of (the merger holds them whole, the tracker has dropped them).
   int submaps_released() const { return released_count_.load(); }
 
@@ -59,6 +61,8 @@ class MapperService {
   void PublishSubmapUpdate(const SubmapUpdate& update, Sent why);
   void PublishParts(const SubmapUpdate& update, Sent why);  // counted in sent_bytes_
   void CloseIfRequested();
+  // Keyframes queued that the mapper does not hold yet (worker only).
+  int NewKeyframesWaiting() const;
   // Answers the merger's requests for what the link lost (in the worker: it owns the maps).
   void ResendIfRequested();
   void WriteRecords() const;
@@ -126,7 +130,7 @@ class MapperService {
   bool link_congested_ = false;
   int64_t points_held_back_ = 0;
   std::array<SentBytes, static_cast<size_t>(Sent::kCount)> sent_bytes_{};
-  int64_t keyframes_hurried_ = 0;  // adjustments cut short or left to the next keyframe (it was waiting)
+  std::atomic<int64_t> keyframes_hurried_{0};
   // Submaps let go (ReleaseHeldWhole), their keyframes' final poses, and their points on disk.
   std::set<SubmapId> released_;
   std::atomic<int> released_count_{0};

@@ -205,10 +205,8 @@ void TrackerService::ApplyUpdates(std::chrono::milliseconds wait) {
   while (update) {
     if (tracking_) {
       try {
-        LocalMapUpdate core = FromMessage(**update);
         // Only the last part of an update says the keyframe is done.
-        if ((*update)->part != (*update)->num_parts - 1) core.last_keyframe = KeyframeId();
-        tracking_->ApplyUpdate(core);
+        tracking_->ApplyUpdate(FromMessage(**update), (*update)->part == (*update)->num_parts - 1);
         mapper_heard_at_ = MonotonicSeconds();
       } catch (const Error& e) {
         STITCH_LOG(WARNING) << "ignored a local map update: " << e.what();

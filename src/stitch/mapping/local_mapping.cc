@@ -103,7 +103,10 @@ MappingReport LocalMapping::ProcessKeyframe(Keyframe keyframe, const std::vector
   lap(&times.triangulate);
   if (hooks.new_points_made && !created.empty())
     hooks.new_points_made(MakeNewPointsUpdate(*map_, id, created, ++revision_));
-  if (next_waiting && next_waiting()) {
+  // The first keyframe of a map is never left to the next one: it has nothing to be fused with
+  // or adjusted against, and the tracker sends it together with the second (its
+  // initialization), so leaving it would only depend on whether that one had arrived yet.
+  if (map_->num_keyframes() > 1 && next_waiting && next_waiting()) {
     report.deferred = true;
     ++keyframes_processed_;
     report.milliseconds = clock.ElapsedMs();

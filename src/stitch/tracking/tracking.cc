@@ -627,20 +627,26 @@ Keyframe Tracking::CreateKeyframe(const Frame& frame) {
 }
 
 void Tracking::NoteKeyframeSent(KeyframeId id) {
-  keyframes_sent_.push_back(id);
+  keyframes_sent_.push_back({id, false});
   if (keyframes_sent_.size() > 16) keyframes_sent_.pop_front();
 }
 
 int Tracking::KeyframesInFlight() const {
-  int count = 0;
-  for (KeyframeId id : keyframes_sent_) count += id.value > mapper_processed_.value;
-  return count;
+  return static_cast<int>(
+      std::count_if(keyframes_sent_.begin(), keyframes_sent_.end(), [](const SentKeyframe& k) { return !k.answered; }));
 }
 
-void Tracking::ApplyUpdate(const LocalMapUpdate& update) {
+void Tracking::ApplyUpdate(const LocalMapUpdate& update, bool last_part) {
   if (!store_.Apply(update)) return;
-  if (update.last_keyframe.value > mapper_processed_.value) mapper_processed_ = update.last_keyframe;
   mapper_connected_ = true;
+  if (!last_part || !update.last_keyframe.valid()) return;
+  // Keyframes are told apart by id, not ordered by it: those of a reopened submap have lower ids
+  // than the newer submap's the mapper answered before.
+  const auto answered = std::find_if(keyframes_sent_.begin(), keyframes_sent_.end(),
+                                     [&](const SentKeyframe& k) { return k.id == update.last_keyframe; });
+  if (answered == keyframes_sent_.end()) return;
+  // The mapper takes keyframes in order: those sent before it are done too (or were lost).
+  for (auto k = keyframes_sent_.begin(); k != std::next(answered); ++k) k->answered = true;
 }
 
 }  // namespace stitch

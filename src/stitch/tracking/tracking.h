@@ -71,7 +71,9 @@ class Tracking {
 
   Output Track(const cv::Mat& image, int frame_index, int64_t t_ns);
   // Applies the mapper's changes to the tracker's copy of the submap (current or closed).
-  void ApplyUpdate(const LocalMapUpdate& update);
+  // `last_part`: whether this is the last part of its update (only that one says the mapper is
+  // done with update.last_keyframe).
+  void ApplyUpdate(const LocalMapUpdate& update, bool last_part = true);
   // Ends the current submap now (e.g. at shutdown); returns its id if there was one.
   std::optional<SubmapId> CloseSubmap();
 
@@ -79,7 +81,7 @@ class Tracking {
   bool MapperCaughtUp() const { return KeyframesInFlight() == 0; }
   // Keyframes sent that the mapper has not answered yet (counted up to the last 16 sent).
   int KeyframesInFlight() const;
-  KeyframeId last_keyframe_sent() const { return keyframes_sent_.empty() ? KeyframeId() : keyframes_sent_.back(); }
+  KeyframeId last_keyframe_sent() const { return keyframes_sent_.empty() ? KeyframeId() : keyframes_sent_.back().id; }
   void SetMapperConnected(bool connected) { mapper_connected_ = connected; }
   bool mapper_connected() const { return mapper_connected_; }
   int submaps_closed() const { return submaps_closed_; }
@@ -178,8 +180,11 @@ class Tracking {
 
   // What the mapper has taken.
   void NoteKeyframeSent(KeyframeId id);
-  std::deque<KeyframeId> keyframes_sent_;  // the last ones, oldest first
-  KeyframeId mapper_processed_;
+  struct SentKeyframe {
+    KeyframeId id;
+    bool answered = false;
+  };
+  std::deque<SentKeyframe> keyframes_sent_;  // the last ones, oldest first
   bool mapper_connected_ = true;
 };
 

@@ -63,6 +63,14 @@ class BoundedQueue {
     std::lock_guard<std::mutex> lock(mutex_);
     return items_.size();
   }
+  // How many queued items satisfy `predicate` (called under the queue's lock).
+  template <class Predicate>
+  size_t CountIf(const Predicate& predicate) const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    size_t count = 0;
+    for (const T& item : items_) count += predicate(item) ? 1 : 0;
+    return count;
+  }
 
  private:
   const size_t capacity_;
