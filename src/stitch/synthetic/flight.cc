@@ -67,10 +67,22 @@ FlightPlan::FlightPlan(const FlightOptions& flight, const GustOptions& gust, con
   const double footprint_across = camera.width() * flight_.altitude_m / camera.fx();
   const double footprint_along = camera.height() * flight_.altitude_m / camera.fy();
   strip_spacing_ = (1.0 - flight_.side_overlap) * footprint_across;
-  path_length_ = flight_.path == "road" ? flight_.num_strips * flight_.strip_length_m +
-                                              (flight_.num_strips - 1) * M_PI / 2 * flight_.turn_radius_m
-                                        : flight_.num_strips * flight_.strip_length_m +
-                                              (flight_.num_strips - 1) * M_PI * strip_spacing_ / 2;
+  // The speed is planned with half-turns between neighbouring strips (quarter turns on a road).
+  const bool road = flight_.path == "road";
+  const double planned_length =
+      road ? flight_.num_strips * flight_.strip_length_m + (flight_.num_strips - 1) * M_PI / 2 * flight_.turn_radius_m
+           : flight_.num_strips * flight_.strip_length_m + (flight_.num_strips - 1) * M_PI * strip_spacing_ / 2;
+  speed_ = planned_length / (flight_.num_frames - 1) * flight_.fps;
+  // A bank of b turns at g tan(b) / v: a radius of v^2 / (g tan(b)).
+  constexpr double kGravity = 9.81;
+  survey_turn_radius_ = strip_spacing_ / 2;
+  if (!road && flight_.turn_bank_deg != 0) {
+    survey_turn_radius_ =
+        std::max(survey_turn_radius_, speed_ * speed_ / (kGravity * std::tan(Deg(std::abs(flight_.turn_bank_deg)))));
+  }
+  path_length_ = road || survey_turn_radius_ <= strip_spacing_ / 2
+                     ? planned_length
+                     : flight_.num_strips * flight_.strip_length_m + (flight_.num_strips - 1) * SurveyTurnLength();
 
   Rng rng(seed);
   // Wind: two slow sinusoids per axis with random phases.
@@ -101,7 +113,7 @@ FlightPlan::FlightPlan(const FlightOptions& flight, const GustOptions& gust, con
     const double t = static_cast<double>(i) / flight_.fps;
     Eigen::Vector2d position;
     double heading, turning;
-    PathAt(path_length_ * i / (flight_.num_frames - 1), &position, &heading, &turning);
+    PathAt(std::min(path_length_, planned_length * i / (flight_.num_frames - 1)), &position, &heading, &turning);
     double altitude = flight_.altitude_m + flight_.altitude_jitter_m * std::sin(2 * M_PI * frequency[0] * t + phase[0]);
     double roll = Deg(flight_.attitude_jitter_deg) * std::sin(2 * M_PI * frequency[1] * t + phase[1]) +
                   0.5 * Deg(flight_.attitude_jitter_deg) * std::sin(2 * M_PI * frequency[2] * t + phase[2]);
@@ -182,8 +194,53 @@ double TurnWeight(double fraction) {
 
 }  // namespace
 
+namespace {
+
+// An omega turn from a strip heading +x that ends at the origin to the strip `spacing` to its
+// left heading back, on arcs of `radius` (over half the spacing): out to the right, around to
+// the left, in to the right, each tangent to the next. Its centres: (0, -r), (h, spacing / 2),
+// (0, spacing + r), the middle one 2r from the others.
+struct OmegaTurn {
+  OmegaTurn(double radius, double spacing) : r(radius), d(spacing) {
+    h = std::sqrt(4 * r * r - (r + d / 2) * (r + d / 2));
+    phi = std::atan2(r + d / 2, h);  // direction from the first centre to the middle one
+    theta = M_PI / 2 - phi;          // how far the outer arcs turn
+  }
+  double Length() const { return r * (M_PI + 4 * theta); }
+  // Position, heading and turning (signed TurnWeight, + left) `a` metres into the turn.
+  void At(double a, Eigen::Vector2d* position, double* heading, double* turning) const {
+    const double outer = r * theta, middle = r * (M_PI + 2 * theta);
+    double angle;
+    if (a < outer) {  // out, clockwise about (0, -r)
+      angle = M_PI / 2 - a / r;
+      *position = Eigen::Vector2d(0, -r) + r * Eigen::Vector2d(std::cos(angle), std::sin(angle));
+      *heading = angle - M_PI / 2;
+      *turning = -TurnWeight(a / outer);
+    } else if (a < outer + middle) {  // around, anticlockwise about (h, d / 2)
+      angle = phi + M_PI + (a - outer) / r;
+      *position = Eigen::Vector2d(h, d / 2) + r * Eigen::Vector2d(std::cos(angle), std::sin(angle));
+      *heading = angle + M_PI / 2;
+      *turning = TurnWeight((a - outer) / middle);
+    } else {  // in, clockwise about (0, d + r)
+      const double c = std::min(a - outer - middle, outer);
+      angle = -phi - c / r;
+      *position = Eigen::Vector2d(0, d + r) + r * Eigen::Vector2d(std::cos(angle), std::sin(angle));
+      *heading = angle - M_PI / 2;
+      *turning = -TurnWeight(c / outer);
+    }
+  }
+  double r, d, h, phi, theta;
+};
+
+}  // namespace
+
+double FlightPlan::SurveyTurnLength() const {
+  if (survey_turn_radius_ <= strip_spacing_ / 2) return M_PI * strip_spacing_ / 2;
+  return OmegaTurn(survey_turn_radius_, strip_spacing_).Length();
+}
+
 void FlightPlan::SurveyAt(double s, Eigen::Vector2d* position, double* heading, double* turning) const {
-  const double turn_length = M_PI * strip_spacing_ / 2;
+  const double turn_length = SurveyTurnLength();
   const double period = flight_.strip_length_m + turn_length;
   int strip = std::min(static_cast<int>(s / period), flight_.num_strips - 1);
   double along = s - strip * period;
@@ -197,9 +254,19 @@ void FlightPlan::SurveyAt(double s, Eigen::Vector2d* position, double* heading, 
     return;
   }
   // Half-turn to the next strip, centred at the strip's end: left on even strips, right on odd.
+  const double end_x = start_x + direction * flight_.strip_length_m;
+  if (survey_turn_radius_ > strip_spacing_ / 2) {
+    // An omega turn, drawn heading +x and mirrored onto odd strips.
+    Eigen::Vector2d local;
+    double local_heading;
+    OmegaTurn(survey_turn_radius_, strip_spacing_).At(along - flight_.strip_length_m, &local, &local_heading, turning);
+    *position = Eigen::Vector2d(end_x + direction * local.x(), strip_y + local.y());
+    *heading = direction > 0 ? local_heading : M_PI - local_heading;
+    *turning *= direction;
+    return;
+  }
   const double angle = (along - flight_.strip_length_m) / (strip_spacing_ / 2);  // 0 .. pi
   const double radius = strip_spacing_ / 2;
-  const double end_x = start_x + direction * flight_.strip_length_m;
   const Eigen::Vector2d centre(end_x, strip_y + radius);
   *position = centre + radius * Eigen::Vector2d(direction * std::sin(angle), -std::cos(angle));
   *heading = direction > 0 ? angle : M_PI - angle;

@@ -23,12 +23,15 @@ struct FlightOptions {
   // survey: parallel strips joined by half-turns (an S-shaped lawnmower survey); road: straight
   // legs joined by quarter turns, left and right in turn (a car or a low corridor flight).
   std::string path = "survey";
-  int num_strips = 4;                // survey strips, or road legs
-  double strip_length_m = 240.0;     // length of each strip or leg
-  double side_overlap = 0.6;         // survey: fraction of the footprint shared by neighbouring strips
-  double turn_radius_m = 12.0;       // road: radius of its turns
-  double camera_pitch_deg = 0.0;     // 0: straight down (nadir); 90: straight ahead at the horizon
-  double turn_bank_deg = 0.0;        // roll into each turn (a banking aircraft), ramped in and out
+  int num_strips = 4;             // survey strips, or road legs
+  double strip_length_m = 240.0;  // length of each strip or leg
+  double side_overlap = 0.6;      // survey: fraction of the footprint shared by neighbouring strips
+  double turn_radius_m = 12.0;    // road: radius of its turns
+  double camera_pitch_deg = 0.0;  // 0: straight down (nadir); 90: straight ahead at the horizon
+  // Roll into each turn (a banking aircraft), ramped in and out. A survey's half-turn is then as
+  // wide as that bank turns at the flight's speed (radius v^2 / (g tan(bank))): between strips
+  // closer than twice that radius it swings out first (an omega turn) and takes longer.
+  double turn_bank_deg = 0.0;
   double view_distance_m = 0.0;      // farthest ground drawn when the horizon is in view (0: 25 x altitude, 150-400 m)
   double attitude_jitter_deg = 1.0;  // wind: slow roll / pitch wobble
   double altitude_jitter_m = 1.0;
@@ -44,7 +47,9 @@ struct FlightOptions {
     v("side_overlap", side_overlap, "survey: fraction of the footprint shared by neighbouring strips");
     v("turn_radius_m", turn_radius_m, "road: radius of its turns, metres");
     v("camera_pitch_deg", camera_pitch_deg, "camera tilt from straight down (0) towards straight ahead (90), degrees");
-    v("turn_bank_deg", turn_bank_deg, "roll into each turn, degrees (0: level turns)");
+    v("turn_bank_deg", turn_bank_deg,
+      "roll into each turn, degrees; a survey's turns are then as wide as that bank flies them (0: level "
+      "half-turns between neighbouring strips)");
     v("view_distance_m", view_distance_m,
       "farthest ground drawn when the horizon is in view, metres (0: 25 x altitude, within 150-400)");
     v("attitude_jitter_deg", attitude_jitter_deg, "slow roll/pitch wobble amplitude, degrees");
@@ -88,7 +93,12 @@ class FlightPlan {
   // Motion blur of a gust frame: length (px) and direction (rad); length 0 outside gusts.
   std::pair<double, double> GustBlur(int frame) const;
   double strip_spacing_m() const { return strip_spacing_; }
+  // The whole path flown (its frames may end before it does: a survey's banked turns are longer
+  // than the half-turns its speed was planned with).
   double path_length_m() const { return path_length_; }
+  double speed_m_per_s() const { return speed_; }
+  // A survey's turn radius: half the strip spacing, or what the bank needs at the speed.
+  double survey_turn_radius_m() const { return survey_turn_radius_; }
   // Bounds of the ground the camera can see over the whole flight, with a margin.
   Eigen::Vector2d min_ground_xy() const { return min_xy_; }
   Eigen::Vector2d max_ground_xy() const { return max_xy_; }
@@ -104,8 +114,16 @@ class FlightPlan {
   GustOptions gust_;
   FailureSchedule gusts_;
   uint64_t seed_;
+  // One turn from strip to strip: a half-turn of radius spacing / 2, or an omega turn (out,
+  // around, back in) of the larger radius.
+  double SurveyTurnLength() const;
+  void SurveyTurnAt(double along, const Eigen::Vector2d& end, double strip_y, double direction,
+                    Eigen::Vector2d* position, double* heading, double* turning) const;
+
   double strip_spacing_ = 0;
   double path_length_ = 0;
+  double speed_ = 0;
+  double survey_turn_radius_ = 0;
   std::vector<Rigid3d> poses_;
   Eigen::Vector2d min_xy_, max_xy_;
 };

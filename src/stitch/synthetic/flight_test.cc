@@ -64,7 +64,9 @@ TEST(FlightPlan, TiltsTheCameraForwardByItsPitch) {
     EXPECT_NEAR(axis.x(), std::sin(pitch * M_PI / 180), 1e-9) << pitch;
     EXPECT_NEAR(axis.y(), 0, 1e-9) << pitch;
     // Looking far ahead, the ground the camera may see reaches well beyond the footprint.
-    if (pitch == 80.0) EXPECT_GT(plan.max_ground_xy().x() - options.strip_length_m, 150);
+    if (pitch == 80.0) {
+      EXPECT_GT(plan.max_ground_xy().x() - options.strip_length_m, 150);
+    }
   }
 }
 
@@ -79,10 +81,69 @@ TEST(FlightPlan, BanksIntoTurnsAndFliesLevelOnStraights) {
     return std::asin(plan.WorldFromCam(frame).RotationMatrix().col(0).z()) * 180 / M_PI;
   };
   EXPECT_NEAR(roll_deg(10), 0, 1e-6);  // on strip 0
-  // The middle of the first half-turn: between the strips, at the path length's matching frame.
-  const double turn_middle_s = options.strip_length_m + M_PI * plan.strip_spacing_m() / 4;
-  const int frame = static_cast<int>(std::lround(turn_middle_s / plan.path_length_m() * (options.num_frames - 1)));
-  EXPECT_NEAR(std::abs(roll_deg(frame)), 25, 1.0);
+  // Fully banked in the turns (each ramps the bank in and out).
+  double most = 0;
+  for (int i = 0; i < options.num_frames; ++i) most = std::max(most, std::abs(roll_deg(i)));
+  EXPECT_NEAR(most, 25, 1e-6);
+}
+
+// A banked turn is as wide as its bank turns at the flight's speed (v^2 / r = g tan(bank)). The
+// forward case's survey joined strips 8.5 m apart with half-turns of radius 4.25 m at 20 m/s,
+// 270 degrees a second, which a 25-degree bank cannot fly (13 degrees a second, radius 87 m):
+// it now swings out and around (an omega turn) and comes back onto the next strip.
+TEST(FlightPlan, FliesABankedTurnAsWideAsItsBankNeeds) {
+  FlightOptions options;
+  options.attitude_jitter_deg = 0;
+  options.altitude_jitter_m = 0;
+  options.turn_bank_deg = 25;
+  options.altitude_m = 15;  // the forward case's strips, 8.5 m apart
+  const FlightPlan plan(options, GustOptions(), kCamera, FailureSchedule(), 1);
+  const double speed = plan.speed_m_per_s();
+  const double tilt = std::tan(25 * M_PI / 180);
+  EXPECT_NEAR(plan.survey_turn_radius_m(), speed * speed / (9.81 * tilt), 1e-9);
+  EXPECT_GT(plan.survey_turn_radius_m(), 4 * plan.strip_spacing_m());
+  // One speed all along: equal steps.
+  const double step = speed / options.fps;
+  for (int i = 1; i < options.num_frames; ++i) {
+    ASSERT_NEAR((plan.WorldFromCam(i).translation - plan.WorldFromCam(i - 1).translation).norm(), step, 0.01 * step)
+        << "frame " << i;
+  }
+  // Turning at g tan(bank) / v where fully banked, never faster.
+  const auto heading = [&](int frame) {
+    const Eigen::Vector3d back = plan.WorldFromCam(frame).RotationMatrix().col(1);  // image down: backwards
+    return std::atan2(-back.y(), -back.x());
+  };
+  const auto roll_deg = [&](int frame) {
+    return std::asin(plan.WorldFromCam(frame).RotationMatrix().col(0).z()) * 180 / M_PI;
+  };
+  double fastest = 0;
+  int banked = 0;
+  for (int i = 1; i + 1 < options.num_frames; ++i) {
+    double turned = heading(i + 1) - heading(i - 1);
+    turned = std::atan2(std::sin(turned), std::cos(turned));
+    const double rate = std::abs(turned) * options.fps / 2;
+    fastest = std::max(fastest, rate);
+    if (std::abs(std::abs(roll_deg(i)) - 25) < 0.01) {
+      ++banked;
+      ASSERT_NEAR(rate, 9.81 * tilt / speed, 0.01 * rate) << "frame " << i;
+    }
+  }
+  EXPECT_GT(banked, 100);
+  EXPECT_LT(fastest, 1.01 * 9.81 * tilt / speed);
+  // Back onto the next strip, heading back along it, at one strip spacing from the first.
+  const double turn_length = plan.survey_turn_radius_m() * 7;  // about pi + 4 x 58 degrees
+  const int on_strip_1 = static_cast<int>((options.strip_length_m + turn_length + 20) / step);
+  const Eigen::Vector3d back_on = plan.WorldFromCam(on_strip_1).translation;
+  EXPECT_NEAR(back_on.y(), plan.strip_spacing_m(), 1e-6);
+  EXPECT_LT(back_on.x(), options.strip_length_m);
+  EXPECT_NEAR(std::cos(heading(on_strip_1)), -1, 1e-9);
+  // The frames end before the longer path does.
+  EXPECT_LT(static_cast<double>(options.num_frames - 1) * step, plan.path_length_m());
+  // Without a bank, the half-turns the speed was planned with.
+  options.turn_bank_deg = 0;
+  const FlightPlan level(options, GustOptions(), kCamera, FailureSchedule(), 1);
+  EXPECT_NEAR(level.survey_turn_radius_m(), level.strip_spacing_m() / 2, 1e-12);
+  EXPECT_NEAR(level.path_length_m(), static_cast<double>(options.num_frames - 1) * step, 1e-6);
 }
 
 TEST(FlightPlan, ARoadDrivesLegsJoinedByQuarterTurnsAtItsHeight) {
