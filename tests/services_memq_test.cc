@@ -614,95 +614,77 @@ TEST(ServicesInProcess, TheMapperLetsGoOfASubmapOnlyOnceTheMergerHoldsItWholeAnd
   EXPECT_GT(ReadPly(dir / "submaps.ply").size(), 3000u);
 }
 
-// The security issue's row "closing statuses only from the tracker's session": two statuses from
-// another session in mid-flight (the first set the count the mapper compared with, the second
-// said one more submap had closed) made the mapper close the submap the tracker was still
-// mapping. They are refused; the submap closes only at shutdown.
+// Plays the short flight with nothing failing and, once the tracker has reported frame 30,
+// publishes `statuses` with `publisher`; returns how many submaps the mapper closed before the
+// last frame's status (the flight's one submap closes at shutdown).
+int SubmapsClosedDuringTheFlight(InProcessStack* stack, bus::Publisher* publisher,
+                                 const std::vector<stitch::tracking_status_t>& statuses) {
+  std::mutex mutex;
+  int last_status_frame = -1, closed_during_flight = 0;
+  bus::Subscriber merger_side(stack->lcm.get());
+  merger_side.Subscribe<stitch::submap_update_t>(
+      bus::Channel("uav0", bus::kSubmap), [&](std::unique_ptr<stitch::submap_update_t> message, const std::string&) {
+        std::lock_guard<std::mutex> lock(mutex);
+        if (message->closed && last_status_frame < 59) ++closed_during_flight;
+      });
+  merger_side.Subscribe<stitch::tracking_status_t>(
+      bus::Channel("uav0", bus::kTrackingStatus),
+      [&](std::unique_ptr<stitch::tracking_status_t> status, const std::string&) {
+        std::lock_guard<std::mutex> lock(mutex);
+        last_status_frame = std::max(last_status_frame, status->frame_index);
+      });
+  std::atomic<bool> flying{true};
+  std::thread sender([&] {
+    for (bool sent = false; flying.load() && !sent; std::this_thread::sleep_for(std::chrono::milliseconds(5))) {
+      {
+        std::lock_guard<std::mutex> lock(mutex);
+        if (last_status_frame < 30) continue;
+      }
+      for (stitch::tracking_status_t status : statuses)
+        publisher->Publish(bus::Channel("uav0", bus::kTrackingStatus), &status);
+      sent = true;
+    }
+  });
+  stack->Play("none");
+  flying = false;
+  sender.join();
+  std::lock_guard<std::mutex> lock(mutex);
+  EXPECT_EQ(last_status_frame, 59);
+  return closed_during_flight;
+}
+
+// A status at frame 31 in submap 1 that counts `submaps_closed` closures.
+stitch::tracking_status_t StatusAtFrame31(int8_t state, int submaps_closed) {
+  stitch::tracking_status_t status{};
+  status.frame_index = 31;
+  status.state = state;
+  status.submap_id = MakeSubmapId(0, 1).value;
+  status.submaps_closed = submaps_closed;
+  return status;
+}
+
 // The tracker's status that says it closed a submap (on a loss) can be lost on the way; the next
 // one that arrives counts the closure but names the submap the tracker is in now. The mapper
 // closed that one, the submap being tracked, and sent the merger its "final" state mid-flight.
 // Here the tracker's own publisher tells of a closure at frame 31 while it tracks on in submap 1.
 TEST(ServicesInProcess, ALateClosingStatusDoesNotCloseTheSubmapBeingTracked) {
   InProcessStack stack(nullptr, /*with_mapper=*/true, "");
-  std::mutex mutex;
-  int last_status_frame = -1, closed_during_flight = 0;
-  bus::Subscriber merger_side(stack.lcm.get());
-  merger_side.Subscribe<stitch::submap_update_t>(
-      bus::Channel("uav0", bus::kSubmap), [&](std::unique_ptr<stitch::submap_update_t> message, const std::string&) {
-        std::lock_guard<std::mutex> lock(mutex);
-        if (message->closed && last_status_frame < 59) ++closed_during_flight;
-      });
-  merger_side.Subscribe<stitch::tracking_status_t>(
-      bus::Channel("uav0", bus::kTrackingStatus),
-      [&](std::unique_ptr<stitch::tracking_status_t> status, const std::string&) {
-        std::lock_guard<std::mutex> lock(mutex);
-        last_status_frame = std::max(last_status_frame, status->frame_index);
-      });
-  std::atomic<bool> flying{true};
-  std::thread late([&] {
-    for (bool sent = false; flying.load() && !sent; std::this_thread::sleep_for(std::chrono::milliseconds(5))) {
-      {
-        std::lock_guard<std::mutex> lock(mutex);
-        if (last_status_frame < 30) continue;
-      }
-      stitch::tracking_status_t status{};
-      status.frame_index = 31;
-      status.state = stitch::tracking_status_t::STATE_OK;
-      status.submap_id = MakeSubmapId(0, 1).value;
-      status.submaps_closed = 1;
-      stack.publisher.Publish(bus::Channel("uav0", bus::kTrackingStatus), &status);
-      sent = true;
-    }
-  });
-  stack.Play("none");
-  flying = false;
-  late.join();
-  std::lock_guard<std::mutex> lock(mutex);
-  EXPECT_EQ(last_status_frame, 59);
-  EXPECT_EQ(closed_during_flight, 0);
+  EXPECT_EQ(
+      SubmapsClosedDuringTheFlight(&stack, &stack.publisher, {StatusAtFrame31(stitch::tracking_status_t::STATE_OK, 1)}),
+      0);
 }
 
+// The security issue's row "closing statuses only from the tracker's session": two statuses from
+// another session in mid-flight (the first set the count the mapper compared with, the second
+// said one more submap had closed) made the mapper close the submap the tracker was still
+// mapping. They are refused; the submap closes only at shutdown.
 TEST(ServicesInProcess, AClosingStatusFromAnotherSessionClosesNothing) {
   InProcessStack stack(nullptr, /*with_mapper=*/true, "");
-  std::mutex mutex;
-  int last_status_frame = -1, closed_during_flight = 0;
-  bus::Subscriber merger_side(stack.lcm.get());
-  merger_side.Subscribe<stitch::submap_update_t>(
-      bus::Channel("uav0", bus::kSubmap), [&](std::unique_ptr<stitch::submap_update_t> message, const std::string&) {
-        std::lock_guard<std::mutex> lock(mutex);
-        if (message->closed && last_status_frame < 59) ++closed_during_flight;
-      });
-  merger_side.Subscribe<stitch::tracking_status_t>(
-      bus::Channel("uav0", bus::kTrackingStatus),
-      [&](std::unique_ptr<stitch::tracking_status_t> status, const std::string&) {
-        std::lock_guard<std::mutex> lock(mutex);
-        last_status_frame = std::max(last_status_frame, status->frame_index);
-      });
   bus::Publisher stranger(stack.lcm.get(), "uav0");  // a session of its own
-  std::atomic<bool> flying{true};
-  std::thread forger([&] {
-    for (bool sent = false; flying.load() && !sent; std::this_thread::sleep_for(std::chrono::milliseconds(5))) {
-      {
-        std::lock_guard<std::mutex> lock(mutex);
-        if (last_status_frame < 30) continue;
-      }
-      for (int closed = 0; closed < 2; ++closed) {
-        stitch::tracking_status_t forged{};
-        forged.frame_index = 31;
-        forged.state = stitch::tracking_status_t::STATE_LOST;
-        forged.submap_id = MakeSubmapId(0, 1).value;
-        forged.submaps_closed = closed;
-        stranger.Publish(bus::Channel("uav0", bus::kTrackingStatus), &forged);
-      }
-      sent = true;
-    }
-  });
-  stack.Play("none");
-  flying = false;
-  forger.join();
-  std::lock_guard<std::mutex> lock(mutex);
-  EXPECT_EQ(last_status_frame, 59);
-  EXPECT_EQ(closed_during_flight, 0);
+  EXPECT_EQ(SubmapsClosedDuringTheFlight(&stack, &stranger,
+                                         {StatusAtFrame31(stitch::tracking_status_t::STATE_LOST, 0),
+                                          StatusAtFrame31(stitch::tracking_status_t::STATE_LOST, 1)}),
+            0);
 }
 
 }  // namespace
