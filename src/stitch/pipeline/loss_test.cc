@@ -321,6 +321,46 @@ TEST(TrackingLoss, AYoungSubmapGivesWayToTheClosedSubmapTheCameraIsBackIn) {
   }
 }
 
+// Back in a closed submap after a young one, the tracker's new keyframes there have lower ids
+// than the young submap's the mapper answered before. They count as in flight until the mapper
+// answers them (the tracker counted keyframes above the newest answered id: none, so a lockstep
+// tracker did not wait for them and a live one was not held back by them).
+TEST(TrackingLoss, KeyframesOfAReopenedSubmapAreInFlightUntilAnswered) {
+  std::vector<int> script;
+  Play(&script, 0, 79);
+  Repeat(&script, ScriptedSequence::kBlack, 8);
+  Play(&script, 40, 119);  // back over mapped ground, then on over new ground
+  PipelineOptions options;
+  options.tracking.return_to_closed_frames = 60;
+  options.tracking.resume_where_lost = false;
+  ScriptedSequence sequence(script);
+  Tracking tracking(options.tracking, sequence.camera(), &DefaultVocabulary(), sequence.nominal_fps());
+  LocalMapping mapping(options.mapping, sequence.camera(), options.tracking.orb, &DefaultVocabulary());
+  SubmapId first;
+  bool young_answered = false;
+  int reopened_keyframes = 0;
+  SequenceFrame frame;
+  while (sequence.Next(&frame)) {
+    Tracking::Output output = tracking.Track(frame.image, frame.index, frame.t_ns);
+    if (output.closed_submap && mapping.map() && mapping.map()->id() == *output.closed_submap) mapping.CloseSubmap();
+    for (size_t k = 0; k < output.new_keyframes.size(); ++k) {
+      const KeyframeId id = output.new_keyframes[k].id;
+      if (!first.valid()) first = SubmapOf(id);
+      if (young_answered && SubmapOf(id) == first) {
+        ++reopened_keyframes;
+        EXPECT_GE(tracking.KeyframesInFlight(), 1) << "keyframe " << IndexOf(id) << " of the reopened submap";
+      }
+      MappedKeyframe mapped =
+          mapping.MapKeyframe(output.new_keyframes[k], k == 0 ? output.new_points : std::vector<MapPoint>());
+      tracking.ApplyUpdate(mapped.for_tracker);
+      young_answered |= SubmapOf(id) != first;
+      EXPECT_EQ(tracking.KeyframesInFlight(), static_cast<int>(output.new_keyframes.size() - k - 1));
+    }
+  }
+  EXPECT_TRUE(young_answered) << "a young submap started after the blackout";
+  EXPECT_GT(reopened_keyframes, 2) << "keyframes made over new ground back in the first submap";
+}
+
 TEST(TrackingLoss, FramesMissedBeforeTheCameraIsPlacedAgainArePlacedBackwardFromIt) {
   // After a blackout the camera comes back from ground the map never saw (strip frames 110 down
   // to 40): the first frames over mapped ground see too little of it to relocalize, the first
