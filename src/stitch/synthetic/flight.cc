@@ -192,10 +192,6 @@ double TurnWeight(double fraction) {
   return SmoothStep(fraction / 0.25) * SmoothStep((1.0 - fraction) / 0.25);
 }
 
-}  // namespace
-
-namespace {
-
 // An omega turn from a strip heading +x that ends at the origin to the strip `spacing` to its
 // left heading back, on arcs of `radius` (over half the spacing): out to the right, around to
 // the left, in to the right, each tangent to the next. Its centres: (0, -r), (h, spacing / 2),
@@ -253,7 +249,7 @@ void FlightPlan::SurveyAt(double s, Eigen::Vector2d* position, double* heading, 
     *heading = direction > 0 ? 0.0 : M_PI;
     return;
   }
-  // Half-turn to the next strip, centred at the strip's end: left on even strips, right on odd.
+  // To the next strip: left on even strips, right on odd.
   const double end_x = start_x + direction * flight_.strip_length_m;
   if (survey_turn_radius_ > strip_spacing_ / 2) {
     // An omega turn, drawn heading +x and mirrored onto odd strips.
@@ -265,6 +261,7 @@ void FlightPlan::SurveyAt(double s, Eigen::Vector2d* position, double* heading, 
     *turning *= direction;
     return;
   }
+  // A half-turn centred at the strip's end.
   const double angle = (along - flight_.strip_length_m) / (strip_spacing_ / 2);  // 0 .. pi
   const double radius = strip_spacing_ / 2;
   const Eigen::Vector2d centre(end_x, strip_y + radius);
