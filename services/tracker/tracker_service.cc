@@ -226,6 +226,7 @@ void TrackerService::WaitForMapper() {
     while (!tracking_->MapperCaughtUp() && MonotonicSeconds() < deadline && running_.load()) {
       ApplyUpdates(std::chrono::milliseconds(20));
     }
+    if (!running_.load()) return;  // stopping: no more frames to hold back
     if (!tracking_->MapperCaughtUp() && attempt == 0) {
       // The keyframe (or the mapper's answer) may have been lost: send it again, once.
       if (publisher_thread_) publisher_thread_->Drain();
