@@ -24,6 +24,7 @@
 #include "stitch/link_status_t.hpp"
 #include "stitch/records/frame_record.h"
 #include "stitch/records/keyframe_record.h"
+#include "stitch/service_status_t.hpp"
 #include "stitch/source/source.h"
 #include "stitch/submap_request_t.hpp"
 #include "stitch/submap_update_t.hpp"
@@ -351,6 +352,59 @@ TEST(ServicesInProcess, TrackerWithoutAMapperKeepsTrackingAndSaysSo) {
   EXPECT_GT(ok, 15);
   EXPECT_FALSE(statuses.back().mapper_connected);
   EXPECT_EQ(stack.tracker.mapper_waits(), 1);  // lockstep frames wait, once: then it is absent
+}
+
+// Lockstep frames wait for a mapper that says it is running (its heartbeat) however long its
+// answer takes: giving up after mapper_timeout_s made a run on a starved machine (or under a
+// sanitizer) another run. Here the "mapper" only beats, until 3.5 mapper_timeout_s after the
+// tracker began to wait, and never answers: the tracker holds the frame after its first keyframe
+// while it beats, and reports the mapper absent only once the beats have stopped for
+// mapper_timeout_s.
+TEST(ServicesInProcess, LockstepFramesWaitForAMapperWhoseHeartbeatSaysItIsRunning) {
+  constexpr double kTimeout = 1.0;
+  InProcessStack stack([](StitchConfig* c) { c->tracker.mapper_timeout_s = kTimeout; }, /*with_mapper=*/false, "");
+  std::mutex mutex;
+  std::vector<stitch::tracking_status_t> statuses;
+  bool beating = true;
+  std::vector<bool> received_while_beating;
+  bus::Subscriber subscriber(stack.lcm.get());
+  subscriber.Subscribe<stitch::tracking_status_t>(
+      bus::Channel("uav0", bus::kTrackingStatus),
+      [&](std::unique_ptr<stitch::tracking_status_t> s, const std::string&) {
+        std::lock_guard<std::mutex> lock(mutex);
+        statuses.push_back(*s);
+        received_while_beating.push_back(beating);
+      });
+  std::thread mapper([&] {
+    stitch::service_status_t beat;
+    beat.service = "mapper";
+    beat.state = stitch::service_status_t::STATE_RUNNING;
+    std::optional<std::chrono::steady_clock::time_point> until;
+    const auto give_up = std::chrono::steady_clock::now() + std::chrono::minutes(5);
+    while (!until || std::chrono::steady_clock::now() < *until) {
+      if (!until && (stack.tracker.mapper_waits() > 0 || std::chrono::steady_clock::now() > give_up))
+        until = std::chrono::steady_clock::now() + std::chrono::milliseconds(static_cast<int>(3500 * kTimeout));
+      stack.publisher.Publish(bus::Channel("uav0", bus::kService), &beat);
+      std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    }
+    std::lock_guard<std::mutex> lock(mutex);
+    beating = false;
+  });
+  const IngestSummary summary = stack.Play("none", 25);
+  mapper.join();
+  EXPECT_EQ(summary.frames_unacked, 0);
+  std::lock_guard<std::mutex> lock(mutex);
+  ASSERT_EQ(statuses.size(), 25u);
+  EXPECT_EQ(stack.tracker.mapper_waits(), 1);
+  int while_beating = 0;
+  for (size_t i = 0; i < statuses.size(); ++i) {
+    if (!received_while_beating[i]) continue;
+    ++while_beating;
+    EXPECT_TRUE(statuses[i].mapper_connected) << "frame " << statuses[i].frame_index << ": gave up while it beat";
+  }
+  EXPECT_GT(while_beating, 0);   // the frames up to the first keyframe
+  EXPECT_LT(while_beating, 25);  // the rest waited for the beats to stop
+  EXPECT_FALSE(statuses.back().mapper_connected);
 }
 
 // Frames from a live source never wait for the mapper: with none answering, the tracker takes

@@ -8,11 +8,12 @@
 namespace stitch {
 
 struct TrackerOptions {
-  int max_queued_frames = 2;       // realtime: frames waiting beyond this are dropped, oldest first
-  std::string on_loss = "submap";  // submap: close the map and start a new one; relocalize: ORB-SLAM2-like
-  bool wait_for_mapper = true;     // lockstep frames: after a keyframe, wait for the mapper's update first
-  double mapper_timeout_s = 5.0;   // ...for at most this long; then track on without it and say so
-  std::string state_file;          // keeps the next submap number across restarts ("" = none)
+  int max_queued_frames = 2;            // realtime: frames waiting beyond this are dropped, oldest first
+  std::string on_loss = "submap";       // submap: close the map and start a new one; relocalize: ORB-SLAM2-like
+  bool wait_for_mapper = true;          // lockstep frames: after a keyframe, wait for the mapper's update first
+  double mapper_timeout_s = 5.0;        // ...for at most this long; then track on without it and say so
+  double mapper_busy_max_wait_s = 120;  // ...unless its heartbeat says it is running: then this long at most
+  std::string state_file;               // keeps the next submap number across restarts ("" = none)
   TrackingOptions tracking;
 
   template <class Visitor>
@@ -20,8 +21,14 @@ struct TrackerOptions {
     v("max_queued_frames", max_queued_frames, "frames that may wait for the tracker; older ones are dropped");
     v("on_loss", on_loss, "after tracking loss: submap (stitch) or relocalize (ORB-SLAM2-like baseline)");
     v("wait_for_mapper", wait_for_mapper,
-      "lockstep frames: after a keyframe, wait for the mapper before the next frame (reproducible runs; live frames never wait)");
-    v("mapper_timeout_s", mapper_timeout_s, "longest wait for the mapper, seconds; then track on without it");
+      "lockstep frames: after a keyframe, wait for the mapper before the next frame (reproducible runs; live frames "
+      "never wait)");
+    v("mapper_timeout_s", mapper_timeout_s,
+      "longest wait for the mapper, seconds (lockstep: longest silence, its heartbeat included); then track on without "
+      "it");
+    v("mapper_busy_max_wait_s", mapper_busy_max_wait_s,
+      "lockstep frames: longest wait for the mapper's answer to a keyframe while its heartbeat says it is running, "
+      "seconds (at least mapper_timeout_s; a slow or starved machine: the run stays the same run)");
     v("state_file", state_file,
       "file keeping the next submap number, so submap ids stay unique across tracker restarts (empty: none)");
     v("tracking", tracking, "the tracking algorithm");
@@ -36,6 +43,7 @@ struct TrackerOptions {
       return fail("tracker.max_queued_frames must be in [1, 1000]");
     if (on_loss != "submap" && on_loss != "relocalize") return fail("tracker.on_loss must be submap or relocalize");
     if (!(mapper_timeout_s > 0)) return fail("tracker.mapper_timeout_s must be > 0");
+    if (!(mapper_busy_max_wait_s > 0)) return fail("tracker.mapper_busy_max_wait_s must be > 0");
     return tracking.Check(why);
   }
 };

@@ -64,6 +64,11 @@ TrackerService::TrackerService(lcm::LCM* lcm, bus::Publisher* publisher, Tracker
   subscriber_.Subscribe<stitch::local_map_update_t>(bus::Channel(agent, bus::kLocalMap),
                                                     [this](std::unique_ptr<stitch::local_map_update_t> update,
                                                            const std::string&) { updates_.Push(std::move(update)); });
+  subscriber_.Subscribe<stitch::service_status_t>(
+      bus::Channel(agent, bus::kService), [this](std::unique_ptr<stitch::service_status_t> status, const std::string&) {
+        if (status->service == "mapper" && status->state == stitch::service_status_t::STATE_RUNNING)
+          mapper_alive_at_ = MonotonicSeconds();
+      });
   heartbeat_ = std::make_unique<Heartbeat>(publisher_, "tracker", [this] {
     return Heartbeat::Counts{received_.load(), tracked_.load(), subscriber_.rejected() + dropped_.load()};
   });
@@ -220,24 +225,30 @@ void TrackerService::WaitForMapper() {
   if (!tracking_ || !options_.wait_for_mapper || live_ || tracking_->MapperCaughtUp() || !tracking_->mapper_connected())
     return;
   // Lockstep with the mapper: the next frame sees the map the mapper made from the last keyframe.
+  // However long that takes while the mapper says it is running (a slow or starved machine, a
+  // sanitizer build): giving up then would make the run depend on the machine's load.
   ++mapper_waits_;
-  for (int attempt = 0; attempt < 2 && !tracking_->MapperCaughtUp(); ++attempt) {
-    const double deadline = MonotonicSeconds() + options_.mapper_timeout_s / 2;
-    while (!tracking_->MapperCaughtUp() && MonotonicSeconds() < deadline && running_.load()) {
-      ApplyUpdates(std::chrono::milliseconds(20));
-    }
-    if (!running_.load()) return;  // stopping: no more frames to hold back
-    if (!tracking_->MapperCaughtUp() && attempt == 0) {
+  const double started = MonotonicSeconds();
+  bool sent_again = false;
+  while (!tracking_->MapperCaughtUp() && running_.load()) {
+    ApplyUpdates(std::chrono::milliseconds(20));
+    const double now = MonotonicSeconds();
+    if (!sent_again && now - started > options_.mapper_timeout_s / 2 && !tracking_->MapperCaughtUp()) {
       // The keyframe (or the mapper's answer) may have been lost: send it again, once.
+      sent_again = true;
       if (publisher_thread_) publisher_thread_->Drain();
       std::lock_guard<std::mutex> lock(unacknowledged_mutex_);
       for (auto& keyframe : unacknowledged_keyframes_)
         publisher_->Publish(bus::Channel(publisher_->agent(), bus::kKeyframe), &keyframe);
     }
+    const double heard = std::max(started, mapper_alive_at_.load());
+    const double longest = std::max(options_.mapper_busy_max_wait_s, options_.mapper_timeout_s);
+    if (now - heard > options_.mapper_timeout_s || now - started > longest) break;
   }
+  if (!running_.load()) return;  // stopping: no more frames to hold back
   if (!tracking_->MapperCaughtUp()) {
     STITCH_LOG(WARNING) << "no answer from the mapper for keyframe " << tracking_->last_keyframe_sent() << " within "
-                        << options_.mapper_timeout_s << " s; tracking on without it";
+                        << MonotonicSeconds() - started << " s; tracking on without it";
     tracking_->SetMapperConnected(false);
   }
 }

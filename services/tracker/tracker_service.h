@@ -24,6 +24,7 @@
 #include "stitch/frame_t.hpp"
 #include "stitch/keyframe_t.hpp"
 #include "stitch/local_map_update_t.hpp"
+#include "stitch/service_status_t.hpp"
 #include "stitch/tracking/tracking.h"
 #include "stitch/util/bounded_queue.h"
 #include "stitch/util/worker_thread.h"
@@ -98,6 +99,8 @@ class TrackerService {
   // mapper then; it makes keyframes as the mapper takes them. Worker thread only.
   bool live_ = false;
   double mapper_heard_at_ = 0;  // the last update applied, or the first keyframe it left unanswered
+  // When this agent's mapper last said it was running (its heartbeat, about 1 Hz; 0: never).
+  std::atomic<double> mapper_alive_at_{0};
   std::atomic<bool> running_{false};
   std::atomic<int64_t> received_{0}, tracked_{0}, dropped_{0}, keyframes_{0}, mapper_waits_{0};
   std::atomic<int> highest_received_{-1}, highest_processed_{-1};  // frame numbers of...

@@ -1,5 +1,7 @@
 #include "stitch/mapping/culling.h"
 
+#include "stitch/estimators/pose_optimizer.h"
+
 namespace stitch {
 
 int RecentPoints::Cull(Map* map, KeyframeId keyframe, int keyframes_processed, const ViewGeometry& geometry,
@@ -67,11 +69,37 @@ std::vector<CulledKeyframe> CullRedundantKeyframes(Map* map, KeyframeId keyframe
       const Keyframe* parent = map->FindKeyframe(c->parent);
       record.cam_from_parent = parent ? c->cam_from_world * parent->cam_from_world.Inverse() : c->cam_from_world;
       if (!parent) record.parent = KeyframeId();
-      culled.push_back(record);
+      for (size_t i = 0; i < c->points.size(); ++i) {
+        if (c->points[i].valid() && map->FindPoint(c->points[i])) {
+          record.observations.push_back({c->points[i], c->undistorted[i].cast<float>(), c->keypoints[i].octave});
+        }
+      }
+      culled.push_back(std::move(record));
       map->RemoveKeyframe(candidate);
     }
   }
   return culled;
+}
+
+Rigid3d PoseOnRefinedMap(const Map& map, const CulledKeyframe& culled, const Rigid3d& cam_from_world,
+                         const ViewGeometry& geometry, int min_inliers) {
+  // Its relative pose to its parent is the one local bundle adjustment had reached when it was
+  // culled (in a young map, sometimes few points' worth); its features place it as the map is now.
+  const std::vector<float>& inverse_sigma2 = geometry.pyramid.inverse_sigma2;
+  std::vector<PoseObservation> observations;
+  observations.reserve(culled.observations.size());
+  for (const CulledObservation& o : culled.observations) {
+    const MapPoint* point = map.FindPoint(o.point);
+    if (!point || o.octave < 0 || o.octave >= static_cast<int>(inverse_sigma2.size())) continue;
+    observations.push_back({o.undistorted.cast<double>(), point->position, inverse_sigma2[o.octave]});
+  }
+  if (observations.empty() || static_cast<int>(observations.size()) < min_inliers) return cam_from_world;
+  const PoseOptimizerResult optimized = OptimizePose(observations, cam_from_world, geometry.intrinsics);
+  if (!optimized.converged || optimized.num_inliers < min_inliers ||
+      2 * optimized.num_inliers < static_cast<int>(observations.size())) {
+    return cam_from_world;
+  }
+  return optimized.cam_from_world;
 }
 
 }  // namespace stitch

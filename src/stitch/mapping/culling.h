@@ -36,8 +36,16 @@ class RecentPoints {
   std::deque<Watched> points_;
 };
 
+// One of a culled keyframe's features that observed a point when it was culled.
+struct CulledObservation {
+  MapPointId point;
+  Eigen::Vector2f undistorted;  // pixels
+  int octave = 0;
+};
+
 // A keyframe removed as redundant, and what places it later: its parent in the spanning tree
-// (invalid: `cam_from_parent` is cam_from_world) and its pose relative to that parent.
+// (invalid: `cam_from_parent` is cam_from_world) and its pose relative to that parent; and the
+// points it observed, to pose it again against the refined map (LocalMapping::CulledKeyframePoses).
 struct CulledKeyframe {
   KeyframeId id;
   int frame_index = -1;
@@ -45,11 +53,19 @@ struct CulledKeyframe {
   Rigid3d cam_from_world;  // when culled
   KeyframeId parent;
   Rigid3d cam_from_parent;
+  std::vector<CulledObservation> observations;
 };
 
 // The covisible keyframes of `keyframe` (never `keep`, nor `keyframe` itself) of which more than
 // `redundancy` of the points are seen by at least 3 other keyframes at the same or a finer
 // scale are removed from `map`. Returns them, in the order removed.
 std::vector<CulledKeyframe> CullRedundantKeyframes(Map* map, KeyframeId keyframe, KeyframeId keep, double redundancy);
+
+// A culled keyframe's pose against the points of `map` it observed, refined since it was culled
+// (by the keyframes that made it redundant), found from `cam_from_world` (its pose through its
+// parent). Returns `cam_from_world` where fewer than `min_inliers` of those points are left or
+// agree, or fewer than half of them agree.
+Rigid3d PoseOnRefinedMap(const Map& map, const CulledKeyframe& culled, const Rigid3d& cam_from_world,
+                         const ViewGeometry& geometry, int min_inliers = 30);
 
 }  // namespace stitch

@@ -120,10 +120,11 @@ MappingReport LocalMapping::ProcessKeyframe(Keyframe keyframe, const std::vector
   }
   lap(&times.bundle_adjustment);
   if (options_.cull_keyframes && !report.bundle_adjustment.interrupted) {
-    for (const CulledKeyframe& culled :
+    for (CulledKeyframe& culled :
          CullRedundantKeyframes(map_.get(), id, first_keyframe_, options_.keyframe_redundancy)) {
-      culled_.push_back(culled);
       report.culled_keyframes.push_back(culled.id);
+      if (!options_.repose_culled_keyframes) culled.observations.clear();
+      culled_.push_back(std::move(culled));
     }
   }
   lap(&times.cull_keyframes);
@@ -162,9 +163,7 @@ LocalMapping::Released LocalMapping::ReleaseClosed(SubmapId submap) {
   const auto it =
       std::find_if(closed_maps_.begin(), closed_maps_.end(), [&](const auto& m) { return m->id() == submap; });
   if (it == closed_maps_.end()) return released;
-  for (const CulledKeyframe& culled : CulledKeyframePoses()) {  // posed through the map while it is here
-    if (SubmapOf(culled.id) == submap) released.culled.push_back(culled);
-  }
+  released.culled = CulledKeyframePoses(submap);  // posed on the map while it is here
   culled_.erase(std::remove_if(culled_.begin(), culled_.end(),
                                [&](const CulledKeyframe& culled) { return SubmapOf(culled.id) == submap; }),
                 culled_.end());
@@ -173,7 +172,7 @@ LocalMapping::Released LocalMapping::ReleaseClosed(SubmapId submap) {
   return released;
 }
 
-std::vector<CulledKeyframe> LocalMapping::CulledKeyframePoses() const {
+std::vector<CulledKeyframe> LocalMapping::CulledKeyframePoses(SubmapId submap) const {
   std::unordered_map<KeyframeId, const CulledKeyframe*> by_id;
   for (const auto& record : culled_) by_id[record.id] = &record;
   const auto living = [&](KeyframeId id) -> const Keyframe* {
@@ -186,7 +185,9 @@ std::vector<CulledKeyframe> LocalMapping::CulledKeyframePoses() const {
     return nullptr;
   };
   std::vector<CulledKeyframe> result;
+  result.reserve(culled_.size());
   for (const auto& record : culled_) {
+    if (submap.valid() && SubmapOf(record.id) != submap) continue;
     // Walk up through culled parents to a living keyframe, composing the relative poses.
     Rigid3d cam_from_ancestor = record.cam_from_parent;
     KeyframeId ancestor = record.parent;
@@ -205,9 +206,15 @@ std::vector<CulledKeyframe> LocalMapping::CulledKeyframePoses() const {
       cam_from_ancestor = cam_from_ancestor * it->second->cam_from_parent;
       ancestor = it->second->parent;
     }
-    CulledKeyframe k = record;
-    k.cam_from_world = cam_from_world;
-    result.push_back(k);
+    CulledKeyframe k;
+    k.id = record.id;
+    k.frame_index = record.frame_index;
+    k.t_ns = record.t_ns;
+    k.parent = record.parent;
+    k.cam_from_parent = record.cam_from_parent;
+    const Map* map = options_.repose_culled_keyframes ? FindSubmap(SubmapOf(record.id)) : nullptr;
+    k.cam_from_world = map ? PoseOnRefinedMap(*map, record, cam_from_world, geometry_) : cam_from_world;
+    result.push_back(std::move(k));
   }
   return result;
 }

@@ -116,8 +116,11 @@ class LocalMapping {
     std::vector<CulledKeyframe> culled;
   };
   Released ReleaseClosed(SubmapId submap);
-  // Culled keyframes with their poses as the final map places them (through their parents).
-  std::vector<CulledKeyframe> CulledKeyframePoses() const;
+  // Culled keyframes with their poses as the map places them now (observations left out): each
+  // against the refined points it observed (`repose_culled_keyframes`), else, or where too few
+  // of them agree, through its parents at the relative poses it had when culled. Those of
+  // `submap` alone where it is valid.
+  std::vector<CulledKeyframe> CulledKeyframePoses(SubmapId submap = SubmapId()) const;
 
  private:
   Map* FindSubmap(SubmapId submap) const;  // the current or a closed one; null if neither

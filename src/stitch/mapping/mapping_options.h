@@ -19,6 +19,10 @@ struct MappingOptions {
   int point_min_observations = 2;       // recent points with this few observations after 2 keyframes are culled
   double keyframe_redundancy = 0.9;     // keyframes whose points are this much seen by 3 others are culled
   bool cull_keyframes = true;
+  // Culled keyframes (and the frames tracked against them) are placed at the end by the points
+  // they observed, refined since, rather than only through their parent at the relative pose
+  // they had when culled.
+  bool repose_culled_keyframes = true;
   BundleAdjustmentOptions local_bundle_adjustment;
 
   template <class Visitor>
@@ -35,6 +39,9 @@ struct MappingOptions {
     v("keyframe_redundancy", keyframe_redundancy,
       "keyframes whose points this fraction is seen by 3 others are culled");
     v("cull_keyframes", cull_keyframes, "remove redundant keyframes");
+    v("repose_culled_keyframes", repose_culled_keyframes,
+      "pose culled keyframes (and the frames tracked against them) against the refined points they observed when "
+      "written out or let go (else through their parent, at the relative pose they had when culled)");
     v("local_bundle_adjustment", local_bundle_adjustment, "local bundle adjustment");
   }
   bool Check(std::string* why) const;

@@ -260,6 +260,48 @@ TEST(KeyframeCulling, RemovesKeyframesWhosePointsOthersSee) {
   EXPECT_GE(scene.map.num_keyframes(), 2u);
 }
 
+TEST(KeyframeCulling, ACulledKeyframeIsPosedAgainWhereTheRefinedPointsPutIt) {
+  Scene scene;
+  for (int i = 0; i < 6; ++i) {
+    cv::Mat depth;
+    const Frame frame = Strip().RenderPose(Strip().WorldFromCam(0), i, &depth);
+    scene.keyframes.push_back(Strip().AddKeyframe(&scene.map, frame, depth, i, i == 0 ? 1 : 1 << 30));
+  }
+  const std::vector<CulledKeyframe> culled =
+      CullRedundantKeyframes(&scene.map, scene.keyframes[5], /*keep=*/KeyframeId(), 0.9);
+  ASSERT_FALSE(culled.empty());
+  const CulledKeyframe& record = culled.front();
+  ASSERT_GE(record.observations.size(), 100u);
+  // Later adjustment moves the whole map (2 degrees and 1.2 m) but not the culled keyframe, whose
+  // pose through its parent is the one it had (here exact): its points say where it is now.
+  const Rigid3d moved(Eigen::Quaterniond(Eigen::AngleAxisd(2 * M_PI / 180, Eigen::Vector3d(1, 2, 3).normalized())),
+                      Eigen::Vector3d(1.0, -0.5, 0.6));  // new_world_from_old_world
+  std::vector<MapPointId> ids;
+  for (const auto& [id, point] : scene.map.points()) ids.push_back(id);
+  for (MapPointId id : ids) scene.map.FindPoint(id)->position = moved * scene.map.FindPoint(id)->position;
+  const Rigid3d then = record.cam_from_world;
+  const Rigid3d now = then * moved.Inverse();
+  ASSERT_GT(TranslationError(then, now), 1.0);
+  const Rigid3d reposed = PoseOnRefinedMap(scene.map, record, then, Strip().geometry());
+  // (The rendered depth at a feature's rounded pixel is not exact: centimetres at 70 m.)
+  EXPECT_LT(TranslationError(reposed, now), 0.1);
+  EXPECT_LT(RotationErrorDeg(reposed, now), 0.05);
+
+  // Where too few of its points are left (fused away or culled), it keeps the pose it had.
+  CulledKeyframe few = record;
+  few.observations.resize(20);
+  EXPECT_LT(TranslationError(PoseOnRefinedMap(scene.map, few, then, Strip().geometry()), then), 1e-12);
+  // Where most of them no longer agree (another place's points), it keeps the pose it is given,
+  // even one the agreeing 40% would refine.
+  CulledKeyframe disagreeing = record;
+  for (size_t o = 0; o < disagreeing.observations.size(); ++o) {
+    if (o % 5 < 3) disagreeing.observations[o].undistorted += Eigen::Vector2f(o % 2 ? 12 : -12, 9);
+  }
+  const Rigid3d kept = PoseOnRefinedMap(scene.map, disagreeing, now, Strip().geometry());
+  EXPECT_EQ(kept.translation, now.translation);
+  EXPECT_EQ(kept.rotation.coeffs(), now.rotation.coeffs());
+}
+
 TEST(KeyframeCulling, KeepsKeyframesThatSeeTheirOwnPartOfTheGround) {
   // 15 m apart: each keyframe sees ground the others see little of.
   Scene scene = MakeScene({0, 15, 30, 45, 60, 75});
