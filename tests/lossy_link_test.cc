@@ -7,6 +7,8 @@
 #include <chrono>
 #include <functional>
 #include <future>
+#include <mutex>
+#include <set>
 #include <thread>
 
 #include <gtest/gtest.h>
@@ -218,6 +220,61 @@ TEST(LossyLink, AStoppingMapperWaitsForTheMergerToHoldItsLastSubmapWhole) {
   }
   EXPECT_GT(kept, 3u);
   EXPECT_EQ(received, kept);
+}
+
+// A submap handed over mid-flight whose final state loses its last part on the way (an earlier
+// part says it is closed): the merger asks for that state again once it has been quiet, so it
+// holds the submap whole and says so, and the mapper lets it go during the flight. Before, only
+// an open submap was asked for: this one stayed on the aircraft to the end (a 20,000-frame
+// survey's mapper grew 146 -> 206 MB holding one).
+TEST(LossyLink, AFinalStateThatLostAPartIsAskedForAgainAndItsSubmapLetGo) {
+  testing::TempDir dir;
+  StitchConfig config = LoadStitchConfig(std::string(STITCH_SOURCE_DIR) + "/tests/short_flight.yaml");
+  config.synthetic.flight.num_frames = 100;
+  config.synthetic.flight.strip_length_m = 115;
+  config.tracker.tracking.submap_max_keyframes = 10;  // submaps hand over during the flight
+  config.tracker.tracking.handover_keyframes = 3;
+  config.tracker.tracking.closed_keyframes_held = 0;  // the tracker drops each at once
+  config.merger.resend_interval_s = 0.3;
+  AircraftAndGround rig(config, dir.path().string());
+  std::mutex mutex;
+  std::set<int64_t> closed;  // submaps whose final state the mapper sent
+  int lost_revision = -1;
+  LossyRelay down(rig.aircraft.get(), rig.ground.get(), "uav0/SUBMAP", 0, 1, [&](const lcm::ReceiveBuffer& buffer) {
+    stitch::submap_update_t update;
+    if (update.decode(buffer.data, 0, static_cast<int>(buffer.data_size)) < 0 || !update.closed) return false;
+    std::lock_guard<std::mutex> lock(mutex);
+    closed.insert(update.submap_id);
+    if (lost_revision < 0 && update.submap_id == MakeSubmapId(0, 1).value && update.num_parts > 1)
+      lost_revision = update.revision;
+    return update.revision == lost_revision && update.part == update.num_parts - 1;
+  });
+  LossyRelay up(rig.ground.get(), rig.aircraft.get(), "uav0/SUBMAP_REQUEST", 0, 2);
+  rig.Fly("none");
+  // Hovering: every submap closed so far is let go once the merger holds it whole (at most 20 s).
+  size_t handed_over = 0;
+  const auto start = std::chrono::steady_clock::now();
+  while (std::chrono::steady_clock::now() - start < 20s) {
+    {
+      std::lock_guard<std::mutex> lock(mutex);
+      handed_over = closed.size();
+    }
+    if (handed_over > 0 && rig.mapper.submaps_released() >= static_cast<int>(handed_over)) break;
+    std::this_thread::sleep_for(50ms);
+  }
+  const int released = rig.mapper.submaps_released();
+  rig.mapper.Stop();
+  rig.merger.Stop();
+  rig.aircraft_dispatcher.Stop();
+  rig.ground_dispatcher.Stop();
+
+  ASSERT_GE(lost_revision, 0) << "submap 0:1's final state went in one part: nothing to lose";
+  EXPECT_GE(handed_over, 2u);
+  EXPECT_EQ(released, static_cast<int>(handed_over)) << "a submap handed over was never let go";
+  EXPECT_GT(rig.merger.requests_sent(), 0);
+  const auto first = rig.merger.merger().submaps().find(MakeSubmapId(0, 1));
+  ASSERT_NE(first, rig.merger.merger().submaps().end());
+  EXPECT_TRUE(first->second.closed);
 }
 
 // The flight ends with the aircraft's link bridge still behind (under its budget): what the

@@ -407,10 +407,12 @@ void MergerService::RequestWhatWasLost() {
       publish(id, &complete);
     }
     // Left open while a newer submap of its aircraft goes on, and quiet: its final state was lost
-    // (a submap the tracker reopened is not quiet).
+    // (a submap the tracker reopened is not quiet). Closed, but its final state never arrived in
+    // all its parts, and quiet: a part was lost; asked for again, or its mapper would keep it
+    // (never confirmed whole) and the merger its partial state, to the end of the flight.
     const auto heard = last_update_.find(id);
-    request.full_state = !replica.closed && newest[AgentNumber(id)] != id &&
-                         (heard == last_update_.end() || now - heard->second > 3 * options.resend_interval_s);
+    const bool quiet = heard == last_update_.end() || now - heard->second > 3 * options.resend_interval_s;
+    request.full_state = quiet && (replica.closed ? !final_whole : newest[AgentNumber(id)] != id);
     if (!options.request_resends || (request.keyframe_ids.empty() && !request.full_state)) continue;
     double& last = last_request_[id];
     if (now - last < options.resend_interval_s) continue;

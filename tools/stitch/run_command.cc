@@ -394,7 +394,10 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
   // (the mapper may still have keyframes to map, the aircraft's bridge submap states to deliver,
   // the merger submap updates to merge).
   // Their grace follows their own settings: the mapper waits for its link bridge to catch up and
-  // for the merger's last requests, a bridge sends what waits for up to link.max_queue_s.
+  // for the merger's last requests, a bridge sends what waits for up to link.max_queue_s. The
+  // merger refines the last closed submap's map and then once more at the end: on a 20 km survey
+  // each takes a minute or more (its journal keeps what it received; the kill only cost the final
+  // map files and made the run fail).
   const double mapper_grace_s = std::max(120.0, config.mapper.stop_link_drain_s + config.mapper.stop_linger_s + 60.0);
   const double link_grace_s = std::max(120.0, config.link.max_queue_s + 65.0);
   for (auto it = children.rbegin(); it != children.rend(); ++it) {
@@ -402,7 +405,7 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
     const std::string& name = (*it)->name();
     const double grace_s = name == "mapper"             ? mapper_grace_s
                            : name.rfind("link", 0) == 0 ? link_grace_s
-                           : name == "merger"           ? 120.0
+                           : name == "merger"           ? 600.0
                                                         : 15.0;
     const int status = (*it)->Terminate(std::chrono::milliseconds(static_cast<int64_t>(grace_s * 1000)));
     if (status != 0 && status != 128 + SIGTERM && status != 130 && !info.interrupted && failure.empty()) {
