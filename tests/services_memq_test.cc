@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <atomic>
 #include <filesystem>
+#include <functional>
 #include <map>
 #include <mutex>
 #include <optional>
@@ -85,6 +86,32 @@ struct InProcessStack {
   TrackerService tracker;
   std::optional<MapperService> mapper;
   Trajectory ground_truth;
+};
+
+// Every tracking status the tracker publishes on `lcm`, in order; `also` sees each as it comes
+// (under the lock).
+class TrackingStatuses {
+ public:
+  explicit TrackingStatuses(lcm::LCM* lcm, std::function<void(const stitch::tracking_status_t&)> also = nullptr)
+      : subscriber_(lcm), also_(std::move(also)) {
+    subscriber_.Subscribe<stitch::tracking_status_t>(
+        bus::Channel("uav0", bus::kTrackingStatus),
+        [this](std::unique_ptr<stitch::tracking_status_t> status, const std::string&) {
+          std::lock_guard<std::mutex> lock(mutex_);
+          if (also_) also_(*status);
+          statuses_.push_back(*status);
+        });
+  }
+  std::vector<stitch::tracking_status_t> Get() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return statuses_;
+  }
+
+ private:
+  mutable std::mutex mutex_;
+  std::vector<stitch::tracking_status_t> statuses_;
+  bus::Subscriber subscriber_;
+  std::function<void(const stitch::tracking_status_t&)> also_;
 };
 
 // Every keyframe the mapper kept (its keyframes.tsv) is in the replica at the same pose.
@@ -333,18 +360,10 @@ TEST(ServicesInProcess, AnImplausibleLinkBacklogIsRefused) {
 
 TEST(ServicesInProcess, TrackerWithoutAMapperKeepsTrackingAndSaysSo) {
   InProcessStack stack([](StitchConfig* c) { c->tracker.mapper_timeout_s = 0.4; }, /*with_mapper=*/false, "");
-  std::mutex mutex;
-  std::vector<stitch::tracking_status_t> statuses;
-  bus::Subscriber subscriber(stack.lcm.get());
-  subscriber.Subscribe<stitch::tracking_status_t>(
-      bus::Channel("uav0", bus::kTrackingStatus),
-      [&](std::unique_ptr<stitch::tracking_status_t> s, const std::string&) {
-        std::lock_guard<std::mutex> lock(mutex);
-        statuses.push_back(*s);
-      });
+  const TrackingStatuses published(stack.lcm.get());
   const IngestSummary summary = stack.Play("none", 25);
   EXPECT_EQ(summary.frames_unacked, 0);
-  std::lock_guard<std::mutex> lock(mutex);
+  const std::vector<stitch::tracking_status_t> statuses = published.Get();
   ASSERT_EQ(statuses.size(), 25u);
   // Tracked on its own initial map, reporting the mapper as absent after the first wait.
   int ok = 0;
@@ -363,18 +382,10 @@ TEST(ServicesInProcess, TrackerWithoutAMapperKeepsTrackingAndSaysSo) {
 TEST(ServicesInProcess, LockstepFramesWaitForAMapperWhoseHeartbeatSaysItIsRunning) {
   constexpr double kTimeout = 1.0;
   InProcessStack stack([](StitchConfig* c) { c->tracker.mapper_timeout_s = kTimeout; }, /*with_mapper=*/false, "");
-  std::mutex mutex;
-  std::vector<stitch::tracking_status_t> statuses;
-  bool beating = true;
-  std::vector<bool> received_while_beating;
-  bus::Subscriber subscriber(stack.lcm.get());
-  subscriber.Subscribe<stitch::tracking_status_t>(
-      bus::Channel("uav0", bus::kTrackingStatus),
-      [&](std::unique_ptr<stitch::tracking_status_t> s, const std::string&) {
-        std::lock_guard<std::mutex> lock(mutex);
-        statuses.push_back(*s);
-        received_while_beating.push_back(beating);
-      });
+  std::atomic<bool> beating{true};
+  std::vector<bool> received_while_beating;  // under the statuses' lock
+  const TrackingStatuses published(
+      stack.lcm.get(), [&](const stitch::tracking_status_t&) { received_while_beating.push_back(beating); });
   std::thread mapper([&] {
     stitch::service_status_t beat;
     beat.service = "mapper";
@@ -387,14 +398,14 @@ TEST(ServicesInProcess, LockstepFramesWaitForAMapperWhoseHeartbeatSaysItIsRunnin
       stack.publisher.Publish(bus::Channel("uav0", bus::kService), &beat);
       std::this_thread::sleep_for(std::chrono::milliseconds(100));
     }
-    std::lock_guard<std::mutex> lock(mutex);
     beating = false;
   });
   const IngestSummary summary = stack.Play("none", 25);
   mapper.join();
   EXPECT_EQ(summary.frames_unacked, 0);
-  std::lock_guard<std::mutex> lock(mutex);
+  const std::vector<stitch::tracking_status_t> statuses = published.Get();
   ASSERT_EQ(statuses.size(), 25u);
+  ASSERT_EQ(received_while_beating.size(), 25u);
   EXPECT_EQ(stack.tracker.mapper_waits(), 1);
   int while_beating = 0;
   for (size_t i = 0; i < statuses.size(); ++i) {
@@ -419,18 +430,10 @@ TEST(ServicesInProcess, LiveFramesNeverWaitForTheMapper) {
         c->ingest.speed = 0.25;  // 5 frames a second
       },
       /*with_mapper=*/false, "");
-  std::mutex mutex;
-  std::vector<stitch::tracking_status_t> statuses;
-  bus::Subscriber subscriber(stack.lcm.get());
-  subscriber.Subscribe<stitch::tracking_status_t>(
-      bus::Channel("uav0", bus::kTrackingStatus),
-      [&](std::unique_ptr<stitch::tracking_status_t> s, const std::string&) {
-        std::lock_guard<std::mutex> lock(mutex);
-        statuses.push_back(*s);
-      });
+  const TrackingStatuses published(stack.lcm.get());
   stack.Play("none", 30);
   EXPECT_EQ(stack.tracker.mapper_waits(), 0);
-  std::lock_guard<std::mutex> lock(mutex);
+  const std::vector<stitch::tracking_status_t> statuses = published.Get();
   ASSERT_FALSE(statuses.empty());
   EXPECT_FALSE(statuses.back().mapper_connected);
   EXPECT_GT(stack.tracker.keyframes_published(), 2);  // more than initialization's two

@@ -206,15 +206,10 @@ std::vector<CulledKeyframe> LocalMapping::CulledKeyframePoses(SubmapId submap) c
       cam_from_ancestor = cam_from_ancestor * it->second->cam_from_parent;
       ancestor = it->second->parent;
     }
-    CulledKeyframe k;
-    k.id = record.id;
-    k.frame_index = record.frame_index;
-    k.t_ns = record.t_ns;
-    k.parent = record.parent;
-    k.cam_from_parent = record.cam_from_parent;
     const Map* map = options_.repose_culled_keyframes ? FindSubmap(SubmapOf(record.id)) : nullptr;
-    k.cam_from_world = map ? PoseOnRefinedMap(*map, record, cam_from_world, geometry_) : cam_from_world;
-    result.push_back(std::move(k));
+    if (map) cam_from_world = PoseOnRefinedMap(*map, record, cam_from_world, geometry_);
+    result.push_back({record.id, record.frame_index, record.t_ns, cam_from_world, record.parent, record.cam_from_parent,
+                      /*observations=*/{}});
   }
   return result;
 }

@@ -234,15 +234,20 @@ TEST(LocalBundleAdjustment, PullsAPerturbedKeyframeAndItsPointsBackToTheTruth) {
 
 // ---------------------------------------------------------------- keyframe culling
 
-TEST(KeyframeCulling, RemovesKeyframesWhosePointsOthersSee) {
-  // Six keyframes of one view (only the sensor noise differs): all but the first and the newest
-  // add nothing.
+// Six keyframes of one view (only the sensor noise differs): all but the first and the newest
+// add nothing.
+Scene SameViewSixTimes() {
   Scene scene;
   for (int i = 0; i < 6; ++i) {
     cv::Mat depth;
     const Frame frame = Strip().RenderPose(Strip().WorldFromCam(0), i, &depth);
     scene.keyframes.push_back(Strip().AddKeyframe(&scene.map, frame, depth, i, i == 0 ? 1 : 1 << 30));
   }
+  return scene;
+}
+
+TEST(KeyframeCulling, RemovesKeyframesWhosePointsOthersSee) {
+  Scene scene = SameViewSixTimes();
   const Map before = scene.map;
   const std::vector<CulledKeyframe> culled =
       CullRedundantKeyframes(&scene.map, scene.keyframes[5], /*keep=*/KeyframeId(), 0.9);
@@ -261,12 +266,7 @@ TEST(KeyframeCulling, RemovesKeyframesWhosePointsOthersSee) {
 }
 
 TEST(KeyframeCulling, ACulledKeyframeIsPosedAgainWhereTheRefinedPointsPutIt) {
-  Scene scene;
-  for (int i = 0; i < 6; ++i) {
-    cv::Mat depth;
-    const Frame frame = Strip().RenderPose(Strip().WorldFromCam(0), i, &depth);
-    scene.keyframes.push_back(Strip().AddKeyframe(&scene.map, frame, depth, i, i == 0 ? 1 : 1 << 30));
-  }
+  Scene scene = SameViewSixTimes();
   const std::vector<CulledKeyframe> culled =
       CullRedundantKeyframes(&scene.map, scene.keyframes[5], /*keep=*/KeyframeId(), 0.9);
   ASSERT_FALSE(culled.empty());
