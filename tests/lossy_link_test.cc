@@ -230,7 +230,7 @@ TEST(LossyLink, AStoppingMapperWaitsForTheMergerToHoldItsLastSubmapWhole) {
 TEST(LossyLink, AFinalStateThatLostAPartIsAskedForAgainAndItsSubmapLetGo) {
   testing::TempDir dir;
   StitchConfig config = LoadStitchConfig(std::string(STITCH_SOURCE_DIR) + "/tests/short_flight.yaml");
-  config.synthetic.flight.num_frames = 100;
+  config.synthetic.flight.num_frames = 40;  // submap 0:1 hands over at about frame 26
   config.synthetic.flight.strip_length_m = 115;
   config.tracker.tracking.submap_max_keyframes = 10;  // submaps hand over during the flight
   config.tracker.tracking.handover_keyframes = 3;
@@ -270,7 +270,7 @@ TEST(LossyLink, AFinalStateThatLostAPartIsAskedForAgainAndItsSubmapLetGo) {
   rig.ground_dispatcher.Stop();
 
   ASSERT_GE(lost_revision, 0) << "submap 0:1's final state went in one part: nothing to lose";
-  EXPECT_GE(handed_over, 2u);
+  EXPECT_GE(handed_over, 1u);
   EXPECT_EQ(released, static_cast<int>(handed_over)) << "a submap handed over was never let go";
   EXPECT_GT(rig.merger.requests_sent(), 0);
   const auto first = rig.merger.merger().submaps().find(MakeSubmapId(0, 1));
