@@ -229,6 +229,7 @@ void TrackerService::WaitForMapper() {
   // sanitizer build): giving up then would make the run depend on the machine's load.
   ++mapper_waits_;
   const double started = MonotonicSeconds();
+  const double longest = std::max(options_.mapper_busy_max_wait_s, options_.mapper_timeout_s);
   bool sent_again = false;
   while (!tracking_->MapperCaughtUp() && running_.load()) {
     ApplyUpdates(std::chrono::milliseconds(20));
@@ -242,7 +243,6 @@ void TrackerService::WaitForMapper() {
         publisher_->Publish(bus::Channel(publisher_->agent(), bus::kKeyframe), &keyframe);
     }
     const double heard = std::max(started, mapper_alive_at_.load());
-    const double longest = std::max(options_.mapper_busy_max_wait_s, options_.mapper_timeout_s);
     if (now - heard > options_.mapper_timeout_s || now - started > longest) break;
   }
   if (!running_.load()) return;  // stopping: no more frames to hold back

@@ -33,7 +33,8 @@ int RecentPoints::Cull(Map* map, KeyframeId keyframe, int keyframes_processed, c
   return culled;
 }
 
-std::vector<CulledKeyframe> CullRedundantKeyframes(Map* map, KeyframeId keyframe, KeyframeId keep, double redundancy) {
+std::vector<CulledKeyframe> CullRedundantKeyframes(Map* map, KeyframeId keyframe, KeyframeId keep, double redundancy,
+                                                   bool keep_observations) {
   std::vector<CulledKeyframe> culled;
   const Keyframe* kf = map->FindKeyframe(keyframe);
   if (!kf) return culled;
@@ -69,7 +70,7 @@ std::vector<CulledKeyframe> CullRedundantKeyframes(Map* map, KeyframeId keyframe
       const Keyframe* parent = map->FindKeyframe(c->parent);
       record.cam_from_parent = parent ? c->cam_from_world * parent->cam_from_world.Inverse() : c->cam_from_world;
       if (!parent) record.parent = KeyframeId();
-      for (size_t i = 0; i < c->points.size(); ++i) {
+      for (size_t i = 0; keep_observations && i < c->points.size(); ++i) {
         if (c->points[i].valid() && map->FindPoint(c->points[i])) {
           record.observations.push_back({c->points[i], c->undistorted[i].cast<float>(), c->keypoints[i].octave});
         }
@@ -93,7 +94,7 @@ Rigid3d PoseOnRefinedMap(const Map& map, const CulledKeyframe& culled, const Rig
     if (!point || o.octave < 0 || o.octave >= static_cast<int>(inverse_sigma2.size())) continue;
     observations.push_back({o.undistorted.cast<double>(), point->position, inverse_sigma2[o.octave]});
   }
-  if (observations.empty() || static_cast<int>(observations.size()) < min_inliers) return cam_from_world;
+  if (observations.size() < 3 || static_cast<int>(observations.size()) < min_inliers) return cam_from_world;
   const PoseOptimizerResult optimized = OptimizePose(observations, cam_from_world, geometry.intrinsics);
   if (!optimized.converged || optimized.num_inliers < min_inliers ||
       2 * optimized.num_inliers < static_cast<int>(observations.size())) {

@@ -58,8 +58,10 @@ struct CulledKeyframe {
 
 // The covisible keyframes of `keyframe` (never `keep`, nor `keyframe` itself) of which more than
 // `redundancy` of the points are seen by at least 3 other keyframes at the same or a finer
-// scale are removed from `map`. Returns them, in the order removed.
-std::vector<CulledKeyframe> CullRedundantKeyframes(Map* map, KeyframeId keyframe, KeyframeId keep, double redundancy);
+// scale are removed from `map`. Returns them, in the order removed, with the points each observed
+// where `keep_observations` (to pose it again later: PoseOnRefinedMap).
+std::vector<CulledKeyframe> CullRedundantKeyframes(Map* map, KeyframeId keyframe, KeyframeId keep, double redundancy,
+                                                   bool keep_observations = true);
 
 // A culled keyframe's pose against the points of `map` it observed, refined since it was culled
 // (by the keyframes that made it redundant), found from `cam_from_world` (its pose through its

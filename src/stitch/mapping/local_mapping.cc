@@ -120,10 +120,9 @@ MappingReport LocalMapping::ProcessKeyframe(Keyframe keyframe, const std::vector
   }
   lap(&times.bundle_adjustment);
   if (options_.cull_keyframes && !report.bundle_adjustment.interrupted) {
-    for (CulledKeyframe& culled :
-         CullRedundantKeyframes(map_.get(), id, first_keyframe_, options_.keyframe_redundancy)) {
+    for (CulledKeyframe& culled : CullRedundantKeyframes(map_.get(), id, first_keyframe_, options_.keyframe_redundancy,
+                                                         options_.repose_culled_keyframes)) {
       report.culled_keyframes.push_back(culled.id);
-      if (!options_.repose_culled_keyframes) culled.observations.clear();
       culled_.push_back(std::move(culled));
     }
   }
