@@ -226,7 +226,7 @@ TEST(LossyLink, AStoppingMapperWaitsForTheMergerToHoldItsLastSubmapWhole) {
 // part says it is closed): the merger asks for that state again once it has been quiet, so it
 // holds the submap whole and says so, and the mapper lets it go during the flight. Before, only
 // an open submap was asked for: this one stayed on the aircraft to the end (a 20,000-frame
-// survey's mapper grew 146 -> 206 MB holding one).
+// survey's mapper grew 146 -> 208 MB holding one).
 TEST(LossyLink, AFinalStateThatLostAPartIsAskedForAgainAndItsSubmapLetGo) {
   testing::TempDir dir;
   StitchConfig config = LoadStitchConfig(std::string(STITCH_SOURCE_DIR) + "/tests/short_flight.yaml");
