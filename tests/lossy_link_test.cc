@@ -278,6 +278,47 @@ TEST(LossyLink, AFinalStateThatLostAPartIsAskedForAgainAndItsSubmapLetGo) {
   EXPECT_TRUE(first->second.closed);
 }
 
+// The flight's end over a link that loses the first part of the last submap's final state (the
+// one with its manifest and removals) while its later parts arrive: the merger does not take the
+// submap as held whole until every part of a final state has come, so the mapper, stopping,
+// lingers and sends it again. Before, the last part alone made it whole: the merger told the
+// mapper so and judged the submap by an older manifest, and a keyframe lost with it was missing
+// from the merged map for good (the split-link test saw it on CI).
+TEST(LossyLink, AFinalStateIsHeldWholeOnlyOnceEveryPartHasArrived) {
+  testing::TempDir dir;
+  AircraftAndGround rig(LoadStitchConfig(std::string(STITCH_SOURCE_DIR) + "/tests/short_flight.yaml"),
+                        dir.path().string());
+  std::atomic<bool> armed{false};
+  std::atomic<int> lost_parts_of{-1};  // the revision whose first part was lost
+  int64_t lost_submap = -1;
+  LossyRelay down(rig.aircraft.get(), rig.ground.get(), "uav0/SUBMAP", 0, 1, [&](const lcm::ReceiveBuffer& buffer) {
+    stitch::submap_update_t update;
+    if (!armed || update.decode(buffer.data, 0, static_cast<int>(buffer.data_size)) < 0 || !update.closed ||
+        update.num_parts < 2 || lost_parts_of >= 0) {
+      return false;
+    }
+    lost_submap = update.submap_id;
+    lost_parts_of = update.revision;
+    return update.part == 0;
+  });
+  LossyRelay up(rig.ground.get(), rig.aircraft.get(), "uav0/SUBMAP_REQUEST", 0, 2);
+  rig.Fly("30:6");
+  armed = true;
+  rig.mapper.Stop();  // closes the last submap: the first part of its final state is lost
+  rig.merger.Stop();
+  rig.aircraft_dispatcher.Stop();
+  rig.ground_dispatcher.Stop();
+
+  ASSERT_GE(lost_parts_of.load(), 0) << "no final state in several parts went down the link after the tracker stopped";
+  EXPECT_EQ(down.dropped(), 1);
+  const auto last = rig.merger.merger().submaps().find(SubmapId(lost_submap));
+  ASSERT_NE(last, rig.merger.merger().submaps().end());
+  EXPECT_TRUE(last->second.closed);
+  EXPECT_GT(last->second.manifest_revision, lost_parts_of.load())
+      << "the merger kept an older manifest than the final state's: the mapper stopped on its word";
+  EXPECT_GT(rig.mapper.submap_resends(), 0);
+}
+
 // The flight ends with the aircraft's link bridge still behind (under its budget): what the
 // mapper sent has not reached the ground, so no merger can ask for what it lacks yet. The mapper,
 // stopping, waits for the bridge to catch up before its linger counts.

@@ -240,7 +240,10 @@ void MapperService::LingerForTheMerger(SubmapId last) {
       break;
     }
     if (merger_confirms_.load()) {
-      if (waiting.empty()) break;
+      if (waiting.empty()) {
+        STITCH_LOG(INFO) << "the merger holds every submap whole";
+        break;
+      }
       // A final state may be what was lost (or the merger's word on it): once more every 2 s
       // while nothing is asked, one submap at a time, the last first (not before what was sent
       // last has had the time to go out: ResendIfRequested holds it).
@@ -250,7 +253,8 @@ void MapperService::LingerForTheMerger(SubmapId last) {
         requests_[waiting.back()].full_state = true;
       }
     } else if (now - counting_from > 2.5 && now - last_request_at_.load() > 2.0) {
-      break;  // a merger that never confirms (or none): quiet for 2 s
+      STITCH_LOG(INFO) << "no request from a merger for 2 s: stopping";
+      break;  // a merger that never confirms (or none)
     }
     ResendIfRequested();
     std::this_thread::sleep_for(std::chrono::milliseconds(20));

@@ -313,7 +313,19 @@ void MergerService::Process(const stitch::submap_update_t& message, bool from_jo
   const std::vector<KeyframeId> missing = merger_.Apply(update);
   ++processed_;
   last_update_[update.submap] = MonotonicSeconds();
-  if (!missing.empty() && update.closed && message.part == message.num_parts - 1) {
+  // A final state comes in parts, the first with the manifest and the removals: it is whole once
+  // every part of its revision has arrived, in whatever order (its last part alone, arrived first
+  // or with the first lost, left the merger judging the submap by an older manifest).
+  bool final_state_whole = false;
+  if (update.closed && update.full_state && message.part >= 0 && message.part < message.num_parts) {
+    FinalStateParts& parts = final_parts_[update.submap];
+    if (message.revision > parts.revision) parts = FinalStateParts{message.revision, message.num_parts, {}};
+    if (message.revision == parts.revision && message.num_parts == parts.num_parts &&
+        parts.received.insert(message.part).second) {
+      final_state_whole = static_cast<int32_t>(parts.received.size()) == parts.num_parts;
+    }
+  }
+  if (!missing.empty() && final_state_whole) {
     STITCH_LOG(WARNING) << "submap " << SubmapName(update.submap) << " closed with " << missing.size()
                         << " keyframes never received (lost on the way"
                         << (merger_.options().request_resends ? "; asking for them again)" : ")");
@@ -321,7 +333,7 @@ void MergerService::Process(const stitch::submap_update_t& message, bool from_jo
   const auto replica = merger_.submaps().find(update.submap);
   if (replica == merger_.submaps().end() || !replica->second.closed) {
     final_whole_.erase(update.submap);  // reopened (or not closed yet)
-  } else if (update.closed && message.part == message.num_parts - 1) {
+  } else if (final_state_whole) {
     final_whole_.insert(update.submap);
     confirmed_complete_.erase(update.submap);  // a final state sent again is confirmed again
   }
@@ -334,9 +346,8 @@ void MergerService::Process(const stitch::submap_update_t& message, bool from_jo
   }
   // A closed submap changes the merged map for good: refine it now (pose graph, fused points,
   // bundle adjustment) in this worker, while the subscriber keeps queueing updates...
-  // ...once its final state has arrived whole (the last part of the closing update).
-  if (update.closed && message.part == message.num_parts - 1 && refined_closed_.insert(update.submap).second &&
-      !recovering_) {
+  // ...once its final state has arrived whole (every part of the closing update).
+  if (final_state_whole && refined_closed_.insert(update.submap).second && !recovering_) {
     RequestWhatWasLost();  // before the refinement's seconds: the mapper may be about to stop
     Refine("submap " + SubmapName(update.submap) + " closed");
   }
@@ -405,6 +416,8 @@ void MergerService::RequestWhatWasLost() {
       complete.submap_id = id.value;
       complete.complete = true;
       publish(id, &complete);
+      STITCH_LOG(INFO) << "holds submap " << SubmapName(id) << " whole (" << replica.manifest.size()
+                       << " keyframes): told its mapper";
     }
     // Left open while a newer submap of its aircraft goes on, and quiet: its final state was lost
     // (a submap the tracker reopened is not quiet). Closed, but its final state never arrived in

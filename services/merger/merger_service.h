@@ -110,11 +110,17 @@ class MergerService {
   std::set<SubmapId> refined_closed_;                      // closed submaps the merged maps were refined with
   std::map<SubmapId, double> last_request_, last_update_;  // MonotonicSeconds()
   std::map<KeyframeId, double> missing_since_;             // listed by a manifest, not received
-  std::set<SubmapId> final_whole_;                         // closed submaps whose final state arrived in all its parts
-  std::set<SubmapId> confirmed_complete_;                  // of those, the ones the mapper was told are held whole
-  std::vector<std::string> agents_;                        // whose submaps it merges
-  std::set<std::string> submap_channels_;                  // their <agent>/SUBMAP
-  std::map<SubmapId, std::string> agent_of_;               // each submap's aircraft (from its updates)
+  struct FinalStateParts {
+    int64_t revision = -1;
+    int32_t num_parts = 0;
+    std::set<int32_t> received;
+  };
+  std::map<SubmapId, FinalStateParts> final_parts_;  // each closed submap's newest final state, as it arrives
+  std::set<SubmapId> final_whole_;                   // closed submaps whose final state arrived in all its parts
+  std::set<SubmapId> confirmed_complete_;            // of those, the ones the mapper was told are held whole
+  std::vector<std::string> agents_;                  // whose submaps it merges
+  std::set<std::string> submap_channels_;            // their <agent>/SUBMAP
+  std::map<SubmapId, std::string> agent_of_;         // each submap's aircraft (from its updates)
   struct NewestRevision {
     int64_t revision = 0;
     double heard_at = 0;  // MonotonicSeconds()
