@@ -28,7 +28,7 @@ function(stitch_add_test name)
     math(EXPR ARG_TIMEOUT "${ARG_TIMEOUT} * ${STITCH_TEST_TIMEOUT_SCALE}")
   endif()
   add_executable(${name} ${ARG_SOURCES})
-  target_link_libraries(${name} PRIVATE ${ARG_LIBS} GTest::gtest GTest::gtest_main)
+  target_link_libraries(${name} PRIVATE ${ARG_LIBS} stitch_testing GTest::gtest GTest::gtest_main)
   target_compile_definitions(${name} PRIVATE
     STITCH_BIN_DIR="${CMAKE_BINARY_DIR}/bin"
     STITCH_SOURCE_DIR="${PROJECT_SOURCE_DIR}"
@@ -51,6 +51,6 @@ function(stitch_add_benchmark name)
   endif()
   cmake_parse_arguments(ARG "" "" "SOURCES;LIBS" ${ARGN})
   add_executable(${name} ${ARG_SOURCES})
-  target_link_libraries(${name} PRIVATE ${ARG_LIBS} benchmark::benchmark)
+  target_link_libraries(${name} PRIVATE ${ARG_LIBS} stitch_testing benchmark::benchmark)
   target_compile_definitions(${name} PRIVATE STITCH_DATASETS_DIR="${STITCH_DATASETS_DIR}" STITCH_SOURCE_DIR="${PROJECT_SOURCE_DIR}")
 endfunction()

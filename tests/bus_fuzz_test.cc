@@ -11,7 +11,7 @@
 
 #include <gtest/gtest.h>
 
-#include "services/config/stitch_config.h"
+#include "stitch/config/stitch_config.h"
 #include "services/ingest/ingest_service.h"
 #include "services/mapper/mapper_service.h"
 #include "services/merger/merger_service.h"

@@ -20,7 +20,7 @@
 #include "services/common/convert.h"
 #include "services/common/map_convert.h"
 #include "services/common/update_journal.h"
-#include "services/config/stitch_config.h"
+#include "stitch/config/stitch_config.h"
 #include "stitch/eval/evaluation.h"
 #include "stitch/io/ply.h"
 #include "stitch/io/trajectory.h"

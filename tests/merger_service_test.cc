@@ -6,7 +6,7 @@
 #include <gtest/gtest.h>
 
 #include "services/common/map_convert.h"
-#include "services/config/stitch_config.h"
+#include "stitch/config/stitch_config.h"
 #include "services/merger/merger_service.h"
 #include "stitch/pipeline/inline_pipeline.h"
 #include "stitch/source/source.h"
@@ -100,34 +100,6 @@ TEST(MergerServiceInProcess, AForgedRevisionFarAheadIsRefusedAndTheRealUpdatesSt
     ASSERT_NE(received, nullptr);
     EXPECT_LT((received->position - point.position).norm(), 1e-9) << id.value;
   }
-}
-
-// The check after placement in the service: a merge whose junction the final adjustment does not
-// hold as well as asked is rolled back, its edge refused with the reason, and the submaps stay two
-// maps. Asked to keep every joining observation (no real adjustment does), the check doubts the
-// merge that the default keeps.
-TEST(MergerServiceInProcess, AMergeWhoseJunctionTheAdjustmentDoesNotHoldIsRolledBack) {
-  StitchConfig config = ShortFlight();
-  config.synthetic.flight.num_frames = 200;
-  config.synthetic.flight.strip_length_m = 1.15 * 200;
-  const Vocabulary vocabulary = LoadVocabulary(config);
-  const std::vector<stitch::submap_update_t> updates = MappersUpdates(config, vocabulary, "90:10");
-
-  MergerOnMemq by_default(config, vocabulary);
-  for (const auto& update : updates) by_default.Send(update);
-  const Merger::Graph merged = by_default.Finish().Solve();
-  ASSERT_EQ(merged.placement.size(), 2u);
-  ASSERT_EQ(merged.tree.size(), 1u) << "merged";
-
-  config.merger.acceptance.min_junction_kept = 1.0;
-  MergerOnMemq strict(config, vocabulary);
-  for (const auto& update : updates) strict.Send(update);
-  const Merger::Graph rolled_back = strict.Finish().Solve();
-  EXPECT_TRUE(rolled_back.tree.empty());
-  ASSERT_EQ(rolled_back.edges.size(), 1u);
-  EXPECT_EQ(rolled_back.edges[0].refused.rfind("after placement the bundle adjustment kept ", 0), 0u)
-      << rolled_back.edges[0].refused;
-  EXPECT_NE(rolled_back.placement.begin()->second.component, rolled_back.placement.rbegin()->second.component);
 }
 
 }  // namespace

@@ -14,7 +14,7 @@
 
 #include "services/common/convert.h"
 #include "services/common/map_convert.h"
-#include "services/config/stitch_config.h"
+#include "stitch/config/stitch_config.h"
 #include "services/ingest/ingest_service.h"
 #include "services/mapper/mapper_service.h"
 #include "services/tracker/tracker_service.h"
@@ -299,9 +299,9 @@ SubmapBytes FlyAndCountSubmapBytes(bool thin, double link_backlog_s = 0) {
   testing::TempDir dir;
   InProcessStack stack(
       [thin](StitchConfig* c) {
-        c->mapper.submap_point_resend_fraction = thin ? 0.01 : 0.0;
-        c->mapper.submap_window_associations = !thin;
-        c->mapper.stop_link_drain_s = 0;  // the reported backlog never goes out here
+        c->mapper.delivery.submap_point_resend_fraction = thin ? 0.01 : 0.0;
+        c->mapper.delivery.submap_window_associations = !thin;
+        c->mapper.delivery.stop_link_drain_s = 0;  // the reported backlog never goes out here
       },
       /*with_mapper=*/true, dir.path().string());
   MergerSide merger(stack.lcm.get(), ScalePyramid::From(stack.config.tracker.tracking.orb));
@@ -543,10 +543,10 @@ void SayToTheMapper(bus::Publisher* publisher, double link_backlog_s, KeyframeId
 int TimesAKeyframeIsSentWhileTheMergerKeepsAskingForIt(double link_backlog_s) {
   InProcessStack stack(
       [](StitchConfig* c) {
-        c->mapper.stop_linger_s = 2;
-        c->mapper.stop_link_drain_s = 0;     // the reported backlog never goes out here
-        c->mapper.resend_max_hold_s = 3600;  // longer than the flight takes under any sanitizer
-        c->mapper.link_backlog_defer_s = 0;  // answered behind any backlog (the test below waits)
+        c->mapper.delivery.stop_linger_s = 2;
+        c->mapper.delivery.stop_link_drain_s = 0;     // the reported backlog never goes out here
+        c->mapper.delivery.resend_max_hold_s = 3600;  // longer than the flight takes under any sanitizer
+        c->mapper.delivery.link_backlog_defer_s = 0;  // answered behind any backlog (the test below waits)
       },
       /*with_mapper=*/true, "");
   const KeyframeId wanted = MakeKeyframeId(MakeSubmapId(0, 1), 1);
@@ -592,9 +592,9 @@ struct DeferredFlight {
 DeferredFlight FlyBehindALinkThatFallsBehind(double defer_s) {
   InProcessStack stack(
       [defer_s](StitchConfig* c) {
-        c->mapper.stop_linger_s = 2;
-        c->mapper.stop_link_drain_s = 0;
-        c->mapper.link_backlog_defer_s = defer_s;
+        c->mapper.delivery.stop_linger_s = 2;
+        c->mapper.delivery.stop_link_drain_s = 0;
+        c->mapper.delivery.link_backlog_defer_s = defer_s;
       },
       /*with_mapper=*/true, "");
   const KeyframeId wanted = MakeKeyframeId(MakeSubmapId(0, 1), 3);
@@ -645,7 +645,7 @@ TEST(ServicesInProcess, TheMapperLetsGoOfASubmapOnlyOnceTheMergerHoldsItWholeAnd
         c->tracker.tracking.submap_max_keyframes = 10;
         c->tracker.tracking.handover_keyframes = 3;
         c->tracker.tracking.closed_keyframes_held = 0;
-        c->mapper.stop_linger_s = 1;  // submap 2 is never confirmed: the stop need not wait 10 s for it
+        c->mapper.delivery.stop_linger_s = 1;  // submap 2 is never confirmed: the stop need not wait 10 s for it
       },
       /*with_mapper=*/true, dir.path().string());
   // A merger that says it holds every submap whole but submap 2.

@@ -5,6 +5,7 @@
 
 #include <opencv2/imgcodecs.hpp>
 
+#include "stitch/tracking_status_t.hpp"
 #include "stitch/util/error.h"
 
 namespace stitch {
@@ -200,6 +201,49 @@ cv::Mat DecodeImage(const stitch::frame_t& frame) {
     return image;
   }
   throw Error("frame " + std::to_string(frame.frame_index) + ": unknown encoding " + std::to_string(frame.encoding));
+}
+
+stitch::submap_request_t ToMessage(const DeliveryRequest& request) {
+  stitch::submap_request_t m{};
+  m.submap_id = request.submap.value;
+  m.full_state = request.full_state;
+  m.complete = request.complete;
+  for (KeyframeId id : request.keyframes) m.keyframe_ids.push_back(id.value);
+  m.num_keyframes = static_cast<int32_t>(m.keyframe_ids.size());
+  return m;
+}
+
+DeliveryRequest FromMessage(const stitch::submap_request_t& message) {
+  DeliveryRequest request;
+  request.submap = SubmapId(message.submap_id);
+  request.full_state = message.full_state;
+  request.complete = message.complete;
+  for (int64_t id : message.keyframe_ids) request.keyframes.push_back(KeyframeId(id));
+  return request;
+}
+
+int8_t ToMessageState(TrackingState state) {
+  switch (state) {
+    case TrackingState::kInitializing:
+      return stitch::tracking_status_t::STATE_INITIALIZING;
+    case TrackingState::kOk:
+      return stitch::tracking_status_t::STATE_OK;
+    case TrackingState::kLost:
+      return stitch::tracking_status_t::STATE_LOST;
+    case TrackingState::kSkipped:
+      return stitch::tracking_status_t::STATE_SKIPPED;
+    case TrackingState::kNotTracked:
+      return stitch::tracking_status_t::STATE_NOT_TRACKED;
+  }
+  return stitch::tracking_status_t::STATE_NOT_TRACKED;
+}
+
+const char* MessageStateName(int8_t state) {
+  for (TrackingState s : {TrackingState::kInitializing, TrackingState::kOk, TrackingState::kLost,
+                          TrackingState::kSkipped, TrackingState::kNotTracked}) {
+    if (ToMessageState(s) == state) return TrackingStateName(s);
+  }
+  return "UNKNOWN";
 }
 
 }  // namespace stitch

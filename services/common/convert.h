@@ -8,12 +8,15 @@
 #include <opencv2/core.hpp>
 
 #include "stitch/camera_t.hpp"
+#include "stitch/delivery/delivery.h"
 #include "stitch/frame_pose_t.hpp"
 #include "stitch/frame_t.hpp"
 #include "stitch/geometry/camera.h"
 #include "stitch/geometry/rigid3.h"
 #include "stitch/rigid3_t.hpp"
 #include "stitch/sim3_t.hpp"
+#include "stitch/submap_request_t.hpp"
+#include "stitch/tracking/tracking_result.h"
 #include "stitch/util/ids.h"
 
 namespace stitch {
@@ -34,6 +37,16 @@ Rigid3d FromFloatPose(const float* wxyz_xyz, const char* what);
 // `cam_from_reference`: tracked against no keyframe.
 stitch::frame_pose_t FramePoseMessage(int frame_index, int64_t t_ns, SubmapId submap, const Rigid3d& cam_from_submap,
                                       KeyframeId reference, const std::optional<Rigid3d>& cam_from_reference);
+
+// Tracking states on the bus (tracking_status_t::STATE_*), and the name of one as
+// TrackingStateName says it ("UNKNOWN" for a value no tracker sends).
+int8_t ToMessageState(TrackingState state);
+const char* MessageStateName(int8_t state);
+
+// The merger's requests to a mapper (<agent>/SUBMAP_REQUEST). The reader takes ids as they come
+// (the sender finds no submap or keyframe for one not its own).
+stitch::submap_request_t ToMessage(const DeliveryRequest& request);
+DeliveryRequest FromMessage(const stitch::submap_request_t& message);
 
 enum class ImageEncoding { kGray8, kJpeg };
 // Parses "gray8" or "jpeg"; throws stitch::Error otherwise.

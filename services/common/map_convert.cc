@@ -218,24 +218,27 @@ LocalMapUpdate FromMessage(const stitch::local_map_update_t& m) {
   return update;
 }
 
+stitch::submap_update_t ToMessage(const SubmapUpdate& part, int32_t index, int32_t count) {
+  stitch::submap_update_t m{};
+  m.submap_id = part.submap.value;
+  m.revision = part.revision;
+  m.part = index;
+  m.num_parts = count;
+  m.closed = part.closed;
+  m.full_state = part.full_state;
+  for (const Keyframe& keyframe : part.new_keyframes) m.keyframes.push_back(ToMessage(keyframe, *part.camera, {}));
+  m.num_keyframes = static_cast<int32_t>(m.keyframes.size());
+  EncodeChanges(part.changes, &stitch::submap_update_t::pose_keyframe_ids, &stitch::submap_update_t::num_poses, &m);
+  for (KeyframeId id : part.manifest) m.manifest_keyframe_ids.push_back(id.value);
+  m.num_manifest = static_cast<int32_t>(m.manifest_keyframe_ids.size());
+  return m;
+}
+
 std::vector<stitch::submap_update_t> ToMessages(const SubmapUpdate& update, size_t max_part_bytes) {
   const std::vector<SubmapUpdate> parts = SplitSubmapUpdate(update, max_part_bytes);
   std::vector<stitch::submap_update_t> messages;
   for (size_t p = 0; p < parts.size(); ++p) {
-    const SubmapUpdate& part = parts[p];
-    stitch::submap_update_t m{};
-    m.submap_id = part.submap.value;
-    m.revision = part.revision;
-    m.part = static_cast<int32_t>(p);
-    m.num_parts = static_cast<int32_t>(parts.size());
-    m.closed = part.closed;
-    m.full_state = part.full_state;
-    for (const Keyframe& keyframe : part.new_keyframes) m.keyframes.push_back(ToMessage(keyframe, *part.camera, {}));
-    m.num_keyframes = static_cast<int32_t>(m.keyframes.size());
-    EncodeChanges(part.changes, &stitch::submap_update_t::pose_keyframe_ids, &stitch::submap_update_t::num_poses, &m);
-    for (KeyframeId id : part.manifest) m.manifest_keyframe_ids.push_back(id.value);
-    m.num_manifest = static_cast<int32_t>(m.manifest_keyframe_ids.size());
-    messages.push_back(std::move(m));
+    messages.push_back(ToMessage(parts[p], static_cast<int32_t>(p), static_cast<int32_t>(parts.size())));
   }
   return messages;
 }

@@ -35,6 +35,9 @@ ReceivedKeyframe FromMessage(const stitch::keyframe_t& message, const ScalePyram
 std::vector<stitch::local_map_update_t> ToMessages(const LocalMapUpdate& update, size_t max_part_bytes = 60000);
 LocalMapUpdate FromMessage(const stitch::local_map_update_t& message);
 
+// Part `index` of `count` of an update (SplitSubmapUpdate) as its message; `part.camera` must be
+// set when it carries keyframes.
+stitch::submap_update_t ToMessage(const SubmapUpdate& part, int32_t index, int32_t count);
 // One LCM message per part (see SplitSubmapUpdate); `update.camera` must be set when it carries
 // keyframes.
 std::vector<stitch::submap_update_t> ToMessages(const SubmapUpdate& update, size_t max_part_bytes = 60000);

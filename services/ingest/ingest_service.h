@@ -9,7 +9,7 @@
 #include <string>
 
 #include "services/common/bus.h"
-#include "services/ingest/ingest_options.h"
+#include "stitch/config/ingest_options.h"
 #include "stitch/frame_ack_t.hpp"
 #include "stitch/io/failure_schedule.h"
 #include "stitch/io/image_sequence.h"

@@ -34,7 +34,7 @@
 #include <lcm/lcm-cpp.hpp>
 
 #include "services/link/link_auth.h"
-#include "services/link/link_options.h"
+#include "stitch/config/link_options.h"
 #include "services/link/link_wire.h"
 #include "stitch/link_status_t.hpp"
 #include "stitch/util/rng.h"

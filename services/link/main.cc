@@ -5,9 +5,7 @@
 #include <thread>
 #include <vector>
 
-#include "services/common/bus.h"
-#include "services/common/service.h"
-#include "services/config/stitch_config.h"
+#include "services/common/service_main.h"
 #include "services/link/link_auth.h"
 #include "services/link/link_bridge.h"
 #include "stitch/util/error.h"
@@ -71,41 +69,36 @@ int main(int argc, char** argv) {
       "              --accept 'uav0/(SUBMAP|SEQUENCE|TRACKING_STATUS|POSE|SERVICE|LINK_STATUS)' --peer 10.0.0.2:7720\n"
       "Every 10 s the log says what was sent, repaired and received.\n");
   if (!args.Parse(argc, argv)) return args.exit_code();
-  try {
-    common.Apply("link");
-    std::vector<std::string> settings = common.settings;
-    if (args.Given("--forward")) settings.push_back(TextSetting("link.forward", given.forward));
-    if (args.Given("--accept")) settings.push_back(TextSetting("link.accept", given.accept));
-    if (args.Given("--listen")) settings.push_back(TextSetting("link.listen", given.listen));
-    if (args.Given("--peer")) settings.push_back(TextSetting("link.peer", given.peer));
-    if (args.Given("--budget")) settings.push_back(NumberSetting("link.budget_bytes_per_s", given.budget_bytes_per_s));
-    if (args.Given("--key")) settings.push_back(TextSetting("link.key_file", given.key_file));
-    if (given.insecure) settings.push_back("link.insecure=true");
-    if (args.Given("--loss")) settings.push_back(NumberSetting("link.loss", given.loss));
-    if (args.Given("--delay-ms")) settings.push_back(NumberSetting("link.delay_ms", given.delay_ms));
-    if (args.Given("--jitter-ms")) settings.push_back(NumberSetting("link.jitter_ms", given.jitter_ms));
-    if (args.Given("--seed")) settings.push_back("link.seed=" + std::to_string(given.seed));
-    const StitchConfig config = LoadStitchConfig(common.config_path, settings);
-    const LinkOptions& options = config.link;
-    const auto& stop = InstallStopSignals();
-    auto lcm = bus::OpenLcm(common.lcm_url);
-    LinkBridge bridge(lcm.get(), options);
-    bus::Dispatcher dispatcher(lcm.get());
+  std::vector<std::string> settings = common.settings;
+  if (args.Given("--forward")) settings.push_back(TextSetting("link.forward", given.forward));
+  if (args.Given("--accept")) settings.push_back(TextSetting("link.accept", given.accept));
+  if (args.Given("--listen")) settings.push_back(TextSetting("link.listen", given.listen));
+  if (args.Given("--peer")) settings.push_back(TextSetting("link.peer", given.peer));
+  if (args.Given("--budget")) settings.push_back(NumberSetting("link.budget_bytes_per_s", given.budget_bytes_per_s));
+  if (args.Given("--key")) settings.push_back(TextSetting("link.key_file", given.key_file));
+  if (given.insecure) settings.push_back("link.insecure=true");
+  if (args.Given("--loss")) settings.push_back(NumberSetting("link.loss", given.loss));
+  if (args.Given("--delay-ms")) settings.push_back(NumberSetting("link.delay_ms", given.delay_ms));
+  if (args.Given("--jitter-ms")) settings.push_back(NumberSetting("link.jitter_ms", given.jitter_ms));
+  if (args.Given("--seed")) settings.push_back("link.seed=" + std::to_string(given.seed));
+  return RunService("link", common, settings, [&](ServiceProcess& process) {
+    const LinkOptions& options = process.config.link;
+    LinkBridge bridge(process.lcm, options);
+    bus::Dispatcher dispatcher(process.lcm);
     dispatcher.Start();
     bridge.Start();
     STITCH_LOG(INFO) << "bridging " << common.lcm_url;
     // Once a second, the figures on this side's <agent>/LINK_STATUS.
-    bus::Publisher publisher(lcm.get(), common.agent);
     const std::string status_channel = bus::Channel(common.agent, bus::kLinkStatus);
     double last_status = MonotonicSeconds();
     int64_t last_bytes = 0;
-    while (!stop.load()) {
+    while (!process.stop.load()) {
       std::this_thread::sleep_for(std::chrono::milliseconds(50));
       const double now = MonotonicSeconds();
       if (now - last_status < 1.0) continue;
       const int64_t bytes = bridge.counts().bytes_sent;
       stitch::link_status_t status = bridge.Status((bytes - last_bytes) / (now - last_status));
-      publisher.Publish(status_channel, &status);
+      process.publisher->Publish(status_channel, &status);
       last_status = now;
       last_bytes = bytes;
     }
@@ -123,8 +116,5 @@ int main(int argc, char** argv) {
     bridge.Stop();
     STITCH_LOG(INFO) << "stopped: " << bridge.Describe();
     return 0;
-  } catch (const std::exception& e) {
-    std::fprintf(stderr, "stitch-link: %s\n", e.what());
-    return 1;
-  }
+  });
 }

@@ -1,11 +1,6 @@
 // stitch-merger: joins the submaps on <agent>/SUBMAP into one map (ground station).
 
-#include <cstdio>
-#include <thread>
-
-#include "services/common/bus.h"
-#include "services/common/service.h"
-#include "services/config/stitch_config.h"
+#include "services/common/service_main.h"
 #include "services/merger/merger_service.h"
 #include "stitch/util/time.h"
 
@@ -28,32 +23,20 @@ int main(int argc, char** argv) {
                  "merge the submaps of these aircraft (their <agent>/SUBMAP), e.g. uav0,uav1 (default: --agent); each "
                  "aircraft needs its own tracker.tracking.agent_number");
   if (!args.Parse(argc, argv)) return args.exit_code();
-  try {
-    common.Apply("merger");
-    const StitchConfig config = LoadStitchConfig(common.config_path, common.settings);
-    const Vocabulary vocabulary = LoadVocabulary(config);
-    const auto& stop = InstallStopSignals();
-    auto lcm = bus::OpenLcm(common.lcm_url);
-    bus::Publisher publisher(lcm.get(), common.agent);
-    MergerService merger(lcm.get(), &publisher, config.merger, config.tracker.tracking.orb, &vocabulary, record_dir,
-                         state_dir, bus::SplitAgents(agents_list));
-    bus::Dispatcher dispatcher(lcm.get());
-    dispatcher.Start();
-    merger.Start();
-    STITCH_LOG(INFO) << "listening on " << common.lcm_url;
-    while (!stop.load()) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  return RunService("merger", common, common.settings, [&](ServiceProcess& process) {
+    const Vocabulary vocabulary = LoadVocabulary(process.config);
+    MergerService merger(process.lcm, process.publisher, process.config.merger, process.config.tracker.tracking.orb,
+                         &vocabulary, record_dir, state_dir, bus::SplitAgents(agents_list));
     // The mappers send their final submap states as they stop: keep listening until the bus has
     // been quiet for half a second (at most 5 s).
-    const double deadline = MonotonicSeconds() + 5.0;
-    while (MonotonicSeconds() < deadline && MonotonicSeconds() - merger.last_receive_time() < 0.5) {
-      std::this_thread::sleep_for(std::chrono::milliseconds(50));
-    }
-    dispatcher.Stop();
-    merger.Stop();
+    const auto until_quiet = [&] {
+      const double deadline = MonotonicSeconds() + 5.0;
+      while (MonotonicSeconds() < deadline && MonotonicSeconds() - merger.last_receive_time() < 0.5) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(50));
+      }
+    };
+    process.RunUntilStopped(merger, ServiceProcess::StopOrder::kBusFirst, until_quiet);
     STITCH_LOG(INFO) << "stopped after " << merger.updates_received() << " submap updates";
     return 0;
-  } catch (const std::exception& e) {
-    std::fprintf(stderr, "stitch-merger: %s\n", e.what());
-    return 1;
-  }
+  });
 }

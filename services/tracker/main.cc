@@ -1,11 +1,6 @@
 // stitch-tracker: tracks each frame from <agent>/FRAME and publishes poses and keyframes.
 
-#include <cstdio>
-#include <thread>
-
-#include "services/common/bus.h"
-#include "services/common/service.h"
-#include "services/config/stitch_config.h"
+#include "services/common/service_main.h"
 #include "services/tracker/tracker_service.h"
 #include "stitch/util/options.h"
 
@@ -22,28 +17,14 @@ int main(int argc, char** argv) {
   args.AddOption("--state", &state_file, "FILE",
                  "keep the next submap number in FILE across restarts (overrides the config)");
   if (!args.Parse(argc, argv)) return args.exit_code();
-  try {
-    common.Apply("tracker");
-    std::vector<std::string> settings = common.settings;
-    if (args.Given("--on-loss")) settings.push_back(TextSetting("tracker.on_loss", on_loss));
-    if (args.Given("--state")) settings.push_back(TextSetting("tracker.state_file", state_file));
-    const StitchConfig config = LoadStitchConfig(common.config_path, settings);
-    const Vocabulary vocabulary = LoadVocabulary(config);
-    const auto& stop = InstallStopSignals();
-    auto lcm = bus::OpenLcm(common.lcm_url);
-    bus::Publisher publisher(lcm.get(), common.agent);
-    TrackerService tracker(lcm.get(), &publisher, config.tracker, &vocabulary, record_path);
-    bus::Dispatcher dispatcher(lcm.get());
-    dispatcher.Start();
-    tracker.Start();
-    STITCH_LOG(INFO) << "listening on " << common.lcm_url;
-    while (!stop.load()) std::this_thread::sleep_for(std::chrono::milliseconds(50));
-    dispatcher.Stop();
-    tracker.Stop();
+  std::vector<std::string> settings = common.settings;
+  if (args.Given("--on-loss")) settings.push_back(TextSetting("tracker.on_loss", on_loss));
+  if (args.Given("--state")) settings.push_back(TextSetting("tracker.state_file", state_file));
+  return RunService("tracker", common, settings, [&](ServiceProcess& process) {
+    const Vocabulary vocabulary = LoadVocabulary(process.config);
+    TrackerService tracker(process.lcm, process.publisher, process.config.tracker, &vocabulary, record_path);
+    process.RunUntilStopped(tracker, ServiceProcess::StopOrder::kBusFirst);
     STITCH_LOG(INFO) << "stopped after " << tracker.frames_tracked() << " frames";
     return 0;
-  } catch (const std::exception& e) {
-    std::fprintf(stderr, "stitch-tracker: %s\n", e.what());
-    return 1;
-  }
+  });
 }

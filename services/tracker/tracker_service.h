@@ -19,7 +19,7 @@
 
 #include "services/common/bus.h"
 #include "services/common/service.h"
-#include "services/tracker/tracker_options.h"
+#include "stitch/config/tracker_options.h"
 #include "stitch/frame_ack_t.hpp"
 #include "stitch/frame_t.hpp"
 #include "stitch/keyframe_t.hpp"

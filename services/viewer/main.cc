@@ -1,12 +1,8 @@
 // stitch-viewer: the ground's live view of the flight, a web page served by this machine.
 
-#include <cstdio>
-#include <thread>
-
-#include "services/common/bus.h"
-#include "services/common/service.h"
-#include "services/config/stitch_config.h"
+#include "services/common/service_main.h"
 #include "services/viewer/viewer_service.h"
+#include "stitch/util/options.h"
 
 int main(int argc, char** argv) {
   using namespace stitch;
@@ -25,26 +21,13 @@ int main(int argc, char** argv) {
                  "address to listen on (viewer.bind_address, default 127.0.0.1: this machine only; the page has no "
                  "login)");
   if (!args.Parse(argc, argv)) return args.exit_code();
-  try {
-    common.Apply("viewer");
-    std::vector<std::string> settings = common.settings;
-    if (!port.empty()) settings.push_back("viewer.port=" + port);
-    if (!bind.empty()) settings.push_back(TextSetting("viewer.bind_address", bind));
-    const StitchConfig config = LoadStitchConfig(common.config_path, settings);
-    const auto& stop = InstallStopSignals();
-    auto lcm = bus::OpenLcm(common.lcm_url);
-    bus::Publisher publisher(lcm.get(), common.agent);
-    ViewerService viewer(lcm.get(), &publisher, config.viewer, bus::SplitAgents(agents_list));
-    bus::Dispatcher dispatcher(lcm.get());
-    dispatcher.Start();
-    viewer.Start();
-    STITCH_LOG(INFO) << "serving " << viewer.url() << " (listening on " << common.lcm_url << ")";
-    while (!stop.load()) std::this_thread::sleep_for(std::chrono::milliseconds(50));
-    dispatcher.Stop();
-    viewer.Stop();
+  std::vector<std::string> settings = common.settings;
+  if (!port.empty()) settings.push_back("viewer.port=" + port);
+  if (!bind.empty()) settings.push_back(TextSetting("viewer.bind_address", bind));
+  return RunService("viewer", common, settings, [&](ServiceProcess& process) {
+    ViewerService viewer(process.lcm, process.publisher, process.config.viewer, bus::SplitAgents(agents_list));
+    STITCH_LOG(INFO) << "serving " << viewer.url();
+    process.RunUntilStopped(viewer, ServiceProcess::StopOrder::kBusFirst);
     return 0;
-  } catch (const std::exception& e) {
-    std::fprintf(stderr, "stitch-viewer: %s\n", e.what());
-    return 1;
-  }
+  });
 }

@@ -11,7 +11,7 @@
 #include <mutex>
 #include <string>
 
-#include "services/viewer/viewer_options.h"
+#include "stitch/config/viewer_options.h"
 #include "services/viewer/viewer_state.h"
 
 struct mg_context;

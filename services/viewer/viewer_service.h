@@ -12,7 +12,7 @@
 
 #include "services/common/bus.h"
 #include "services/common/service.h"
-#include "services/viewer/viewer_options.h"
+#include "stitch/config/viewer_options.h"
 #include "services/viewer/viewer_server.h"
 #include "services/viewer/viewer_state.h"
 

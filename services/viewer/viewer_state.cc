@@ -23,23 +23,6 @@ constexpr size_t kFrameRateWindow = 30;
 const uint8_t kPalette[][3] = {{30, 90, 200}, {220, 40, 40}, {40, 160, 40}, {180, 40, 180},  {220, 150, 20},
                                {0, 140, 140}, {160, 60, 90}, {200, 110, 0}, {100, 100, 100}, {180, 180, 60}};
 
-const char* StateName(int8_t state) {
-  switch (state) {
-    case stitch::tracking_status_t::STATE_INITIALIZING:
-      return "INITIALIZING";
-    case stitch::tracking_status_t::STATE_OK:
-      return "OK";
-    case stitch::tracking_status_t::STATE_LOST:
-      return "LOST";
-    case stitch::tracking_status_t::STATE_SKIPPED:
-      return "SKIPPED";
-    case stitch::tracking_status_t::STATE_NOT_TRACKED:
-      return "NOT_TRACKED";
-    default:
-      return "UNKNOWN";
-  }
-}
-
 bool Finite(double value) {
   return std::isfinite(value);
 }
@@ -170,7 +153,7 @@ std::string ViewerState::LiveJson(double now_s) const {
         const double span = a.frame_times.back() - a.frame_times.front();
         if (span > 0) fps = static_cast<double>(a.frame_times.size() - 1) / span;
       }
-      j["tracking"] = {{"state", StateName(s.state)},
+      j["tracking"] = {{"state", MessageStateName(s.state)},
                        {"reason", s.reason},
                        {"detail", s.detail},
                        {"frame", s.frame_index},

@@ -18,7 +18,7 @@
 
 #include <nlohmann/json.hpp>
 
-#include "services/config/stitch_config.h"
+#include "stitch/config/stitch_config.h"
 #include "stitch/pipeline/inline_pipeline.h"
 #include "stitch/source/source.h"
 #include "stitch/util/args.h"
@@ -27,7 +27,7 @@
 #include "stitch/util/text_file.h"
 #include "stitch/util/time.h"
 #include "tools/stitch/commands.h"
-#include "tools/stitch/quality_gate.h"
+#include "tools/stitch/quality/quality_gate.h"
 
 namespace stitch {
 namespace {
@@ -51,19 +51,15 @@ Stat Summarize(std::vector<double> values) {
 }
 
 struct BenchArgs {
-  std::string dataset, calibration, config_path, settings, failures = "none", json_path;
-  int max_frames = -1;
+  SourceSpec source;  // with failures "none" by default: the flight without gusts
+  std::string config_path, settings, json_path;
 };
 
 // One run in this process: prints the figures and returns them as JSON.
 nlohmann::json BenchOnce(const BenchArgs& a) {
   const StitchConfig config = ApplySettings(LoadStitchConfig(a.config_path), a.settings);
   const Vocabulary vocabulary = LoadVocabulary(config);
-  SourceSpec spec;
-  spec.dataset_path = a.dataset;
-  spec.calibration_path = a.calibration;
-  spec.failures = a.failures;
-  spec.max_frames = a.max_frames;
+  SourceSpec spec = a.source;
   spec.synthetic = config.synthetic;
   FailureSchedule spoil;
   auto sequence = OpenSource(spec, &spoil);
@@ -229,9 +225,11 @@ nlohmann::json BenchOptions(const BenchArgs& a) {
     std::string settings = a.settings;
     if (!v.settings.empty()) settings += (settings.empty() ? "" : ",") + v.settings;
     std::vector<std::string> args{
-        "bench", "--failures", a.failures, "--json", json_path, "--max-frames", std::to_string(a.max_frames)};
-    const std::pair<const char*, const std::string*> passed[] = {
-        {"--dataset", &a.dataset}, {"--calib", &a.calibration}, {"--config", &a.config_path}, {"--set", &settings}};
+        "bench", "--failures", a.source.failures, "--json", json_path, "--max-frames", std::to_string(a.source.max_frames)};
+    const std::pair<const char*, const std::string*> passed[] = {{"--dataset", &a.source.dataset_path},
+                                                                 {"--calib", &a.source.calibration_path},
+                                                                 {"--config", &a.config_path},
+                                                                 {"--set", &settings}};
     for (const auto& [flag, value] : passed) {
       if (value->empty()) continue;
       args.push_back(flag);
@@ -286,15 +284,12 @@ int BenchCommand(int argc, char** argv) {
                  "tracking losses and accuracy. With --options, once per speed option switched, side by side. "
                  "Without --dataset, the synthetic flight without gusts. With --quality, the quality gate (see "
                  "stitch bench --quality --help).");
-  args.AddOption("--dataset", &a.dataset, "PATH", "sequence to time (default: the synthetic flight)");
-  args.AddOption("--calib", &a.calibration, "FILE", "calibration overriding the dataset's own");
+  a.source.failures = "none";
+  AddSourceOptions(&args, &a.source, kDatasetFlag | kCalibFlag | kFailuresFlag | kMaxFramesFlag);
   args.AddOption("--config", &a.config_path, "FILE",
                  "YAML settings (e.g. synthetic.width: 752 for EuRoC-sized frames)");
   args.AddOption("--set", &a.settings, "K=V,...",
                  "settings over the configuration, e.g. tracker.tracking.orb.threads=2");
-  args.AddOption("--failures", &a.failures, "SPEC",
-                 "induced failures (synthetic flight): none, default or FRAME:LENGTH,...");
-  args.AddOption("--max-frames", &a.max_frames, "N", "time at most N frames");
   args.AddFlag("--options", &options,
                "run once per speed option switched (homography tracking and its region of interest, reference "
                "matching, extraction threads, keyframe worker) and print them side by side");

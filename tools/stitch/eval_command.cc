@@ -9,7 +9,7 @@
 #include "stitch/util/args.h"
 #include "stitch/util/error.h"
 #include "tools/stitch/commands.h"
-#include "tools/stitch/run_outputs.h"
+#include "tools/stitch/launch/run_outputs.h"
 
 namespace fs = std::filesystem;
 

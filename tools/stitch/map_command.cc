@@ -2,12 +2,16 @@
 
 #include <cstdio>
 #include <filesystem>
+#include <set>
 
 #include "services/common/bus.h"
-#include "services/config/stitch_config.h"
-#include "services/merger/merger_service.h"
+#include "services/common/update_journal.h"
+#include "services/common/map_convert.h"
+#include "stitch/config/stitch_config.h"
+#include "stitch/merging/merge_session.h"
 #include "stitch/util/args.h"
 #include "stitch/util/error.h"
+#include "stitch/util/log.h"
 #include "stitch/util/time.h"
 #include "tools/stitch/commands.h"
 
@@ -43,15 +47,27 @@ int MapCommand(int argc, char** argv) {
     if (agent_list.empty()) throw Error("--agents: name at least one aircraft");
     const StitchConfig config = LoadStitchConfig(config_path, settings);
     const Vocabulary vocabulary = LoadVocabulary(config);
-    auto lcm = bus::OpenLcm("memq://");
-    bus::Publisher publisher(lcm.get(), agent_list.front());
-    MergerService merger(lcm.get(), &publisher, config.merger, config.tracker.tracking.orb, &vocabulary, out, "",
-                         agent_list);
+    // The merger's session without a bus: each update as it was received, one refinement at the end.
+    const ScalePyramid pyramid = ScalePyramid::From(config.tracker.tracking.orb);
+    MergeSession session(config.merger, &vocabulary, pyramid, out, agent_list);
+    std::set<std::string> channels;
+    for (const std::string& agent : agent_list) channels.insert(bus::Channel(agent, bus::kSubmap));
     const Stopwatch clock;
-    const SubmapUpdateLogRead read = merger.Replay(logs[0]);
+    int64_t refused = 0;
+    const SubmapUpdateLogRead read =
+        ReadSubmapUpdateLog(logs[0], channels, [&](const stitch::submap_update_t& message) {
+          try {
+            const SubmapUpdate update = FromMessage(message, pyramid);
+            if (session.Apply(update, message.header.agent, message.part == 0).accepted) return;
+          } catch (const Error& e) {
+            STITCH_LOG(WARNING) << "rejected a submap update: " << e.what();
+          }
+          ++refused;
+        });
     if (read.updates == 0) throw Error(logs[0] + ": no submap update of " + agents);
-    merger.Start();
-    merger.Stop();
+    session.Finish();
+    if (refused > 0) std::fprintf(stderr, "stitch map: %lld submap updates refused (the log says why)\n",
+                                  static_cast<long long>(refused));
     std::printf("merged %lld submap updates from %s in %.1f s; outputs in %s\n", static_cast<long long>(read.updates),
                 logs[0].c_str(), clock.ElapsedMs() / 1000.0, out.c_str());
     if (read.lost_anything()) {

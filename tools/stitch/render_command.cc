@@ -6,7 +6,7 @@
 
 #include <opencv2/imgcodecs.hpp>
 
-#include "services/config/stitch_config.h"
+#include "stitch/config/stitch_config.h"
 #include "stitch/io/calibration.h"
 #include "stitch/io/image_file.h"
 #include "stitch/source/source.h"
@@ -21,24 +21,20 @@ namespace fs = std::filesystem;
 namespace stitch {
 
 int RenderCommand(int argc, char** argv) {
-  std::string out_dir, config_path, failures = "default";
+  std::string out_dir, config_path;
   std::vector<std::string> settings;
-  int max_frames = -1;
+  SourceSpec spec;
   ArgParser args("stitch render",
                  "Renders the synthetic UAV survey flight to an image folder: frames as PNG named by timestamp, "
                  "camera.yaml and groundtruth.txt (TUM).");
   args.AddOption("--out", &out_dir, "DIR", "output folder (required)");
   args.AddOption("--config", &config_path, "FILE", "YAML settings; its synthetic: section shapes the flight");
   args.AddOption("--set", &settings, "KEY=VALUE", "a setting over the file, e.g. synthetic.flight.altitude_m=40");
-  args.AddOption("--failures", &failures, "SPEC", "gusts: default (3), none, or FRAME:LENGTH,...");
-  args.AddOption("--max-frames", &max_frames, "N", "render at most N frames");
+  AddSourceOptions(&args, &spec, kFailuresFlag | kMaxFramesFlag);
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {
     if (out_dir.empty()) throw Error("--out DIR is required");
-    SourceSpec spec;
     spec.synthetic = LoadStitchConfig(config_path, settings).synthetic;
-    spec.failures = failures;
-    spec.max_frames = max_frames;
     FailureSchedule unused;
     auto sequence = OpenSource(spec, &unused);
     fs::create_directories(out_dir);

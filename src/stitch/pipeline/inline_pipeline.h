@@ -1,7 +1,8 @@
 #pragma once
 // The tracker, mapper and merger algorithms run one after the other in the calling thread, with
 // no transport between them: each keyframe is mapped (LocalMapping::MapKeyframe, the protocol the
-// mapper service follows) and its update applied before the next frame, exactly what lockstep
+// mapper service follows) and its update applied to the merger's session (MergeSession, as the
+// merger service applies it, refinement included) before the next frame, exactly what lockstep
 // pacing with `wait_for_mapper` gives over the bus. For benchmarks (stitch bench: the same work,
 // timed without the bus) and for tests of the SLAM core on whole sequences. No LCM.
 
@@ -30,8 +31,11 @@ struct InlineFrame {
 struct InlineRun {
   std::vector<InlineFrame> frames;
   std::vector<PoseRecord> poses;             // the tracker's poses, each submap its own component
-  std::vector<PoseRecord> merged_poses;      // the same, placed by the merger's Sim3 per submap (no pose graph)
-  Merger::Graph graph;                       // the merger's submap graph at the end
+  // The same, each re-composed with the mapper's final pose of its reference keyframe and placed
+  // in its merged map with the merger's refinement (pose graph, bundle adjustment), as `stitch
+  // run` places frames.tsv; frames of submaps the merger never placed are left out.
+  std::vector<PoseRecord> merged_poses;
+  Merger::Graph graph;  // the merger's submap graph at the end, refined
   std::vector<SubmapUpdate> submap_updates;  // what the mapper sent the merger, in order (when asked)
   int keyframes = 0;                         // keyframes made
   int submaps = 0;

@@ -7,6 +7,7 @@
 #include <gtest/gtest.h>
 
 #include "stitch/geometry/similarity.h"
+#include "stitch/merging/merge_session.h"
 #include "stitch/pipeline/inline_pipeline.h"
 #include "stitch/source/source.h"
 #include "stitch/testing/default_vocabulary.h"
@@ -69,6 +70,32 @@ TEST(Merge, TheSecondSubmapLandsWhereTheGroundTruthHasIt) {
   // The strip is 230 m long, flown at 70 m: within 0.5% of the strip (measured 0.53 m; each
   // submap alone is about 0.1 m, the rest is the Sim3 of the merge).
   EXPECT_LT(rms, 1.2);
+}
+
+// The check after placement in the merger's session: a merge whose junction the final adjustment
+// does not hold as well as asked is rolled back, its edge refused with the reason, and the submaps
+// stay two maps. Asked to keep every joining observation (no real adjustment does), the check
+// doubts the merge that the default keeps.
+TEST(Merge, AMergeWhoseJunctionTheAdjustmentDoesNotHoldIsRolledBack) {
+  const GustRun& g = Gust();
+  const auto refine = [&](const MergerOptions& options) {
+    MergeSession session(options, &testing::DefaultVocabulary(), ScalePyramid::From(g.options.tracking.orb));
+    for (const SubmapUpdate& update : g.run.submap_updates) session.Apply(update, "uav0", true);
+    session.Refine("test");
+    return session.refined()->graph;
+  };
+  const Merger::Graph merged = refine(g.options.merger);
+  ASSERT_EQ(merged.placement.size(), 2u);
+  ASSERT_EQ(merged.tree.size(), 1u) << "merged";
+
+  MergerOptions strict = g.options.merger;
+  strict.acceptance.min_junction_kept = 1.0;
+  const Merger::Graph rolled_back = refine(strict);
+  EXPECT_TRUE(rolled_back.tree.empty());
+  ASSERT_EQ(rolled_back.edges.size(), 1u);
+  EXPECT_EQ(rolled_back.edges[0].refused.rfind("after placement the bundle adjustment kept ", 0), 0u)
+      << rolled_back.edges[0].refused;
+  EXPECT_NE(rolled_back.placement.begin()->second.component, rolled_back.placement.rbegin()->second.component);
 }
 
 TEST(Merge, DroppedRepeatedAndReorderedUpdatesStillMerge) {

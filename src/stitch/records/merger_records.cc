@@ -1,9 +1,14 @@
 #include "stitch/records/merger_records.h"
 
 #include <cinttypes>
+#include <cmath>
 #include <cstdio>
+#include <map>
 #include <sstream>
 
+#include <opencv2/imgproc.hpp>
+
+#include "stitch/io/image_file.h"
 #include "stitch/util/error.h"
 #include "stitch/util/text_file.h"
 
@@ -231,6 +236,77 @@ std::vector<MergeLogRecord> ReadMergeLog(const std::string& path) {
     *r = {f[0], f[1], f[2], f[3]};
     return true;
   });
+}
+
+namespace {
+
+const std::string kRefused = "refused: ";
+
+bool Merged(const SubmapEdgeRecord& e) { return e.status == "merged"; }
+
+// The reason an edge was refused, or "" for one that was not.
+std::string RefusedReason(const SubmapEdgeRecord& e) {
+  return e.status.rfind(kRefused, 0) == 0 ? e.status.substr(kRefused.size()) : std::string();
+}
+
+}  // namespace
+
+void WriteSubmapGraphDot(const std::string& path, const std::vector<SubmapRecord>& submaps,
+                         const std::vector<SubmapEdgeRecord>& edges) {
+  std::ostringstream out;
+  out << "graph submaps {\n  // edge weight -C; bold: Kruskal's spanning tree\n";
+  for (const SubmapRecord& s : submaps) {
+    out << "  \"" << SubmapName(s.submap) << "\" [label=\"" << SubmapName(s.submap) << "\\n"
+        << s.keyframes << " kf, map " << s.component << "\"];\n";
+  }
+  for (const SubmapEdgeRecord& e : edges) {
+    const std::string refused = RefusedReason(e);
+    char label[128];
+    std::snprintf(
+        label, sizeof(label), "C=%.1f (F=%d M=%d %.0f deg%s)", e.strength, e.connected_frames, e.map_points,
+        e.median_angle_deg,
+        e.disagreeing_frames > 0 ? (", " + std::to_string(e.disagreeing_frames) + " outvoted").c_str() : "");
+    out << "  \"" << SubmapName(e.a) << "\" -- \"" << SubmapName(e.b) << "\" [label=\"" << label
+        << (refused.empty() ? "" : "\\nrefused: " + refused) << "\""
+        << (Merged(e)         ? ", style=bold"
+            : refused.empty() ? ", style=dashed"
+                              : ", style=dotted, color=red")
+        << "];\n";
+  }
+  out << "}\n";
+  WriteFileAtomically(path, out.str());
+}
+
+void WriteSubmapGraphPng(const std::string& path, const std::vector<SubmapRecord>& submaps,
+                         const std::vector<SubmapEdgeRecord>& edges) {
+  // Submaps on a circle, edges with their strength.
+  const int size = 640;
+  cv::Mat image(size, size, CV_8UC3, cv::Scalar(255, 255, 255));
+  std::map<SubmapId, cv::Point> at;
+  const size_t n = submaps.size();
+  for (size_t i = 0; i < n; ++i) {
+    const double angle = 2 * M_PI * static_cast<double>(i) / static_cast<double>(n) - M_PI / 2;
+    at[submaps[i].submap] = cv::Point(size / 2 + static_cast<int>(230 * std::cos(angle)),
+                                      size / 2 + static_cast<int>(230 * std::sin(angle)));
+  }
+  for (const SubmapEdgeRecord& e : edges) {
+    const bool in_tree = Merged(e);
+    cv::line(image, at[e.a], at[e.b], in_tree ? cv::Scalar(40, 40, 200) : cv::Scalar(180, 180, 180), in_tree ? 3 : 1,
+             cv::LINE_AA);
+    char label[32];
+    std::snprintf(label, sizeof(label), "%.0f", e.strength);
+    cv::putText(image, label, (at[e.a] + at[e.b]) / 2, cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(0, 0, 0), 1,
+                cv::LINE_AA);
+  }
+  static const cv::Scalar kColours[] = {{200, 90, 30}, {40, 40, 220}, {40, 160, 40}, {180, 40, 180}, {20, 150, 220}};
+  for (const SubmapRecord& s : submaps) {
+    cv::circle(image, at[s.submap], 22, kColours[s.component % 5], cv::FILLED, cv::LINE_AA);
+    cv::putText(image, SubmapName(s.submap), at[s.submap] + cv::Point(-16, 5), cv::FONT_HERSHEY_SIMPLEX, 0.45,
+                cv::Scalar(255, 255, 255), 1, cv::LINE_AA);
+  }
+  cv::putText(image, "submap graph: edges labelled C, spanning tree in red, one colour per merged map",
+              cv::Point(10, 20), cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+  WritePng(path, image);
 }
 
 }  // namespace stitch

@@ -9,6 +9,7 @@
 //   retrieval.tsv         each connected-frame query with the method's N0, N1, S0, S1, k, l
 //                         (RetrievalRecord)
 //   merge_log.tsv         the stack of unconnected submaps at each event (MergeLogRecord)
+//   graph.dot, graph.png  the submap graph drawn from submaps.tsv's and edges.tsv's records
 // Each file has one writer and one reader here; writers replace the file as one act
 // (WriteFileAtomically). Readers throw stitch::Error naming the file and line.
 
@@ -99,5 +100,13 @@ struct MergeLogRecord {
 };
 void WriteMergeLog(const std::string& path, const std::vector<MergeLogRecord>& records);
 std::vector<MergeLogRecord> ReadMergeLog(const std::string& path);
+
+// The submap graph for Graphviz (graph.dot) and as a picture (graph.png): each submap with its
+// keyframes and merged map, each edge with its strength C; the spanning tree's edges ("merged")
+// bold, refused ones dotted red with their reason.
+void WriteSubmapGraphDot(const std::string& path, const std::vector<SubmapRecord>& submaps,
+                         const std::vector<SubmapEdgeRecord>& edges);
+void WriteSubmapGraphPng(const std::string& path, const std::vector<SubmapRecord>& submaps,
+                         const std::vector<SubmapEdgeRecord>& edges);
 
 }  // namespace stitch

@@ -124,4 +124,35 @@ SourceSummary SummarizeSource(const SourceSpec& spec) {
   return summary;
 }
 
+void AddSourceOptions(ArgParser* args, SourceSpec* spec, unsigned which) {
+  if (which & kDatasetFlag) {
+    args->AddOption("--dataset", &spec->dataset_path, "PATH",
+                    "a TUM RGB-D, EuRoC or KITTI folder, an image folder or a video (detected; default: the synthetic "
+                    "UAV survey flight)");
+  }
+  if (which & kLiveFlag) {
+    args->AddOption("--live", &spec->live_uri, "URI",
+                    "a live camera instead: a V4L2 device (/dev/video0), a GStreamer pipeline ('... ! appsink') or a "
+                    "stream URL (rtsp://, udp://); needs --calib; runs until the stream ends, --max-frames or Ctrl-C");
+  }
+  if (which & kCalibFlag) {
+    args->AddOption("--calib", &spec->calibration_path, "FILE",
+                    "calibration overriding the dataset's own (required with --live); an ORB-SLAM2/3 settings file's "
+                    "ORBextractor.* also set tracker.tracking.orb (under --set) where the program tracks");
+  }
+  if (which & kFailuresFlag) {
+    args->AddOption("--failures", &spec->failures, "SPEC",
+                    "induced failures: none, FRAME:LENGTH,... or default (the synthetic flight: 3 gusts; datasets: "
+                    "none)");
+  }
+  if (which & kMaxFramesFlag) args->AddOption("--max-frames", &spec->max_frames, "N", "play at most N frames (-1: all)");
+  if (which & kStartFrameFlag) {
+    args->AddOption("--start-frame", &spec->start_frame, "N", "skip the first N frames of the sequence");
+  }
+}
+
+void CheckSourceSpec(const SourceSpec& spec) {
+  if (spec.start_frame < 0) throw Error("--start-frame must be >= 0");
+}
+
 }  // namespace stitch

@@ -7,6 +7,7 @@
 #include "stitch/io/failure_schedule.h"
 #include "stitch/io/image_sequence.h"
 #include "stitch/synthetic/synthetic_sequence.h"
+#include "stitch/util/args.h"
 
 namespace stitch {
 
@@ -21,6 +22,21 @@ struct SourceSpec {
 
   bool synthetic_source() const { return dataset_path.empty() && live_uri.empty(); }
 };
+
+// The flags that choose what a program plays, declared once for every program that takes them
+// (stitch run, stitch bench, stitch render, stitch-ingest): `which` says which of them.
+enum SourceFlag : unsigned {
+  kDatasetFlag = 1u << 0,     // --dataset PATH
+  kLiveFlag = 1u << 1,        // --live URI
+  kCalibFlag = 1u << 2,       // --calib FILE
+  kFailuresFlag = 1u << 3,    // --failures SPEC
+  kMaxFramesFlag = 1u << 4,   // --max-frames N
+  kStartFrameFlag = 1u << 5,  // --start-frame N
+  kEverySourceFlag = (1u << 6) - 1,
+};
+void AddSourceOptions(ArgParser* args, SourceSpec* spec, unsigned which = kEverySourceFlag);
+// Throws stitch::Error for values no source takes (a negative start frame).
+void CheckSourceSpec(const SourceSpec& spec);
 
 // The failure schedule the spec means for a sequence of `num_frames` frames.
 FailureSchedule ResolveFailures(const SourceSpec& spec, int num_frames);

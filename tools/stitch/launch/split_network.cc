@@ -1,4 +1,4 @@
-#include "tools/stitch/split_network.h"
+#include "tools/stitch/launch/split_network.h"
 
 #include <fcntl.h>
 #include <sched.h>

@@ -1,7 +1,7 @@
 // stitch campaign: many randomized flights, each merge scored against ground truth
 // (docs/benchmarks.md, "The merge campaign").
 
-#include "tools/stitch/campaign_command.h"
+#include "tools/stitch/quality/campaign.h"
 
 #include <algorithm>
 #include <cmath>
@@ -18,7 +18,7 @@
 #include "stitch/util/text_file.h"
 #include "stitch/util/time.h"
 #include "tools/stitch/commands.h"
-#include "tools/stitch/quality_gate.h"
+#include "tools/stitch/quality/quality_gate.h"
 
 namespace fs = std::filesystem;
 

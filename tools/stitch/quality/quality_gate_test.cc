@@ -1,7 +1,7 @@
 // The quality gate's rules on constructed figures: its file read and refused, regressions found
 // in the worse direction only, beyond the tolerance only, and a missing figure counted.
 
-#include "tools/stitch/quality_gate.h"
+#include "tools/stitch/quality/quality_gate.h"
 
 #include <cmath>
 #include <fstream>

@@ -6,11 +6,11 @@
 #include <string>
 #include <vector>
 
-#include "services/ingest/ingest_options.h"
-#include "services/link/link_options.h"
-#include "services/mapper/mapper_options.h"
-#include "services/tracker/tracker_options.h"
-#include "services/viewer/viewer_options.h"
+#include "stitch/config/ingest_options.h"
+#include "stitch/config/link_options.h"
+#include "stitch/config/mapper_options.h"
+#include "stitch/config/tracker_options.h"
+#include "stitch/config/viewer_options.h"
 #include "stitch/features/vocabulary.h"
 #include "stitch/merging/merger_options.h"
 #include "stitch/pipeline/pipeline_options.h"

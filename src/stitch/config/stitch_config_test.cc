@@ -1,4 +1,4 @@
-#include "services/config/stitch_config.h"
+#include "stitch/config/stitch_config.h"
 
 #include <fstream>
 #include <sstream>

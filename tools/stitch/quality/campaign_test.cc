@@ -6,7 +6,7 @@
 
 #include <gtest/gtest.h>
 
-#include "tools/stitch/campaign_command.h"
+#include "tools/stitch/quality/campaign.h"
 
 namespace stitch {
 namespace {

@@ -1,6 +1,6 @@
 // stitch bench --quality: the quality gate (quality_gate.h).
 
-#include "tools/stitch/quality_gate.h"
+#include "tools/stitch/quality/quality_gate.h"
 
 #include <unistd.h>
 

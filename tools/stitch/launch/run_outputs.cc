@@ -1,4 +1,4 @@
-#include "tools/stitch/run_outputs.h"
+#include "tools/stitch/launch/run_outputs.h"
 
 #include <cstdio>
 #include <filesystem>

@@ -1,0 +1,67 @@
+#pragma once
+// The skeleton every service's main() shares (services/*/main.cc): the common flags applied, the
+// settings loaded (the file, --set, then the program's own flags), the stop signals, the bus and
+// this agent's publisher; the service itself is the body's; any error ends the process with its
+// message and status 1.
+//
+//   int main(int argc, char** argv) {
+//     ServiceCommandLine common;
+//     ArgParser args("stitch-mapper", "...");
+//     common.Register(&args);
+//     if (!args.Parse(argc, argv)) return args.exit_code();
+//     return RunService("mapper", common, common.settings, [&](ServiceProcess& process) {
+//       MapperService mapper(process.lcm, process.publisher, process.config.mapper, ...);
+//       process.RunUntilStopped(mapper, ServiceProcess::StopOrder::kServiceFirst);
+//       return 0;
+//     });
+//   }
+
+#include <atomic>
+#include <functional>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "services/common/bus.h"
+#include "services/common/service.h"
+#include "stitch/config/stitch_config.h"
+#include "stitch/util/log.h"
+
+namespace stitch {
+
+struct ServiceProcess {
+  const ServiceCommandLine& common;
+  const StitchConfig& config;
+  lcm::LCM* lcm;
+  bus::Publisher* publisher;
+  const std::atomic<bool>& stop;  // SIGINT or SIGTERM
+
+  // Sleeps until SIGINT or SIGTERM.
+  void WaitForStop() const;
+  // Which stops first: the dispatcher (the service hears nothing more while it stops) or the
+  // service (it still hears its peers while it stops: the mapper answers the merger's last
+  // requests).
+  enum class StopOrder { kBusFirst, kServiceFirst };
+  // Starts the bus's dispatcher and `service`, waits for the stop signal (then `after_signal`,
+  // with the bus still up), stops both in `order`.
+  template <class Service>
+  void RunUntilStopped(Service& service, StopOrder order, const std::function<void()>& after_signal = nullptr) const {
+    bus::Dispatcher dispatcher(lcm);
+    dispatcher.Start();
+    service.Start();
+    STITCH_LOG(INFO) << "listening on " << common.lcm_url;
+    WaitForStop();
+    if (after_signal) after_signal();
+    if (order == StopOrder::kBusFirst) dispatcher.Stop();
+    service.Stop();
+    dispatcher.Stop();
+  }
+};
+
+// Applies the common flags for `service_name`, loads the settings (`settings`: --set's and the
+// program's own flags as KEY=VALUE), opens the bus and runs `body`; returns its status, or 1 with
+// the message on stderr when anything throws.
+int RunService(const std::string& service_name, const ServiceCommandLine& common,
+               const std::vector<std::string>& settings, const std::function<int(ServiceProcess&)>& body);
+
+}  // namespace stitch

@@ -1,0 +1,477 @@
+#include "stitch/merging/merge_session.h"
+
+#include <algorithm>
+#include <cstdio>
+#include <filesystem>
+
+#include "stitch/io/colmap_model.h"
+#include "stitch/io/ply.h"
+#include "stitch/io/trajectory.h"
+#include "stitch/map/map_export.h"
+#include "stitch/util/log.h"
+#include "stitch/util/time.h"
+
+namespace stitch {
+
+namespace {
+// Frames of the pose stream kept per aircraft: 9 hours at 30 fps.
+constexpr size_t kMaxFramePoses = 1'000'000;
+// Merges rolled back by the check after placement in one refinement, at most (each round solves
+// and adjusts the largest map again).
+constexpr int kMaxRollbacksPerRefinement = 3;
+
+// COLMAP's image names: agentA-frameNNNNNN (`stitch export colmap` names them by the image files).
+std::string ColmapImageName(const Keyframe& keyframe) {
+  char name[48];
+  std::snprintf(name, sizeof(name), "agent%d-frame%06d", AgentNumber(SubmapOf(keyframe.id)), keyframe.frame_index);
+  return name;
+}
+
+}  // namespace
+
+MergeSession::MergeSession(const MergerOptions& options, const Vocabulary* vocabulary, const ScalePyramid& pyramid,
+                           std::string record_dir, std::vector<std::string> agents)
+    : pyramid_(pyramid),
+      merger_(options, vocabulary, pyramid_),
+      record_dir_(std::move(record_dir)),
+      agents_(std::move(agents)) {}
+
+MergeSession::Applied MergeSession::Apply(const SubmapUpdate& update, const std::string& agent, bool first_part) {
+  Applied applied;
+  // Two aircraft with the same agent number would mix their submaps: keep the first's.
+  const auto [known, fresh] = agent_of_.try_emplace(update.submap, agent);
+  if (!fresh && known->second != agent) {
+    applied.refused = "that submap is " + known->second + "'s (two aircraft with one agent_number?)";
+    return applied;
+  }
+  applied.accepted = true;
+  applied.missing = merger_.Apply(update);
+  ++applied_;
+  applied.newly_closed = update.closed && !closed_seen_[update.submap];
+  closed_seen_[update.submap] = update.closed;
+  if (merger_.connections().size() != connections_seen_ || applied.newly_closed || first_part) {
+    connections_seen_ = merger_.connections().size();
+    OnGraphChange(applied.newly_closed ? "submap " + SubmapName(update.submap) + " closed"
+                                       : "keyframe of submap " + SubmapName(update.submap));
+  }
+  return applied;
+}
+
+std::optional<MergedMap> MergeSession::MergeLargestMap(Merger::Graph* graph) const {
+  SubmapId root;
+  int members = 0;
+  for (const auto& [id, placement] : graph->placement) {
+    if (placement.component != 0) continue;
+    root = placement.root;
+    ++members;
+  }
+  int loops = 0;  // confirmed loops within component 0
+  for (const ConnectedFrame& c : graph->agreeing) {
+    loops +=
+        SubmapOf(c.keyframe_a) == SubmapOf(c.keyframe_b) && graph->placement.at(SubmapOf(c.keyframe_a)).component == 0;
+  }
+  // A map of one submap is adjusted as a whole too: the mapper's local adjustments never move
+  // its keyframes all together (the calm survey: ATE 0.153 -> 0.130 m, docs/benchmarks.md).
+  if (members == 0) return std::nullopt;
+  const SubmapReplica& replica = merger_.submaps().at(root);
+  if (!replica.camera) return std::nullopt;
+  const Stopwatch clock;
+  MergedMap merged = AssembleMergedMap(merger_.submaps(), graph->placement, graph->keyframe_poses, graph->agreeing, 0,
+                                       pyramid_, replica.camera->Intrinsics(), merger_.options().merged_map);
+  for (const auto& [id, pose] : merged.keyframe_poses) graph->keyframe_poses[id] = pose;
+  const BundleAdjustmentReport& ba = merged.bundle_adjustment;
+  STITCH_LOG(INFO) << "merged map of " << members << " submaps with " << loops
+                   << " loops: " << merged.map.num_keyframes() << " keyframes, " << merged.map.num_points()
+                   << " points; fused " << merged.points_fused_by_connection << " points from connected frames and "
+                   << merged.points_fused_by_projection << " by projection; bundle adjustment " << ba.initial_rms_px
+                   << " -> " << ba.final_rms_px << " px rms (" << ba.observations << " observations, "
+                   << ba.outliers_removed << " outliers removed) in " << clock.ElapsedMs() << " ms";
+  for (const auto& [pair, junction] : merged.junctions) {
+    STITCH_LOG(INFO) << "junction " << SubmapName(pair.first) << "-" << SubmapName(pair.second) << ": " << junction.kept
+                     << " of " << junction.joined << " joining observations kept";
+  }
+  return merged;
+}
+
+void MergeSession::Refine(const std::string& why) {
+  const Stopwatch clock;
+  const Merger::Reverification again = merger_.ReverifyStaleConnections();
+  if (again.reverified > 0) {
+    STITCH_LOG(INFO) << "verified " << again.reverified
+                     << " connected frames again on their submaps' newer points: " << again.changed << " moved, "
+                     << again.stale << " could not be (kept as stale: they count where the fresh ones agree)";
+    OnGraphChange("connected frames verified again (" + why + ")");
+  }
+  Refined refined{merger_.Solve(/*refine=*/true), std::nullopt};
+  refined.merged = MergeLargestMap(&refined.graph);
+  // Checked after placement: a merge whose junction the adjustment could not hold is rolled back
+  // (its edge refused until more connected frames arrive) and the maps are solved again.
+  const bool check = merger_.options().merged_map.fuse_points;  // junctions are made by fusing
+  for (int round = 0; check && refined.merged && round < kMaxRollbacksPerRefinement; ++round) {
+    const std::vector<DoubtedEdge> doubted =
+        CheckJunctions(*refined.merged, refined.graph.tree, merger_.options().acceptance);
+    if (doubted.empty()) break;
+    for (const DoubtedEdge& d : doubted) {
+      STITCH_LOG(WARNING) << "merge of submaps " << SubmapName(d.edge.a) << " and " << SubmapName(d.edge.b)
+                          << " rolled back: " << d.reason;
+      merger_.RefuseAfterPlacement(d.edge, d.reason);
+    }
+    OnGraphChange("merge rolled back after placement (" + why + ")");
+    refined = Refined{merger_.Solve(/*refine=*/true), std::nullopt};
+    refined.merged = MergeLargestMap(&refined.graph);
+  }
+  Show(refined.graph);
+  refined_ = std::move(refined);
+  refined_at_ = applied_;
+  if (!record_dir_.empty()) {
+    // The last good map on disk at every refinement, not only at the end.
+    try {
+      WriteRecords(refined_->graph, refined_->merged ? &*refined_->merged : nullptr);
+    } catch (const std::exception& e) {
+      STITCH_LOG(ERROR) << "writing the merger's records failed: " << e.what();
+    }
+    WriteLiveTrajectory();
+  }
+  STITCH_LOG(INFO) << "refined the merged maps (" << why << ") in " << clock.ElapsedMs() << " ms";
+}
+
+void MergeSession::Finish() {
+  const bool refine_now = !refined_ || refined_at_ != applied_;
+  if (refine_now) Refine("the run ended");  // writes the records
+  for (const auto& [id, replica] : merger_.submaps()) {
+    const SubmapCompleteness c = CompletenessOf(replica);
+    if (c.missing == 0 && replica.closed) continue;
+    STITCH_LOG(WARNING) << "submap " << SubmapName(id) << " is incomplete on the ground: " << c.missing << " of its "
+                        << c.listed << " keyframes" << (replica.closed ? "" : " and its final state")
+                        << " never arrived; the map holds what did";
+  }
+  const Merger::Graph& graph = refined_->graph;
+  const MergedMap* merged = refined_->merged ? &*refined_->merged : nullptr;
+  if (!record_dir_.empty()) {
+    try {
+      if (!refine_now) WriteRecords(graph, merged);
+      // The COLMAP model, a product for after the flight, only at the end.
+      WriteColmapRecord(graph, merged);
+    } catch (const std::exception& e) {
+      STITCH_LOG(ERROR) << "writing the merger's records failed: " << e.what();
+    }
+  }
+  WriteLiveTrajectory();
+}
+
+void MergeSession::OnGraphChange(const std::string& event) {
+  const Merger::Graph graph = merger_.Solve();
+  // The current map: the merged map holding the newest submap; the stack: every other submap.
+  SubmapId newest;
+  for (const auto& [id, replica] : merger_.submaps()) {
+    if (!newest.valid() || newest < id) newest = id;
+  }
+  if (!newest.valid()) return;
+  const int current = graph.placement.at(newest).component;
+  std::string current_map, stack;
+  // Merged maps listed by their oldest submap (component numbers follow sizes and may change).
+  std::map<int, SubmapId> oldest;
+  for (const auto& [id, placement] : graph.placement) {
+    if (!oldest.count(placement.component)) oldest[placement.component] = id;  // placement is ordered by id
+  }
+  std::map<SubmapId, std::string> merged;
+  for (const auto& [id, placement] : graph.placement) {
+    std::string& into = placement.component == current ? current_map : stack;
+    into += (into.empty() ? "" : " ") + SubmapName(id);
+    std::string& names = merged[oldest[placement.component]];
+    names += (names.empty() ? "" : "+") + SubmapName(id);
+  }
+  std::string maps;
+  for (const auto& [first, names] : merged) maps += (maps.empty() ? "" : " ") + names;
+  // Edges refused by the acceptance checks, each said once (and again when its reason changes).
+  std::map<std::pair<SubmapId, SubmapId>, std::string> refused;
+  for (const SubmapEdge& e : graph.edges) {
+    if (e.refused.empty()) continue;
+    refused[{e.a, e.b}] = e.refused;
+    const auto before = refused_edges_.find({e.a, e.b});
+    if (before != refused_edges_.end() && before->second == e.refused) continue;
+    const std::string what = "edge " + SubmapName(e.a) + "-" + SubmapName(e.b) + " refused: " + e.refused;
+    STITCH_LOG(WARNING) << what;
+    merge_log_.push_back({what, current_map, stack, maps});
+  }
+  refused_edges_.swap(refused);
+  const std::string row = current_map + "\t" + stack + "\t" + maps;
+  if (row == last_stack_) return;
+  last_stack_ = row;
+  merge_log_.push_back({event, current_map, stack, maps});
+  STITCH_LOG(INFO) << event << ": current map " << current_map << "; unconnected " << (stack.empty() ? "-" : stack);
+  Show(graph);
+}
+
+void MergeSession::Show(const Merger::Graph& graph) {
+  latest_placement_ = graph.placement;
+  trajectory_stale_ = true;
+  cloud_stale_ = true;
+  if (on_graph_) on_graph_(graph);
+}
+
+bool MergeSession::AddFramePose(const std::string& agent, const TrackedFramePose& pose, std::string* why) {
+  const SubmapId submap(pose.submap_id);
+  if (pose.frame_index < 0 || pose.t_ns < 0) {
+    *why = "negative frame index or time";
+    return false;
+  }
+  if (!submap.valid() || SubmapOf(submap) != submap) {
+    *why = "names no submap (" + std::to_string(pose.submap_id) + ")";
+    return false;
+  }
+  if (pose.reference_keyframe != -1 &&
+      (pose.reference_keyframe < 0 || SubmapOf(KeyframeId(pose.reference_keyframe)) != submap)) {
+    *why = "its reference keyframe is not of its submap";
+    return false;
+  }
+  std::lock_guard<std::mutex> lock(poses_mutex_);
+  if (poses_pending_.size() >= kMaxFramePoses) {
+    *why = "the worker is " + std::to_string(kMaxFramePoses) + " poses behind";
+    return false;
+  }
+  poses_pending_.emplace_back(agent, pose);
+  ++poses_received_;
+  return true;
+}
+
+int64_t MergeSession::frame_poses_received() const {
+  std::lock_guard<std::mutex> lock(poses_mutex_);
+  return poses_received_;
+}
+
+void MergeSession::WriteLiveTrajectoryIfDue() {
+  const double interval = merger_.options().live_outputs_interval_s;
+  if (interval > 0 && MonotonicSeconds() - trajectory_written_at_ >= interval) WriteLiveTrajectory();
+}
+
+void MergeSession::WriteLiveTrajectory() {
+  trajectory_written_at_ = MonotonicSeconds();
+  {
+    std::vector<std::pair<std::string, TrackedFramePose>> pending;
+    {
+      std::lock_guard<std::mutex> lock(poses_mutex_);
+      pending.swap(poses_pending_);
+    }
+    for (auto& [agent, pose] : pending) {
+      std::map<int, TrackedFramePose>& frames = frame_poses_[agent];
+      if (frames.size() >= kMaxFramePoses && !frames.count(pose.frame_index)) continue;
+      frames[pose.frame_index] = pose;
+      trajectory_stale_ = true;
+    }
+  }
+  if (!trajectory_stale_ || record_dir_.empty() || latest_placement_.empty()) return;
+  trajectory_stale_ = false;
+  // Keyframes as the ground holds them now, the newest placement, and the last refinement's
+  // keyframe poses where their merged map's frame (its root) is still the same.
+  std::map<int64_t, KeyframeInSubmap> keyframes;
+  for (const auto& [id, replica] : merger_.submaps()) {
+    for (const auto& [keyframe_id, keyframe] : replica.map.keyframes()) {
+      keyframes[keyframe_id.value] = {keyframe.cam_from_world, keyframe.frame_index};
+    }
+  }
+  std::map<int64_t, SubmapInMap> placement;
+  for (const auto& [id, p] : latest_placement_) placement[id.value] = {p.component, p.world_from_submap};
+  std::map<int64_t, Sim3d> refined;
+  if (refined_) {
+    for (const auto& [id, pose] : refined_->graph.keyframe_poses) {
+      const auto then = refined_->graph.placement.find(SubmapOf(id));
+      const auto now = latest_placement_.find(SubmapOf(id));
+      if (then != refined_->graph.placement.end() && now != latest_placement_.end() &&
+          then->second.root == now->second.root) {
+        refined[id.value] = pose;
+      }
+    }
+  }
+  const std::filesystem::path dir(record_dir_);
+  for (const auto& [agent, frames] : frame_poses_) {
+    std::vector<TrackedFramePose> list;
+    list.reserve(frames.size());
+    for (const auto& [index, pose] : frames) list.push_back(pose);
+    Trajectory trajectory;
+    for (const PoseRecord& p : PlaceTrackedFrames(list, keyframes, placement, refined)) {
+      if (p.component == 0) trajectory.Add({p.t_ns, p.world_from_cam});
+    }
+    const std::string name = agents_.size() <= 1 ? "trajectory.tum" : "trajectory-" + agent + ".tum";
+    try {
+      std::filesystem::create_directories(dir);
+      trajectory.WriteTum((dir / name).string());
+    } catch (const std::exception& e) {
+      STITCH_LOG(ERROR) << "writing the trajectory failed: " << e.what();
+    }
+  }
+}
+
+std::optional<MergeSession::MapCloud> MergeSession::TakeMapCloud() {
+  cloud_stale_ = false;
+  const int max_points = merger_.options().map_cloud_points;
+  if (max_points <= 0 || latest_placement_.empty()) return std::nullopt;
+  // The refined merged map's points (fused and adjusted) for the submaps whose merged map still
+  // has the same frame; the others' own points through their placement.
+  std::map<SubmapId, std::vector<Eigen::Vector3f>> points;
+  std::set<SubmapId> refined;
+  if (refined_ && refined_->merged) {
+    for (const auto& [id, point] : refined_->merged->map.points()) {
+      const SubmapId submap = SubmapOf(id);
+      const auto then = refined_->graph.placement.find(submap);
+      const auto now = latest_placement_.find(submap);
+      if (then == refined_->graph.placement.end() || now == latest_placement_.end() ||
+          then->second.root != now->second.root) {
+        continue;
+      }
+      points[submap].push_back(point.position.cast<float>());
+      refined.insert(submap);
+    }
+  }
+  for (const auto& [id, placement] : latest_placement_) {
+    if (refined.count(id)) continue;
+    const auto replica = merger_.submaps().find(id);
+    if (replica == merger_.submaps().end()) continue;
+    std::vector<Eigen::Vector3f>& list = points[id];
+    for (const auto& [point_id, point] : replica->second.map.points()) {
+      list.push_back((placement.world_from_submap * point.position).cast<float>());
+    }
+  }
+  MapCloud cloud;
+  for (const auto& [id, list] : points) cloud.points_in_maps += static_cast<int64_t>(list.size());
+  const int64_t stride = std::max<int64_t>(1, (cloud.points_in_maps + max_points - 1) / max_points);
+  cloud.revision = ++cloud_revision_;
+  for (const auto& [id, list] : points) {
+    MapCloud::Submap submap{id, latest_placement_.at(id).component, {}};
+    for (size_t i = 0; i < list.size(); i += static_cast<size_t>(stride)) submap.positions.push_back(list[i]);
+    cloud.submaps.push_back(std::move(submap));
+  }
+  return cloud;
+}
+
+void MergeSession::WriteColmapRecord(const Merger::Graph& graph, const MergedMap* merged) const {
+  // colmap/: the largest map as a COLMAP sparse model, its images named agentA-frameNNNNNN. One
+  // camera: the map's submaps must share it.
+  std::optional<Camera> camera;
+  const Map* map = merged ? &merged->map : nullptr;
+  for (const auto& [id, placement] : graph.placement) {
+    if (placement.component != 0) continue;
+    const SubmapReplica& replica = merger_.submaps().at(id);
+    if (!replica.camera) continue;
+    if (camera && camera->Describe() != replica.camera->Describe()) {
+      STITCH_LOG(WARNING) << "no COLMAP model: the largest map's submaps come from more than one camera";
+      return;
+    }
+    camera = replica.camera;
+    if (!merged) map = &replica.map;
+  }
+  if (!camera || !map) return;
+  const ColmapModel model = ColmapModelOf(*map, *camera, merger_.options().map_export, ColmapImageName);
+  WriteColmapModel(model, (std::filesystem::path(record_dir_) / "colmap").string());
+  STITCH_LOG(INFO) << "colmap/: " << model.images.size() << " images, " << model.points.size()
+                   << " points, reprojection " << ReprojectionRms(model) << " px rms";
+}
+
+void MergeSession::WriteRecords(const Merger::Graph& graph, const MergedMap* merged) const {
+  const std::filesystem::path dir(record_dir_);
+  std::filesystem::create_directories(dir);
+  const double min_strength = merger_.options().min_connection_strength;
+  std::vector<SubmapRecord> submaps;
+  for (const auto& [id, placement] : graph.placement) {
+    const SubmapReplica& replica = merger_.submaps().at(id);
+    submaps.push_back({id, placement.component, placement.root, replica.map.num_keyframes(), replica.map.num_points(),
+                       replica.closed, placement.world_from_submap});
+  }
+  WriteSubmapRecords((dir / "submaps.tsv").string(), submaps);
+  {
+    // map.ply: the largest merged map's points in its frame, one colour per submap.
+    static const uint8_t kPalette[][3] = {{30, 90, 200}, {220, 40, 40}, {40, 160, 40}, {180, 40, 180},  {220, 150, 20},
+                                          {0, 140, 140}, {160, 60, 90}, {200, 110, 0}, {100, 100, 100}, {180, 180, 60}};
+    std::vector<ColouredPoint> cloud;
+    int colour = 0;
+    std::map<SubmapId, int> colours;
+    for (const auto& [id, placement] : graph.placement) {
+      if (placement.component == 0) colours[id] = colour++;
+    }
+    std::vector<Eigen::Vector3d> positions;
+    std::vector<int> observations;
+    const auto add = [&](const Eigen::Vector3d& position, SubmapId submap, const MapPoint& point) {
+      ColouredPoint p;
+      p.position = position.cast<float>();
+      const uint8_t* rgb = kPalette[colours[submap] % 10];
+      p.red = rgb[0];
+      p.green = rgb[1];
+      p.blue = rgb[2];
+      cloud.push_back(p);
+      positions.push_back(position);
+      observations.push_back(static_cast<int>(point.observations.size()));
+    };
+    if (merged) {  // fused and adjusted
+      for (const auto& [id, point] : merged->map.points()) add(point.position, SubmapOf(id), point);
+    } else {  // one submap: its points, each moved with a keyframe that sees it
+      for (const auto& [id, placement] : graph.placement) {
+        if (placement.component != 0) continue;
+        const Map& map = merger_.submaps().at(id).map;
+        for (const auto& [point_id, point] : map.points()) {
+          Eigen::Vector3d position = placement.world_from_submap * point.position;
+          if (!point.observations.empty()) {
+            const KeyframeId observer = point.observations.begin()->first;
+            const auto refined = graph.keyframe_poses.find(observer);
+            if (refined != graph.keyframe_poses.end()) {
+              position = refined->second * (map.FindKeyframe(observer)->cam_from_world * point.position);
+            }
+          }
+          add(position, id, point);
+        }
+      }
+    }
+    // map.ply without the gross outliers a sparse map holds; map_raw.ply with every point.
+    WritePly((dir / "map_raw.ply").string(), cloud);
+    const std::vector<bool> keep = PointsToExport(positions, observations, merger_.options().map_export);
+    std::vector<ColouredPoint> exported;
+    for (size_t i = 0; i < cloud.size(); ++i) {
+      if (keep[i]) exported.push_back(cloud[i]);
+    }
+    if (exported.size() < cloud.size()) {
+      STITCH_LOG(INFO) << "map.ply: " << exported.size() << " of " << cloud.size() << " points ("
+                       << cloud.size() - exported.size()
+                       << " seen by too few keyframes or far beyond the scene left out; all in map_raw.ply)";
+    }
+    WritePly((dir / "map.ply").string(), exported);
+  }
+  std::vector<MergedKeyframeRecord> merged_keyframes;
+  for (const auto& [id, pose] : graph.keyframe_poses) {
+    const Keyframe* keyframe = merger_.submaps().at(SubmapOf(id)).map.FindKeyframe(id);
+    merged_keyframes.push_back({id, graph.placement.at(SubmapOf(id)).component, pose,
+                                keyframe ? keyframe->frame_index : -1, keyframe ? keyframe->t_ns : 0});
+  }
+  WriteMergedKeyframeRecords((dir / "keyframes_merged.tsv").string(), merged_keyframes);
+  std::vector<SubmapEdgeRecord> edges;
+  int outvoted = 0, refused_edges = 0;
+  for (const SubmapEdge& e : graph.edges) {
+    edges.push_back({e.a, e.b, e.strength, e.connected_frames, e.map_points, e.disagreeing_frames, e.median_angle_deg,
+                     e.agreement, EdgeStatus(e, graph.tree, min_strength)});
+    outvoted += e.disagreeing_frames;
+    refused_edges += !e.refused.empty();
+  }
+  WriteSubmapEdgeRecords((dir / "edges.tsv").string(), edges);
+  std::vector<ConnectionRecord> connections;
+  for (const auto* list : {&merger_.connections(), &merger_.refused(), &merger_.loops()}) {
+    for (const ConnectedFrame& c : *list) {
+      ConnectionRecord r{c.keyframe_a, c.keyframe_b, c.map_points, c.median_angle_deg, c.b_from_a};
+      r.verified_by = VerifiedByName(c.geometry.verified_by);
+      r.bearing_spread_a = c.geometry.bearing_spread_a;
+      r.bearing_spread_b = c.geometry.bearing_spread_b;
+      r.line_ratio = c.geometry.line_ratio;
+      r.depth_disagreement = c.geometry.depth_disagreement;
+      r.verdict = ConnectionVerdict(c, graph.edges, graph.tree, min_strength);
+      connections.push_back(r);
+    }
+  }
+  WriteConnectionRecords((dir / "connections.tsv").string(), connections);
+  WriteSubmapGraphDot((dir / "graph.dot").string(), submaps, edges);
+  WriteSubmapGraphPng((dir / "graph.png").string(), submaps, edges);
+  WriteMergeLog((dir / "merge_log.tsv").string(), merge_log_);
+  WriteRetrievalRecords((dir / "retrieval.tsv").string(), merger_.retrievals());
+  STITCH_LOG(INFO) << "wrote the submap graph (" << graph.placement.size() << " submaps, " << graph.edges.size()
+                   << " edges, " << graph.tree.size() << " merges, " << refused_edges << " edges refused, " << outvoted
+                   << " connected frames outvoted by their pair's others, " << merger_.refused().size()
+                   << " refused as degenerate) to " << record_dir_;
+}
+
+}  // namespace stitch

@@ -1,0 +1,144 @@
+#pragma once
+// One merging session on the ground (no LCM here): the merger's store and submap graph (Merger),
+// the refinement of the merged maps (connected frames verified again, pose graph, fused points and
+// bundle adjustment) with the check after placement and its rollback, the merge log (the method's
+// merging-process table), the per-frame trajectory of the largest merged map from the aircraft's
+// pose stream, the map cloud, and the merger's record folder. The merger service carries it over
+// the bus (subscribe, queue, journal, publish), `stitch map` replays a journal through it, and the
+// inline pipeline feeds it directly. One owner thread, but for AddFramePose.
+
+#include <functional>
+#include <map>
+#include <mutex>
+#include <optional>
+#include <set>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "stitch/merging/frame_trajectory.h"
+#include "stitch/merging/merger.h"
+#include "stitch/records/merger_records.h"
+
+namespace stitch {
+
+class MergeSession {
+ public:
+  // `vocabulary` must outlive the session. With a `record_dir` the records (submaps.tsv, map.ply,
+  // edges.tsv, ... docs/merger.md) are written there at every refinement and at Finish, and the
+  // live trajectory as trajectory.tum (one aircraft in `agents`) or trajectory-<agent>.tum.
+  MergeSession(const MergerOptions& options, const Vocabulary* vocabulary, const ScalePyramid& pyramid,
+               std::string record_dir = "", std::vector<std::string> agents = {});
+
+  // Called with every graph worth showing (a change of the merged maps, a refinement); the
+  // service publishes it as <agent>/GLOBAL_MAP.
+  void OnGraph(std::function<void(const Merger::Graph&)> listener) { on_graph_ = std::move(listener); }
+
+  struct Applied {
+    bool accepted = false;
+    std::string refused;              // why it was not (another aircraft's submap)
+    std::vector<KeyframeId> missing;  // keyframes the submap's manifest lists and its copy lacks
+    bool newly_closed = false;        // the update closed its submap
+  };
+  // Applies one update (or part of one, `first_part` for part 0) from `agent`'s mapper.
+  Applied Apply(const SubmapUpdate& update, const std::string& agent, bool first_part);
+
+  // Whether `submap`'s final state, arrived whole, is the first of that submap to: a closed
+  // submap changes the merged maps for good, and the host refines them then.
+  bool FirstWholeFinalState(SubmapId submap) { return refined_closed_.insert(submap).second; }
+  bool any_closed_whole() const { return !refined_closed_.empty(); }
+
+  // Verifies stale connected frames again, solves the graph with the pose graph, assembles the
+  // largest merged map and adjusts it; a merge whose junction the adjustment cannot hold is
+  // rolled back (its edge refused) and the maps solved again, up to 3 rounds. Then shows the
+  // graph and writes the records and the live trajectory.
+  void Refine(const std::string& why);
+  // At the end: refines if updates arrived since the last refinement (else writes the records of
+  // that one), says which submaps are incomplete, and writes the COLMAP model and the trajectory.
+  void Finish();
+
+  // The latest refinement.
+  struct Refined {
+    Merger::Graph graph;
+    std::optional<MergedMap> merged;  // the largest merged map, fused and adjusted
+  };
+  const std::optional<Refined>& refined() const { return refined_; }
+  // The placement of the graph shown last.
+  const std::map<SubmapId, SubmapPlacement>& latest_placement() const { return latest_placement_; }
+
+  // The pose stream. Refuses (false, with why) a pose that names no submap, or frames beyond
+  // 9 hours at 30 fps waiting; thread-safe (the subscriber's thread calls it).
+  bool AddFramePose(const std::string& agent, const TrackedFramePose& pose, std::string* why);
+  int64_t frame_poses_received() const;
+  // trajectory.tum (or one per aircraft): every frame of the pose stream that lies in the
+  // largest merged map, with the newest placement and the last refinement's keyframe poses.
+  void WriteLiveTrajectory();
+  // ...when merger.live_outputs_interval_s has passed since it was last written.
+  void WriteLiveTrajectoryIfDue();
+
+  // Every placed submap's points in its merged map's frame (the refined merged map's where it
+  // still holds), thinned to merger.map_cloud_points in all.
+  struct MapCloud {
+    int revision = 0;
+    int64_t points_in_maps = 0;  // before thinning
+    struct Submap {
+      SubmapId id;
+      int component = -1;
+      std::vector<Eigen::Vector3f> positions;
+    };
+    std::vector<Submap> submaps;
+  };
+  // Whether the maps changed since the last cloud.
+  bool map_cloud_stale() const { return cloud_stale_; }
+  // The cloud (nullopt when none is wanted or nothing is placed); no longer stale after.
+  std::optional<MapCloud> TakeMapCloud();
+
+  const Merger& merger() const { return merger_; }
+  const std::vector<MergeLogRecord>& merge_log() const { return merge_log_; }
+  // Each submap's aircraft (from its updates).
+  const std::map<SubmapId, std::string>& agent_of() const { return agent_of_; }
+  int64_t updates_applied() const { return applied_; }
+
+  // The records of the graph and map given (what Refine and Finish write).
+  void WriteRecords(const Merger::Graph& graph, const MergedMap* merged) const;
+
+ private:
+  // Logs a change of the current map and the stack, and refused edges; shows the graph.
+  void OnGraphChange(const std::string& event);
+  void Show(const Merger::Graph& graph);
+  // The largest merged map with its points fused and bundle adjusted; its keyframe poses replace
+  // the pose graph's in `graph`. nullopt when it holds no submap with a camera.
+  std::optional<MergedMap> MergeLargestMap(Merger::Graph* graph) const;
+  // colmap/: the largest map as a COLMAP sparse model (at the end only).
+  void WriteColmapRecord(const Merger::Graph& graph, const MergedMap* merged) const;
+
+  ScalePyramid pyramid_;
+  Merger merger_;
+  std::string record_dir_;
+  std::vector<std::string> agents_;
+  std::function<void(const Merger::Graph&)> on_graph_;
+  int64_t applied_ = 0;
+  size_t connections_seen_ = 0;
+  std::map<SubmapId, bool> closed_seen_;
+  std::set<SubmapId> refined_closed_;         // closed submaps the merged maps were refined with
+  std::map<SubmapId, std::string> agent_of_;  // each submap's aircraft (from its updates)
+  std::vector<MergeLogRecord> merge_log_;     // merge_log.tsv
+  std::string last_stack_;
+  std::map<std::pair<SubmapId, SubmapId>, std::string> refused_edges_;  // as last logged
+  std::map<SubmapId, SubmapPlacement> latest_placement_;                // as last shown
+  std::optional<Refined> refined_;
+  int64_t refined_at_ = -1;  // ...after this many updates applied
+  // The pose stream: what the subscriber took, waiting, and the owner's copy by aircraft and frame.
+  mutable std::mutex poses_mutex_;
+  std::vector<std::pair<std::string, TrackedFramePose>> poses_pending_;
+  int64_t poses_received_ = 0;
+  std::map<std::string, std::map<int, TrackedFramePose>> frame_poses_;
+  bool trajectory_stale_ = false;
+  double trajectory_written_at_ = 0;  // MonotonicSeconds()
+  bool cloud_stale_ = false;
+  int cloud_revision_ = 0;
+};
+
+}  // namespace stitch

@@ -1,0 +1,118 @@
+// `stitch run`'s plan, before any process starts: which services, with which arguments, on
+// which side of the link, and what it refuses.
+
+#include "tools/stitch/launch/launch_plan.h"
+
+#include <algorithm>
+
+#include <gtest/gtest.h>
+
+#include "stitch/util/error.h"
+
+namespace stitch {
+namespace {
+
+std::vector<std::string> Names(const LaunchPlan& plan) {
+  std::vector<std::string> names;
+  for (const PlannedService& s : plan.services) names.push_back(s.name);
+  return names;
+}
+
+const PlannedService& Service(const LaunchPlan& plan, const std::string& name) {
+  for (const PlannedService& s : plan.services) {
+    if (s.name == name) return s;
+  }
+  throw Error("no " + name + " in the plan");
+}
+
+// The value after `flag` in a service's arguments ("" when absent).
+std::string Argument(const PlannedService& service, const std::string& flag) {
+  const auto it = std::find(service.args.begin(), service.args.end(), flag);
+  return it == service.args.end() || it + 1 == service.args.end() ? "" : *(it + 1);
+}
+
+RunArgs ShortFlight() {
+  RunArgs args;
+  args.source.max_frames = 20;
+  return args;
+}
+
+TEST(LaunchPlan, TheDefaultRunStartsTheGroundFirstAndIngestLastOnOneBus) {
+  const LaunchPlan plan = PlanRun(ShortFlight(), "/tmp/planned");
+  EXPECT_EQ(Names(plan), (std::vector<std::string>{"merger", "mapper", "tracker", "ingest"}));
+  EXPECT_FALSE(plan.linked);
+  EXPECT_EQ(plan.ground_url, plan.url);
+  for (const PlannedService& s : plan.services) {
+    EXPECT_EQ(Argument(s, "--lcm-url"), plan.url) << s.name;
+    EXPECT_EQ(Argument(s, "--config"), "/tmp/planned/config.yaml") << s.name;
+  }
+  EXPECT_EQ(Argument(Service(plan, "merger"), "--record"), "/tmp/planned");
+  EXPECT_EQ(Argument(Service(plan, "tracker"), "--record"), "/tmp/planned/frames.tsv");
+  EXPECT_EQ(Argument(Service(plan, "ingest"), "--max-frames"), "20");
+  EXPECT_EQ(Argument(Service(plan, "ingest"), "--failures"), "default");
+  EXPECT_EQ(plan.info.frames_total, 20);
+  EXPECT_EQ(plan.info.failures, "4:1,9:1,14:1");  // the default's three gusts, spread over the flight
+  EXPECT_EQ(plan.info.frames_unusable, 3);
+}
+
+TEST(LaunchPlan, ALinkPutsTheMergerOnABusOfItsOwnBehindTwoBridgesThatNameEachOther) {
+  RunArgs args = ShortFlight();
+  args.link = true;
+  args.viewer = true;
+  args.journal = true;
+  const LaunchPlan plan = PlanRun(args, "/tmp/planned");
+  EXPECT_EQ(Names(plan),
+            (std::vector<std::string>{"merger", "link-ground", "link-aircraft", "viewer", "mapper", "tracker", "ingest"}));
+  EXPECT_NE(plan.ground_url, plan.url);
+  const PlannedService& ground = Service(plan, "link-ground");
+  const PlannedService& air = Service(plan, "link-aircraft");
+  EXPECT_EQ(Argument(ground, "--peer"), Argument(air, "--listen"));
+  EXPECT_EQ(Argument(air, "--peer"), Argument(ground, "--listen"));
+  EXPECT_EQ(Argument(ground, "--accept"), Argument(air, "--forward"));
+  EXPECT_EQ(Argument(ground, "--key"), "/tmp/planned/link.key");  // authenticated, with a key of the run's
+  EXPECT_EQ(plan.link_key, "/tmp/planned/link.key");
+  for (const char* name : {"merger", "link-ground", "viewer"}) {
+    EXPECT_TRUE(Service(plan, name).on_ground) << name;
+    EXPECT_EQ(Argument(Service(plan, name), "--lcm-url"), plan.ground_url) << name;
+  }
+  for (const char* name : {"link-aircraft", "mapper", "tracker", "ingest"}) {
+    EXPECT_FALSE(Service(plan, name).on_ground) << name;
+    EXPECT_EQ(Argument(Service(plan, name), "--lcm-url"), plan.url) << name;
+  }
+  EXPECT_EQ(Argument(Service(plan, "merger"), "--state"), "/tmp/planned/merger");
+  EXPECT_EQ(plan.viewer_url, "http://127.0.0.1:8080/");
+  EXPECT_NE(plan.info.link.find("authenticated"), std::string::npos) << plan.info.link;
+}
+
+TEST(LaunchPlan, FlagsBecomeSettingsOverTheFile) {
+  RunArgs args = ShortFlight();
+  args.on_loss = "relocalize";
+  args.pacing = "realtime";
+  args.settings = {"mapper.stop_linger_s=3"};
+  const LaunchPlan plan = PlanRun(args, "/tmp/planned");
+  EXPECT_EQ(plan.config.tracker.on_loss, "relocalize");
+  EXPECT_EQ(plan.config.ingest.pacing, "realtime");
+  EXPECT_EQ(plan.info.pacing, "realtime");
+  EXPECT_EQ(plan.config.mapper.delivery.stop_linger_s, 3);
+  // The mapper's grace follows its delivery settings: linger and link drain, and a minute more.
+  EXPECT_EQ(StopGraceSeconds(plan, "mapper"), std::max(120.0, 300.0 + 3.0 + 60.0));
+  EXPECT_EQ(StopGraceSeconds(plan, "tracker"), 15.0);
+}
+
+TEST(LaunchPlan, RefusesWhatNoRunCanTake) {
+  RunArgs args = ShortFlight();
+  args.source.start_frame = -1;
+  EXPECT_THROW(PlanRun(args, "/tmp/planned"), Error);
+  args = ShortFlight();
+  args.vocabulary = "/nonexistent/voc.stitchvoc";
+  EXPECT_THROW(PlanRun(args, "/tmp/planned"), Error);
+  args = ShortFlight();
+  args.agent = "bad agent";
+  EXPECT_THROW(PlanRun(args, "/tmp/planned"), Error);
+  args = ShortFlight();
+  args.settings = {"mapper.stop_linger_s=-1"};
+  EXPECT_THROW(PlanRun(args, "/tmp/planned"), Error);
+}
+
+}  // namespace
+}  // namespace stitch

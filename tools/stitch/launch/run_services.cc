@@ -1,0 +1,122 @@
+#include "tools/stitch/launch/run_services.h"
+
+#include <csignal>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+
+namespace fs = std::filesystem;
+
+namespace stitch {
+
+RunServices::RunServices(const LaunchPlan& plan, const SplitNetwork* network) : plan_(plan), network_(network) {}
+
+void RunServices::StartAll() {
+  const std::string bin = ExecutableDir();
+  for (const PlannedService& service : plan_.services) {
+    if (network_) service.on_ground ? network_->EnterGround() : network_->EnterAircraft();
+    children_.push_back(std::make_unique<ChildProcess>(service.name, bin + "/" + service.program, service.args,
+                                                       (fs::path(plan_.out) / "logs" / (service.name + ".log")).string()));
+  }
+  if (network_) network_->EnterAircraft();  // the launcher listens on the aircraft's side
+}
+
+ChildProcess* RunServices::Find(const std::string& name) const {
+  for (const auto& child : children_) {
+    if (child->name() == name) return child.get();
+  }
+  return nullptr;
+}
+
+std::string RunServices::Failure() {
+  for (const auto& child : children_) {
+    if (child->name() == "ingest" || !child->Poll()) continue;
+    return "the " + child->name() + " exited unexpectedly (status " + std::to_string(*child->Poll()) + "); end of " +
+           child->log_path() + ":\n" + child->LogTail(8);
+  }
+  ChildProcess* ingest = Find("ingest");
+  if (ingest && ingest->Poll() && *ingest->Poll() != 0) {
+    return "ingest failed (status " + std::to_string(*ingest->Poll()) + "); end of " + ingest->log_path() + ":\n" +
+           ingest->LogTail(8);
+  }
+  return "";
+}
+
+bool RunServices::IngestDone() {
+  ChildProcess* ingest = Find("ingest");
+  return ingest && ingest->Poll() && *ingest->Poll() == 0;
+}
+
+void RunServices::SampleMemory(double seconds, int frame) {
+  if (!memory_samples_) {
+    memory_samples_ = std::make_unique<std::ofstream>(fs::path(plan_.out) / "memory.tsv");
+    *memory_samples_ << "seconds\tframe\tservice\trss_mb\n";
+  }
+  for (const auto& child : children_) {
+    const double mb = child->ResidentMb();
+    if (mb < 0) continue;
+    char row[160];
+    std::snprintf(row, sizeof(row), "%.1f\t%d\t%s\t%.1f\n", seconds, frame, child->name().c_str(), mb);
+    *memory_samples_ << row;
+  }
+  memory_samples_->flush();
+}
+
+std::string RunServices::StopAll(bool keep_viewer, bool quiet_statuses) {
+  std::string failure;
+  for (auto it = children_.rbegin(); it != children_.rend(); ++it) {
+    if ((*it)->name() == "viewer" && keep_viewer) continue;
+    const double grace_s = StopGraceSeconds(plan_, (*it)->name());
+    const int status = (*it)->Terminate(std::chrono::milliseconds(static_cast<int64_t>(grace_s * 1000)));
+    if (status != 0 && status != 128 + SIGTERM && status != 130 && !quiet_statuses && failure.empty()) {
+      failure = (*it)->name() + " ended with status " + std::to_string(status) + "; see " + (*it)->log_path();
+    }
+  }
+  return failure;
+}
+
+void RunServices::Report(RunInfo* info) const {
+  for (const auto& child : children_) {
+    if (child->Poll()) info->peak_rss_mb[child->name()] = child->peak_resident_mb();
+  }
+  for (const auto& child : children_) {
+    if (child->name().rfind("link", 0) != 0) continue;
+    const std::string tail = child->LogTail(3);
+    const size_t said = tail.rfind("stopped: ");
+    if (said != std::string::npos) {
+      info->link_figures.push_back(child->name() + ": " + tail.substr(said + 9, tail.find('\n', said) - said - 9));
+    }
+  }
+  // What a service logged as an error (a record it could not write on a full disk, updates it had
+  // to drop) is said here too, not only in its log.
+  for (const auto& child : children_) {
+    int total = 0;
+    const std::vector<std::string> errors = child->LogErrors(3, &total);
+    for (const std::string& line : errors) {
+      std::fprintf(stderr, "stitch run: the %s logged: %s\n", child->name().c_str(), line.c_str());
+      info->notes.push_back("the " + child->name() + " logged: " + line);
+    }
+    if (total > static_cast<int>(errors.size())) {
+      info->notes.push_back("the " + child->name() + " logged " + std::to_string(total) + " errors in all; see " +
+                            child->log_path());
+    }
+  }
+}
+
+void PrintRunSummary(const RunInfo& info, const std::string& evaluation_summary, const std::string& out,
+                     int exit_code) {
+  std::printf("%s in %.1f s\n%s", info.interrupted ? "interrupted" : (exit_code ? "failed" : "done"),
+              info.wall_seconds, evaluation_summary.c_str());
+  if (!info.peak_rss_mb.empty()) {
+    std::string peaks;
+    for (const auto& [service, mb] : info.peak_rss_mb) {
+      peaks += (peaks.empty() ? "" : ", ") + service + " " + std::to_string(static_cast<int>(std::lround(mb))) + " MB";
+    }
+    std::printf("  peak memory       %s (memory.tsv: every 2 s)\n", peaks.c_str());
+  }
+  for (const auto& figures : info.link_figures) std::printf("%s\n", figures.c_str());
+  for (const auto& note : info.notes) std::printf("note: %s\n", note.c_str());
+  std::printf("outputs: %s/{trajectory.tum, map.ply, report.json, trajectory.png, logs/}\n", out.c_str());
+}
+
+}  // namespace stitch
