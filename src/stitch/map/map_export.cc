@@ -5,6 +5,7 @@
 #include <map>
 
 #include "stitch/util/error.h"
+#include "stitch/util/statistics.h"
 
 namespace stitch {
 
@@ -21,12 +22,6 @@ bool MapExportOptions::Check(std::string* why) const {
 }
 
 namespace {
-
-double Median(std::vector<double> values) {
-  const auto middle = values.begin() + values.size() / 2;
-  std::nth_element(values.begin(), middle, values.end());
-  return *middle;
-}
 
 }  // namespace
 

@@ -13,6 +13,7 @@
 #include "stitch/merging/pose_graph.h"
 #include "stitch/util/error.h"
 #include "stitch/util/options.h"
+#include "stitch/util/statistics.h"
 
 namespace stitch {
 namespace {
@@ -26,13 +27,6 @@ constexpr double kIntraSubmapWeight = 10.0;
 // 0.016 in log scale (90%: 0.7 degrees, 2.4%, 0.006). The translation is measured against a
 // tenth of the scene's depth where it is shorter.
 constexpr double kMaxConnectionRelativeTranslation = 0.25;
-
-double Median(std::vector<double> values) {
-  if (values.empty()) return 0;
-  const size_t middle = values.size() / 2;
-  std::nth_element(values.begin(), values.begin() + middle, values.end());
-  return values[middle];
-}
 
 // Shared-word counts as if each candidate had no more words than the query: a keyframe with twice
 // the features (a submap's first two, made by initialization) shares more words with anything,

@@ -6,15 +6,10 @@
 #include <deque>
 #include <numeric>
 
+#include "stitch/util/statistics.h"
+
 namespace stitch {
 namespace {
-
-double Median(std::vector<double> values) {
-  if (values.empty()) return 0;
-  const size_t middle = values.size() / 2;
-  std::nth_element(values.begin(), values.begin() + middle, values.end());
-  return values[middle];
-}
 
 // Union-find over submap indices.
 class DisjointSets {

@@ -25,6 +25,7 @@
 #include "stitch/util/args.h"
 #include "stitch/util/child_process.h"
 #include "stitch/util/error.h"
+#include "stitch/util/statistics.h"
 #include "stitch/util/text_file.h"
 #include "stitch/util/time.h"
 
@@ -95,12 +96,6 @@ std::string Substitute(std::string text, const std::string& datasets_dir) {
     text.replace(at, marker.size(), datasets_dir);
   }
   return text;
-}
-
-double Median(std::vector<double> values) {
-  if (values.empty()) return 0;
-  std::sort(values.begin(), values.end());
-  return values[values.size() / 2];
 }
 
 }  // namespace
