@@ -15,6 +15,7 @@
 
 #include "stitch/delivery/submap_receiver.h"
 #include "stitch/delivery/submap_sender.h"
+#include "stitch/testing/submap_updates.h"
 #include "stitch/util/rng.h"
 
 namespace stitch {
@@ -23,9 +24,8 @@ namespace {
 const Camera kCamera = Camera::Pinhole(640, 480, 400, 400, 320, 240);
 const ScalePyramid kPyramid = ScalePyramid::From(OrbOptions());
 
-// The mapper's submaps (what LocalMapping holds): each keyframe observes 30 points, 20 of them the
-// previous keyframe's; every new keyframe refines the points it shares; a submap closes after
-// `keyframes_per_submap` keyframes.
+// The mapper's submaps (what LocalMapping holds), each grown keyframe by keyframe
+// (testing::AddChainedKeyframe: every new keyframe refines the points it shares).
 class FakeMapper : public SubmapSource {
  public:
   const Map* current() const override { return current_.get(); }
@@ -39,100 +39,29 @@ class FakeMapper : public SubmapSource {
     const Map* map = Find(SubmapOf(keyframe));
     return map && map->FindKeyframe(keyframe);
   }
-  // As LocalMapping::MakeResendUpdate: with `full_state` the whole state and the keyframes; a
-  // closed submap's keyframes alone as revision 0 without a manifest; an open one's keyframes
-  // with the points they observe.
+  // As LocalMapping::MakeResendUpdate.
   SubmapUpdate MakeResendUpdate(SubmapId submap, const std::vector<KeyframeId>& keyframes, bool full_state) override {
     Map* found = Find(submap);
     if (!found) return {};
     const bool closed = found != current_.get();
     const bool keyframes_alone = closed && !full_state;
-    const int revision = keyframes_alone ? 0 : ++revision_;
-    SubmapUpdate update;
-    LocalMapUpdate changes;
-    if (full_state) {
-      update = MakeFullSubmapUpdate(found, revision, closed);
-    } else {
-      changes.revision = revision;
-      std::set<MapPointId> points;
-      for (KeyframeId id : keyframes_alone ? std::vector<KeyframeId>() : keyframes) {
-        const Keyframe* keyframe = found->FindKeyframe(id);
-        if (!keyframe) continue;
-        changes.associations.push_back({id, keyframe->points});
-        for (MapPointId p : keyframe->points) {
-          if (p.valid() && found->FindPoint(p)) points.insert(p);
-        }
-      }
-      for (MapPointId p : points) {
-        MapPoint copy = *found->FindPoint(p);
-        copy.observations.clear();
-        changes.points.push_back(std::move(copy));
-      }
-    }
-    for (KeyframeId id : keyframes) {
-      if (!found->FindKeyframe(id)) continue;
-      SubmapUpdate one = MakeKeyframeSubmapUpdate(*found, id, kCamera, changes);
-      if (!full_state && update.new_keyframes.empty()) {
-        update = one;
-        if (closed) update.manifest.clear();
-        continue;
-      }
-      for (Keyframe& keyframe : one.new_keyframes) update.new_keyframes.push_back(std::move(keyframe));
-    }
-    update.camera = kCamera;
-    return update;
+    return MakeResendSubmapUpdate(found, kCamera, keyframes, full_state, closed, keyframes_alone ? 0 : ++revision_);
   }
   SubmapUpdate MakeManifestUpdate() override {
-    SubmapUpdate update;
-    if (!current_ || current_->num_keyframes() == 0) return update;
-    update.submap = current_->id();
-    update.revision = ++revision_;
-    update.camera = kCamera;
-    update.changes.submap = current_->id();
-    update.changes.revision = update.revision;
-    for (const auto& [id, keyframe] : current_->keyframes()) update.manifest.push_back(id);
-    std::sort(update.manifest.begin(), update.manifest.end());
-    return update;
+    return current_ ? MakeManifestSubmapUpdate(*current_, kCamera, ++revision_) : SubmapUpdate();
   }
 
   // The next keyframe's update (the keyframe in full and its window's changes); a new submap
-  // starts when the current one is full (CloseFull closes it first).
+  // starts after Close.
   SubmapUpdate AddKeyframe() {
     if (!current_) {
       current_ = std::make_unique<Map>(MakeSubmapId(0, static_cast<uint32_t>(++submaps_)), kPyramid);
       current_->EnableRemovalJournal();
       index_ = 0;
     }
-    const SubmapId submap = current_->id();
-    const uint32_t index = index_++;
-    Keyframe keyframe;
-    keyframe.id = MakeKeyframeId(submap, index);
-    keyframe.frame_index = static_cast<int>(100 * submaps_ + 10 * index);
-    keyframe.cam_from_world = Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(-0.5 * index, 0, 0));
-    const int n = 40;
-    keyframe.descriptors = cv::Mat(n, 32, CV_8U, cv::Scalar(index));
-    for (int i = 0; i < n; ++i) {
-      cv::KeyPoint kp(10.0f + 5 * i, 20.0f + index, 31);
-      kp.octave = i % 3;
-      keyframe.keypoints.push_back(kp);
-    }
-    keyframe.points.assign(n, MapPointId());
-    for (int i = 0; i < 30; ++i) {
-      const MapPointId id = MakeMapPointId(submap, 10 * index + static_cast<uint32_t>(i));
-      if (MapPoint* known = current_->FindPoint(id)) {
-        known->position.z() += 0.2;  // refined by this keyframe's adjustment
-      } else {
-        MapPoint point;
-        point.id = id;
-        point.position = Eigen::Vector3d(0.1 * static_cast<double>((10 * index + i) % 97), 0.2, 5.0);
-        current_->AddPoint(point);
-      }
-      keyframe.points[i] = id;
-    }
-    current_->AddKeyframe(std::move(keyframe));
-    current_->UpdateConnections(MakeKeyframeId(submap, index));
-    const LocalMapUpdate changes = MakeLocalMapUpdate(current_.get(), MakeKeyframeId(submap, index), ++revision_, 0);
-    return MakeKeyframeSubmapUpdate(*current_, MakeKeyframeId(submap, index), kCamera, changes);
+    const KeyframeId id = testing::AddChainedKeyframe(current_.get(), index_++, /*refine_m=*/0.2);
+    const LocalMapUpdate changes = MakeLocalMapUpdate(current_.get(), id, ++revision_, 0);
+    return MakeKeyframeSubmapUpdate(*current_, id, kCamera, changes);
   }
   // Closes the current submap; its final state.
   SubmapUpdate Close() {

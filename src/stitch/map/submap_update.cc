@@ -1,5 +1,7 @@
 #include "stitch/map/submap_update.h"
 
+#include <algorithm>
+#include <set>
 #include <unordered_set>
 
 namespace stitch {
@@ -35,6 +37,57 @@ SubmapUpdate MakeKeyframeSubmapUpdate(const Map& map, KeyframeId keyframe, const
   update.changes = changes;
   update.changes.submap = map.id();
   for (const auto& [id, k] : map.keyframes()) update.manifest.push_back(id);
+  return update;
+}
+
+SubmapUpdate MakeResendSubmapUpdate(Map* map, const Camera& camera, const std::vector<KeyframeId>& keyframes,
+                                    bool full_state, bool closed, int revision) {
+  const bool keyframes_alone = closed && !full_state;
+  LocalMapUpdate changes;
+  SubmapUpdate update;
+  if (full_state) {
+    update = MakeFullSubmapUpdate(map, revision, closed);
+  } else {
+    changes.revision = revision;
+    std::set<MapPointId> points;
+    for (KeyframeId id : keyframes_alone ? std::vector<KeyframeId>() : keyframes) {
+      const Keyframe* keyframe = map->FindKeyframe(id);
+      if (!keyframe) continue;
+      changes.associations.push_back({id, keyframe->points});
+      for (MapPointId p : keyframe->points) {
+        if (p.valid() && map->FindPoint(p)) points.insert(p);
+      }
+    }
+    for (MapPointId p : points) {
+      MapPoint copy = *map->FindPoint(p);
+      copy.observations.clear();
+      changes.points.push_back(std::move(copy));
+    }
+  }
+  for (KeyframeId id : keyframes) {
+    if (!map->FindKeyframe(id)) continue;  // culled since: the manifest no longer lists it
+    SubmapUpdate one = MakeKeyframeSubmapUpdate(*map, id, camera, changes);
+    if (!full_state && update.new_keyframes.empty()) {
+      update = one;                         // carries `changes` and the manifest
+      if (closed) update.manifest.clear();  // the final state's stands
+      continue;
+    }
+    for (Keyframe& keyframe : one.new_keyframes) update.new_keyframes.push_back(std::move(keyframe));
+  }
+  update.camera = camera;
+  return update;
+}
+
+SubmapUpdate MakeManifestSubmapUpdate(const Map& map, const Camera& camera, int revision) {
+  SubmapUpdate update;
+  if (map.num_keyframes() == 0) return update;
+  update.submap = map.id();
+  update.revision = revision;
+  update.camera = camera;
+  update.changes.submap = map.id();
+  update.changes.revision = revision;
+  for (const auto& [id, keyframe] : map.keyframes()) update.manifest.push_back(id);
+  std::sort(update.manifest.begin(), update.manifest.end());
   return update;
 }
 

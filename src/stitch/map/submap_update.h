@@ -31,6 +31,16 @@ SubmapUpdate MakeKeyframeSubmapUpdate(const Map& map, KeyframeId keyframe, const
 // with their keyframes), plus the removals journaled since the last update.
 SubmapUpdate MakeFullSubmapUpdate(Map* map, int revision, bool closed);
 
+// Part of a submap again, for a receiver that lost it: those of `keyframes` the map holds, in full
+// with the points they observe, and with `full_state` every pose, association and point (closed
+// as `closed` says). A closed submap's keyframes without its state go alone, without their points
+// or a manifest (the final state has them): send those as revision 0, older than any state.
+SubmapUpdate MakeResendSubmapUpdate(Map* map, const Camera& camera, const std::vector<KeyframeId>& keyframes,
+                                    bool full_state, bool closed, int revision);
+// The submap's manifest alone (a few bytes per keyframe), sorted: lets a receiver that lost the
+// newest keyframe's update notice it while no new keyframe comes. Empty for a map without keyframes.
+SubmapUpdate MakeManifestSubmapUpdate(const Map& map, const Camera& camera, int revision);
+
 // A receiver's copy of a submap (the merger's store holds one per submap).
 struct SubmapReplica {
   SubmapReplica(SubmapId id, ScalePyramid pyramid) : map(id, std::move(pyramid)) {}

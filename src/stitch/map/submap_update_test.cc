@@ -4,6 +4,8 @@
 
 #include <gtest/gtest.h>
 
+#include "stitch/testing/submap_updates.h"
+
 namespace stitch {
 namespace {
 
@@ -19,31 +21,7 @@ struct Sender {
   Sender() { map.EnableRemovalJournal(); }
 
   SubmapUpdate AddKeyframe(uint32_t index) {
-    Keyframe keyframe;
-    keyframe.id = MakeKeyframeId(kSubmap, index);
-    keyframe.frame_index = static_cast<int>(10 * index);
-    keyframe.cam_from_world = Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(-0.5 * index, 0, 0));
-    const int n = 40;
-    keyframe.descriptors = cv::Mat(n, 32, CV_8U, cv::Scalar(index));
-    for (int i = 0; i < n; ++i) {
-      cv::KeyPoint kp(10.0f + 5 * i, 20.0f + index, 31);
-      kp.octave = i % 3;
-      keyframe.keypoints.push_back(kp);
-    }
-    keyframe.points.assign(n, MapPointId());
-    for (int i = 0; i < 30; ++i) {
-      const uint32_t point_index = 10 * index + static_cast<uint32_t>(i);
-      const MapPointId id = MakeMapPointId(kSubmap, point_index);
-      if (!map.FindPoint(id)) {
-        MapPoint point;
-        point.id = id;
-        point.position = Eigen::Vector3d(0.1 * point_index, 0.2, 5.0);
-        map.AddPoint(point);
-      }
-      keyframe.points[i] = id;
-    }
-    map.AddKeyframe(std::move(keyframe));
-    map.UpdateConnections(MakeKeyframeId(kSubmap, index));
+    testing::AddChainedKeyframe(&map, index);
     const LocalMapUpdate changes = MakeLocalMapUpdate(&map, MakeKeyframeId(kSubmap, index), ++revision, 0);
     return MakeKeyframeSubmapUpdate(map, MakeKeyframeId(kSubmap, index), camera, changes);
   }

@@ -241,40 +241,8 @@ SubmapUpdate LocalMapping::MakeResendUpdate(SubmapId submap, const std::vector<K
   // keyframe or two the link lost cost the submap's whole state again (1-2 MB, behind a link that
   // may carry 100 kB/s); with their points, a few keyframes at a time sent most points many times.
   const bool keyframes_alone = closed && !full_state;
-  const int revision = keyframes_alone ? 0 : ++revision_;
-  LocalMapUpdate changes;
-  SubmapUpdate update;
-  if (full_state) {
-    update = MakeFullSubmapUpdate(found, revision, closed);
-  } else {
-    changes.revision = revision;
-    std::set<MapPointId> points;
-    for (KeyframeId id : keyframes_alone ? std::vector<KeyframeId>() : keyframes) {
-      const Keyframe* keyframe = found->FindKeyframe(id);
-      if (!keyframe) continue;
-      changes.associations.push_back({id, keyframe->points});
-      for (MapPointId p : keyframe->points) {
-        if (p.valid() && found->FindPoint(p)) points.insert(p);
-      }
-    }
-    for (MapPointId p : points) {
-      MapPoint copy = *found->FindPoint(p);
-      copy.observations.clear();
-      changes.points.push_back(std::move(copy));
-    }
-  }
-  for (KeyframeId id : keyframes) {
-    if (!found->FindKeyframe(id)) continue;  // culled since: the manifest no longer lists it
-    SubmapUpdate one = MakeKeyframeSubmapUpdate(*found, id, geometry_.camera, changes);
-    if (!full_state && update.new_keyframes.empty()) {
-      update = one;                         // carries `changes` and the manifest
-      if (closed) update.manifest.clear();  // the final state's stands
-      continue;
-    }
-    for (Keyframe& keyframe : one.new_keyframes) update.new_keyframes.push_back(std::move(keyframe));
-  }
-  update.camera = geometry_.camera;
-  return update;
+  return MakeResendSubmapUpdate(found, geometry_.camera, keyframes, full_state, closed,
+                                keyframes_alone ? 0 : ++revision_);
 }
 
 Map* LocalMapping::FindSubmap(SubmapId submap) const {
@@ -295,16 +263,8 @@ bool LocalMapping::Holds(SubmapId submap) const {
 }
 
 SubmapUpdate LocalMapping::MakeManifestUpdate() {
-  SubmapUpdate update;
-  if (!map_ || map_->num_keyframes() == 0) return update;
-  update.submap = map_->id();
-  update.revision = ++revision_;
-  update.camera = geometry_.camera;
-  update.changes.submap = map_->id();
-  update.changes.revision = update.revision;
-  for (const auto& [id, keyframe] : map_->keyframes()) update.manifest.push_back(id);
-  std::sort(update.manifest.begin(), update.manifest.end());
-  return update;
+  if (!map_ || map_->num_keyframes() == 0) return {};
+  return MakeManifestSubmapUpdate(*map_, geometry_.camera, ++revision_);
 }
 
 }  // namespace stitch
