@@ -94,7 +94,7 @@ void MergerService::Stop() {
   if (!running_.exchange(false)) return;
   queue_.Close();
   if (worker_.joinable()) worker_.join();
-  session_.Finish();
+  if (session_.Finish()) PublishMapCloud();  // the last refinement's points
   heartbeat_->SetState(stitch::service_status_t::STATE_FINISHED);
   heartbeat_->Stop();
 }

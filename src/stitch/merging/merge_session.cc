@@ -135,7 +135,7 @@ void MergeSession::Refine(const std::string& why) {
   STITCH_LOG(INFO) << "refined the merged maps (" << why << ") in " << clock.ElapsedMs() << " ms";
 }
 
-void MergeSession::Finish() {
+bool MergeSession::Finish() {
   const bool refine_now = !refined_ || refined_at_ != applied_;
   if (refine_now) Refine("the run ended");  // writes the records
   for (const auto& [id, replica] : merger_.submaps()) {
@@ -157,6 +157,7 @@ void MergeSession::Finish() {
     }
   }
   WriteLiveTrajectory();
+  return refine_now;
 }
 
 void MergeSession::OnGraphChange(const std::string& event) {

@@ -57,7 +57,8 @@ class MergeSession {
   void Refine(const std::string& why);
   // At the end: refines if updates arrived since the last refinement (else writes the records of
   // that one), says which submaps are incomplete, and writes the COLMAP model and the trajectory.
-  void Finish();
+  // Returns whether it refined.
+  bool Finish();
 
   // The latest refinement.
   struct Refined {
