@@ -11,12 +11,12 @@
 
 #include <gtest/gtest.h>
 
-#include "stitch/config/stitch_config.h"
 #include "services/ingest/ingest_service.h"
 #include "services/mapper/mapper_service.h"
 #include "services/merger/merger_service.h"
 #include "services/tracker/tracker_service.h"
 #include "services/viewer/viewer_service.h"
+#include "stitch/config/stitch_config.h"
 #include "stitch/link_status_t.hpp"
 #include "stitch/service_status_t.hpp"
 #include "stitch/source/source.h"

@@ -6,8 +6,8 @@
 #include <gtest/gtest.h>
 
 #include "services/common/map_convert.h"
-#include "stitch/config/stitch_config.h"
 #include "services/merger/merger_service.h"
+#include "stitch/config/stitch_config.h"
 #include "stitch/pipeline/inline_pipeline.h"
 #include "stitch/source/source.h"
 #include "tests/memq_dispatched.h"

@@ -14,10 +14,10 @@
 
 #include "services/common/convert.h"
 #include "services/common/map_convert.h"
-#include "stitch/config/stitch_config.h"
 #include "services/ingest/ingest_service.h"
 #include "services/mapper/mapper_service.h"
 #include "services/tracker/tracker_service.h"
+#include "stitch/config/stitch_config.h"
 #include "stitch/eval/evaluation.h"
 #include "stitch/frame_ack_t.hpp"
 #include "stitch/io/ply.h"
@@ -125,6 +125,16 @@ void ExpectReplicaIsTheMappersSubmap(const SubmapReplica& replica, const std::st
     EXPECT_LT((keyframe->Centre() - k.world_from_cam.translation).norm(), 1e-4);
   }
   EXPECT_EQ(static_cast<size_t>(kept), replica.map.num_keyframes());
+}
+
+// The bus names a tracking state as the core does (the bus library links no algorithm, so it
+// keeps its own names: this holds them to the core's).
+TEST(TrackingStates, EveryStateHasTheCoresNameOnTheBus) {
+  for (TrackingState state : {TrackingState::kInitializing, TrackingState::kOk, TrackingState::kLost,
+                              TrackingState::kSkipped, TrackingState::kNotTracked}) {
+    EXPECT_STREQ(MessageStateName(ToMessageState(state)), TrackingStateName(state));
+  }
+  EXPECT_STREQ(MessageStateName(77), "UNKNOWN");
 }
 
 TEST(ServicesInProcess, IngestTrackerAndMapperTrackAShortFlightOverMemq) {

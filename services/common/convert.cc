@@ -222,28 +222,21 @@ DeliveryRequest FromMessage(const stitch::submap_request_t& message) {
   return request;
 }
 
-int8_t ToMessageState(TrackingState state) {
-  switch (state) {
-    case TrackingState::kInitializing:
-      return stitch::tracking_status_t::STATE_INITIALIZING;
-    case TrackingState::kOk:
-      return stitch::tracking_status_t::STATE_OK;
-    case TrackingState::kLost:
-      return stitch::tracking_status_t::STATE_LOST;
-    case TrackingState::kSkipped:
-      return stitch::tracking_status_t::STATE_SKIPPED;
-    case TrackingState::kNotTracked:
-      return stitch::tracking_status_t::STATE_NOT_TRACKED;
-  }
-  return stitch::tracking_status_t::STATE_NOT_TRACKED;
-}
-
 const char* MessageStateName(int8_t state) {
-  for (TrackingState s : {TrackingState::kInitializing, TrackingState::kOk, TrackingState::kLost,
-                          TrackingState::kSkipped, TrackingState::kNotTracked}) {
-    if (ToMessageState(s) == state) return TrackingStateName(s);
+  switch (state) {
+    case stitch::tracking_status_t::STATE_INITIALIZING:
+      return "INITIALIZING";
+    case stitch::tracking_status_t::STATE_OK:
+      return "OK";
+    case stitch::tracking_status_t::STATE_LOST:
+      return "LOST";
+    case stitch::tracking_status_t::STATE_SKIPPED:
+      return "SKIPPED";
+    case stitch::tracking_status_t::STATE_NOT_TRACKED:
+      return "NOT_TRACKED";
+    default:
+      return "UNKNOWN";
   }
-  return "UNKNOWN";
 }
 
 }  // namespace stitch

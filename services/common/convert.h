@@ -16,7 +16,6 @@
 #include "stitch/rigid3_t.hpp"
 #include "stitch/sim3_t.hpp"
 #include "stitch/submap_request_t.hpp"
-#include "stitch/tracking/tracking_result.h"
 #include "stitch/util/ids.h"
 
 namespace stitch {
@@ -38,9 +37,9 @@ Rigid3d FromFloatPose(const float* wxyz_xyz, const char* what);
 stitch::frame_pose_t FramePoseMessage(int frame_index, int64_t t_ns, SubmapId submap, const Rigid3d& cam_from_submap,
                                       KeyframeId reference, const std::optional<Rigid3d>& cam_from_reference);
 
-// Tracking states on the bus (tracking_status_t::STATE_*), and the name of one as
-// TrackingStateName says it ("UNKNOWN" for a value no tracker sends).
-int8_t ToMessageState(TrackingState state);
+// The name of a tracking state on the bus (tracking_status_t::STATE_*), as TrackingStateName
+// says it in the core ("UNKNOWN" for a value no tracker sends). Not the core's function: this
+// library links no algorithm (a test holds the two to the same names).
 const char* MessageStateName(int8_t state);
 
 // The merger's requests to a mapper (<agent>/SUBMAP_REQUEST). The reader takes ids as they come

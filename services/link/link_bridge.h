@@ -34,8 +34,8 @@
 #include <lcm/lcm-cpp.hpp>
 
 #include "services/link/link_auth.h"
-#include "stitch/config/link_options.h"
 #include "services/link/link_wire.h"
+#include "stitch/config/link_options.h"
 #include "stitch/link_status_t.hpp"
 #include "stitch/util/rng.h"
 #include "stitch/util/time.h"

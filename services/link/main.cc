@@ -63,7 +63,8 @@ int main(int argc, char** argv) {
   args.AddEpilog(
       "Example, the aircraft (10.0.0.2) and the ground station (10.0.0.1), with a key made once by\n"
       "`stitch-link keygen uav0.key` and copied to both:\n"
-      "  aircraft$ stitch-link --forward 'uav0/(SUBMAP|SEQUENCE|TRACKING_STATUS|POSE|SERVICE|LINK_STATUS)' --key uav0.key \\\n"
+      "  aircraft$ stitch-link --forward 'uav0/(SUBMAP|SEQUENCE|TRACKING_STATUS|POSE|SERVICE|LINK_STATUS)' --key "
+      "uav0.key \\\n"
       "              --accept 'uav0/SUBMAP_REQUEST' --listen 0.0.0.0:7720 --peer 10.0.0.1:7721 --budget 250000\n"
       "  ground$   stitch-link --forward 'uav0/SUBMAP_REQUEST' --key uav0.key --listen 0.0.0.0:7721 \\\n"
       "              --accept 'uav0/(SUBMAP|SEQUENCE|TRACKING_STATUS|POSE|SERVICE|LINK_STATUS)' --peer 10.0.0.2:7720\n"

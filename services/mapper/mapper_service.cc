@@ -112,7 +112,8 @@ MapperService::MapperService(lcm::LCM* lcm, bus::Publisher* publisher, MapperOpt
       bus::Channel(publisher_->agent(), bus::kLinkStatus),
       [this](std::unique_ptr<stitch::link_status_t> status, const std::string& channel) {
         std::string why;
-        if (!sender_.OnLinkStatus(status->backlog_s, status->budget_bytes_per_s, &why)) subscriber_.Reject(channel, why);
+        if (!sender_.OnLinkStatus(status->backlog_s, status->budget_bytes_per_s, &why))
+          subscriber_.Reject(channel, why);
       });
   // The merger asks again for what the link lost, or says it holds a submap whole.
   subscriber_.Subscribe<stitch::submap_request_t>(

@@ -58,8 +58,7 @@ class MapperService {
     std::vector<SubmapId> closed() const override;
     bool Holds(SubmapId submap) const override;
     bool Holds(KeyframeId keyframe) const override;
-    SubmapUpdate MakeResendUpdate(SubmapId submap, const std::vector<KeyframeId>& keyframes,
-                                  bool full_state) override;
+    SubmapUpdate MakeResendUpdate(SubmapId submap, const std::vector<KeyframeId>& keyframes, bool full_state) override;
     SubmapUpdate MakeManifestUpdate() override;
 
    private:

@@ -142,10 +142,9 @@ void MergerService::Process(const stitch::submap_update_t& message, bool from_jo
   }
   ++processed_;
   const auto replica = session_.merger().submaps().find(update.submap);
-  const bool final_state_whole =
-      receiver_.Received(update, message.part, message.num_parts,
-                         replica == session_.merger().submaps().end() ? nullptr : &replica->second,
-                         applied.missing.size());
+  const bool final_state_whole = receiver_.Received(
+      update, message.part, message.num_parts,
+      replica == session_.merger().submaps().end() ? nullptr : &replica->second, applied.missing.size());
   // A closed submap changes the merged map for good: refine it now (pose graph, fused points,
   // bundle adjustment) in this worker, while the subscriber keeps queueing updates, once its
   // final state has arrived whole (every part of the closing update).

@@ -19,6 +19,26 @@ namespace {
 // Frames a session may skip at once (lost on the network, dropped at a live source): a minute at 30 fps.
 constexpr int kMaxFrameIndexJump = 1800;
 
+}  // namespace
+
+int8_t ToMessageState(TrackingState state) {
+  switch (state) {
+    case TrackingState::kInitializing:
+      return stitch::tracking_status_t::STATE_INITIALIZING;
+    case TrackingState::kOk:
+      return stitch::tracking_status_t::STATE_OK;
+    case TrackingState::kLost:
+      return stitch::tracking_status_t::STATE_LOST;
+    case TrackingState::kSkipped:
+      return stitch::tracking_status_t::STATE_SKIPPED;
+    case TrackingState::kNotTracked:
+      return stitch::tracking_status_t::STATE_NOT_TRACKED;
+  }
+  return stitch::tracking_status_t::STATE_NOT_TRACKED;
+}
+
+namespace {
+
 stitch::frame_ack_t AckOf(const stitch::frame_t& frame) {
   stitch::frame_ack_t ack{};
   ack.frame_index = frame.frame_index;

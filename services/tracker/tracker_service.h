@@ -31,6 +31,9 @@
 
 namespace stitch {
 
+// A tracking state as tracking_status_t carries it (STATE_*).
+int8_t ToMessageState(TrackingState state);
+
 class TrackerService {
  public:
   // Subscribes at once: construct before the Dispatcher starts. `vocabulary` must outlive it.

@@ -11,8 +11,8 @@
 #include <mutex>
 #include <string>
 
-#include "stitch/config/viewer_options.h"
 #include "services/viewer/viewer_state.h"
+#include "stitch/config/viewer_options.h"
 
 struct mg_context;
 struct mg_connection;

@@ -12,9 +12,9 @@
 
 #include "services/common/bus.h"
 #include "services/common/service.h"
-#include "stitch/config/viewer_options.h"
 #include "services/viewer/viewer_server.h"
 #include "services/viewer/viewer_state.h"
+#include "stitch/config/viewer_options.h"
 
 namespace stitch {
 

@@ -224,8 +224,13 @@ nlohmann::json BenchOptions(const BenchArgs& a) {
     const std::string json_path = (scratch / ("variant" + std::to_string(i) + ".json")).string();
     std::string settings = a.settings;
     if (!v.settings.empty()) settings += (settings.empty() ? "" : ",") + v.settings;
-    std::vector<std::string> args{
-        "bench", "--failures", a.source.failures, "--json", json_path, "--max-frames", std::to_string(a.source.max_frames)};
+    std::vector<std::string> args{"bench",
+                                  "--failures",
+                                  a.source.failures,
+                                  "--json",
+                                  json_path,
+                                  "--max-frames",
+                                  std::to_string(a.source.max_frames)};
     const std::pair<const char*, const std::string*> passed[] = {{"--dataset", &a.source.dataset_path},
                                                                  {"--calib", &a.source.calibration_path},
                                                                  {"--config", &a.config_path},

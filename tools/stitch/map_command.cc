@@ -5,8 +5,8 @@
 #include <set>
 
 #include "services/common/bus.h"
-#include "services/common/update_journal.h"
 #include "services/common/map_convert.h"
+#include "services/common/update_journal.h"
 #include "stitch/config/stitch_config.h"
 #include "stitch/merging/merge_session.h"
 #include "stitch/util/args.h"
@@ -66,8 +66,9 @@ int MapCommand(int argc, char** argv) {
         });
     if (read.updates == 0) throw Error(logs[0] + ": no submap update of " + agents);
     session.Finish();
-    if (refused > 0) std::fprintf(stderr, "stitch map: %lld submap updates refused (the log says why)\n",
-                                  static_cast<long long>(refused));
+    if (refused > 0)
+      std::fprintf(stderr, "stitch map: %lld submap updates refused (the log says why)\n",
+                   static_cast<long long>(refused));
     std::printf("merged %lld submap updates from %s in %.1f s; outputs in %s\n", static_cast<long long>(read.updates),
                 logs[0].c_str(), clock.ElapsedMs() / 1000.0, out.c_str());
     if (read.lost_anything()) {

@@ -165,7 +165,7 @@ struct Flight {
   bool request_resends = true;
   int submaps = 4, keyframes_per_submap = 10;
   double restart_ground_at_s = -1, restart_aircraft_at_s = -1;  // < 0: never
-  std::function<bool(const Part&)> drop_down;  // parts the link loses besides
+  std::function<bool(const Part&)> drop_down;                   // parts the link loses besides
 };
 
 struct Delivered {
@@ -196,7 +196,8 @@ Delivered Fly(const Flight& flight) {
   Ground ground(receiver_options, clock);
   const auto tick = [&] {
     now += 0.05;
-    if (flight.restart_ground_at_s >= 0 && now >= flight.restart_ground_at_s && now < flight.restart_ground_at_s + 0.05) {
+    if (flight.restart_ground_at_s >= 0 && now >= flight.restart_ground_at_s &&
+        now < flight.restart_ground_at_s + 0.05) {
       down.Arrived(now);  // lost with the merger's process
       ground.Restart();
     }

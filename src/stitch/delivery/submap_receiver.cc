@@ -42,8 +42,8 @@ bool SubmapReceiver::PlausibleRevision(const std::string& agent, int64_t revisio
   return true;
 }
 
-bool SubmapReceiver::Received(const SubmapUpdate& update, int32_t part, int32_t num_parts,
-                              const SubmapReplica* replica, size_t missing) {
+bool SubmapReceiver::Received(const SubmapUpdate& update, int32_t part, int32_t num_parts, const SubmapReplica* replica,
+                              size_t missing) {
   last_update_[update.submap] = Now();
   // A final state comes in parts, the first with the manifest and the removals: it is whole once
   // every part of its revision has arrived, in whatever order (its last part alone, arrived first

@@ -18,7 +18,7 @@
 namespace stitch {
 
 struct ReceiverOptions {
-  bool request_resends = true;    // ask again for what was lost (merger.request_resends)
+  bool request_resends = true;     // ask again for what was lost (merger.request_resends)
   double resend_interval_s = 1.0;  // between two requests about one submap (merger.resend_interval_s)
 };
 

@@ -25,8 +25,10 @@ bool SenderOptions::Check(const std::string& section, std::string* why) const {
   };
   if (!(submap_point_resend_fraction >= 0)) return fail("submap_point_resend_fraction must be >= 0");
   if (!(stop_linger_s >= 0)) return fail("stop_linger_s must be >= 0");
-  if (!(stop_link_drain_s >= 0 && stop_link_drain_s <= 3600)) return fail("stop_link_drain_s must be between 0 and 3600");
-  if (!(resend_max_hold_s >= 0 && resend_max_hold_s <= 3600)) return fail("resend_max_hold_s must be between 0 and 3600");
+  if (!(stop_link_drain_s >= 0 && stop_link_drain_s <= 3600))
+    return fail("stop_link_drain_s must be between 0 and 3600");
+  if (!(resend_max_hold_s >= 0 && resend_max_hold_s <= 3600))
+    return fail("resend_max_hold_s must be between 0 and 3600");
   if (!(link_backlog_defer_s >= 0 && link_backlog_defer_s <= 3600)) {
     return fail("link_backlog_defer_s must be between 0 and 3600");
   }

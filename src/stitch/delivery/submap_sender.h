@@ -95,8 +95,7 @@ class SubmapSource {
   virtual bool Holds(KeyframeId keyframe) const = 0;
   // Those of `keyframes` still held, and with `full_state` the submap's whole state
   // (LocalMapping::MakeResendUpdate); an empty update for a submap not held.
-  virtual SubmapUpdate MakeResendUpdate(SubmapId submap, const std::vector<KeyframeId>& keyframes,
-                                        bool full_state) = 0;
+  virtual SubmapUpdate MakeResendUpdate(SubmapId submap, const std::vector<KeyframeId>& keyframes, bool full_state) = 0;
   // The current submap's manifest alone (LocalMapping::MakeManifestUpdate).
   virtual SubmapUpdate MakeManifestUpdate() = 0;
 };
@@ -112,8 +111,8 @@ class SubmapSender {
   using Transport = std::function<PartSent(const SubmapUpdate& part, int32_t index, int32_t count)>;
 
   // `source` must outlive the sender. Updates go out in parts of about `max_part_bytes`.
-  SubmapSender(SenderOptions options, SubmapSource* source, Transport transport,
-               DeliveryClock clock = nullptr, size_t max_part_bytes = 60000);
+  SubmapSender(SenderOptions options, SubmapSource* source, Transport transport, DeliveryClock clock = nullptr,
+               size_t max_part_bytes = 60000);
 
   // From the other side; any thread.
   // The aircraft's link bridge: how far behind it is and its budget (0: none). False, with why,

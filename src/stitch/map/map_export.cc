@@ -21,9 +21,7 @@ bool MapExportOptions::Check(std::string* why) const {
   return true;
 }
 
-namespace {
-
-}  // namespace
+namespace {}  // namespace
 
 std::vector<bool> PointsToExport(const std::vector<Eigen::Vector3d>& positions, const std::vector<int>& observations,
                                  const MapExportOptions& options) {

@@ -82,9 +82,8 @@ InlineRun RunInline(ImageSequence& sequence, const PipelineOptions& options, con
   // In frame order (the frames a map initialized from come after it).
   std::stable_sort(run.poses.begin(), run.poses.end(),
                    [](const PoseRecord& a, const PoseRecord& b) { return a.frame_index < b.frame_index; });
-  std::stable_sort(tracked.begin(), tracked.end(), [](const TrackedFramePose& a, const TrackedFramePose& b) {
-    return a.frame_index < b.frame_index;
-  });
+  std::stable_sort(tracked.begin(), tracked.end(),
+                   [](const TrackedFramePose& a, const TrackedFramePose& b) { return a.frame_index < b.frame_index; });
   run.submaps = static_cast<int>(component_of.size());
   close_submap();
   merging.Finish();
@@ -94,7 +93,8 @@ InlineRun RunInline(ImageSequence& sequence, const PipelineOptions& options, con
   // refinement's keyframe poses.
   std::map<int64_t, KeyframeInSubmap> keyframes;
   for (const auto& map : mapping.closed_maps()) {
-    for (const auto& [id, keyframe] : map->keyframes()) keyframes[id.value] = {keyframe.cam_from_world, keyframe.frame_index};
+    for (const auto& [id, keyframe] : map->keyframes())
+      keyframes[id.value] = {keyframe.cam_from_world, keyframe.frame_index};
   }
   for (const CulledKeyframe& culled : mapping.CulledKeyframePoses()) {
     keyframes[culled.id.value] = {culled.cam_from_world, culled.frame_index};

@@ -23,19 +23,19 @@ struct InlineFrame {
   int frame_index = -1;
   int64_t t_ns = 0;
   TrackResult result;
-  double mapping_ms = 0;                 // mapping the keyframes this frame made (0 if none), in all
-  std::vector<MappingReport> mapped;     // ...one by one
-  double merger_ms = 0;                  // the merger taking them, and the tracker their updates
+  double mapping_ms = 0;              // mapping the keyframes this frame made (0 if none), in all
+  std::vector<MappingReport> mapped;  // ...one by one
+  double merger_ms = 0;               // the merger taking them, and the tracker their updates
 };
 
 struct InlineRun {
   std::vector<InlineFrame> frames;
-  std::vector<PoseRecord> poses;             // the tracker's poses, each submap its own component
+  std::vector<PoseRecord> poses;  // the tracker's poses, each submap its own component
   // The same, each re-composed with the mapper's final pose of its reference keyframe and placed
   // in its merged map with the merger's refinement (pose graph, bundle adjustment), as `stitch
   // run` places frames.tsv; frames of submaps the merger never placed are left out.
   std::vector<PoseRecord> merged_poses;
-  Merger::Graph graph;  // the merger's submap graph at the end, refined
+  Merger::Graph graph;                       // the merger's submap graph at the end, refined
   std::vector<SubmapUpdate> submap_updates;  // what the mapper sent the merger, in order (when asked)
   int keyframes = 0;                         // keyframes made
   int submaps = 0;

@@ -242,7 +242,9 @@ namespace {
 
 const std::string kRefused = "refused: ";
 
-bool Merged(const SubmapEdgeRecord& e) { return e.status == "merged"; }
+bool Merged(const SubmapEdgeRecord& e) {
+  return e.status == "merged";
+}
 
 // The reason an edge was refused, or "" for one that was not.
 std::string RefusedReason(const SubmapEdgeRecord& e) {
@@ -262,10 +264,9 @@ void WriteSubmapGraphDot(const std::string& path, const std::vector<SubmapRecord
   for (const SubmapEdgeRecord& e : edges) {
     const std::string refused = RefusedReason(e);
     char label[128];
-    std::snprintf(
-        label, sizeof(label), "C=%.1f (F=%d M=%d %.0f deg%s)", e.strength, e.connected_frames, e.map_points,
-        e.median_angle_deg,
-        e.disagreeing_frames > 0 ? (", " + std::to_string(e.disagreeing_frames) + " outvoted").c_str() : "");
+    std::snprintf(label, sizeof(label), "C=%.1f (F=%d M=%d %.0f deg%s)", e.strength, e.connected_frames, e.map_points,
+                  e.median_angle_deg,
+                  e.disagreeing_frames > 0 ? (", " + std::to_string(e.disagreeing_frames) + " outvoted").c_str() : "");
     out << "  \"" << SubmapName(e.a) << "\" -- \"" << SubmapName(e.b) << "\" [label=\"" << label
         << (refused.empty() ? "" : "\\nrefused: " + refused) << "\""
         << (Merged(e)         ? ", style=bold"

@@ -145,7 +145,8 @@ void AddSourceOptions(ArgParser* args, SourceSpec* spec, unsigned which) {
                     "induced failures: none, FRAME:LENGTH,... or default (the synthetic flight: 3 gusts; datasets: "
                     "none)");
   }
-  if (which & kMaxFramesFlag) args->AddOption("--max-frames", &spec->max_frames, "N", "play at most N frames (-1: all)");
+  if (which & kMaxFramesFlag)
+    args->AddOption("--max-frames", &spec->max_frames, "N", "play at most N frames (-1: all)");
   if (which & kStartFrameFlag) {
     args->AddOption("--start-frame", &spec->start_frame, "N", "skip the first N frames of the sequence");
   }

@@ -71,9 +71,14 @@ LogLine::~LogLine() {
     std::lock_guard<std::mutex> lock(g_tag_mutex);
     tag = Tag();
   }
-  // One fprintf per line keeps lines from different threads whole.
-  std::fprintf(stderr, "%s %s.%03d%s%s] %s\n", LevelLetter(level_), stamp, millis, tag.empty() ? "" : " ", tag.c_str(),
-               stream_.str().c_str());
+  char millis_text[8];
+  std::snprintf(millis_text, sizeof(millis_text), ".%03d", millis);
+  const std::string line = std::string(LevelLetter(level_)) + " " + stamp + millis_text + (tag.empty() ? "" : " ") +
+                           tag + "] " + stream_.str() + "\n";
+  // One write per line keeps lines from different threads whole. Not fprintf: on the unbuffered
+  // stderr it formats into an 8 kB buffer on the stack, which overflowed the small stacks of
+  // civetweb's threads (the viewer's) under AddressSanitizer.
+  std::fwrite(line.data(), 1, line.size(), stderr);
 }
 
 }  // namespace stitch

@@ -23,12 +23,11 @@ std::vector<std::string> With(std::vector<std::string> args, const std::vector<s
 // What the launcher writes into run.json about the link between the sides.
 std::string DescribeLink(const LinkOptions& link, bool netns) {
   char text[160];
-  std::snprintf(text, sizeof(text), "loss %g, delay %g ms, jitter %g ms, budget %s%s", link.loss, link.delay_ms,
-                link.jitter_ms,
-                link.budget_bytes_per_s > 0
-                    ? (std::to_string(static_cast<int64_t>(link.budget_bytes_per_s)) + " B/s").c_str()
-                    : "none",
-                netns ? ", two network namespaces" : ", loopback");
+  std::snprintf(
+      text, sizeof(text), "loss %g, delay %g ms, jitter %g ms, budget %s%s", link.loss, link.delay_ms, link.jitter_ms,
+      link.budget_bytes_per_s > 0 ? (std::to_string(static_cast<int64_t>(link.budget_bytes_per_s)) + " B/s").c_str()
+                                  : "none",
+      netns ? ", two network namespaces" : ", loopback");
   return std::string(text) +
          (link.insecure && link.key_file.empty() ? ", unauthenticated (insecure)" : ", authenticated");
 }
@@ -114,17 +113,16 @@ LaunchPlan PlanRun(const RunArgs& a, const std::string& out) {
       plan.link_key = (fs::path(out) / "link.key").string();
       key = {"--key", plan.link_key};
     }
-    plan.services.push_back(
-        {"link-ground", "stitch-link",
-         With(With(ground, {"--forward", ground_sends, "--accept", aircraft_sends, "--listen", ground_at, "--peer", air_at}),
-              key),
-         true});
-    plan.services.push_back(
-        {"link-aircraft", "stitch-link",
-         With(With(aircraft,
-                   {"--forward", aircraft_sends, "--accept", ground_sends, "--listen", air_at, "--peer", ground_at}),
-              key),
-         false});
+    plan.services.push_back({"link-ground", "stitch-link",
+                             With(With(ground, {"--forward", ground_sends, "--accept", aircraft_sends, "--listen",
+                                                ground_at, "--peer", air_at}),
+                                  key),
+                             true});
+    plan.services.push_back({"link-aircraft", "stitch-link",
+                             With(With(aircraft, {"--forward", aircraft_sends, "--accept", ground_sends, "--listen",
+                                                  air_at, "--peer", ground_at}),
+                                  key),
+                             false});
   }
   if (a.viewer) {
     const int port = a.viewer_port >= 0 ? a.viewer_port : config.viewer.port;

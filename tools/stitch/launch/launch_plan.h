@@ -48,13 +48,13 @@ struct LaunchPlan {
   StitchConfig config;
   SourceSpec spec;
   SourceSummary source;
-  RunInfo info;            // run.json as the run starts
-  std::string url;         // the aircraft's bus
-  std::string ground_url;  // the ground's (the aircraft's without a link)
-  bool linked = false;     // a link bridge pair between them
-  bool netns = false;      // the two sides in two network namespaces
-  std::string link_key;    // a key made for this run, written by PrepareRunFolder ("" when none)
-  std::string viewer_url;  // "" without a viewer
+  RunInfo info;                          // run.json as the run starts
+  std::string url;                       // the aircraft's bus
+  std::string ground_url;                // the ground's (the aircraft's without a link)
+  bool linked = false;                   // a link bridge pair between them
+  bool netns = false;                    // the two sides in two network namespaces
+  std::string link_key;                  // a key made for this run, written by PrepareRunFolder ("" when none)
+  std::string viewer_url;                // "" without a viewer
   std::vector<PlannedService> services;  // in the order they start
 };
 

@@ -61,8 +61,8 @@ TEST(LaunchPlan, ALinkPutsTheMergerOnABusOfItsOwnBehindTwoBridgesThatNameEachOth
   args.viewer = true;
   args.journal = true;
   const LaunchPlan plan = PlanRun(args, "/tmp/planned");
-  EXPECT_EQ(Names(plan),
-            (std::vector<std::string>{"merger", "link-ground", "link-aircraft", "viewer", "mapper", "tracker", "ingest"}));
+  EXPECT_EQ(Names(plan), (std::vector<std::string>{"merger", "link-ground", "link-aircraft", "viewer", "mapper",
+                                                   "tracker", "ingest"}));
   EXPECT_NE(plan.ground_url, plan.url);
   const PlannedService& ground = Service(plan, "link-ground");
   const PlannedService& air = Service(plan, "link-aircraft");

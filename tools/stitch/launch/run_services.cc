@@ -1,7 +1,7 @@
 #include "tools/stitch/launch/run_services.h"
 
-#include <csignal>
 #include <cmath>
+#include <csignal>
 #include <cstdio>
 #include <filesystem>
 
@@ -15,8 +15,9 @@ void RunServices::StartAll() {
   const std::string bin = ExecutableDir();
   for (const PlannedService& service : plan_.services) {
     if (network_) service.on_ground ? network_->EnterGround() : network_->EnterAircraft();
-    children_.push_back(std::make_unique<ChildProcess>(service.name, bin + "/" + service.program, service.args,
-                                                       (fs::path(plan_.out) / "logs" / (service.name + ".log")).string()));
+    children_.push_back(
+        std::make_unique<ChildProcess>(service.name, bin + "/" + service.program, service.args,
+                                       (fs::path(plan_.out) / "logs" / (service.name + ".log")).string()));
   }
   if (network_) network_->EnterAircraft();  // the launcher listens on the aircraft's side
 }
@@ -105,8 +106,8 @@ void RunServices::Report(RunInfo* info) const {
 
 void PrintRunSummary(const RunInfo& info, const std::string& evaluation_summary, const std::string& out,
                      int exit_code) {
-  std::printf("%s in %.1f s\n%s", info.interrupted ? "interrupted" : (exit_code ? "failed" : "done"),
-              info.wall_seconds, evaluation_summary.c_str());
+  std::printf("%s in %.1f s\n%s", info.interrupted ? "interrupted" : (exit_code ? "failed" : "done"), info.wall_seconds,
+              evaluation_summary.c_str());
   if (!info.peak_rss_mb.empty()) {
     std::string peaks;
     for (const auto& [service, mb] : info.peak_rss_mb) {

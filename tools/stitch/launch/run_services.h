@@ -46,7 +46,6 @@ class RunServices {
 };
 
 // The summary `stitch run` prints at the end (figures, peak memory, the bridges' and notes).
-void PrintRunSummary(const RunInfo& info, const std::string& evaluation_summary, const std::string& out,
-                     int exit_code);
+void PrintRunSummary(const RunInfo& info, const std::string& evaluation_summary, const std::string& out, int exit_code);
 
 }  // namespace stitch
