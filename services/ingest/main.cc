@@ -27,6 +27,7 @@ int main(int argc, char** argv) {
   return RunService("ingest", common, settings, [&](ServiceProcess& process) {
     CheckSourceSpec(source);
     source.synthetic = process.config.synthetic;
+    source.max_working_pixels = process.config.ingest.max_working_pixels;
     if (source.live_uri.empty() && source.dataset_path.empty()) source.live_uri = process.config.ingest.live;
     IngestService ingest(process.lcm, common.lcm_url, process.publisher, process.config.ingest);
     Heartbeat heartbeat(process.publisher, "ingest", [&] {

@@ -61,6 +61,7 @@ nlohmann::json BenchOnce(const BenchArgs& a) {
   const Vocabulary vocabulary = LoadVocabulary(config);
   SourceSpec spec = a.source;
   spec.synthetic = config.synthetic;
+  spec.max_working_pixels = config.ingest.max_working_pixels;  // as the run's ingest sends them
   FailureSchedule spoil;
   auto sequence = OpenSource(spec, &spoil);
   if (!spoil.empty()) throw Error("stitch bench applies failure schedules to the synthetic flight only");

@@ -25,7 +25,7 @@ namespace {
 // relative to `images` and each point coloured from the first image that sees it.
 ColmapModel OnTheImages(ColmapModel model, const std::string& images, int start_frame, const std::string& scratch) {
   // The dataset's own reader lists its images in play order; the model's camera stands in for a
-  // calibration (the run's, so the sizes agree), which an image folder may not have.
+  // calibration (the run's; its size is checked against the images below), which an image folder may not have.
   SaveCalibration(model.camera, scratch);
   SequenceOptions options;
   options.calibration_path = scratch;
@@ -37,6 +37,7 @@ ColmapModel OnTheImages(ColmapModel model, const std::string& images, int start_
     const auto& [image_id, feature] = model.points[p].track.front();
     first_sight[image_id].push_back({feature, static_cast<int>(p)});
   }
+  std::vector<std::string> paths;  // per model image
   for (ColmapImage& image : model.images) {
     std::smatch match;
     if (!std::regex_match(image.name, match, placeholder)) {
@@ -55,9 +56,25 @@ ColmapModel OnTheImages(ColmapModel model, const std::string& images, int start_
                                              : std::string(" (a video: write its frames as images first)")));
     }
     image.name = fs::relative(path, images).generic_string();
+    paths.push_back(path);
+  }
+  // A run works at a reduced size where the camera's frames are larger (ingest.max_working_pixels):
+  // the model goes back to the images' size.
+  for (const std::string& path : paths) {
+    const cv::Mat first = cv::imread(path, cv::IMREAD_GRAYSCALE);
+    if (first.empty()) continue;
+    if (first.cols != model.camera.width() || first.rows != model.camera.height()) {
+      STITCH_LOG(INFO) << "the run worked at " << model.camera.width() << "x" << model.camera.height()
+                       << "; the model is scaled to the images' " << first.cols << "x" << first.rows;
+      model = ResizeColmapModel(std::move(model), first.cols, first.rows);
+    }
+    break;
+  }
+  for (size_t i = 0; i < model.images.size(); ++i) {
+    const ColmapImage& image = model.images[i];
     const auto sights = first_sight.find(image.id);
     if (sights == first_sight.end()) continue;
-    const cv::Mat colour = cv::imread(path, cv::IMREAD_COLOR);
+    const cv::Mat colour = cv::imread(paths[i], cv::IMREAD_COLOR);
     if (colour.empty()) continue;  // grey stays
     for (const auto& [feature, p] : sights->second) {
       const Eigen::Vector2d& f = image.features[feature];

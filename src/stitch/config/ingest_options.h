@@ -12,7 +12,11 @@ struct IngestOptions {
   std::string live;
   std::string pacing = "lockstep";  // lockstep: wait for the tracker's ack; realtime: camera rate
   double speed = 1.0;               // realtime: playback speed factor (2 = twice as fast)
-  std::string encoding = "auto";    // gray8 (raw), jpeg, or auto (see ChooseFrameEncoding)
+  // Frames of more pixels than this are reduced (area averaging, the aspect kept) before they are
+  // sent, with their camera: the tracker, the mapper and the merger work at that size, and a 1080p
+  // or 4K camera costs about what a 0.5 MP one does (docs/speed.md). 0: frames as they come.
+  int max_working_pixels = 500000;
+  std::string encoding = "auto";  // gray8 (raw), jpeg, or auto (see ChooseFrameEncoding)
   int jpeg_quality = 92;
   double ack_timeout_s = 0.25;         // lockstep: re-send a frame not acknowledged within this
   int max_resends = 40;                // lockstep: then give up on that frame and go on (10 s by default)
@@ -27,6 +31,9 @@ struct IngestOptions {
       "(empty: none)");
     v("pacing", pacing, "lockstep (reproducible: waits for the tracker) or realtime (drops if it lags)");
     v("speed", speed, "realtime playback speed factor");
+    v("max_working_pixels", max_working_pixels,
+      "frames of more pixels than this are reduced (aspect kept) before they are sent, with their camera: the "
+      "system works at that size (0: as they come)");
     v("encoding", encoding,
       "frame encoding on the bus: gray8, jpeg, or auto (gray8 unless the UDP receive buffer is too small for raw "
       "frames)");
@@ -46,6 +53,10 @@ struct IngestOptions {
     };
     if (pacing != "lockstep" && pacing != "realtime") return fail("ingest.pacing must be lockstep or realtime");
     if (!(speed > 0 && speed <= 100)) return fail("ingest.speed must be in (0, 100]");
+    if (max_working_pixels < 0) return fail("ingest.max_working_pixels must be >= 0 (0: frames as they come)");
+    if (max_working_pixels > 0 && max_working_pixels < 10000) {
+      return fail("ingest.max_working_pixels must be 0 or at least 10000 (100x100)");
+    }
     if (encoding != "gray8" && encoding != "jpeg" && encoding != "auto")
       return fail("ingest.encoding must be gray8, jpeg or auto");
     if (jpeg_quality < 1 || jpeg_quality > 100) return fail("ingest.jpeg_quality must be in [1, 100]");

@@ -123,16 +123,19 @@ Eigen::Vector2d Camera::UndistortPixel(const Eigen::Vector2d& pixel) const {
   return {fx() * n.x() + cx(), fy() * n.y() + cy()};
 }
 
-Camera Camera::Scaled(double factor) const {
-  Camera scaled = *this;
-  scaled.width_ = static_cast<int>(std::lround(width_ * factor));
-  scaled.height_ = static_cast<int>(std::lround(height_ * factor));
-  scaled.params_[0] *= factor;
-  scaled.params_[1] *= factor;
-  // Pixel centres: x_new + 0.5 = factor * (x_old + 0.5).
-  scaled.params_[2] = (cx() + 0.5) * factor - 0.5;
-  scaled.params_[3] = (cy() + 0.5) * factor - 0.5;
-  return scaled;
+Camera Camera::Resized(int width, int height) const {
+  if (width <= 0 || height <= 0)
+    throw Error("a camera resized to " + std::to_string(width) + "x" + std::to_string(height));
+  const double sx = static_cast<double>(width) / width_, sy = static_cast<double>(height) / height_;
+  Camera resized = *this;
+  resized.width_ = width;
+  resized.height_ = height;
+  resized.params_[0] *= sx;
+  resized.params_[1] *= sy;
+  // Pixel centres: x_new + 0.5 = sx * (x_old + 0.5).
+  resized.params_[2] = (cx() + 0.5) * sx - 0.5;
+  resized.params_[3] = (cy() + 0.5) * sy - 0.5;
+  return resized;
 }
 
 bool Camera::Check(std::string* why) const {

@@ -75,8 +75,10 @@ class Camera {
     return pixel.x() >= border - 0.5 && pixel.y() >= border - 0.5 && pixel.x() <= width_ - 0.5 - border &&
            pixel.y() <= height_ - 0.5 - border;
   }
-  // The same camera for an image resized by `factor` (e.g. 0.5 for half size).
-  Camera Scaled(double factor) const;
+  // The same camera for its image resized to `width` x `height` (each axis by its own factor;
+  // pixel centres scale about the image's corner at (-0.5, -0.5)). Distortion acts on normalized
+  // coordinates and stays as it is.
+  Camera Resized(int width, int height) const;
   // Returns false and says why if the camera cannot be used (non-positive focal length, principal
   // point far outside the image, non-invertible distortion inside the image...).
   bool Check(std::string* why) const;

@@ -45,15 +45,20 @@ TEST(Camera, RayThroughPixelProjectsBack) {
   EXPECT_NEAR((*camera.Project(3.7 * ray) - pixel).norm(), 0.0, 1e-6);
 }
 
-TEST(Camera, ScaledCameraMatchesResizedImage) {
-  const Camera camera = Camera::Pinhole(640, 480, 500, 500, 319.5, 239.5);
-  const Camera half = camera.Scaled(0.5);
+TEST(Camera, AResizedCameraMatchesTheResizedImage) {
+  const Camera camera = Camera::Pinhole(640, 480, 500, 500, 319.5, 239.5, -0.1, 0.02);
+  const Camera half = camera.Resized(320, 240);
   EXPECT_EQ(half.width(), 320);
+  EXPECT_EQ(half.height(), 240);
   EXPECT_NEAR(half.cx(), 159.5, 1e-12);
   const Eigen::Vector3d p(0.3, -0.2, 2.0);
-  // Pixel centres scale about the image corner at (-0.5, -0.5).
-  EXPECT_NEAR(((*half.Project(p)).array() + 0.5).matrix().norm(),
-              0.5 * (((*camera.Project(p)).array() + 0.5).matrix().norm()), 1e-9);
+  // Pixel centres scale about the image corner at (-0.5, -0.5), each axis by its own factor.
+  const Camera wide = camera.Resized(960, 360);
+  const Eigen::Vector2d full = *camera.Project(p), scaled = *wide.Project(p);
+  EXPECT_NEAR(scaled.x() + 0.5, 1.5 * (full.x() + 0.5), 1e-9);
+  EXPECT_NEAR(scaled.y() + 0.5, 0.75 * (full.y() + 0.5), 1e-9);
+  EXPECT_NEAR(((*half.Project(p)).array() + 0.5).matrix().norm(), 0.5 * ((full.array() + 0.5).matrix().norm()), 1e-9);
+  EXPECT_THROW(camera.Resized(0, 240), Error);
 }
 
 TEST(Camera, RejectsUnusableParameters) {

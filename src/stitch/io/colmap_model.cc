@@ -250,4 +250,15 @@ void SetReprojectionErrors(ColmapModel* model) {
   }
 }
 
+ColmapModel ResizeColmapModel(ColmapModel model, int width, int height) {
+  const double sx = static_cast<double>(width) / model.camera.width();
+  const double sy = static_cast<double>(height) / model.camera.height();
+  model.camera = model.camera.Resized(width, height);
+  for (ColmapImage& image : model.images) {
+    for (Eigen::Vector2d& f : image.features) f = {(f.x() + 0.5) * sx - 0.5, (f.y() + 0.5) * sy - 0.5};
+  }
+  SetReprojectionErrors(&model);
+  return model;
+}
+
 }  // namespace stitch

@@ -51,6 +51,11 @@ void WriteColmapModel(const ColmapModel& model, const std::string& dir);
 // naming an image or feature that is not there, or a camera model stitch does not know.
 ColmapModel ReadColmapModel(const std::string& dir);
 
+// The model for its images resized to `width` x `height` (Camera::Resized): each feature moves
+// with its pixel, the reprojection errors are the new size's. A run that worked at a reduced size
+// (ingest.max_working_pixels) goes back to its images' size this way.
+ColmapModel ResizeColmapModel(ColmapModel model, int width, int height);
+
 // Root mean square of every track's reprojection error, pixels (0 without observations).
 double ReprojectionRms(const ColmapModel& model);
 // Sets each point's error_px: the mean reprojection error of its track.

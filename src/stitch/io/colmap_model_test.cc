@@ -66,6 +66,19 @@ TEST(ColmapModel, WritesAndReadsBackEveryCameraModel) {
 }
 
 // COLMAP's first pixel centre is (0.5, 0.5): the files say cx + 0.5 and x + 0.5.
+// A run that worked at a reduced size goes back to its images' size: the features where the
+// resized camera puts the points, the reprojection still exact.
+TEST(ColmapModel, AModelResizedToItsImagesKeepsItsPointsWhereTheCameraSeesThem) {
+  const Camera working = Camera::Pinhole(942, 530, 662.3, 662.3, 470.5, 264.5, -0.05);
+  const ColmapModel model = ResizeColmapModel(TwoViews(working), 1920, 1080);
+  EXPECT_EQ(model.camera.width(), 1920);
+  EXPECT_EQ(model.camera.height(), 1080);
+  EXPECT_LT(ReprojectionRms(model), 1e-6);
+  const Eigen::Vector3d point = model.points[1].position;
+  const Eigen::Vector2d seen = *model.camera.Project(model.images[0].cam_from_world * point);
+  EXPECT_NEAR((model.images[0].features[1] - seen).norm(), 0, 1e-6);
+}
+
 TEST(ColmapModel, TheFilesAreInColmapsPixelConvention) {
   testing::TempDir dir;
   WriteColmapModel(TwoViews(Camera::Pinhole(640, 480, 450, 450, 319.5, 239.5)), dir / "m");

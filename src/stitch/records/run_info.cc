@@ -27,7 +27,8 @@ nlohmann::json RunInfo::ToJson() const {
           {"link", link},
           {"link_figures", link_figures},
           {"notes", notes},
-          {"peak_rss_mb", peak_rss_mb}};
+          {"peak_rss_mb", peak_rss_mb},
+          {"cpu_s", cpu_s}};
 }
 
 RunInfo RunInfo::FromJson(const nlohmann::json& j) {
@@ -50,6 +51,7 @@ RunInfo RunInfo::FromJson(const nlohmann::json& j) {
     info.interrupted = j.value("interrupted", false);
     info.notes = j.value("notes", std::vector<std::string>{});
     info.peak_rss_mb = j.value("peak_rss_mb", std::map<std::string, double>{});
+    info.cpu_s = j.value("cpu_s", std::map<std::string, double>{});
     return info;
   } catch (const nlohmann::json::exception& e) {
     throw Error(std::string("run.json: ") + e.what());

@@ -30,6 +30,8 @@ struct RunInfo {
   // Each service's peak resident memory, MB (the kernel's, once it ended); the samples during the
   // flight are in memory.tsv.
   std::map<std::string, double> peak_rss_mb;
+  // Each service's CPU time (user + system), seconds, once it ended: what the run cost.
+  std::map<std::string, double> cpu_s;
 
   nlohmann::json ToJson() const;
   static RunInfo FromJson(const nlohmann::json& json);  // throws stitch::Error on missing keys

@@ -1,5 +1,10 @@
 #include "stitch/source/source.h"
 
+#include <algorithm>
+#include <cmath>
+
+#include <opencv2/imgproc.hpp>
+
 #include "stitch/io/calibration.h"
 #include "stitch/io/live_capture.h"
 
@@ -40,7 +45,56 @@ class ClippedSequence : public ImageSequence {
   int skipped_ = 0, emitted_ = 0;
 };
 
+// Frames reduced to the working size, with their camera: what the tracker, the mapper and the
+// merger then see (docs/speed.md, "Working resolution").
+class ReducedSequence : public ImageSequence {
+ public:
+  ReducedSequence(std::unique_ptr<ImageSequence> inner, const Camera& camera)
+      : inner_(std::move(inner)), camera_(camera) {}
+  std::string description() const override {
+    return inner_->description() + ", reduced to " + std::to_string(camera_.width()) + "x" +
+           std::to_string(camera_.height());
+  }
+  int size() const override { return inner_->size(); }
+  const Camera& camera() const override { return camera_; }
+  double nominal_fps() const override { return inner_->nominal_fps(); }
+  const Trajectory& ground_truth() const override { return inner_->ground_truth(); }
+  bool live() const override { return inner_->live(); }
+  std::string image_path(int index) const override { return inner_->image_path(index); }
+  int64_t dropped_at_source() const override { return inner_->dropped_at_source(); }
+  bool Next(SequenceFrame* frame) override {
+    if (!inner_->Next(frame)) return false;
+    if (!frame->image.empty()) {
+      cv::Mat reduced;
+      cv::resize(frame->image, reduced, cv::Size(camera_.width(), camera_.height()), 0, 0, cv::INTER_AREA);
+      frame->image = reduced;
+    }
+    return true;
+  }
+
+ private:
+  std::unique_ptr<ImageSequence> inner_;
+  Camera camera_;
+};
+
 }  // namespace
+
+std::pair<int, int> WorkingSize(int width, int height, int max_pixels) {
+  if (max_pixels <= 0 || static_cast<int64_t>(width) * height <= max_pixels) return {width, height};
+  const double factor = std::sqrt(static_cast<double>(max_pixels) / (static_cast<double>(width) * height));
+  int w = std::max(1, static_cast<int>(std::floor(width * factor)));
+  int h = std::max(1, static_cast<int>(std::lround(static_cast<double>(height) * w / width)));
+  while (w > 1 && static_cast<int64_t>(w) * h > max_pixels) {
+    --w;
+    h = std::max(1, static_cast<int>(std::lround(static_cast<double>(height) * w / width)));
+  }
+  return {w, h};
+}
+
+Camera WorkingCamera(const Camera& camera, int max_pixels) {
+  const auto [width, height] = WorkingSize(camera.width(), camera.height(), max_pixels);
+  return width == camera.width() && height == camera.height() ? camera : camera.Resized(width, height);
+}
 
 FailureSchedule ResolveFailures(const SourceSpec& spec, int num_frames) {
   if (spec.failures == "default") {
@@ -49,7 +103,9 @@ FailureSchedule ResolveFailures(const SourceSpec& spec, int num_frames) {
   return FailureSchedule::Parse(spec.failures);
 }
 
-std::unique_ptr<ImageSequence> OpenSource(const SourceSpec& spec, FailureSchedule* spoil) {
+namespace {
+
+std::unique_ptr<ImageSequence> OpenAtFullSize(const SourceSpec& spec, FailureSchedule* spoil) {
   if (spec.synthetic_source()) {
     const SyntheticOptions& options = spec.synthetic;
     const int played =
@@ -81,6 +137,17 @@ std::unique_ptr<ImageSequence> OpenSource(const SourceSpec& spec, FailureSchedul
   return sequence;
 }
 
+}  // namespace
+
+std::unique_ptr<ImageSequence> OpenSource(const SourceSpec& spec, FailureSchedule* spoil) {
+  auto sequence = OpenAtFullSize(spec, spoil);
+  const Camera working = WorkingCamera(sequence->camera(), spec.max_working_pixels);
+  if (working.width() == sequence->camera().width() && working.height() == sequence->camera().height()) {
+    return sequence;
+  }
+  return std::make_unique<ReducedSequence>(std::move(sequence), working);
+}
+
 SourceSummary SummarizeSource(const SourceSpec& spec) {
   SourceSummary summary;
   if (spec.synthetic_source()) {
@@ -92,8 +159,9 @@ SourceSummary SummarizeSource(const SourceSpec& spec) {
     summary.failures = ResolveFailures(spec, played);
     std::vector<FailureWindow> shifted;
     for (const auto& w : summary.failures.windows()) shifted.push_back({w.start + start, w.length});
-    summary.camera = options.MakeCamera();
-    const FlightPlan plan(options.flight, options.gust, summary.camera, FailureSchedule(shifted),
+    const Camera camera = options.MakeCamera();
+    summary.camera = WorkingCamera(camera, spec.max_working_pixels);
+    const FlightPlan plan(options.flight, options.gust, camera, FailureSchedule(shifted),
                           static_cast<uint64_t>(options.seed));
     std::vector<StampedPose> poses;
     for (int i = start; i < start + played; ++i) poses.push_back({plan.TimestampNs(i), plan.WorldFromCam(i)});
@@ -107,7 +175,7 @@ SourceSummary SummarizeSource(const SourceSpec& spec) {
   if (!spec.live_uri.empty()) {
     LiveSourceKind(spec.live_uri);  // throws for what is no live source
     if (spec.calibration_path.empty()) throw Error("a live camera needs its calibration (--calib FILE)");
-    summary.camera = LoadCalibration(spec.calibration_path);
+    summary.camera = WorkingCamera(LoadCalibration(spec.calibration_path), spec.max_working_pixels);
     summary.description = "live " + spec.live_uri;
     summary.num_frames = spec.max_frames >= 0 ? spec.max_frames : -1;
     summary.failures = ResolveFailures(spec, -1);

@@ -3,6 +3,7 @@
 
 #include <memory>
 #include <string>
+#include <utility>
 
 #include "stitch/io/failure_schedule.h"
 #include "stitch/io/image_sequence.h"
@@ -18,6 +19,9 @@ struct SourceSpec {
   std::string failures = "default";  // "default" (synthetic: 3 gusts; datasets: none), "none", or FRAME:LENGTH,...
   int max_frames = -1;               // -1: all
   int start_frame = 0;
+  // Frames of more pixels than this are reduced to the working size (WorkingSize), with their
+  // camera; 0: frames as they come (ingest.max_working_pixels sets it for a run).
+  int max_working_pixels = 0;
   SyntheticOptions synthetic;  // used when dataset_path is empty
 
   bool synthetic_source() const { return dataset_path.empty() && live_uri.empty(); }
@@ -37,6 +41,13 @@ enum SourceFlag : unsigned {
 void AddSourceOptions(ArgParser* args, SourceSpec* spec, unsigned which = kEverySourceFlag);
 // Throws stitch::Error for values no source takes (a negative start frame).
 void CheckSourceSpec(const SourceSpec& spec);
+
+// The working size of frames of `width` x `height`: the size itself when it has at most
+// `max_pixels` pixels (or `max_pixels` is 0), else the largest size within it whose aspect is the
+// frame's to the pixel.
+std::pair<int, int> WorkingSize(int width, int height, int max_pixels);
+// `camera` for frames at their working size.
+Camera WorkingCamera(const Camera& camera, int max_pixels);
 
 // The failure schedule the spec means for a sequence of `num_frames` frames.
 FailureSchedule ResolveFailures(const SourceSpec& spec, int num_frames);

@@ -60,7 +60,7 @@ bool GustOptions::Check(std::string* why) const {
 
 FlightPlan::FlightPlan(const FlightOptions& flight, const GustOptions& gust, const Camera& camera,
                        const FailureSchedule& gusts, uint64_t seed)
-    : flight_(flight), gust_(gust), gusts_(gusts), seed_(seed) {
+    : flight_(flight), gust_(gust), gusts_(gusts), seed_(seed), blur_per_px_(camera.fx() / 450.0) {
   CheckOptions(flight_, "synthetic.flight");
   CheckOptions(gust_, "synthetic.gust");
   // Image x runs across the track, so the footprint width across the track is width * h / fx.
@@ -314,7 +314,7 @@ std::pair<double, double> FlightPlan::GustBlur(int frame) const {
   for (size_t g = 0; g < windows.size(); ++g) {
     if (frame >= windows[g].start && frame < windows[g].end()) {
       Rng rng(HashU64(seed_, static_cast<uint64_t>(frame), 0xb1u));
-      return {gust_.blur_px * rng.Uniform(0.7, 1.0), rng.Uniform(0, M_PI)};
+      return {gust_.blur_px * blur_per_px_ * rng.Uniform(0.7, 1.0), rng.Uniform(0, M_PI)};
     }
   }
   return {0.0, 0.0};

@@ -63,8 +63,10 @@ struct GustOptions {
   double altitude_change = 0.25;  // fraction of the altitude gained or lost
   double lateral_m = 25.0;        // sideways push
   double shake_deg = 12.0;        // roll / pitch shaking during the gust
-  double blur_px = 45.0;          // motion blur length during the gust, pixels
-  int recovery_frames = 90;       // frames to return to the planned path afterwards
+  // Motion blur length during the gust, pixels of a camera with a 450-pixel focal length (the
+  // default's); another camera gets the same angle (1080p at 1350 px: 135 pixels).
+  double blur_px = 45.0;
+  int recovery_frames = 90;  // frames to return to the planned path afterwards
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
@@ -72,7 +74,8 @@ struct GustOptions {
     v("altitude_change", altitude_change, "fraction of the altitude gained or lost in a gust");
     v("lateral_m", lateral_m, "sideways push of a gust, metres");
     v("shake_deg", shake_deg, "roll/pitch shaking during a gust, degrees");
-    v("blur_px", blur_px, "motion blur length during a gust, pixels");
+    v("blur_px", blur_px,
+      "motion blur length during a gust, pixels at a 450-pixel focal length (the same angle for any camera)");
     v("recovery_frames", recovery_frames, "frames to return to the planned path after a gust");
   }
   bool Check(std::string* why) const;
@@ -90,7 +93,8 @@ class FlightPlan {
   const std::vector<Rigid3d>& world_from_cam() const { return poses_; }
   bool InGust(int frame) const { return gusts_.Contains(frame); }
   const FailureSchedule& gusts() const { return gusts_; }
-  // Motion blur of a gust frame: length (px) and direction (rad); length 0 outside gusts.
+  // Motion blur of a gust frame: length (px of the camera's images) and direction (rad); length
+  // 0 outside gusts.
   std::pair<double, double> GustBlur(int frame) const;
   double strip_spacing_m() const { return strip_spacing_; }
   // The whole path flown (its frames may end before it does: a survey's banked turns are longer
@@ -114,6 +118,7 @@ class FlightPlan {
   GustOptions gust_;
   FailureSchedule gusts_;
   uint64_t seed_;
+  double blur_per_px_ = 1;  // the camera's pixels per pixel of a 450-pixel focal length
   // One turn from strip to strip: a half-turn of radius spacing / 2, or an omega turn (out,
   // around, back in) of the larger radius.
   double SurveyTurnLength() const;

@@ -51,6 +51,23 @@ TEST(FlightPlan, GustsKnockTheUavOffCourseThenItRecovers) {
   EXPECT_EQ(windy.GustBlur(111).first, 0);
 }
 
+// A gust's blur is an angle: a camera with three times the focal length (1080p over the same
+// view as 640x480) gets three times the pixels of blur, so its frames are as spoiled.
+TEST(FlightPlan, AGustBlursEveryCameraByTheSameAngle) {
+  const FailureSchedule gust = FailureSchedule::Parse("10:5");
+  const FlightPlan default_camera(FlightOptions(), GustOptions(), Camera::Pinhole(640, 480, 450, 450, 320, 240), gust,
+                                  1);
+  const FlightPlan hd_camera(FlightOptions(), GustOptions(), Camera::Pinhole(1920, 1080, 1350, 1350, 960, 540), gust,
+                             1);
+  for (int frame = 10; frame < 15; ++frame) {
+    const auto [length, angle] = default_camera.GustBlur(frame);
+    EXPECT_GE(length, 0.7 * GustOptions().blur_px) << frame;
+    EXPECT_NEAR(hd_camera.GustBlur(frame).first, 3 * length, 1e-9) << frame;
+    EXPECT_EQ(hd_camera.GustBlur(frame).second, angle) << frame;
+  }
+  EXPECT_EQ(hd_camera.GustBlur(20).first, 0);
+}
+
 TEST(FlightPlan, TiltsTheCameraForwardByItsPitch) {
   FlightOptions options;
   options.attitude_jitter_deg = 0;

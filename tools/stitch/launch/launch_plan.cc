@@ -62,6 +62,7 @@ LaunchPlan PlanRun(const RunArgs& a, const std::string& out) {
   // The config may name a live camera.
   if (plan.spec.live_uri.empty() && plan.spec.dataset_path.empty()) plan.spec.live_uri = config.ingest.live;
   plan.spec.synthetic = config.synthetic;
+  plan.spec.max_working_pixels = config.ingest.max_working_pixels;
   plan.source = SummarizeSource(plan.spec);
   if (plan.source.num_frames == 0) throw Error("the sequence has no frames");
 

@@ -78,7 +78,9 @@ std::string RunServices::StopAll(bool keep_viewer, bool quiet_statuses) {
 
 void RunServices::Report(RunInfo* info) const {
   for (const auto& child : children_) {
-    if (child->Poll()) info->peak_rss_mb[child->name()] = child->peak_resident_mb();
+    if (!child->Poll()) continue;
+    info->peak_rss_mb[child->name()] = child->peak_resident_mb();
+    info->cpu_s[child->name()] = child->cpu_seconds();
   }
   for (const auto& child : children_) {
     if (child->name().rfind("link", 0) != 0) continue;
@@ -114,6 +116,17 @@ void PrintRunSummary(const RunInfo& info, const std::string& evaluation_summary,
       peaks += (peaks.empty() ? "" : ", ") + service + " " + std::to_string(static_cast<int>(std::lround(mb))) + " MB";
     }
     std::printf("  peak memory       %s (memory.tsv: every 2 s)\n", peaks.c_str());
+  }
+  if (!info.cpu_s.empty()) {
+    std::string cpu;
+    double total = 0;
+    for (const auto& [service, seconds] : info.cpu_s) {
+      char text[64];
+      std::snprintf(text, sizeof(text), "%s%s %.1f s", cpu.empty() ? "" : ", ", service.c_str(), seconds);
+      cpu += text;
+      total += seconds;
+    }
+    std::printf("  CPU               %s; %.1f s in all (user + system)\n", cpu.c_str(), total);
   }
   for (const auto& figures : info.link_figures) std::printf("%s\n", figures.c_str());
   for (const auto& note : info.notes) std::printf("note: %s\n", note.c_str());

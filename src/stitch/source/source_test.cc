@@ -1,0 +1,60 @@
+// What a run plays: the working size of large frames, and the source flags.
+
+#include "stitch/source/source.h"
+
+#include <gtest/gtest.h>
+
+namespace stitch {
+namespace {
+
+TEST(WorkingSize, FramesWithinTheBudgetStayAsTheyAre) {
+  EXPECT_EQ(WorkingSize(640, 480, 500000), std::make_pair(640, 480));
+  EXPECT_EQ(WorkingSize(752, 480, 500000), std::make_pair(752, 480));
+  EXPECT_EQ(WorkingSize(1241, 376, 500000), std::make_pair(1241, 376));  // KITTI
+  EXPECT_EQ(WorkingSize(1920, 1080, 0), std::make_pair(1920, 1080));     // 0: as they come
+}
+
+TEST(WorkingSize, LargeFramesAreReducedWithinTheBudgetAndKeepTheirAspect) {
+  for (const auto& [width, height] : {std::make_pair(1920, 1080), std::make_pair(3840, 2160),
+                                      std::make_pair(4000, 3000), std::make_pair(1080, 1920)}) {
+    const auto [w, h] = WorkingSize(width, height, 500000);
+    EXPECT_LE(w * h, 500000) << width << "x" << height;
+    EXPECT_GT(w * h, 480000) << width << "x" << height;  // not much below it either
+    EXPECT_NEAR(static_cast<double>(h) / w, static_cast<double>(height) / width, 1.0 / w) << width << "x" << height;
+  }
+  EXPECT_EQ(WorkingSize(1920, 1080, 500000), std::make_pair(942, 530));
+}
+
+// A 1080p synthetic flight played at its working size: frames and camera agree, the ground truth
+// is the camera's, and a point projects where the full-size camera puts it, scaled.
+TEST(WorkingSize, ALargeCamerasFramesArePlayedReducedWithTheirCamera) {
+  SourceSpec spec;
+  spec.synthetic.width = 1920;
+  spec.synthetic.height = 1080;
+  spec.synthetic.focal_px = 1350;
+  spec.failures = "none";
+  spec.max_frames = 2;
+  spec.max_working_pixels = 500000;
+  FailureSchedule spoil;
+  auto reduced = OpenSource(spec, &spoil);
+  EXPECT_EQ(reduced->camera().width(), 942);
+  EXPECT_EQ(reduced->camera().height(), 530);
+  EXPECT_NE(reduced->description().find("reduced to 942x530"), std::string::npos) << reduced->description();
+  SequenceFrame frame;
+  ASSERT_TRUE(reduced->Next(&frame));
+  EXPECT_EQ(frame.image.cols, 942);
+  EXPECT_EQ(frame.image.rows, 530);
+  EXPECT_EQ(SummarizeSource(spec).camera.width(), 942);
+
+  spec.max_working_pixels = 0;
+  auto full = OpenSource(spec, &spoil);
+  EXPECT_EQ(full->camera().width(), 1920);
+  ASSERT_EQ(full->ground_truth().size(), reduced->ground_truth().size());
+  const Eigen::Vector3d point(1.5, -0.7, 12.0);
+  const Eigen::Vector2d at_full = *full->camera().Project(point), at_working = *reduced->camera().Project(point);
+  EXPECT_NEAR(at_working.x() + 0.5, (at_full.x() + 0.5) * 942.0 / 1920.0, 1e-9);
+  EXPECT_NEAR(at_working.y() + 0.5, (at_full.y() + 0.5) * 530.0 / 1080.0, 1e-9);
+}
+
+}  // namespace
+}  // namespace stitch
