@@ -27,6 +27,7 @@
 #include "stitch/util/text_file.h"
 #include "stitch/util/time.h"
 #include "tools/stitch/commands.h"
+#include "tools/stitch/quality/margin.h"
 #include "tools/stitch/quality/quality_gate.h"
 
 namespace stitch {
@@ -280,16 +281,18 @@ nlohmann::json BenchOptions(const BenchArgs& a) {
 int BenchCommand(int argc, char** argv) {
   for (int i = 1; i < argc; ++i) {
     if (std::string(argv[i]) == "--quality") return QualityCommand(argc, argv);
+    if (std::string(argv[i]) == "--realtime") return MarginCommand(argc, argv);
   }
   BenchArgs a;
   bool options = false;
-  ArgParser args("stitch bench",
-                 "Times tracking and mapping on a sequence in one process (no bus), lockstep as `stitch run`: "
-                 "per-frame time of feature extraction, frame-to-frame tracking (motion model, homography or reference "
-                 "keyframe), local-map tracking, keyframe work, and the whole frame, over frames that were tracked; "
-                 "tracking losses and accuracy. With --options, once per speed option switched, side by side. "
-                 "Without --dataset, the synthetic flight without gusts. With --quality, the quality gate (see "
-                 "stitch bench --quality --help).");
+  ArgParser args(
+      "stitch bench",
+      "Times tracking and mapping on a sequence in one process (no bus), lockstep as `stitch run`: "
+      "per-frame time of feature extraction, frame-to-frame tracking (motion model, homography or reference "
+      "keyframe), local-map tracking, keyframe work, and the whole frame, over frames that were tracked; "
+      "tracking losses and accuracy. With --options, once per speed option switched, side by side. "
+      "Without --dataset, the synthetic flight without gusts. With --quality, the quality gate (see "
+      "stitch bench --quality --help). With --realtime, the margin in real time (see stitch bench --realtime --help).");
   a.source.failures = "none";
   AddSourceOptions(&args, &a.source, kDatasetFlag | kCalibFlag | kFailuresFlag | kMaxFramesFlag);
   args.AddOption("--config", &a.config_path, "FILE",

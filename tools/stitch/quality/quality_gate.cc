@@ -109,14 +109,16 @@ std::string ReadWholeFile(const std::string& path) {
   return text.str();
 }
 
-namespace {
-
 std::string DefaultDatasetsDir() {
   if (const char* env = std::getenv("STITCH_DATASETS")) return env;
   return fs::path(STITCH_DATASETS_DIR).lexically_normal().string();
 }
 
-}  // namespace
+std::vector<std::string> CaseRunArguments(const QualityCase& c, const std::string& datasets_dir) {
+  std::vector<std::string> args;
+  for (const std::string& a : c.run) args.push_back(Substitute(a, datasets_dir));
+  return args;
+}
 
 QualityMatrix LoadQualityMatrix(const std::string& path) {
   YAML::Node root;
@@ -153,6 +155,8 @@ QualityMatrix LoadQualityMatrix(const std::string& path) {
           c.alone = item.second.as<bool>();
         } else if (key == "ci") {
           c.ci = item.second.as<bool>();
+        } else if (key == "repeats") {
+          c.repeats = item.second.as<int>();
         } else if (key == "expect") {
           for (const auto& e : item.second) c.expect[e.first.as<std::string>()] = e.second.as<double>();
         } else if (key == "tolerance") {
@@ -163,6 +167,7 @@ QualityMatrix LoadQualityMatrix(const std::string& path) {
       }
       if (c.name.empty()) throw Error("a case without a name");
       if (!names.insert(c.name).second) throw Error("two cases named '" + c.name + "'");
+      if (c.repeats < 1 || c.repeats > 20) throw Error("case '" + c.name + "': repeats must be in [1, 20]");
       for (const auto& [figure, value] : c.expect) {
         if (!KnownFigure(figure)) throw Error("case '" + c.name + "': unknown figure '" + figure + "'");
         if (!matrix.tolerance.count(figure)) throw Error("case '" + c.name + "': no tolerance for '" + figure + "'");
@@ -203,7 +208,8 @@ void SaveQualityMatrix(const QualityMatrix& matrix, const std::string& path) {
          "# each figure may move the worse way before `--check` calls it a regression. `run` holds\n"
          "# `stitch run` arguments (${datasets}: the real sequences' folder); `needs`: the sequence a\n"
          "# case plays (skipped where it is absent); `alone`: nothing runs beside it (CPU, real time,\n"
-         "# link timing); `ci`: in the subset ctest runs.\n";
+         "# link timing); `ci`: in the subset ctest runs; `repeats`: runs of a case that varies run\n"
+         "# to run (real time), checked on their median and on their worst.\n";
   out << "tolerance:\n";
   for (const auto& [figure, t] : matrix.tolerance) out << "  " << figure << ": " << tolerance_text(t) << "\n";
   out << "cases:\n";
@@ -216,6 +222,7 @@ void SaveQualityMatrix(const QualityMatrix& matrix, const std::string& path) {
     if (!c.needs.empty()) out << "    needs: " << quoted(c.needs) << "\n";
     if (c.alone) out << "    alone: true\n";
     if (c.ci) out << "    ci: true\n";
+    if (c.repeats != 1) out << "    repeats: " << c.repeats << "\n";
     if (!c.tolerance.empty()) {
       out << "    tolerance:\n";
       for (const auto& [figure, t] : c.tolerance) out << "      " << figure << ": " << tolerance_text(t) << "\n";
@@ -274,6 +281,7 @@ std::map<std::string, double> MeasureRun(const std::string& run_dir, double cpu_
   m["cpu_s_per_frame"] = e.frames_total > 0 ? cpu_seconds / e.frames_total : 0;
   m["wall_s"] = wall_seconds;
   m["dropped_frames"] = dropped;
+  m["frames_total"] = e.frames_total;
   return m;
 }
 
@@ -307,19 +315,30 @@ std::string PlaceMarkdownTable(const std::string& document, const std::string& t
 
 std::string Regression::Describe() const {
   char text[256];
-  std::snprintf(text, sizeof(text), "%s %s, expected %s (limit %s)", figure.c_str(),
+  std::snprintf(text, sizeof(text), "%s%s %s, expected %s (limit %s)", worst_run ? "worst run: " : "", figure.c_str(),
                 std::isnan(measured) ? "missing" : FormatFigure(figure, measured).c_str(),
                 FormatFigure(figure, expected).c_str(), FormatFigure(figure, limit).c_str());
   return text;
 }
+
+namespace {
+
+// `figure`'s tolerance in case `c`: its own, else the default; nullptr when it has none.
+const Tolerance* FindTolerance(const QualityMatrix& matrix, const QualityCase& c, const std::string& figure) {
+  const auto own = c.tolerance.find(figure);
+  if (own != c.tolerance.end()) return &own->second;
+  const auto fallback = matrix.tolerance.find(figure);
+  return fallback != matrix.tolerance.end() ? &fallback->second : nullptr;
+}
+
+}  // namespace
 
 std::vector<Regression> CheckCase(const QualityMatrix& matrix, const QualityCase& c,
                                   const std::map<std::string, double>& measured, const std::set<std::string>& only) {
   std::vector<Regression> regressions;
   for (const auto& [figure, expected] : c.expect) {
     if (!only.empty() && !only.count(figure)) continue;
-    const auto own = c.tolerance.find(figure);
-    const Tolerance& t = own != c.tolerance.end() ? own->second : matrix.tolerance.at(figure);
+    const Tolerance& t = *FindTolerance(matrix, c, figure);  // LoadQualityMatrix holds every expectation to one
     const double slack = t.relative * std::abs(expected) + t.absolute;
     const double limit = t.higher_is_better ? expected - slack : expected + slack;
     const auto it = measured.find(figure);
@@ -333,10 +352,32 @@ std::vector<Regression> CheckCase(const QualityMatrix& matrix, const QualityCase
   return regressions;
 }
 
+RepeatedFigures CombineRuns(const QualityMatrix& matrix, const QualityCase& c,
+                            const std::vector<std::map<std::string, double>>& runs) {
+  std::set<std::string> keys;
+  for (const auto& run : runs) {
+    for (const auto& item : run) keys.insert(item.first);
+  }
+  RepeatedFigures combined;
+  for (const std::string& key : keys) {
+    std::vector<double> values;
+    for (const auto& run : runs) {
+      const auto it = run.find(key);
+      if (it != run.end()) values.push_back(it->second);
+    }
+    if (2 * values.size() > runs.size()) combined.median[key] = Median(values);
+    if (values.size() < runs.size()) continue;
+    const Tolerance* t = FindTolerance(matrix, c, key);
+    const bool higher_is_better = t != nullptr && t->higher_is_better;
+    combined.worst[key] = higher_is_better ? *std::min_element(values.begin(), values.end())
+                                           : *std::max_element(values.begin(), values.end());
+  }
+  return combined;
+}
+
 std::string ReproduceCommand(const QualityCase& c, const std::string& datasets_dir,
                              const std::vector<std::string>& settings) {
-  std::vector<std::string> args;
-  for (const std::string& arg : c.run) args.push_back(Substitute(arg, datasets_dir));
+  std::vector<std::string> args = CaseRunArguments(c, datasets_dir);
   for (const std::string& setting : settings) {
     args.push_back("--set");
     args.push_back(setting);
@@ -356,14 +397,18 @@ using Result = CaseResult;
 // One running case.
 struct Running {
   const QualityCase* c;
-  size_t index;
+  size_t index;  // into the planned runs
   std::unique_ptr<ChildProcess> process;
   Stopwatch clock;
   std::string run_dir;
 };
 
-// Figures of an earlier run (its quality.json): case -> figure -> value.
-using Figures = std::map<std::string, std::map<std::string, double>>;
+// Figures of an earlier run (its quality.json): case -> its figures (a repeated case's median)
+// and its worst run's.
+struct EarlierCase {
+  std::map<std::string, double> figures, worst;
+};
+using Figures = std::map<std::string, EarlierCase>;
 
 Figures ReadFigures(const std::string& path) {
   std::ifstream in(path);
@@ -373,7 +418,9 @@ Figures ReadFigures(const std::string& path) {
     const nlohmann::json json = nlohmann::json::parse(in);
     for (const auto& c : json) {
       if (c.at("skipped").get<bool>() || c.at("failed").get<bool>()) continue;
-      figures[c.at("case").get<std::string>()] = c.at("figures").get<std::map<std::string, double>>();
+      EarlierCase& earlier = figures[c.at("case").get<std::string>()];
+      earlier.figures = c.at("figures").get<std::map<std::string, double>>();
+      if (c.contains("worst")) earlier.worst = c.at("worst").get<std::map<std::string, double>>();
     }
   } catch (const nlohmann::json::exception& e) {
     throw Error(path + ": not a quality.json (" + e.what() + ")");
@@ -381,7 +428,8 @@ Figures ReadFigures(const std::string& path) {
   return figures;
 }
 
-// One table; with `before`, a figure that moved shows as "before -> now".
+// One table; with `before`, a figure that moved shows as "before -> now". A repeated case has a
+// second row, its worst run.
 void PrintTable(const std::vector<Result>& results, bool markdown, std::FILE* out, const Figures& before = {}) {
   const std::string separator = markdown ? " | " : "  ";
   std::string header = markdown ? "| case" : "case";
@@ -392,25 +440,44 @@ void PrintTable(const std::vector<Result>& results, bool markdown, std::FILE* ou
   }
   std::fprintf(out, "%s%s\n", header.c_str(), markdown ? " |" : "");
   if (markdown) std::fprintf(out, "%s|\n", rule.c_str());
-  for (const Result& r : results) {
+  const auto print_row = [&](const Result& r, bool worst_row) {
+    const std::map<std::string, double>& figures = worst_row ? r.worst : r.figures;
     std::string row = (markdown ? "| " : "") + r.c->name;
+    if (r.runs.size() > 1) row += worst_row ? " (worst)" : " (median of " + std::to_string(r.runs.size()) + ")";
+    const auto was = before.find(r.c->name);
     for (const Figure& f : kFigures) {
-      const auto it = r.figures.find(f.key);
-      std::string cell = r.skipped ? "-" : it == r.figures.end() ? "n/a" : FormatFigure(f.key, it->second);
-      if (!r.skipped && before.count(r.c->name)) {
-        const auto& was = before.at(r.c->name);
-        const auto old = was.find(f.key);
-        const std::string old_cell = old == was.end() ? "n/a" : FormatFigure(f.key, old->second);
+      const auto it = figures.find(f.key);
+      std::string cell = r.skipped ? "-" : it == figures.end() ? "n/a" : FormatFigure(f.key, it->second);
+      if (!r.skipped && was != before.end()) {
+        const auto& earlier = worst_row ? was->second.worst : was->second.figures;
+        const auto old = earlier.find(f.key);
+        const std::string old_cell = old == earlier.end() ? "n/a" : FormatFigure(f.key, old->second);
         if (old_cell != cell) cell = old_cell + " -> " + cell;
       }
-      const bool regressed = std::any_of(r.regressions.begin(), r.regressions.end(),
-                                         [&](const Regression& g) { return g.figure == f.key; });
+      const bool regressed = std::any_of(r.regressions.begin(), r.regressions.end(), [&](const Regression& g) {
+        return g.figure == f.key && g.worst_run == worst_row;
+      });
       if (regressed) cell = markdown ? "**" + cell + "**" : cell + "!";
       row += separator + cell;
     }
     if (r.skipped) row += separator + "(skipped: " + r.why + ")";
     std::fprintf(out, "%s%s\n", row.c_str(), markdown && !r.skipped ? " |" : "");
+  };
+  for (const Result& r : results) {
+    print_row(r, /*worst_row=*/false);
+    if (!r.worst.empty()) print_row(r, /*worst_row=*/true);
   }
+}
+
+// A case's regressions: its figures', and a repeated case's worst run's.
+std::vector<Regression> CheckResult(const QualityMatrix& matrix, const Result& r, const std::set<std::string>& only) {
+  std::vector<Regression> regressions = CheckCase(matrix, *r.c, r.figures, only);
+  if (r.worst.empty()) return regressions;
+  for (Regression g : CheckCase(matrix, *r.c, r.worst, only)) {
+    g.worst_run = true;
+    regressions.push_back(g);
+  }
+  return regressions;
 }
 
 }  // namespace
@@ -424,45 +491,69 @@ std::vector<CaseResult> RunCases(const QualityMatrix& matrix, const std::vector<
   fs::create_directories(out_dir);
   const std::string stitch = ExecutableDir() + "/stitch";
   std::vector<CaseResult> results(chosen.size());
-  for (size_t i = 0; i < chosen.size(); ++i) results[i].c = chosen[i];
+  // One run each: the cases in order, a repeated case's runs one after the other.
+  struct PlannedRun {
+    size_t index;
+    int repeat;
+  };
+  std::vector<PlannedRun> planned;
+  for (size_t i = 0; i < chosen.size(); ++i) {
+    results[i].c = chosen[i];
+    const QualityCase& c = *chosen[i];
+    if (!c.needs.empty() && !fs::exists(fs::path(options.datasets_dir) / c.needs)) {
+      results[i].skipped = true;
+      results[i].why = c.needs + " is not in " + options.datasets_dir;
+      continue;
+    }
+    for (int repeat = 0; repeat < c.repeats; ++repeat) planned.push_back({i, repeat});
+  }
+  std::vector<int> runs_left(chosen.size());
+  for (const PlannedRun& p : planned) ++runs_left[p.index];
   std::vector<Running> running;
   size_t next = 0, done = 0;
-  // The running line is for a terminal; a log gets one line per case.
+  // The running line is for a terminal; a log gets one line per run.
   const bool terminal = isatty(fileno(stdout));
   const auto progress = [&]() {
     if (!terminal) return;
-    std::string line = "\r[" + std::to_string(done) + "/" + std::to_string(chosen.size()) + "] ";
+    std::string line = "\r[" + std::to_string(done) + "/" + std::to_string(planned.size()) + "] ";
     for (const Running& r : running) {
       line += r.c->name + " " + std::to_string(static_cast<int>(r.clock.ElapsedSeconds())) + " s  ";
     }
     std::printf("%-110s", line.c_str());
     std::fflush(stdout);
   };
+  // A repeated case is checked once its last run has ended: its median and its worst run.
+  const auto finish_case = [&](CaseResult& result) {
+    const QualityCase& c = *result.c;
+    if (result.failed) return;
+    if (result.runs.size() == 1) {
+      result.figures = result.runs.front();
+    } else {
+      RepeatedFigures combined = CombineRuns(matrix, c, result.runs);
+      result.figures = std::move(combined.median);
+      result.worst = std::move(combined.worst);
+    }
+    result.regressions = CheckResult(matrix, result, options.figures);
+  };
   const Stopwatch total;
-  while (done < chosen.size()) {
+  while (done < planned.size()) {
     // Start what may start: a case marked alone only when nothing runs, nothing beside it.
-    while (next < chosen.size()) {
-      const QualityCase& c = *chosen[next];
+    while (next < planned.size()) {
+      const QualityCase& c = *chosen[planned[next].index];
       const bool alone_running =
           std::any_of(running.begin(), running.end(), [](const Running& r) { return r.c->alone; });
       if (alone_running || static_cast<int>(running.size()) >= options.jobs || (c.alone && !running.empty())) break;
-      CaseResult& result = results[next];
-      result.c = &c;
-      if (!c.needs.empty() && !fs::exists(fs::path(options.datasets_dir) / c.needs)) {
-        result.skipped = true;
-        result.why = c.needs + " is not in " + options.datasets_dir;
-        ++next;
-        ++done;
-        continue;
-      }
-      Running r{&c, next, nullptr, Stopwatch(), (fs::path(out_dir) / c.name).string()};
+      const int repeat = planned[next].repeat;
+      const std::string name = repeat == 0 ? c.name : c.name + "-" + std::to_string(repeat + 1);
+      Running r{&c, next, nullptr, Stopwatch(), (fs::path(out_dir) / name).string()};
       std::vector<std::string> run_args{"run", "--quiet", "--out", r.run_dir};
-      for (const std::string& a : c.run) run_args.push_back(Substitute(a, options.datasets_dir));
+      const std::vector<std::string> case_args = CaseRunArguments(c, options.datasets_dir);
+      run_args.insert(run_args.end(), case_args.begin(), case_args.end());
       for (const std::string& setting : options.settings) {
         run_args.push_back("--set");
         run_args.push_back(setting);
       }
-      r.process = std::make_unique<ChildProcess>(c.name, stitch, run_args, r.run_dir + ".log");
+      r.process = std::make_unique<ChildProcess>(name, stitch, run_args, r.run_dir + ".log");
       running.push_back(std::move(r));
       ++next;
     }
@@ -474,32 +565,40 @@ std::vector<CaseResult> RunCases(const QualityMatrix& matrix, const std::vector<
         ++it;
         continue;
       }
-      CaseResult& result = results[it->index];
+      const PlannedRun& p = planned[it->index];
+      CaseResult& result = results[p.index];
       const double wall = it->clock.ElapsedSeconds();
       if (*status != 0) {
         result.failed = true;
         result.why = "stitch run exited with status " + std::to_string(*status) + ":\n" + it->process->LogTail(8);
-      } else {
+      } else if (!result.failed) {
         try {
-          result.figures = MeasureRun(it->run_dir, it->process->cpu_seconds(), wall);
-          result.regressions = CheckCase(matrix, *result.c, result.figures, options.figures);
+          result.runs.push_back(MeasureRun(it->run_dir, it->process->cpu_seconds(), wall));
         } catch (const Error& e) {
           result.failed = true;
           result.why = e.what();
         }
       }
+      const bool case_done = --runs_left[p.index] == 0;
+      if (case_done) finish_case(result);
+      const std::string run_name = result.c->repeats == 1 ? result.c->name
+                                                          : result.c->name + " (run " + std::to_string(p.repeat + 1) +
+                                                                " of " + std::to_string(result.c->repeats) + ")";
+      const std::string outcome = *status != 0    ? "FAILED"
+                                  : !case_done    ? "ran"
+                                  : result.failed ? "FAILED"
+                                  : !result.regressions.empty()
+                                      ? std::to_string(result.regressions.size()) + " regressed"
+                                      : "ok";
       if (terminal) std::printf("\r%-110s\r", "");
-      std::printf("[%zu/%zu] %-26s %5.0f s  %s\n", done + 1, chosen.size(), result.c->name.c_str(), wall,
-                  result.failed                 ? "FAILED"
-                  : !result.regressions.empty() ? (std::to_string(result.regressions.size()) + " regressed").c_str()
-                                                : "ok");
+      std::printf("[%zu/%zu] %-36s %5.0f s  %s\n", done + 1, planned.size(), run_name.c_str(), wall, outcome.c_str());
       std::fflush(stdout);
       ++done;
       it = running.erase(it);
     }
   }
   if (terminal) std::printf("\r%-110s\r", "");
-  std::printf("%zu cases in %.0f s\n", chosen.size(), total.ElapsedSeconds());
+  std::printf("%zu cases, %zu runs in %.0f s\n", chosen.size(), planned.size(), total.ElapsedSeconds());
   return results;
 }
 
@@ -581,8 +680,9 @@ int QualityCommand(int argc, char** argv) {
           results[i].why = "not in " + from_path;
           continue;
         }
-        results[i].figures = it->second;
-        results[i].regressions = CheckCase(matrix, *chosen[i], it->second, figures);
+        results[i].figures = it->second.figures;
+        results[i].worst = it->second.worst;
+        results[i].regressions = CheckResult(matrix, results[i], figures);
       }
       out_dir = fs::path(from_path).parent_path().string();
     } else {
@@ -604,6 +704,10 @@ int QualityCommand(int argc, char** argv) {
       nlohmann::json j{{"case", r.c->name},    {"skipped", r.skipped},
                        {"failed", r.failed},   {"why", r.why},
                        {"figures", r.figures}, {"command", ReproduceCommand(*r.c, datasets_dir, settings)}};
+      if (r.runs.size() > 1) {
+        j["runs"] = r.runs;
+        j["worst"] = r.worst;
+      }
       for (const Regression& g : r.regressions) j["regressions"].push_back(g.Describe());
       json.push_back(j);
       if (r.failed) {

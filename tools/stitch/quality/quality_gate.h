@@ -30,6 +30,7 @@ struct QualityCase {
   std::string needs;                           // a folder under the datasets folder the case plays ("" = none)
   bool alone = false;                          // runs with nothing beside it (CPU, real time, link timing)
   bool ci = false;                             // part of the subset ctest runs
+  int repeats = 1;                             // runs (real time varies run to run): checked on median and worst
   std::map<std::string, double> expect;        // figure -> expected value
   std::map<std::string, Tolerance> tolerance;  // this case's own slack (over the defaults)
 };
@@ -47,13 +48,14 @@ void SaveQualityMatrix(const QualityMatrix& matrix, const std::string& path);
 // One case's figures, from its run folder (report.json, frames.tsv, keyframes.tsv) and the
 // run's CPU and wall time. Keys: frames_in_largest_map, completeness, submaps, submaps_merged,
 // ate_m, worst_submap_ate_in_map_m, wrong_merges, keyframes_created, keyframes_kept,
-// median_tracked_points, cpu_s_per_frame, wall_s, dropped_frames.
+// median_tracked_points, cpu_s_per_frame, wall_s, dropped_frames; and frames_total.
 std::map<std::string, double> MeasureRun(const std::string& run_dir, double cpu_seconds, double wall_seconds);
 
 // A regression: the figure, what was measured, what was expected, and the limit it crossed.
 struct Regression {
   std::string figure;
   double measured = 0, expected = 0, limit = 0;
+  bool worst_run = false;  // the worst of a repeated case's runs (else its median, or its one run)
   std::string Describe() const;
 };
 // Every expected figure of `c` outside its tolerance (missing figures count: a case that used to
@@ -61,6 +63,20 @@ struct Regression {
 std::vector<Regression> CheckCase(const QualityMatrix& matrix, const QualityCase& c,
                                   const std::map<std::string, double>& measured,
                                   const std::set<std::string>& only = {});
+
+// A case run several times: per figure, the median over the runs that have it (absent when most
+// lack it) and the worst run's value, the worse way of its tolerance (absent when any run lacks it;
+// a figure without a tolerance is worse higher).
+struct RepeatedFigures {
+  std::map<std::string, double> median, worst;
+};
+RepeatedFigures CombineRuns(const QualityMatrix& matrix, const QualityCase& c,
+                            const std::vector<std::map<std::string, double>>& runs);
+
+// The folder ${datasets} stands for: $STITCH_DATASETS, else ../shared/datasets beside the source.
+std::string DefaultDatasetsDir();
+// A case's `stitch run` arguments with ${datasets} replaced.
+std::vector<std::string> CaseRunArguments(const QualityCase& c, const std::string& datasets_dir);
 
 // The `stitch run` command line that reproduces a case (with `settings` added to it).
 std::string ReproduceCommand(const QualityCase& c, const std::string& datasets_dir,
@@ -88,10 +104,12 @@ std::string ReadWholeFile(const std::string& path);
 // One case's outcome.
 struct CaseResult {
   const QualityCase* c = nullptr;
-  bool skipped = false;  // its sequence is absent
-  bool failed = false;   // stitch run failed, or its outputs could not be read
-  std::string why;       // skipped or failed: why
-  std::map<std::string, double> figures;
+  bool skipped = false;                             // its sequence is absent
+  bool failed = false;                              // stitch run failed, or its outputs could not be read
+  std::string why;                                  // skipped or failed: why
+  std::map<std::string, double> figures;            // of its one run; the median of a repeated case's
+  std::map<std::string, double> worst;              // a repeated case's worst run (CombineRuns)
+  std::vector<std::map<std::string, double>> runs;  // each run's
   std::vector<Regression> regressions;
 };
 
@@ -103,8 +121,8 @@ struct RunCasesOptions {
   std::set<std::string> figures;      // checked against the expectations (empty: all)
 };
 
-// Runs each chosen case (`stitch run` as a child process, progress on stdout) and measures and
-// checks it. Throws stitch::Error when the folder cannot be made.
+// Runs each chosen case (`stitch run` as a child process, as many times as it repeats, progress
+// on stdout) and measures and checks it. Throws stitch::Error when the folder cannot be made.
 std::vector<CaseResult> RunCases(const QualityMatrix& matrix, const std::vector<const QualityCase*>& chosen,
                                  const RunCasesOptions& options);
 

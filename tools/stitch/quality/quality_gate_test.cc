@@ -23,6 +23,7 @@ cases:
     run: ["--dataset", "${datasets}/tum/rgbd_dataset_freiburg1_rpy", "--failures", "300:10,500:10"]
     needs: tum/rgbd_dataset_freiburg1_rpy
     alone: true
+    repeats: 3
     tolerance:
       ate_m: {relative: 0.5}
     expect: {frames_in_largest_map: 697, ate_m: 0.048, wrong_merges: 0}
@@ -45,6 +46,8 @@ TEST(QualityGate, ReadsTheMatrixAndACasesOwnTolerance) {
   EXPECT_EQ(tum.name, "tum");
   EXPECT_TRUE(tum.alone);
   EXPECT_FALSE(tum.ci);
+  EXPECT_EQ(tum.repeats, 3);
+  EXPECT_EQ(matrix.cases[1].repeats, 1) << "one run unless told";
   EXPECT_EQ(tum.expect.at("frames_in_largest_map"), 697);
   EXPECT_DOUBLE_EQ(tum.tolerance.at("ate_m").relative, 0.5);
   EXPECT_DOUBLE_EQ(tum.tolerance.at("ate_m").absolute, 0.005) << "the rest from the defaults";
@@ -57,6 +60,7 @@ TEST(QualityGate, ReadsTheMatrixAndACasesOwnTolerance) {
   ASSERT_EQ(again.cases.size(), 2u);
   EXPECT_EQ(again.cases[0].run, tum.run);
   EXPECT_EQ(again.cases[0].expect, tum.expect);
+  EXPECT_EQ(again.cases[0].repeats, 3);
   EXPECT_DOUBLE_EQ(again.cases[0].tolerance.at("ate_m").relative, 0.5);
 }
 
@@ -75,6 +79,7 @@ TEST(QualityGate, RefusesAMatrixItCannotCheck) {
   refused("tolerance: {}\ncases:\n  - name: a\n    colour: red\n", "unknown key 'colour'");
   refused("tolerance: {}\ncases:\n  - name: a\n  - name: a\n", "two cases named 'a'");
   refused("tolerance: {ate_m: {relative: -1}}\ncases:\n  - name: a\n", "slack must be >= 0");
+  refused("tolerance: {}\ncases:\n  - name: a\n    repeats: 0\n", "repeats must be in [1, 20]");
   refused("tolerance: {}\ncases: [\n", "quality.yaml");
 }
 
@@ -103,6 +108,31 @@ TEST(QualityGate, ARegressionIsAFigureWorseThanItsToleranceAllows) {
   const auto only_ate = CheckCase(matrix, tum, {{"frames_in_largest_map", 546}, {"ate_m", 0.078}}, {"ate_m"});
   ASSERT_EQ(only_ate.size(), 1u);
   EXPECT_EQ(only_ate[0].figure, "ate_m");
+}
+
+TEST(QualityGate, ARepeatedCaseIsItsMedianAndItsWorstRunTheWorseWayOfEachFigure) {
+  testing::TempDir dir;
+  const QualityMatrix matrix = WriteAndLoad(dir, kMatrix);
+  const QualityCase& tum = matrix.cases[0];
+  // Three real-time runs: the second lost most of its frames, the third has no ATE.
+  const RepeatedFigures combined =
+      CombineRuns(matrix, tum,
+                  {{{"frames_in_largest_map", 700}, {"ate_m", 0.030}, {"dropped_frames", 0}},
+                   {{"frames_in_largest_map", 365}, {"ate_m", 0.050}, {"dropped_frames", 150}},
+                   {{"frames_in_largest_map", 690}, {"dropped_frames", 2}}});
+  EXPECT_EQ(combined.median.at("frames_in_largest_map"), 690);
+  EXPECT_EQ(combined.median.at("ate_m"), 0.050)
+      << "the median (the upper middle: Median) of the two runs that have one";
+  EXPECT_EQ(combined.median.at("dropped_frames"), 2);
+  EXPECT_EQ(combined.worst.at("frames_in_largest_map"), 365) << "higher is better: the worst is the lowest";
+  EXPECT_EQ(combined.worst.at("dropped_frames"), 150) << "no tolerance: higher is worse";
+  EXPECT_EQ(combined.worst.count("ate_m"), 0u) << "a run without an ATE: the worst has none (a regression)";
+  // Its median passes; its worst run does not.
+  EXPECT_TRUE(CheckCase(matrix, tum, combined.median, {"frames_in_largest_map"}).empty());
+  EXPECT_EQ(CheckCase(matrix, tum, combined.worst, {"frames_in_largest_map"}).size(), 1u);
+  // Mostly absent: no median either.
+  const RepeatedFigures sparse = CombineRuns(matrix, tum, {{{"ate_m", 0.03}}, {}, {}});
+  EXPECT_EQ(sparse.median.count("ate_m"), 0u);
 }
 
 TEST(QualityGate, TheMarkdownTableReplacesOnlyWhatLiesBetweenItsMarkers) {
