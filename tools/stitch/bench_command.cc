@@ -226,17 +226,11 @@ nlohmann::json BenchOptions(const BenchArgs& a) {
     const std::string json_path = (scratch / ("variant" + std::to_string(i) + ".json")).string();
     std::string settings = a.settings;
     if (!v.settings.empty()) settings += (settings.empty() ? "" : ",") + v.settings;
-    std::vector<std::string> args{"bench",
-                                  "--failures",
-                                  a.source.failures,
-                                  "--json",
-                                  json_path,
-                                  "--max-frames",
-                                  std::to_string(a.source.max_frames)};
-    const std::pair<const char*, const std::string*> passed[] = {{"--dataset", &a.source.dataset_path},
-                                                                 {"--calib", &a.source.calibration_path},
-                                                                 {"--config", &a.config_path},
-                                                                 {"--set", &settings}};
+    std::vector<std::string> args{"bench", "--json", json_path};
+    const std::vector<std::string> source_args =
+        SourceArguments(a.source, kDatasetFlag | kCalibFlag | kFailuresFlag | kMaxFramesFlag);
+    args.insert(args.end(), source_args.begin(), source_args.end());
+    const std::pair<const char*, const std::string*> passed[] = {{"--config", &a.config_path}, {"--set", &settings}};
     for (const auto& [flag, value] : passed) {
       if (value->empty()) continue;
       args.push_back(flag);

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <tuple>
 
 #include <opencv2/imgproc.hpp>
 
@@ -222,6 +223,24 @@ void AddSourceOptions(ArgParser* args, SourceSpec* spec, unsigned which) {
 
 void CheckSourceSpec(const SourceSpec& spec) {
   if (spec.start_frame < 0) throw Error("--start-frame must be >= 0");
+}
+
+std::vector<std::string> SourceArguments(const SourceSpec& spec, unsigned which) {
+  const SourceSpec defaults;
+  const std::tuple<SourceFlag, const char*, std::string, std::string> flags[] = {
+      {kDatasetFlag, "--dataset", spec.dataset_path, defaults.dataset_path},
+      {kLiveFlag, "--live", spec.live_uri, defaults.live_uri},
+      {kCalibFlag, "--calib", spec.calibration_path, defaults.calibration_path},
+      {kFailuresFlag, "--failures", spec.failures, defaults.failures},
+      {kMaxFramesFlag, "--max-frames", std::to_string(spec.max_frames), std::to_string(defaults.max_frames)},
+      {kStartFrameFlag, "--start-frame", std::to_string(spec.start_frame), std::to_string(defaults.start_frame)}};
+  std::vector<std::string> args;
+  for (const auto& [flag, name, value, default_value] : flags) {
+    if (!(which & flag) || value == default_value) continue;
+    args.push_back(name);
+    args.push_back(value);
+  }
+  return args;
 }
 
 }  // namespace stitch

@@ -4,6 +4,7 @@
 #include <memory>
 #include <string>
 #include <utility>
+#include <vector>
 
 #include "stitch/io/failure_schedule.h"
 #include "stitch/io/image_sequence.h"
@@ -41,6 +42,9 @@ enum SourceFlag : unsigned {
 void AddSourceOptions(ArgParser* args, SourceSpec* spec, unsigned which = kEverySourceFlag);
 // Throws stitch::Error for values no source takes (a negative start frame).
 void CheckSourceSpec(const SourceSpec& spec);
+// The flags among `which` that hand `spec` on to another program taking them (those set away
+// from SourceSpec's defaults), e.g. {"--dataset", PATH, "--max-frames", "300"}.
+std::vector<std::string> SourceArguments(const SourceSpec& spec, unsigned which = kEverySourceFlag);
 
 // The working size of frames of `width` x `height`: the size itself when it has at most
 // `max_pixels` pixels (or `max_pixels` is 0), else the largest size within it whose aspect is the

@@ -58,3 +58,35 @@ TEST(WorkingSize, ALargeCamerasFramesArePlayedReducedWithTheirCamera) {
 
 }  // namespace
 }  // namespace stitch
+
+namespace stitch {
+namespace {
+
+// A program handing its source on to another (stitch bench --realtime to stitch run): the flags
+// read back give the same spec, and only what differs from the defaults is passed.
+TEST(SourceArguments, TheFlagsHandOnWhatWasGivenAndNothingElse) {
+  const char* given[] = {"prog", "--dataset", "/data/tum", "--max-frames", "300", "--start-frame", "8"};
+  SourceSpec spec;
+  ArgParser args("prog", "");
+  AddSourceOptions(&args, &spec);
+  ASSERT_TRUE(args.Parse(7, const_cast<char**>(given)));
+  const std::vector<std::string> handed = SourceArguments(spec);
+  EXPECT_EQ(handed, (std::vector<std::string>{"--dataset", "/data/tum", "--max-frames", "300", "--start-frame", "8"}));
+  // Read back by the other program: the same spec.
+  std::vector<const char*> again{"other"};
+  for (const std::string& a : handed) again.push_back(a.c_str());
+  SourceSpec received;
+  ArgParser other("other", "");
+  AddSourceOptions(&other, &received);
+  ASSERT_TRUE(other.Parse(static_cast<int>(again.size()), const_cast<char**>(again.data())));
+  EXPECT_EQ(received.dataset_path, spec.dataset_path);
+  EXPECT_EQ(received.max_frames, 300);
+  EXPECT_EQ(received.start_frame, 8);
+  EXPECT_EQ(received.failures, SourceSpec().failures);
+  // Only the flags asked for; none for a spec left at its defaults.
+  EXPECT_EQ(SourceArguments(spec, kMaxFramesFlag), (std::vector<std::string>{"--max-frames", "300"}));
+  EXPECT_TRUE(SourceArguments(SourceSpec()).empty());
+}
+
+}  // namespace
+}  // namespace stitch

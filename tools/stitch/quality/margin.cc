@@ -11,6 +11,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "stitch/source/source.h"
 #include "stitch/util/args.h"
 #include "stitch/util/child_process.h"
 #include "stitch/util/error.h"
@@ -132,10 +133,10 @@ std::string MarginSentence(const Margin& margin, double max_dropped_share) {
 }  // namespace
 
 int MarginCommand(int argc, char** argv) {
-  std::string case_name, expected_path = kQualityMatrix, datasets_dir, dataset, failures, config_path, out_dir,
-                         json_path, markdown_path, label;
+  std::string case_name, expected_path = kQualityMatrix, datasets_dir, config_path, out_dir, json_path, markdown_path,
+                         label;
   std::vector<std::string> settings;
-  int max_frames = 0;
+  SourceSpec source;  // without --case
   bool realtime = false;
   MarginOptions options;
   ArgParser args("stitch bench --realtime",
@@ -148,9 +149,7 @@ int MarginCommand(int argc, char** argv) {
   args.AddOption("--expected", &expected_path, "FILE", "the gate's matrix, for --case");
   args.AddOption("--datasets", &datasets_dir, "DIR",
                  "the real sequences' folder, for --case (default: $STITCH_DATASETS or ../shared/datasets)");
-  args.AddOption("--dataset", &dataset, "PATH", "without --case: the sequence (default: the synthetic flight)");
-  args.AddOption("--failures", &failures, "SPEC", "without --case: stitch run's --failures");
-  args.AddOption("--max-frames", &max_frames, "N", "without --case: play at most N frames");
+  AddSourceOptions(&args, &source, kDatasetFlag | kCalibFlag | kFailuresFlag | kMaxFramesFlag | kStartFrameFlag);
   args.AddOption("--config", &config_path, "FILE", "YAML settings for the runs");
   args.AddOption("--set", &settings, "KEY=VALUE", "a setting for every run");
   args.AddOption("--max-dropped", &options.max_dropped_share, "SHARE",
@@ -168,10 +167,9 @@ int MarginCommand(int argc, char** argv) {
   args.AddOption("--label", &label, "LABEL", "the table's name in --markdown (default: the case, or 'run')");
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {
-    std::vector<std::string> run_args;
+    std::vector<std::string> run_args = SourceArguments(source);
     if (!case_name.empty()) {
-      if (!dataset.empty() || !failures.empty() || max_frames != 0)
-        throw Error("--case plays the case's own sequence: leave out --dataset, --failures and --max-frames");
+      if (!run_args.empty()) throw Error("--case plays the case's own sequence: leave out the source's flags");
       const QualityMatrix matrix = LoadQualityMatrix(expected_path);
       const auto c = std::find_if(matrix.cases.begin(), matrix.cases.end(),
                                   [&](const QualityCase& q) { return q.name == case_name; });
@@ -181,16 +179,7 @@ int MarginCommand(int argc, char** argv) {
         throw Error("case '" + case_name + "' needs " + c->needs + ", which is not in " + datasets_dir);
       run_args = CaseRunArguments(*c, datasets_dir);
     } else {
-      if (max_frames < 0) throw Error("--max-frames must be >= 0");
-      const std::pair<const char*, std::string> passed[] = {
-          {"--dataset", dataset},
-          {"--failures", failures},
-          {"--max-frames", max_frames > 0 ? std::to_string(max_frames) : ""}};
-      for (const auto& [flag, value] : passed) {
-        if (value.empty()) continue;
-        run_args.push_back(flag);
-        run_args.push_back(value);
-      }
+      CheckSourceSpec(source);
     }
     if (!(options.max_dropped_share >= 0 && options.max_dropped_share < 1))
       throw Error("--max-dropped must be in [0, 1)");
