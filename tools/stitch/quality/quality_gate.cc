@@ -407,6 +407,7 @@ struct Running {
 // and its worst run's.
 struct EarlierCase {
   std::map<std::string, double> figures, worst;
+  std::vector<std::map<std::string, double>> runs;  // a repeated case's
 };
 using Figures = std::map<std::string, EarlierCase>;
 
@@ -421,6 +422,7 @@ Figures ReadFigures(const std::string& path) {
       EarlierCase& earlier = figures[c.at("case").get<std::string>()];
       earlier.figures = c.at("figures").get<std::map<std::string, double>>();
       if (c.contains("worst")) earlier.worst = c.at("worst").get<std::map<std::string, double>>();
+      if (c.contains("runs")) earlier.runs = c.at("runs").get<std::vector<std::map<std::string, double>>>();
     }
   } catch (const nlohmann::json::exception& e) {
     throw Error(path + ": not a quality.json (" + e.what() + ")");
@@ -682,6 +684,7 @@ int QualityCommand(int argc, char** argv) {
         }
         results[i].figures = it->second.figures;
         results[i].worst = it->second.worst;
+        results[i].runs = it->second.runs;
         results[i].regressions = CheckResult(matrix, results[i], figures);
       }
       out_dir = fs::path(from_path).parent_path().string();
