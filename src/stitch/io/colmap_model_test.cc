@@ -65,7 +65,6 @@ TEST(ColmapModel, WritesAndReadsBackEveryCameraModel) {
   }
 }
 
-// COLMAP's first pixel centre is (0.5, 0.5): the files say cx + 0.5 and x + 0.5.
 // A run that worked at a reduced size goes back to its images' size: the features where the
 // resized camera puts the points, the reprojection still exact.
 TEST(ColmapModel, AModelResizedToItsImagesKeepsItsPointsWhereTheCameraSeesThem) {
@@ -79,6 +78,7 @@ TEST(ColmapModel, AModelResizedToItsImagesKeepsItsPointsWhereTheCameraSeesThem) 
   EXPECT_NEAR((model.images[0].features[1] - seen).norm(), 0, 1e-6);
 }
 
+// COLMAP's first pixel centre is (0.5, 0.5): the files say cx + 0.5 and x + 0.5.
 TEST(ColmapModel, TheFilesAreInColmapsPixelConvention) {
   testing::TempDir dir;
   WriteColmapModel(TwoViews(Camera::Pinhole(640, 480, 450, 450, 319.5, 239.5)), dir / "m");

@@ -56,12 +56,6 @@ TEST(WorkingSize, ALargeCamerasFramesArePlayedReducedWithTheirCamera) {
   EXPECT_NEAR(at_working.y() + 0.5, (at_full.y() + 0.5) * 530.0 / 1080.0, 1e-9);
 }
 
-}  // namespace
-}  // namespace stitch
-
-namespace stitch {
-namespace {
-
 // A program handing its source on to another (stitch bench --realtime to stitch run): the flags
 // read back give the same spec, and only what differs from the defaults is passed.
 TEST(SourceArguments, TheFlagsHandOnWhatWasGivenAndNothingElse) {

@@ -106,27 +106,33 @@ void RunServices::Report(RunInfo* info) const {
   }
 }
 
+namespace {
+
+// "mapper 148 MB, tracker 141 MB": each service's figure, formatted by `format`.
+std::string PerService(const std::map<std::string, double>& figures, const char* format) {
+  std::string text;
+  for (const auto& [service, value] : figures) {
+    char figure[32];
+    std::snprintf(figure, sizeof(figure), format, value);
+    text += (text.empty() ? "" : ", ") + service + " " + figure;
+  }
+  return text;
+}
+
+}  // namespace
+
 void PrintRunSummary(const RunInfo& info, const std::string& evaluation_summary, const std::string& out,
                      int exit_code) {
   std::printf("%s in %.1f s\n%s", info.interrupted ? "interrupted" : (exit_code ? "failed" : "done"), info.wall_seconds,
               evaluation_summary.c_str());
   if (!info.peak_rss_mb.empty()) {
-    std::string peaks;
-    for (const auto& [service, mb] : info.peak_rss_mb) {
-      peaks += (peaks.empty() ? "" : ", ") + service + " " + std::to_string(static_cast<int>(std::lround(mb))) + " MB";
-    }
-    std::printf("  peak memory       %s (memory.tsv: every 2 s)\n", peaks.c_str());
+    std::printf("  peak memory       %s (memory.tsv: every 2 s)\n", PerService(info.peak_rss_mb, "%.0f MB").c_str());
   }
   if (!info.cpu_s.empty()) {
-    std::string cpu;
     double total = 0;
-    for (const auto& [service, seconds] : info.cpu_s) {
-      char text[64];
-      std::snprintf(text, sizeof(text), "%s%s %.1f s", cpu.empty() ? "" : ", ", service.c_str(), seconds);
-      cpu += text;
-      total += seconds;
-    }
-    std::printf("  CPU               %s; %.1f s in all (user + system)\n", cpu.c_str(), total);
+    for (const auto& item : info.cpu_s) total += item.second;
+    std::printf("  CPU               %s; %.1f s in all (user + system)\n", PerService(info.cpu_s, "%.1f s").c_str(),
+                total);
   }
   for (const auto& figures : info.link_figures) std::printf("%s\n", figures.c_str());
   for (const auto& note : info.notes) std::printf("note: %s\n", note.c_str());
