@@ -10,7 +10,7 @@ $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recomme
   libopencv-dev libeigen3-dev libceres-dev \
   libyaml-cpp-dev nlohmann-json3-dev libsodium-dev \
   libgtest-dev libgmock-dev libbenchmark-dev \
-  gstreamer1.0-plugins-base gstreamer1.0-plugins-good \
+  gstreamer1.0-plugins-base gstreamer1.0-plugins-good gstreamer1.0-plugins-ugly gstreamer1.0-libav \
   default-jdk-headless liblcm-java libjchart2d-java lua5.2 liblcm-lua colmap \
   libcivetweb-dev libjs-three \
   iproute2 procps

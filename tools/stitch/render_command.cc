@@ -1,14 +1,16 @@
 // stitch render: writes the synthetic flight as an image folder (PNG, camera.yaml,
-// groundtruth.txt), which `stitch run --dataset` and other SLAM systems can read.
+// groundtruth.txt) or an H.264 video, which `stitch run --dataset` and other SLAM systems can read.
 
 #include <cstdio>
 #include <filesystem>
+#include <memory>
 
 #include <opencv2/imgcodecs.hpp>
 
 #include "stitch/config/stitch_config.h"
 #include "stitch/io/calibration.h"
 #include "stitch/io/image_file.h"
+#include "stitch/io/video_file_writer.h"
 #include "stitch/source/source.h"
 #include "stitch/util/args.h"
 #include "stitch/util/error.h"
@@ -21,39 +23,59 @@ namespace fs = std::filesystem;
 namespace stitch {
 
 int RenderCommand(int argc, char** argv) {
-  std::string out_dir, config_path;
+  std::string out, config_path;
   std::vector<std::string> settings;
   SourceSpec spec;
+  H264FileOptions video;
   ArgParser args("stitch render",
-                 "Renders the synthetic UAV survey flight to an image folder: frames as PNG named by timestamp, "
-                 "camera.yaml and groundtruth.txt (TUM).");
-  args.AddOption("--out", &out_dir, "DIR", "output folder (required)");
+                 "Renders the synthetic UAV survey flight to an image folder (frames as PNG named by timestamp, "
+                 "camera.yaml and groundtruth.txt, TUM) or, for --out FILE.mp4 (.mkv, .mov), to an H.264 video as "
+                 "an aircraft's camera records one, with FILE.yaml and FILE.groundtruth.txt beside it (GStreamer's "
+                 "x264enc: gstreamer1.0-plugins-ugly).");
+  args.AddOption("--out", &out, "DIR|FILE", "output folder, or a video file (.mp4, .mkv, .mov) (required)");
   args.AddOption("--config", &config_path, "FILE", "YAML settings; its synthetic: section shapes the flight");
   args.AddOption("--set", &settings, "KEY=VALUE", "a setting over the file, e.g. synthetic.flight.altitude_m=40");
+  args.AddOption("--quantizer", &video.quantizer, "Q", "a video's H.264 constant quality, 0 (lossless) .. 50");
   AddSourceOptions(&args, &spec, kFailuresFlag | kMaxFramesFlag);
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {
-    if (out_dir.empty()) throw Error("--out DIR is required");
+    if (out.empty()) throw Error("--out DIR|FILE is required");
     spec.synthetic = LoadStitchConfig(config_path, settings).synthetic;
     FailureSchedule unused;
     auto sequence = OpenSource(spec, &unused);
-    fs::create_directories(out_dir);
-    SaveCalibration(sequence->camera(), (fs::path(out_dir) / "camera.yaml").string());
+    const std::string ext = fs::path(out).extension().string();
+    const bool to_video = ext == ".mp4" || ext == ".mkv" || ext == ".mov" || ext == ".m4v";
+    fs::path calibration = fs::path(out) / "camera.yaml", truth_path = fs::path(out) / "groundtruth.txt";
+    std::unique_ptr<H264FileWriter> writer;
+    if (to_video) {
+      if (fs::path(out).has_parent_path()) fs::create_directories(fs::path(out).parent_path());
+      calibration = fs::path(out).replace_extension(".yaml");
+      truth_path = fs::path(out).replace_extension(".groundtruth.txt");
+      video.fps = sequence->nominal_fps();
+      writer = std::make_unique<H264FileWriter>(out, sequence->camera().width(), sequence->camera().height(), video);
+    } else {
+      fs::create_directories(out);
+    }
+    SaveCalibration(sequence->camera(), calibration.string());
     const Stopwatch clock;
     SequenceFrame frame;
     Trajectory truth;
     const int total = sequence->size();
     while (sequence->Next(&frame)) {
-      const std::string name = FormatSeconds(frame.t_ns) + ".png";
-      WritePng((fs::path(out_dir) / name).string(), frame.image);
+      if (writer) {
+        writer->Write(frame.image);
+      } else {
+        WritePng((fs::path(out) / (FormatSeconds(frame.t_ns) + ".png")).string(), frame.image);
+      }
       if (const auto pose = sequence->ground_truth().PoseAt(frame.t_ns)) truth.Add({frame.t_ns, *pose});
       if ((frame.index + 1) % 50 == 0 || frame.index + 1 == total) {
         std::printf("\r  rendered %d/%d", frame.index + 1, total);
         std::fflush(stdout);
       }
     }
-    truth.WriteTum((fs::path(out_dir) / "groundtruth.txt").string());
-    std::printf("\nwrote %d frames to %s in %.1f s (%s)\n", total, out_dir.c_str(), clock.ElapsedSeconds(),
+    if (writer) writer->Finish();
+    truth.WriteTum(truth_path.string());
+    std::printf("\nwrote %d frames to %s in %.1f s (%s)\n", total, out.c_str(), clock.ElapsedSeconds(),
                 sequence->description().c_str());
     return 0;
   } catch (const std::exception& e) {

@@ -459,6 +459,11 @@ class VideoSequence : public ImageSequence {
                   fs::path(path_).replace_extension(".yaml").filename().string() + " beside it");
     }
     camera_ = LoadCalibration(calibration, pending_.image.cols, pending_.image.rows);
+    // Ground truth beside the clip: flight.groundtruth.txt for flight.mp4 (what `stitch render
+    // --out flight.mp4` writes), else the folder's groundtruth.txt.
+    const std::string truth =
+        FirstExisting({fs::path(path_).replace_extension(".groundtruth.txt"), path.parent_path() / "groundtruth.txt"});
+    if (!truth.empty()) ground_truth_ = Trajectory::ReadTum(truth);
   }
 
   std::string description() const override {
@@ -486,6 +491,9 @@ class VideoSequence : public ImageSequence {
     cv::Mat bgr;
     if (!capture_.read(bgr) || bgr.empty()) return false;
     frame->error.clear();
+    // A buffer of its own: a frame handed out before may still be held (and cvtColor would write
+    // into it).
+    frame->image = cv::Mat();
     if (bgr.channels() == 3) {
       cv::cvtColor(bgr, frame->image, cv::COLOR_BGR2GRAY);
     } else if (bgr.channels() == 4) {
@@ -493,10 +501,24 @@ class VideoSequence : public ImageSequence {
     } else {
       frame->image = bgr.clone();
     }
-    // Position timestamps are unreliable across containers; frames are 1/fps apart.
-    frame->t_ns = static_cast<int64_t>(std::llround(source_index_ * 1e9 / fps_));
+    frame->t_ns = ClipTimeNs();
+    last_t_ns_ = frame->t_ns;
     ++source_index_;
     return true;
+  }
+
+  // The frame's presentation time in the clip (a variable frame rate kept). The decoder does not
+  // give one for every frame (the last frames of a clip with B-frames read as 0) nor does every
+  // container hold them: where it goes back or stands still, the previous frame's time plus one
+  // frame at the nominal rate.
+  int64_t ClipTimeNs() {
+    const int64_t by_rate = last_t_ns_ < 0 ? static_cast<int64_t>(std::llround(source_index_ * 1e9 / fps_))
+                                           : last_t_ns_ + static_cast<int64_t>(std::llround(1e9 / fps_));
+    const double position_ms = capture_.get(cv::CAP_PROP_POS_MSEC);
+    if (!std::isfinite(position_ms) || position_ms < 0) return by_rate;
+    const int64_t position_ns = static_cast<int64_t>(std::llround(position_ms * 1e6));
+    const bool plausible = last_t_ns_ >= 0 ? position_ns > last_t_ns_ : (position_ns > 0 || source_index_ == 0);
+    return plausible ? position_ns : by_rate;
   }
 
   std::string path_;
@@ -507,6 +529,7 @@ class VideoSequence : public ImageSequence {
   int total_ = -1;
   int max_frames_ = -1;
   int source_index_ = 0;
+  int64_t last_t_ns_ = -1;
   int emitted_ = 0;
   SequenceFrame pending_;
   bool has_pending_ = false;

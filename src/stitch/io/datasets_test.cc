@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
+#include <memory>
 
 #include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
@@ -11,6 +12,7 @@
 
 #include "stitch/io/calibration.h"
 #include "stitch/io/image_sequence.h"
+#include "stitch/io/video_file_writer.h"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/util/error.h"
 
@@ -284,6 +286,62 @@ TEST(Datasets, VideoFileIsReadFrameByFrame) {
   ASSERT_EQ(frames.size(), 5u);
   ExpectShowsFrame(frames[4], 4, 6.0);  // JPEG-compressed
   EXPECT_EQ(frames[4].t_ns, 160000000);
+}
+
+// An H.264 clip as an aircraft records one, at a rate that is not 30: read back with the clip's
+// own times (also its last frames, which the decoder gives without one) and the ground truth
+// beside it. Skipped where GStreamer's x264enc is missing (gstreamer1.0-plugins-ugly).
+TEST(Datasets, H264VideoIsReadWithItsOwnTimesAndTheGroundTruthBesideIt) {
+  testing::TempDir dir;
+  const std::string video = dir / "flight.mp4";
+  std::unique_ptr<H264FileWriter> writer;
+  try {
+    writer = std::make_unique<H264FileWriter>(video, kWidth, kHeight, H264FileOptions{25.0});
+  } catch (const Error& e) {
+    GTEST_SKIP() << e.what();
+  }
+  // Each frame a shade of its own (10 grey levels apart), so that a frame is told by its mean
+  // whatever the codec's loss at edges.
+  const auto shaded = [](int i) {
+    cv::Mat image = TestImage(i);
+    image.setTo(cv::Scalar::all(20 + 10 * i), image == 40);
+    return image;
+  };
+  for (int i = 0; i < 20; ++i) writer->Write(shaded(i));
+  EXPECT_FALSE(fs::exists(video)) << "named before it is whole";
+  writer->Finish();
+  EXPECT_TRUE(fs::exists(video));
+  EXPECT_FALSE(fs::exists(video + ".part"));
+  EXPECT_EQ(writer->frames_written(), 20);
+  WriteText(dir / "flight.yaml", PinholeYaml());
+  WriteText(dir / "flight.groundtruth.txt", "0.0 0 0 0 0 0 0 1\n1.0 1 0 0 0 0 0 1\n");
+  auto sequence = OpenDataset(video);
+  EXPECT_NEAR(sequence->nominal_fps(), 25.0, 1e-6);
+  EXPECT_EQ(sequence->size(), 20);
+  EXPECT_EQ(sequence->ground_truth().size(), 2u);
+  const auto frames = ReadAll(*sequence);
+  ASSERT_EQ(frames.size(), 20u);
+  for (int i = 0; i < 20; ++i) {
+    EXPECT_EQ(frames[i].t_ns, i * 40'000'000LL) << i;
+    ASSERT_EQ(frames[i].image.type(), CV_8UC1);
+    EXPECT_NEAR(cv::mean(frames[i].image)[0], cv::mean(shaded(i))[0], 3.0) << i;
+  }
+  // What the writer refuses: another container, an odd size, a frame that does not fit.
+  EXPECT_THROW(H264FileWriter(dir / "flight.avi", kWidth, kHeight), Error);
+  EXPECT_THROW(H264FileWriter(dir / "odd.mp4", 641, kHeight), Error);
+  H264FileWriter other(dir / "other.mkv", kWidth, kHeight);
+  EXPECT_THROW(other.Write(TestImage(0, 3)), Error);
+  EXPECT_THROW(other.Write(cv::Mat(240, 320, CV_8UC1)), Error);
+  other.Write(TestImage(0));
+  other.Finish();
+  EXPECT_EQ(ReadAll(*OpenDataset(dir / "other.mkv",
+                                 [&] {
+                                   SequenceOptions options;
+                                   options.calibration_path = dir / "flight.yaml";
+                                   return options;
+                                 }()))
+                .size(),
+            1u);
 }
 
 TEST(Datasets, MissingOrUnknownPathsAreClearErrors) {

@@ -1,6 +1,8 @@
 #include "stitch/io/live_capture.h"
 
+#include <algorithm>
 #include <chrono>
+#include <cmath>
 
 #include <opencv2/imgproc.hpp>
 
@@ -47,8 +49,27 @@ std::string LiveSourceKind(const std::string& uri) {
               "or a stream URL (rtsp://, udp://, http://)");
 }
 
+std::string LiveClock(const std::string& uri, const std::string& clock) {
+  const std::string kind = LiveSourceKind(uri);
+  if (clock == "wall") return clock;
+  if (clock == "stream") {
+    if (kind != "gstreamer") throw Error("live source " + uri + ": only a GStreamer pipeline gives its own clock");
+    return clock;
+  }
+  if (clock != "auto") throw Error("live clock '" + clock + "': expected auto, stream or wall");
+  if (kind != "gstreamer") return "wall";
+  // The pipeline's source element: the first one.
+  const std::string pipeline = StartsWith(uri, "gst:") ? uri.substr(4) : uri;
+  const size_t begin = pipeline.find_first_not_of(' ');
+  const std::string first =
+      begin == std::string::npos ? "" : pipeline.substr(begin, pipeline.find_first_of(" !", begin) - begin);
+  const bool reads_file = first == "filesrc" || first == "multifilesrc" ||
+                          (first == "uridecodebin" && pipeline.find("uri=file:") != std::string::npos);
+  return reads_file ? "stream" : "wall";
+}
+
 LiveCapture::LiveCapture(const std::string& uri, const LiveCaptureOptions& options)
-    : uri_(uri), kind_(LiveSourceKind(uri)), options_(options) {
+    : uri_(uri), kind_(LiveSourceKind(uri)), clock_(LiveClock(uri, options.clock)), options_(options) {
   if (options_.calibration_path.empty()) {
     throw Error("live source " + uri_ + ": a live camera needs its calibration (--calib FILE)");
   }
@@ -70,14 +91,14 @@ LiveCapture::LiveCapture(const std::string& uri, const LiveCaptureOptions& optio
                 "): cannot open it (a missing device or GStreamer plugin, a wrong pipeline, an unreachable stream)");
   }
   const double fps = capture.get(cv::CAP_PROP_FPS);
-  if (fps > 0 && fps < 1000) fps_ = fps;
+  if (fps > 0 && fps < 1000) fps_ = shared_->fps = fps;
   // The first frame, here: the image size to check the calibration against.
   cv::Mat first;
   if (!capture.read(first) || first.empty()) throw Error("live source " + uri_ + ": it gave no frame");
-  shared_->latest_t_ns = WallClockNs();
+  shared_->latest_t_ns = CaptureTimeNs(shared_.get(), clock_ == "stream");
   shared_->latest = ToGray(first);
   camera_ = LoadCalibration(options_.calibration_path, shared_->latest.cols, shared_->latest.rows);
-  thread_ = std::thread(&LiveCapture::Capture, shared_);
+  thread_ = std::thread(&LiveCapture::Capture, shared_, clock_ == "stream");
 }
 
 LiveCapture::~LiveCapture() {
@@ -97,14 +118,38 @@ LiveCapture::~LiveCapture() {
 
 std::string LiveCapture::description() const {
   return "live " + kind_ + " " + uri_ + " (" + std::to_string(camera_.width()) + "x" +
-         std::to_string(camera_.height()) + ", " + std::to_string(static_cast<int>(fps_ + 0.5)) + " fps)";
+         std::to_string(camera_.height()) + ", " + std::to_string(static_cast<int>(fps_ + 0.5)) + " fps, " + clock_ +
+         " clock)";
 }
 
-void LiveCapture::Capture(std::shared_ptr<Shared> shared) {
+int64_t LiveCapture::CaptureTimeNs(Shared* shared, bool stream_clock) {
+  int64_t t_ns = WallClockNs();
+  if (stream_clock) {
+    // OpenCV answers with the pipeline's position when asked: the frame's time in the stream plus
+    // however late this thread took it (a few milliseconds, more on a loaded machine). On a
+    // stream of a known rate that is the frame period's multiple nearest to it.
+    const double position_ms = shared->capture.get(cv::CAP_PROP_POS_MSEC);
+    if (std::isfinite(position_ms) && position_ms >= 0) {
+      t_ns = static_cast<int64_t>(std::llround(position_ms * 1e6));
+      if (shared->fps > 0) {
+        const double period_ns = 1e9 / shared->fps;
+        t_ns = static_cast<int64_t>(std::llround(std::round(t_ns / period_ns) * period_ns));
+      }
+    } else {
+      t_ns = shared->last_t_ns + 1;
+    }
+  }
+  // Times strictly in order, whatever the clock did.
+  t_ns = std::max(t_ns, shared->last_t_ns + 1);
+  shared->last_t_ns = t_ns;
+  return t_ns;
+}
+
+void LiveCapture::Capture(std::shared_ptr<Shared> shared, bool stream_clock) {
   cv::Mat image;
   while (!shared->stop.load()) {
     if (!shared->capture.read(image) || image.empty()) break;
-    const int64_t t_ns = WallClockNs();
+    const int64_t t_ns = CaptureTimeNs(shared.get(), stream_clock);
     cv::Mat gray = ToGray(image);
     std::lock_guard<std::mutex> lock(shared->mutex);
     if (!shared->latest.empty()) ++shared->dropped;  // the consumer did not take the last one in time

@@ -1,7 +1,9 @@
 #pragma once
 // A live camera as an ImageSequence: a V4L2 device, a GStreamer pipeline or a network stream
 // (RTSP, UDP, HTTP) read through OpenCV's VideoCapture by a capture thread of its own. Each frame
-// is stamped with the wall clock when it was captured; only the newest frame is kept, so a
+// is stamped with the wall clock when it was captured, or with the stream's own time where that
+// is what counts (a recorded clip played through a pipeline: its frames keep the clip's times, so
+// its ground truth still applies); only the newest frame is kept, so a
 // consumer that falls behind gets the latest one and the frames it missed are counted
 // (dropped_at_source()), never queued. The calibration file is required: a live source has none
 // of its own.
@@ -23,7 +25,16 @@ struct LiveCaptureOptions {
   std::string calibration_path;   // required
   int max_frames = -1;            // stop after this many frames (-1: until the stream ends)
   double frame_timeout_s = 10.0;  // no frame for this long: the stream is taken as ended
+  // The frames' times: "wall" (the wall clock at capture), "stream" (the pipeline's own position,
+  // on the grid of its nominal frame rate when it has one: a GStreamer pipeline only), or "auto"
+  // (stream for a pipeline that reads a file: filesrc, multifilesrc, uridecodebin of a file:
+  // URI; wall otherwise).
+  std::string clock = "auto";
 };
+
+// The clock `options.clock` means for `uri` ("wall" or "stream"). Throws stitch::Error for an
+// unknown clock, or "stream" for a source that is not a GStreamer pipeline.
+std::string LiveClock(const std::string& uri, const std::string& clock);
 
 // How VideoCapture is to open `uri`: "v4l2" (/dev/videoN, or "v4l2:/dev/videoN"), "gstreamer"
 // (a pipeline: elements joined by " ! "; "gst:PIPELINE" too), "stream" (rtsp://, udp://,
@@ -63,10 +74,14 @@ class LiveCapture : public ImageSequence {
     bool ended = false;
     std::atomic<bool> stop{false};
     std::atomic<int64_t> dropped{0};
+    double fps = 0;          // the stream's nominal rate (0: unknown)
+    int64_t last_t_ns = -1;  // the capture thread's own: the last frame's time
   };
-  static void Capture(std::shared_ptr<Shared> shared);
+  static void Capture(std::shared_ptr<Shared> shared, bool stream_clock);
+  // The capture time of the frame `capture` just read.
+  static int64_t CaptureTimeNs(Shared* shared, bool stream_clock);
 
-  std::string uri_, kind_;
+  std::string uri_, kind_, clock_;
   LiveCaptureOptions options_;
   std::shared_ptr<Shared> shared_ = std::make_shared<Shared>();
   Camera camera_;

@@ -4,7 +4,9 @@
 
 #include "stitch/io/live_capture.h"
 
+#include <cmath>
 #include <thread>
+#include <vector>
 
 #include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
@@ -50,6 +52,19 @@ TEST(LiveCapture, TellsTheKindOfSourceFromItsName) {
   EXPECT_THROW(LiveSourceKind(""), Error);
 }
 
+TEST(LiveCapture, AFileThroughAPipelineKeepsItsOwnClockAndACameraTheWallClock) {
+  EXPECT_EQ(LiveClock("filesrc location=f.mp4 ! decodebin ! appsink", "auto"), "stream");
+  EXPECT_EQ(LiveClock("gst: multifilesrc location=%05d.png ! pngdec ! appsink", "auto"), "stream");
+  EXPECT_EQ(LiveClock("uridecodebin uri=file:///f.mp4 ! appsink", "auto"), "stream");
+  EXPECT_EQ(LiveClock("v4l2src ! videoconvert ! appsink", "auto"), "wall");
+  EXPECT_EQ(LiveClock("udpsrc port=5600 ! decodebin ! appsink", "auto"), "wall");
+  EXPECT_EQ(LiveClock("/dev/video0", "auto"), "wall");
+  EXPECT_EQ(LiveClock("filesrc location=f.mp4 ! decodebin ! appsink", "wall"), "wall");
+  EXPECT_EQ(LiveClock("v4l2src ! appsink", "stream"), "stream");
+  EXPECT_THROW(LiveClock("rtsp://camera/stream", "stream"), Error);  // no pipeline to ask
+  EXPECT_THROW(LiveClock("v4l2src ! appsink", "gps"), Error);
+}
+
 TEST(LiveCapture, RefusesASourceItCannotOpenOrOneWithoutCalibration) {
   testing::TempDir dir;
   SaveCalibration(Camera::Pinhole(160, 120, 150, 150, 79.5, 59.5), dir / "camera.yaml");
@@ -66,6 +81,7 @@ TEST(LiveCapture, PlaysAPipelineAtItsRateAndKeepsOnlyTheNewestFrame) {
   if (!GStreamerPlays(pipeline)) GTEST_SKIP() << "GStreamer cannot play PNG files here (gstreamer1.0-plugins-good)";
   LiveCaptureOptions options;
   options.calibration_path = dir / "camera.yaml";
+  options.clock = "wall";
   LiveCapture live(pipeline, options);
   EXPECT_TRUE(live.live());
   EXPECT_EQ(live.size(), -1);
@@ -92,6 +108,31 @@ TEST(LiveCapture, PlaysAPipelineAtItsRateAndKeepsOnlyTheNewestFrame) {
   SequenceFrame frame;
   while (live.Next(&frame)) ++taken;
   EXPECT_EQ(taken + live.dropped_at_source(), 40);
+}
+
+// Played on the stream's clock, the frames keep their times in the clip (frame i at i / 20 s) to
+// within a millisecond, also those taken late.
+TEST(LiveCapture, OnTheStreamClockFramesKeepTheirTimesInTheClip) {
+  testing::TempDir dir;
+  const std::string pipeline = WriteFramesAndPipeline(dir, 12, 20);
+  if (!GStreamerPlays(pipeline)) GTEST_SKIP() << "GStreamer cannot play PNG files here (gstreamer1.0-plugins-good)";
+  LiveCaptureOptions options;
+  options.calibration_path = dir / "camera.yaml";
+  LiveCapture live(pipeline, options);  // auto: a pipeline reading files
+  EXPECT_NE(live.description().find("stream clock"), std::string::npos) << live.description();
+  std::vector<int64_t> times;
+  SequenceFrame frame;
+  while (live.Next(&frame)) times.push_back(frame.t_ns);
+  ASSERT_GE(times.size(), 6u);
+  EXPECT_LT(times.front(), 2'000'000);
+  for (size_t i = 1; i < times.size(); ++i) {
+    const int64_t gap = times[i] - times[i - 1];
+    EXPECT_GT(gap, 0);
+    // A whole number of frames apart.
+    const double frames = gap / 50e6;
+    EXPECT_NEAR(frames, std::round(frames), 0.04) << gap;
+  }
+  EXPECT_LT(times.back(), 12 * 50'000'000LL);
 }
 
 TEST(LiveCapture, StopsAfterMaxFrames) {

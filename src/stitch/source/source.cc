@@ -127,6 +127,7 @@ std::unique_ptr<ImageSequence> OpenAtFullSize(const SourceSpec& spec, FailureSch
     LiveCaptureOptions options;
     options.calibration_path = spec.calibration_path;
     options.max_frames = spec.max_frames;
+    options.clock = spec.live_clock;
     return std::make_unique<LiveCapture>(spec.live_uri, options);
   }
   SequenceOptions options;
@@ -174,7 +175,7 @@ SourceSummary SummarizeSource(const SourceSpec& spec) {
     return summary;
   }
   if (!spec.live_uri.empty()) {
-    LiveSourceKind(spec.live_uri);  // throws for what is no live source
+    LiveClock(spec.live_uri, spec.live_clock);  // throws for what is no live source, or a clock it has not
     if (spec.calibration_path.empty()) throw Error("a live camera needs its calibration (--calib FILE)");
     summary.camera = WorkingCamera(LoadCalibration(spec.calibration_path), spec.max_working_pixels);
     summary.description = "live " + spec.live_uri;
@@ -203,6 +204,10 @@ void AddSourceOptions(ArgParser* args, SourceSpec* spec, unsigned which) {
     args->AddOption("--live", &spec->live_uri, "URI",
                     "a live camera instead: a V4L2 device (/dev/video0), a GStreamer pipeline ('... ! appsink') or a "
                     "stream URL (rtsp://, udp://); needs --calib; runs until the stream ends, --max-frames or Ctrl-C");
+    args->AddOption("--live-clock", &spec->live_clock, "CLOCK",
+                    "the live frames' times: wall (the wall clock at capture), stream (a GStreamer pipeline's own: a "
+                    "recorded clip keeps its times and its ground truth) or auto (stream for a pipeline that reads a "
+                    "file, wall otherwise)");
   }
   if (which & kCalibFlag) {
     args->AddOption("--calib", &spec->calibration_path, "FILE",
@@ -230,6 +235,7 @@ std::vector<std::string> SourceArguments(const SourceSpec& spec, unsigned which)
   const std::tuple<SourceFlag, const char*, std::string, std::string> flags[] = {
       {kDatasetFlag, "--dataset", spec.dataset_path, defaults.dataset_path},
       {kLiveFlag, "--live", spec.live_uri, defaults.live_uri},
+      {kLiveFlag, "--live-clock", spec.live_clock, defaults.live_clock},
       {kCalibFlag, "--calib", spec.calibration_path, defaults.calibration_path},
       {kFailuresFlag, "--failures", spec.failures, defaults.failures},
       {kMaxFramesFlag, "--max-frames", std::to_string(spec.max_frames), std::to_string(defaults.max_frames)},

@@ -15,6 +15,7 @@ namespace stitch {
 
 struct SourceSpec {
   std::string live_uri;              // a live camera (LiveCapture): a V4L2 device, GStreamer pipeline or stream URL
+  std::string live_clock = "auto";   // its frames' times: auto, stream or wall (LiveCaptureOptions::clock)
   std::string dataset_path;          // empty (and no live_uri): the synthetic flight
   std::string calibration_path;      // overrides the dataset's calibration
   std::string failures = "default";  // "default" (synthetic: 3 gusts; datasets: none), "none", or FRAME:LENGTH,...
@@ -32,7 +33,7 @@ struct SourceSpec {
 // (stitch run, stitch bench, stitch render, stitch-ingest): `which` says which of them.
 enum SourceFlag : unsigned {
   kDatasetFlag = 1u << 0,     // --dataset PATH
-  kLiveFlag = 1u << 1,        // --live URI
+  kLiveFlag = 1u << 1,        // --live URI, --live-clock CLOCK
   kCalibFlag = 1u << 2,       // --calib FILE
   kFailuresFlag = 1u << 3,    // --failures SPEC
   kMaxFramesFlag = 1u << 4,   // --max-frames N

@@ -80,6 +80,10 @@ TEST(SourceArguments, TheFlagsHandOnWhatWasGivenAndNothingElse) {
   // Only the flags asked for; none for a spec left at its defaults.
   EXPECT_EQ(SourceArguments(spec, kMaxFramesFlag), (std::vector<std::string>{"--max-frames", "300"}));
   EXPECT_TRUE(SourceArguments(SourceSpec()).empty());
+  SourceSpec live;
+  live.live_uri = "filesrc location=f.mp4 ! decodebin ! appsink";
+  live.live_clock = "wall";
+  EXPECT_EQ(SourceArguments(live), (std::vector<std::string>{"--live", live.live_uri, "--live-clock", "wall"}));
 }
 
 }  // namespace

@@ -18,7 +18,7 @@
 namespace stitch {
 
 ChildProcess::ChildProcess(std::string name, const std::string& program, const std::vector<std::string>& args,
-                           const std::string& log_path)
+                           const std::string& log_path, int niceness)
     : name_(std::move(name)), log_path_(log_path) {
   if (access(program.c_str(), X_OK) != 0)
     throw Error(program + ": not found or not executable (is the build complete?)");
@@ -44,6 +44,7 @@ ChildProcess::ChildProcess(std::string name, const std::string& program, const s
     dup2(log_fd, STDERR_FILENO);
     signal(SIGINT, SIG_DFL);
     signal(SIGTERM, SIG_DFL);
+    if (niceness > 0) (void)setpriority(PRIO_PROCESS, 0, niceness);  // best effort: it runs either way
     execv(program.c_str(), argv.data());
     const std::string message = "exec " + program + " failed: " + std::strerror(errno) + "\n";
     (void)!write(STDERR_FILENO, message.data(), message.size());

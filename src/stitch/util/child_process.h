@@ -15,10 +15,11 @@ namespace stitch {
 
 class ChildProcess {
  public:
-  // Starts `program` with `args` (not including argv[0]); stdout and stderr go to `log_path`.
-  // Throws stitch::Error if it cannot be started.
+  // Starts `program` with `args` (not including argv[0]); stdout and stderr go to `log_path`;
+  // `niceness` above 0 gives it a lower scheduling priority (setpriority). Throws stitch::Error if
+  // it cannot be started.
   ChildProcess(std::string name, const std::string& program, const std::vector<std::string>& args,
-               const std::string& log_path);
+               const std::string& log_path, int niceness = 0);
   ~ChildProcess();  // kills the process if it still runs
   ChildProcess(const ChildProcess&) = delete;
   ChildProcess& operator=(const ChildProcess&) = delete;

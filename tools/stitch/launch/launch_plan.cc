@@ -97,7 +97,10 @@ LaunchPlan PlanRun(const RunArgs& a, const std::string& out) {
   const std::vector<std::string> aircraft = on_bus(plan.url), ground = on_bus(plan.ground_url);
   std::vector<std::string> merger_args = With(ground, {"--record", out});
   if (a.journal) merger_args = With(merger_args, {"--state", (fs::path(out) / "merger").string()});
-  plan.services.push_back({"merger", "stitch-merger", merger_args, true});
+  // Frames at the camera's rate: the ground's services yield the CPU to the aircraft's. In
+  // lockstep nothing is gained, and the run stays the same run on any machine load.
+  const int ground_niceness = plan.info.pacing == "lockstep" ? 0 : kGroundNiceness;
+  plan.services.push_back({"merger", "stitch-merger", merger_args, true, ground_niceness});
   if (plan.linked) {
     const std::string air_host = a.netns ? SplitNetwork::kAircraftAddress : "127.0.0.1";
     const std::string ground_host = a.netns ? SplitNetwork::kGroundAddress : "127.0.0.1";
@@ -128,21 +131,15 @@ LaunchPlan PlanRun(const RunArgs& a, const std::string& out) {
   if (a.viewer) {
     const int port = a.viewer_port >= 0 ? a.viewer_port : config.viewer.port;
     plan.viewer_url = "http://" + config.viewer.bind_address + ":" + std::to_string(port) + "/";
-    plan.services.push_back({"viewer", "stitch-viewer", With(ground, {"--port", std::to_string(port)}), true});
+    plan.services.push_back(
+        {"viewer", "stitch-viewer", With(ground, {"--port", std::to_string(port)}), true, ground_niceness});
   }
   plan.services.push_back({"mapper", "stitch-mapper", With(aircraft, {"--record", out}), false});
   plan.services.push_back({"tracker", "stitch-tracker",
                            With(aircraft, {"--record", (fs::path(out) / "frames.tsv").string(), "--state",
                                            (fs::path(out) / "logs" / "tracker.state").string()}),
                            false});
-  const SourceSpec& spec = plan.spec;
-  std::vector<std::string> ingest_args =
-      With(aircraft, {"--failures", spec.failures, "--max-frames", std::to_string(spec.max_frames), "--start-frame",
-                      std::to_string(spec.start_frame)});
-  if (!spec.dataset_path.empty()) ingest_args = With(ingest_args, {"--dataset", spec.dataset_path});
-  if (!spec.live_uri.empty()) ingest_args = With(ingest_args, {"--live", spec.live_uri});
-  if (!spec.calibration_path.empty()) ingest_args = With(ingest_args, {"--calib", spec.calibration_path});
-  plan.services.push_back({"ingest", "stitch-ingest", ingest_args, false});
+  plan.services.push_back({"ingest", "stitch-ingest", With(aircraft, SourceArguments(plan.spec)), false});
   return plan;
 }
 

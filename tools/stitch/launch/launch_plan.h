@@ -41,7 +41,12 @@ struct PlannedService {
   std::string program;  // stitch-ingest, ... (beside the launcher)
   std::vector<std::string> args;
   bool on_ground = false;  // runs on the ground's side (its network namespace with --netns)
+  // Scheduling niceness: on one machine, with frames at the camera's rate, the ground station's
+  // merger and viewer yield the CPU to the aircraft's services, which must keep up with the
+  // camera (kGroundNiceness; 0 in lockstep).
+  int niceness = 0;
 };
+constexpr int kGroundNiceness = 10;
 
 struct LaunchPlan {
   std::string out;

@@ -49,7 +49,7 @@ TEST(LaunchPlan, TheDefaultRunStartsTheGroundFirstAndIngestLastOnOneBus) {
   EXPECT_EQ(Argument(Service(plan, "merger"), "--record"), "/tmp/planned");
   EXPECT_EQ(Argument(Service(plan, "tracker"), "--record"), "/tmp/planned/frames.tsv");
   EXPECT_EQ(Argument(Service(plan, "ingest"), "--max-frames"), "20");
-  EXPECT_EQ(Argument(Service(plan, "ingest"), "--failures"), "default");
+  EXPECT_EQ(Argument(Service(plan, "ingest"), "--failures"), "");  // the default: the ingest's own
   EXPECT_EQ(plan.info.frames_total, 20);
   EXPECT_EQ(plan.info.failures, "4:1,9:1,14:1");  // the default's three gusts, spread over the flight
   EXPECT_EQ(plan.info.frames_unusable, 3);
@@ -93,6 +93,10 @@ TEST(LaunchPlan, FlagsBecomeSettingsOverTheFile) {
   EXPECT_EQ(plan.config.tracker.on_loss, "relocalize");
   EXPECT_EQ(plan.config.ingest.pacing, "realtime");
   EXPECT_EQ(plan.info.pacing, "realtime");
+  // At the camera's rate the ground's merger yields the CPU to the aircraft's services.
+  EXPECT_EQ(Service(plan, "merger").niceness, kGroundNiceness);
+  EXPECT_EQ(Service(plan, "tracker").niceness, 0);
+  EXPECT_EQ(Service(PlanRun(ShortFlight(), "/tmp/planned"), "merger").niceness, 0) << "lockstep";
   EXPECT_EQ(plan.config.mapper.delivery.stop_linger_s, 3);
   // The mapper's grace follows its delivery settings: linger and link drain, and a minute more.
   EXPECT_EQ(StopGraceSeconds(plan, "mapper"), std::max(120.0, 300.0 + 3.0 + 60.0));

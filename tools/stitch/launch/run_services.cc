@@ -15,9 +15,9 @@ void RunServices::StartAll() {
   const std::string bin = ExecutableDir();
   for (const PlannedService& service : plan_.services) {
     if (network_) service.on_ground ? network_->EnterGround() : network_->EnterAircraft();
-    children_.push_back(
-        std::make_unique<ChildProcess>(service.name, bin + "/" + service.program, service.args,
-                                       (fs::path(plan_.out) / "logs" / (service.name + ".log")).string()));
+    children_.push_back(std::make_unique<ChildProcess>(
+        service.name, bin + "/" + service.program, service.args,
+        (fs::path(plan_.out) / "logs" / (service.name + ".log")).string(), service.niceness));
   }
   if (network_) network_->EnterAircraft();  // the launcher listens on the aircraft's side
 }

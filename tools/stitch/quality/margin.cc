@@ -168,15 +168,18 @@ int MarginCommand(int argc, char** argv) {
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {
     std::vector<std::string> run_args = SourceArguments(source);
+    const QualityCase* clip_case = nullptr;  // a case whose clip is rendered first
+    QualityMatrix matrix;
     if (!case_name.empty()) {
       if (!run_args.empty()) throw Error("--case plays the case's own sequence: leave out the source's flags");
-      const QualityMatrix matrix = LoadQualityMatrix(expected_path);
+      matrix = LoadQualityMatrix(expected_path);
       const auto c = std::find_if(matrix.cases.begin(), matrix.cases.end(),
                                   [&](const QualityCase& q) { return q.name == case_name; });
       if (c == matrix.cases.end()) throw Error("--case: no case named '" + case_name + "' in " + expected_path);
       if (datasets_dir.empty()) datasets_dir = DefaultDatasetsDir();
       if (!c->needs.empty() && !fs::exists(fs::path(datasets_dir) / c->needs))
         throw Error("case '" + case_name + "' needs " + c->needs + ", which is not in " + datasets_dir);
+      clip_case = &*c;
       run_args = CaseRunArguments(*c, datasets_dir);
     } else {
       CheckSourceSpec(source);
@@ -196,6 +199,12 @@ int MarginCommand(int argc, char** argv) {
     if (fs::exists(out_dir) && !fs::is_empty(out_dir))
       throw Error(out_dir + " exists and is not empty; give a new --out");
     fs::create_directories(out_dir);
+    if (clip_case != nullptr && !clip_case->render.empty()) {
+      std::printf("rendering the clip of %s\n", clip_case->name.c_str());
+      const std::string clip = RenderCaseClip(*clip_case, (fs::path(out_dir) / "clip").string());
+      const std::vector<std::string> case_args = CaseRunArguments(*clip_case, datasets_dir, clip);
+      std::copy(case_args.begin(), case_args.end(), run_args.begin());  // the case's own lead run_args
+    }
     const std::string stitch = ExecutableDir() + "/stitch";
     const auto play = [&](double speed) {
       const std::string run_dir = (fs::path(out_dir) / ("speed-" + SpeedText(speed))).string();

@@ -90,10 +90,9 @@ Tolerance ReadTolerance(const YAML::Node& node, const std::string& where, Tolera
   return tolerance;
 }
 
-std::string Substitute(std::string text, const std::string& datasets_dir) {
-  const std::string marker = "${datasets}";
-  for (size_t at = text.find(marker); at != std::string::npos; at = text.find(marker, at + datasets_dir.size())) {
-    text.replace(at, marker.size(), datasets_dir);
+std::string Substitute(std::string text, const std::string& marker, const std::string& value) {
+  for (size_t at = text.find(marker); at != std::string::npos; at = text.find(marker, at + value.size())) {
+    text.replace(at, marker.size(), value);
   }
   return text;
 }
@@ -114,10 +113,30 @@ std::string DefaultDatasetsDir() {
   return fs::path(STITCH_DATASETS_DIR).lexically_normal().string();
 }
 
-std::vector<std::string> CaseRunArguments(const QualityCase& c, const std::string& datasets_dir) {
+std::vector<std::string> CaseRunArguments(const QualityCase& c, const std::string& datasets_dir,
+                                          const std::string& rendered) {
   std::vector<std::string> args;
-  for (const std::string& a : c.run) args.push_back(Substitute(a, datasets_dir));
+  for (const std::string& a : c.run) {
+    args.push_back(Substitute(Substitute(a, "${datasets}", datasets_dir), "${rendered}", rendered));
+  }
   return args;
+}
+
+std::string RenderCaseClip(const QualityCase& c, const std::string& dir) {
+  fs::create_directories(dir);
+  const std::string clip = (fs::path(dir) / (c.name + ".mp4")).string();
+  std::vector<std::string> args{"render"};
+  args.insert(args.end(), c.render.begin(), c.render.end());
+  args.push_back("--out");
+  args.push_back(clip);
+  ChildProcess render("render " + c.name, ExecutableDir() + "/stitch", args, clip + ".log");
+  std::optional<int> status;
+  while (!(status = render.Poll())) std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  if (*status != 0) {
+    throw Error("case '" + c.name + "': stitch render exited with status " + std::to_string(*status) + ":\n" +
+                render.LogTail(8));
+  }
+  return clip;
 }
 
 QualityMatrix LoadQualityMatrix(const std::string& path) {
@@ -151,6 +170,8 @@ QualityMatrix LoadQualityMatrix(const std::string& path) {
           c.run = item.second.as<std::vector<std::string>>();
         } else if (key == "needs") {
           c.needs = item.second.as<std::string>();
+        } else if (key == "render") {
+          c.render = item.second.as<std::vector<std::string>>();
         } else if (key == "alone") {
           c.alone = item.second.as<bool>();
         } else if (key == "ci") {
@@ -168,6 +189,12 @@ QualityMatrix LoadQualityMatrix(const std::string& path) {
       if (c.name.empty()) throw Error("a case without a name");
       if (!names.insert(c.name).second) throw Error("two cases named '" + c.name + "'");
       if (c.repeats < 1 || c.repeats > 20) throw Error("case '" + c.name + "': repeats must be in [1, 20]");
+      const bool plays_rendered = std::any_of(
+          c.run.begin(), c.run.end(), [](const std::string& a) { return a.find("${rendered}") != std::string::npos; });
+      if (plays_rendered != !c.render.empty()) {
+        throw Error("case '" + c.name +
+                    "': `render` makes the clip that `run` plays as ${rendered}; give both or neither");
+      }
       for (const auto& [figure, value] : c.expect) {
         if (!KnownFigure(figure)) throw Error("case '" + c.name + "': unknown figure '" + figure + "'");
         if (!matrix.tolerance.count(figure)) throw Error("case '" + c.name + "': no tolerance for '" + figure + "'");
@@ -207,9 +234,10 @@ void SaveQualityMatrix(const QualityMatrix& matrix, const std::string& path) {
          "# (`expect`, measured on the machine docs/benchmarks.md names, written by --update), and how far\n"
          "# each figure may move the worse way before `--check` calls it a regression. `run` holds\n"
          "# `stitch run` arguments (${datasets}: the real sequences' folder); `needs`: the sequence a\n"
-         "# case plays (skipped where it is absent); `alone`: nothing runs beside it (CPU, real time,\n"
-         "# link timing); `ci`: in the subset ctest runs; `repeats`: runs of a case that varies run\n"
-         "# to run (real time), checked on their median and on their worst.\n";
+         "# case plays (skipped where it is absent); `render`: `stitch render` arguments of the clip a\n"
+         "# case plays as ${rendered} (rendered first); `alone`: nothing runs beside it (CPU, real\n"
+         "# time, link timing); `ci`: in the subset ctest runs; `repeats`: runs of a case that varies\n"
+         "# run to run (real time), checked on their median and on their worst.\n";
   out << "tolerance:\n";
   for (const auto& [figure, t] : matrix.tolerance) out << "  " << figure << ": " << tolerance_text(t) << "\n";
   out << "cases:\n";
@@ -219,6 +247,11 @@ void SaveQualityMatrix(const QualityMatrix& matrix, const std::string& path) {
     out << "    run: [";
     for (size_t i = 0; i < c.run.size(); ++i) out << (i ? ", " : "") << quoted(c.run[i]);
     out << "]\n";
+    if (!c.render.empty()) {
+      out << "    render: [";
+      for (size_t i = 0; i < c.render.size(); ++i) out << (i ? ", " : "") << quoted(c.render[i]);
+      out << "]\n";
+    }
     if (!c.needs.empty()) out << "    needs: " << quoted(c.needs) << "\n";
     if (c.alone) out << "    alone: true\n";
     if (c.ci) out << "    ci: true\n";
@@ -377,16 +410,24 @@ RepeatedFigures CombineRuns(const QualityMatrix& matrix, const QualityCase& c,
 
 std::string ReproduceCommand(const QualityCase& c, const std::string& datasets_dir,
                              const std::vector<std::string>& settings) {
-  std::vector<std::string> args = CaseRunArguments(c, datasets_dir);
+  const auto quoted = [](const std::string& a) {
+    const bool plain = !a.empty() && a.find_first_of(" \t'\"$*?()[]{};&|<>") == std::string::npos;
+    return plain ? a : "'" + a + "'";
+  };
+  std::string command;
+  const std::string clip = c.name + ".mp4";
+  if (!c.render.empty()) {
+    command = "build/bin/stitch render";
+    for (const std::string& a : c.render) command += " " + quoted(a);
+    command += " --out " + clip + " && ";
+  }
+  std::vector<std::string> args = CaseRunArguments(c, datasets_dir, clip);
   for (const std::string& setting : settings) {
     args.push_back("--set");
     args.push_back(setting);
   }
-  std::string command = "build/bin/stitch run";
-  for (const std::string& a : args) {
-    const bool plain = !a.empty() && a.find_first_of(" \t'\"$*?()[]{};&|<>") == std::string::npos;
-    command += " " + (plain ? a : "'" + a + "'");
-  }
+  command += "build/bin/stitch run";
+  for (const std::string& a : args) command += " " + quoted(a);
   return command;
 }
 
@@ -507,6 +548,17 @@ std::vector<CaseResult> RunCases(const QualityMatrix& matrix, const std::vector<
       results[i].why = c.needs + " is not in " + options.datasets_dir;
       continue;
     }
+    if (!c.render.empty()) {
+      std::printf("rendering the clip of %s\n", c.name.c_str());
+      std::fflush(stdout);
+      try {
+        results[i].rendered = RenderCaseClip(c, (fs::path(out_dir) / "clips").string());
+      } catch (const Error& e) {
+        results[i].failed = true;
+        results[i].why = e.what();
+        continue;
+      }
+    }
     for (int repeat = 0; repeat < c.repeats; ++repeat) planned.push_back({i, repeat});
   }
   std::vector<int> runs_left(chosen.size());
@@ -549,7 +601,8 @@ std::vector<CaseResult> RunCases(const QualityMatrix& matrix, const std::vector<
       const std::string name = repeat == 0 ? c.name : c.name + "-" + std::to_string(repeat + 1);
       Running r{&c, next, nullptr, Stopwatch(), (fs::path(out_dir) / name).string()};
       std::vector<std::string> run_args{"run", "--quiet", "--out", r.run_dir};
-      const std::vector<std::string> case_args = CaseRunArguments(c, options.datasets_dir);
+      const std::vector<std::string> case_args =
+          CaseRunArguments(c, options.datasets_dir, results[planned[next].index].rendered);
       run_args.insert(run_args.end(), case_args.begin(), case_args.end());
       for (const std::string& setting : options.settings) {
         run_args.push_back("--set");
@@ -634,8 +687,9 @@ int QualityCommand(int argc, char** argv) {
   args.AddOption("--markdown", &markdown_path, "FILE", MarkdownOptionHelp(kMarkdownBegin, kMarkdownEnd));
   args.AddOption("--before", &before_path, "FILE",
                  "the quality.json of an earlier run: the tables show each figure that moved as before -> now");
-  args.AddOption("--from", &from_path, "FILE",
-                 "run nothing: table (and --check) the figures of an earlier run's quality.json");
+  args.AddOption("--from", &from_path, "FILE[,FILE...]",
+                 "run nothing: table (and --check) the figures of earlier runs' quality.json (several: each case "
+                 "from the last that has it, e.g. a whole gate's and a later run of some of its cases)");
   args.AddOption("--jobs", &jobs, "N", "cases run side by side (those marked alone always run alone)");
   args.AddOption("--set", &settings, "KEY=VALUE",
                  "a setting for every case's run (to try a change against the expectations)");
@@ -672,7 +726,11 @@ int QualityCommand(int argc, char** argv) {
     std::vector<Result> results;
     if (!from_path.empty()) {
       // Nothing runs: the figures of an earlier run, tabled and checked as if just measured.
-      const Figures earlier = ReadFigures(from_path);
+      Figures earlier;
+      std::string last;
+      for (std::stringstream files(from_path); std::getline(files, last, ',');) {
+        for (auto& [name, figures] : ReadFigures(last)) earlier[name] = std::move(figures);
+      }
       results.resize(chosen.size());
       for (size_t i = 0; i < chosen.size(); ++i) {
         results[i].c = chosen[i];
@@ -687,7 +745,7 @@ int QualityCommand(int argc, char** argv) {
         results[i].runs = it->second.runs;
         results[i].regressions = CheckResult(matrix, results[i], figures);
       }
-      out_dir = fs::path(from_path).parent_path().string();
+      out_dir = fs::path(last).parent_path().string();
     } else {
       if (out_dir.empty()) out_dir = "runs/quality-" + LocalTimestamp("%Y%m%d-%H%M%S");
       RunCasesOptions run_options;

@@ -26,7 +26,11 @@ struct Tolerance {
 struct QualityCase {
   std::string name;
   std::string about;
-  std::vector<std::string> run;                // `stitch run` arguments; ${datasets} is the datasets folder
+  std::vector<std::string> run;  // `stitch run` arguments; ${datasets} is the datasets folder
+  // `stitch render` arguments that make the clip the case plays (a camera whose frames cannot be
+  // rendered at its rate while it runs: 1080p, 4K), rendered before its runs; ${rendered} in
+  // `run` is that clip.
+  std::vector<std::string> render;
   std::string needs;                           // a folder under the datasets folder the case plays ("" = none)
   bool alone = false;                          // runs with nothing beside it (CPU, real time, link timing)
   bool ci = false;                             // part of the subset ctest runs
@@ -75,8 +79,13 @@ RepeatedFigures CombineRuns(const QualityMatrix& matrix, const QualityCase& c,
 
 // The folder ${datasets} stands for: $STITCH_DATASETS, else ../shared/datasets beside the source.
 std::string DefaultDatasetsDir();
-// A case's `stitch run` arguments with ${datasets} replaced.
-std::vector<std::string> CaseRunArguments(const QualityCase& c, const std::string& datasets_dir);
+// A case's `stitch run` arguments with ${datasets} and ${rendered} (its rendered clip) replaced.
+std::vector<std::string> CaseRunArguments(const QualityCase& c, const std::string& datasets_dir,
+                                          const std::string& rendered = "");
+// Renders the clip a case with `render` plays into `dir` (stitch render as a child process, its
+// log beside the clip) and returns its path. Throws stitch::Error, with the log's end, when
+// rendering fails.
+std::string RenderCaseClip(const QualityCase& c, const std::string& dir);
 
 // The `stitch run` command line that reproduces a case (with `settings` added to it).
 std::string ReproduceCommand(const QualityCase& c, const std::string& datasets_dir,
@@ -107,6 +116,7 @@ struct CaseResult {
   bool skipped = false;                             // its sequence is absent
   bool failed = false;                              // stitch run failed, or its outputs could not be read
   std::string why;                                  // skipped or failed: why
+  std::string rendered;                             // the clip it plays, when it renders one
   std::map<std::string, double> figures;            // of its one run; the median of a repeated case's
   std::map<std::string, double> worst;              // a repeated case's worst run (CombineRuns)
   std::vector<std::map<std::string, double>> runs;  // each run's
