@@ -4,6 +4,8 @@
 // points, tracking state, an open WebSocket, no error) and a screenshot whose canvas is not blank;
 // and from Chromium's log: no console error. Skipped where Chromium is not installed.
 
+#include <signal.h>
+
 #include <chrono>
 #include <cstring>
 #include <filesystem>
@@ -197,6 +199,84 @@ TEST(ViewerOnAReplay, ARecordedFlightPlayedBackShowsAsItWasFlown) {
   std::memcpy(header, cloud->data(), sizeof(header));
   EXPECT_GT(header[2], 2000u) << "points of the replayed map cloud";
   EXPECT_EQ(viewer.Terminate(5000ms), 0) << viewer.LogTail(10);
+}
+
+// The process of `program` among the children of `parent` (0: none).
+pid_t ChildNamed(pid_t parent, const std::string& program) {
+  for (const auto& entry : std::filesystem::directory_iterator("/proc")) {
+    const std::string name = entry.path().filename().string();
+    if (name.find_first_not_of("0123456789") != std::string::npos) continue;
+    std::ifstream stat(entry.path() / "stat");
+    std::string line;
+    if (!std::getline(stat, line) || line.rfind(')') == std::string::npos) continue;
+    const std::string comm = line.substr(line.find('(') + 1, line.rfind(')') - line.find('(') - 1);
+    std::istringstream fields(line.substr(line.rfind(')') + 2));
+    char state = 0;
+    pid_t ppid = 0;
+    if (fields >> state >> ppid && ppid == parent && state != 'Z' && program.rfind(comm, 0) == 0) {
+      return std::stoi(name);
+    }
+  }
+  return 0;
+}
+
+// The security issue's row: the viewer's death (a cut-off WebSocket frame crashed civetweb's
+// thread) failed the flight ("the viewer exited unexpectedly"; 62 frames never reached the
+// tracker). The viewer is a window on the flight: killed mid-flight it is started again, the
+// flight goes on, and its figures are those of the same lockstep run without a viewer.
+TEST(ViewerOnAFlight, AViewerKilledMidFlightIsStartedAgainAndCostsTheFlightNothing) {
+  stitch::testing::TempDir dir;
+  const std::vector<std::string> flight{"run",        "--config", testing::ShortFlightConfig(),
+                                        "--failures", "none",     "--quiet"};
+  const auto plain = testing::RunProgram(
+      [&] {
+        std::vector<std::string> args{Bin("stitch")};
+        args.insert(args.end(), flight.begin(), flight.end());
+        args.insert(args.end(), {"--out", dir / "plain"});
+        return args;
+      }(),
+      180);
+  ASSERT_EQ(plain.exit_code, 0) << plain.output;
+  const int port = bus::UnusedTcpPort();
+  std::vector<std::string> args = flight;
+  args.insert(args.end(), {"--viewer", "--viewer-port", std::to_string(port), "--out", dir / "viewed"});
+  ChildProcess run("run", Bin("stitch"), args, dir / "run.log");
+  pid_t viewer = 0;
+  for (int i = 0; i < 400 && !(viewer && testing::HttpGet(port, "/state.json")); ++i) {
+    std::this_thread::sleep_for(25ms);
+    if (!viewer) viewer = ChildNamed(run.pid(), "stitch-viewer");
+  }
+  ASSERT_NE(viewer, 0) << run.LogTail(20);
+  ASSERT_EQ(kill(viewer, SIGKILL), 0);
+  // Started again: a new viewer answers on the same port.
+  pid_t again = 0;
+  for (int i = 0; i < 400 && !(again && testing::HttpGet(port, "/state.json")); ++i) {
+    std::this_thread::sleep_for(25ms);
+    if (!again || again == viewer) again = ChildNamed(run.pid(), "stitch-viewer");
+  }
+  EXPECT_NE(again, 0) << run.LogTail(20);
+  EXPECT_NE(again, viewer);
+  // The flight ends as it would have; the launcher then keeps the viewer up until Ctrl-C.
+  std::string log;
+  for (int i = 0; i < 2400 && log.find("shows the finished flight") == std::string::npos && !run.Poll(); ++i) {
+    std::this_thread::sleep_for(50ms);
+    std::ifstream in(dir / "run.log");
+    log.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+  }
+  EXPECT_NE(log.find("the viewer exited unexpectedly (status 137"), std::string::npos) << log;
+  EXPECT_NE(log.find("started again, the flight goes on"), std::string::npos) << log;
+  kill(run.pid(), SIGINT);
+  EXPECT_EQ(run.Terminate(10000ms), 0) << run.LogTail(20);
+  const auto plain_report = testing::ReadJson(dir / "plain/report.json");
+  const auto viewed_report = testing::ReadJson(dir / "viewed/report.json");
+  for (const char* figure : {"frames_localized", "keyframes", "submaps", "submaps_merged", "ate_rmse_m"}) {
+    EXPECT_EQ(viewed_report[figure], plain_report[figure]) << figure;
+  }
+  bool noted = false;
+  const nlohmann::json run_info = testing::ReadJson(dir / "viewed/run.json");
+  for (const auto& note : run_info["notes"])
+    noted |= note.get<std::string>().find("viewer exited") != std::string::npos;
+  EXPECT_TRUE(noted) << "run.json's notes say the viewer ended";
 }
 
 }  // namespace

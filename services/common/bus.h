@@ -25,6 +25,11 @@ namespace stitch::bus {
 
 // Messages LCM keeps per subscription while the dispatcher is busy.
 inline constexpr int kSubscriptionQueueCapacity = 2000;
+// The largest message a subscriber decodes (LCM itself carries up to 256 MB). Decoding costs at
+// most a few times a message's size in memory (lcmtypes/stitch_lcm/decode_bounds.hpp), so this
+// bounds what one message can make a service allocate; stitch's largest messages are frames
+// (8.3 MB: a 4K camera's gray frame at full size) and submap parts (under 1 MB).
+inline constexpr uint32_t kMaxMessageBytes = 32u << 20;
 
 // Channel suffixes.
 inline constexpr char kFrame[] = "FRAME";
@@ -119,8 +124,13 @@ class Subscriber {
           auto message = std::make_unique<Message>();
           std::string why;
           try {
-            const int used = message->decode(buffer->data, 0, static_cast<int>(buffer->data_size));
-            if (used < 0) {
+            const int used = buffer->data_size > kMaxMessageBytes
+                                 ? 0
+                                 : message->decode(buffer->data, 0, static_cast<int>(buffer->data_size));
+            if (buffer->data_size > kMaxMessageBytes) {
+              why = "is " + std::to_string(buffer->data_size) + " bytes, more than the " +
+                    std::to_string(kMaxMessageBytes) + " a message may have";
+            } else if (used < 0) {
               why = "does not decode as " + std::string(Message::getTypeName()) + " (wrong type or truncated)";
             } else if (static_cast<uint32_t>(used) != buffer->data_size) {
               why = "has " + std::to_string(buffer->data_size - used) + " bytes after the message";

@@ -3,6 +3,8 @@
 #include "services/common/bus.h"
 
 #include <unistd.h>
+
+#include <algorithm>
 #include <condition_variable>
 
 #include <gtest/gtest.h>
@@ -113,6 +115,10 @@ TEST(Bus, MalformedAndForeignMessagesNeverReachTheHandler) {
   stitch::frame_ack_t foreign = ack;
   foreign.header.agent = "intruder";
   lcm->publish(channel, &foreign);
+  // More than any message may be: refused undecoded.
+  std::vector<uint8_t> huge(kMaxMessageBytes + 1, 0);
+  std::copy(bytes.begin(), bytes.end(), huge.begin());
+  lcm->publish(channel, huge.data(), static_cast<unsigned>(huge.size()));
   // Finally a good one, which must arrive.
   lcm->publish(channel, &ack);
 
@@ -120,7 +126,7 @@ TEST(Bus, MalformedAndForeignMessagesNeverReachTheHandler) {
   std::this_thread::sleep_for(100ms);
   dispatcher.Stop();
   EXPECT_EQ(inbox.acks.size(), 1u);
-  EXPECT_EQ(subscriber.rejected(), 5);
+  EXPECT_EQ(subscriber.rejected(), 6);
 }
 
 TEST(Bus, AgentNamesAreChecked) {

@@ -1,5 +1,11 @@
 // Every message type round-trips, and the keyframe stays compact.
 
+#include <sys/resource.h>
+
+#include <algorithm>
+#include <string>
+#include <vector>
+
 #include <gtest/gtest.h>
 
 #include "stitch/frame_ack_t.hpp"
@@ -244,6 +250,46 @@ TEST(LcmTypes, ATypeDoesNotDecodeAsAnother) {
   ack.encode(bytes.data(), 0, static_cast<int>(bytes.size()));
   stitch::tracking_status_t status{};
   EXPECT_LT(status.decode(bytes.data(), 0, static_cast<int>(bytes.size())), 0);
+}
+
+// Peak resident memory of this process so far, in MB.
+double PeakResidentMb() {
+  rusage usage{};
+  getrusage(RUSAGE_SELF, &usage);
+  return usage.ru_maxrss / 1024.0;
+}
+
+// The security issue's row: a 4 MB SUBMAP whose keyframe count equals the bytes left passed the
+// count check (one byte an element) and the decode's resize took the merger from 65 to 1,560 MB
+// (a keyframe_t is 376 bytes in memory). Counts are checked at the fewest bytes an element takes
+// on the wire now: each array's count set to the bytes left is refused before anything grows.
+TEST(LcmTypes, ACountItsMessageCannotHoldIsRefusedBeforeAnythingIsAllocated) {
+  EXPECT_EQ(stitch_lcm::MinEncodedBytes<std::string>(), 5);
+  EXPECT_EQ(stitch_lcm::MinEncodedBytes<double>(), 8);
+  EXPECT_EQ(stitch_lcm::MinEncodedBytes<int8_t>(), 1);
+  EXPECT_GT(stitch_lcm::MinEncodedBytes<stitch::keyframe_t>(), 100);
+  EXPECT_TRUE(stitch_lcm::CountFits<double>(10, 80));
+  EXPECT_FALSE(stitch_lcm::CountFits<double>(11, 80));
+  EXPECT_FALSE(stitch_lcm::CountFits<double>(-1, 80));
+  stitch::submap_update_t update{};
+  update.header = Header(3);
+  std::vector<uint8_t> empty(update.getEncodedSize());
+  ASSERT_EQ(update.encode(empty.data(), 0, static_cast<int>(empty.size())), static_cast<int>(empty.size()));
+  // Where each count sits: after the hash (8), the header, the id (8), revision, part and
+  // num_parts (4 each), two booleans (1 each).
+  const size_t keyframes_at = 8 + update.header._getEncodedSizeNoHash() + 8 + 12 + 2;
+  const size_t poses_at = keyframes_at + 4, associations_at = poses_at + 4, points_at = associations_at + 4;
+  const double before_mb = PeakResidentMb();
+  constexpr size_t kMessageBytes = 4 << 20;
+  for (const size_t count_at : {keyframes_at, poses_at, associations_at, points_at}) {
+    std::vector<uint8_t> bytes(kMessageBytes, 0);
+    std::copy(empty.begin(), empty.end(), bytes.begin());
+    const uint32_t count = static_cast<uint32_t>(kMessageBytes - count_at - 4);                     // every byte left
+    for (int i = 0; i < 4; ++i) bytes[count_at + i] = static_cast<uint8_t>(count >> (24 - 8 * i));  // big-endian
+    stitch::submap_update_t decoded;
+    EXPECT_LT(decoded.decode(bytes.data(), 0, static_cast<int>(bytes.size())), 0) << count_at;
+  }
+  EXPECT_LT(PeakResidentMb() - before_mb, 64) << "a count the message cannot hold made the decode allocate";
 }
 
 }  // namespace

@@ -85,6 +85,21 @@ LinkKey LoadKeyFile(const std::string& path) {
   return key;
 }
 
+LinkKey DirectionKey(const LinkKey& pair_key, const std::string& sending_side) {
+  InitSodium();
+  if (sending_side != "aircraft" && sending_side != "ground") {
+    throw Error("link side '" + sending_side + "': expected aircraft or ground");
+  }
+  static_assert(crypto_kdf_KEYBYTES == sizeof(LinkKey) && crypto_kdf_CONTEXTBYTES == 8);
+  LinkKey key;
+  crypto_kdf_derive_from_key(key.data(), key.size(), sending_side == "aircraft" ? 1 : 2, "stitchdn", pair_key.data());
+  return key;
+}
+
+std::string OtherSide(const std::string& side) {
+  return side == "aircraft" ? "ground" : "aircraft";
+}
+
 Sealer::Sealer(const LinkKey& key, uint64_t session) : key_(key), session_(session) {
   InitSodium();
 }

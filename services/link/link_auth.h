@@ -6,6 +6,9 @@
 //
 //   "STA1" | sender's session (8, little-endian) | counter (8) | ciphertext with its 16-byte tag
 //
+// Each direction has its own key, derived from the pair's (libsodium's KDF, BLAKE2b): the
+// aircraft seals with the aircraft-to-ground key and opens with the other, the ground the other
+// way round, so a datagram reflected back to the bridge that sent it fails authentication there.
 // The clear 20 bytes are authenticated with the rest; the nonce is the session and the counter,
 // so no nonce repeats under one key (each run of a bridge has a new session, its wall-clock
 // start in microseconds, and counts from 0). The opener refuses what fails authentication, a
@@ -31,6 +34,11 @@ void GenerateKeyFile(const std::string& path);
 // Reads a key written by GenerateKeyFile; throws stitch::Error saying what is wrong (missing,
 // readable by others, not 64 hex digits).
 LinkKey LoadKeyFile(const std::string& path);
+
+// The key of the datagrams one side sends ("aircraft" or "ground"), derived from the pair's key.
+LinkKey DirectionKey(const LinkKey& pair_key, const std::string& sending_side);
+// The side across the link from `side`.
+std::string OtherSide(const std::string& side);
 
 class Sealer {
  public:

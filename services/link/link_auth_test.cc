@@ -69,6 +69,25 @@ TEST(LinkAuth, OnlyAnAuthenticNewerSessionReplacesTheSessionAndAnEarlierRunsAreR
   EXPECT_EQ(Open(&opener, later.Seal("still the same session")), Opener::Verdict::kOpened);
 }
 
+TEST(LinkAuth, EachDirectionHasItsOwnKeySoAReflectedDatagramDoesNotOpen) {
+  const LinkKey pair = Key(7);
+  const LinkKey down = DirectionKey(pair, "aircraft"), up = DirectionKey(pair, "ground");
+  EXPECT_NE(down, up);
+  EXPECT_NE(down, pair);
+  EXPECT_EQ(down, DirectionKey(pair, "aircraft")) << "both sides derive the same";
+  EXPECT_NE(down, DirectionKey(Key(8), "aircraft"));
+  EXPECT_THROW(DirectionKey(pair, "satellite"), Error);
+  EXPECT_EQ(OtherSide("aircraft"), "ground");
+  EXPECT_EQ(OtherSide("ground"), "aircraft");
+  // The aircraft seals with its key; the ground opens with it, the aircraft itself (opening
+  // with the ground's) does not.
+  Sealer aircraft(down, 1000);
+  Opener at_ground(down), at_aircraft(up);
+  const std::string sealed = aircraft.Seal("down");
+  EXPECT_EQ(Open(&at_aircraft, sealed), Opener::Verdict::kUnauthenticated);
+  EXPECT_EQ(Open(&at_ground, sealed), Opener::Verdict::kOpened);
+}
+
 TEST(LinkAuth, KeyFilesAreMadeForTheOwnerOnlyAndCheckedWhenRead) {
   testing::TempDir dir;
   const std::string path = dir / "uav0.key";

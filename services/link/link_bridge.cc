@@ -61,8 +61,13 @@ LinkBridge::LinkBridge(lcm::LCM* lcm, LinkOptions options)
   if (!options_.Check(&why)) throw Error(why);
   if (!options_.key_file.empty()) {
     const link::LinkKey key = link::LoadKeyFile(options_.key_file);
-    sealer_.emplace(key, session_);
-    opener_.emplace(key);
+    if (options_.side.empty()) {
+      throw Error(
+          "link.side: say which bridge of the pair this is (aircraft or ground; --side): each direction has its own "
+          "key, derived from the pair's");
+    }
+    sealer_.emplace(link::DirectionKey(key, options_.side), session_);
+    opener_.emplace(link::DirectionKey(key, link::OtherSide(options_.side)));
     seal_overhead_ = link::kSealOverheadBytes;
   } else if (!options_.insecure) {
     throw Error(
@@ -444,6 +449,7 @@ void LinkBridge::ReceiveLoop() {
       const uint8_t* bytes = buffer.data();
       size_t length = static_cast<size_t>(size);
       link::Opener::Verdict verdict = link::Opener::Verdict::kOpened;
+      bool reflected = false;
       if (peer.sin_addr.s_addr != INADDR_ANY &&
           (from.sin_addr.s_addr != peer.sin_addr.s_addr || from.sin_port != peer.sin_port)) {
         why = "comes from " + FormatAddress(from) + ", not the peer " + options_.peer;
@@ -457,6 +463,12 @@ void LinkBridge::ReceiveLoop() {
         }
         if (!link::Decode(bytes, length, &datagram, &why)) {
           why += " (" + std::to_string(size) + " bytes from " + FormatAddress(from) + ")";
+        } else if ((datagram.type == link::DatagramType::kData && datagram.data.session == session_) ||
+                   (datagram.type == link::DatagramType::kStatus && datagram.status.session == session_)) {
+          // Sealed by this bridge's own key it would not open here; unsealed (insecure) it would
+          // pass for the peer restarting, and cut the link.
+          why = "is this bridge's own, sent back to it (reflected)";
+          reflected = true;
         }
       }
       if (!why.empty()) {
@@ -466,7 +478,7 @@ void LinkBridge::ReceiveLoop() {
         std::lock_guard<std::mutex> counts_lock(counts_mutex_);
         ++counts_.datagrams_refused;
         counts_.datagrams_unauthenticated += verdict == link::Opener::Verdict::kUnauthenticated;
-        counts_.datagrams_replayed += verdict == link::Opener::Verdict::kReplayed;
+        counts_.datagrams_replayed += verdict == link::Opener::Verdict::kReplayed || reflected;
         continue;
       }
       last_heard_s_ = MonotonicSeconds();

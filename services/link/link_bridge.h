@@ -56,7 +56,7 @@ struct LinkCounts {
   int64_t messages_given_up = 0;          // from the other side, never completed
   int64_t datagrams_refused = 0;          // malformed or foreign, unauthenticated and replayed included
   int64_t datagrams_unauthenticated = 0;  // failed authentication (forged, another key, not sealed)
-  int64_t datagrams_replayed = 0;         // authentic, but accepted before (or an earlier run's)
+  int64_t datagrams_replayed = 0;         // authentic, but accepted before (or an earlier run's, or this bridge's own)
   int64_t echoes_suppressed = 0;          // our own publications, not sent back
   int64_t queued_bytes = 0;               // waiting now
   double oldest_wait_s = 0;               // how long the oldest waiting message has waited

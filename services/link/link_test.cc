@@ -5,6 +5,7 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <cerrno>
 #include <chrono>
 #include <cstring>
@@ -208,6 +209,8 @@ struct TwoSides {
     for (LinkOptions* o : {&aircraft_options, &ground_options}) {
       if (o->key_file.empty() && !o->insecure) o->key_file = key_file;
     }
+    if (aircraft_options.side.empty()) aircraft_options.side = "aircraft";
+    if (ground_options.side.empty()) ground_options.side = "ground";
     aircraft_port = FreeUdpPort();
     const int ground_port = FreeUdpPort();
     aircraft_options.forward = "uav0/(SUBMAP|SEQUENCE)";
@@ -441,11 +444,12 @@ TEST(LinkBridge, RefusesForgedAndReplayedDatagramsEvenFromThePeersAddress) {
   std::this_thread::sleep_for(200ms);
   for (int i = 0; i < 30; ++i) send(link::Encode(link::RepairRequest{0, {{0, {}}, {1, {}}, {2, {}}}}));
   // With the key (a datagram recorded off the air): taken once, refused when sent again.
-  link::Sealer recorded(key, now);
+  link::Sealer recorded(link::DirectionKey(key, "aircraft"), now);
   const std::string authentic = recorded.Seal(link::Encode(link::Fragment(now, 0, "uav0/SUBMAP", "once", 1100)[0]));
   send(authentic);
   send(authentic);
-  link::Sealer earlier_run(key, now - 1000000);  // a run of the aircraft before this one
+  link::Sealer earlier_run(link::DirectionKey(key, "aircraft"),
+                           now - 1000000);  // a run of the aircraft before this one
   send(earlier_run.Seal(link::Encode(link::Fragment(now - 1000000, 0, "uav0/SUBMAP", "earlier run", 1100)[0])));
   std::this_thread::sleep_for(300ms);
   close(s);
@@ -461,6 +465,127 @@ TEST(LinkBridge, RefusesForgedAndReplayedDatagramsEvenFromThePeersAddress) {
   ASSERT_TRUE(sides.ground_seen->WaitFor("uav0/SUBMAP", 3, 5s));
   EXPECT_EQ(sides.ground_seen->Get("uav0/SUBMAP").back(), "after");
   EXPECT_TRUE(sides.ground->Status(0).authenticated);
+}
+
+// Between two bridges as a radio is: a relay that forwards each datagram to the other side (both
+// bridges see the relay as their peer) and, once asked, also sends the aircraft's datagrams back
+// to the aircraft, as an attacker who hears the link and sends from the ground's address would.
+class Radio {
+ public:
+  Radio() : socket_(socket(AF_INET, SOCK_DGRAM, 0)) {
+    sockaddr_in address = Loopback(0);
+    bind(socket_, reinterpret_cast<sockaddr*>(&address), sizeof(address));
+    socklen_t length = sizeof(address);
+    getsockname(socket_, reinterpret_cast<sockaddr*>(&address), &length);
+    port_ = ntohs(address.sin_port);
+    timeval timeout{0, 20000};
+    setsockopt(socket_, SOL_SOCKET, SO_RCVTIMEO, &timeout, sizeof(timeout));
+  }
+  ~Radio() {
+    stop_ = true;
+    if (thread_.joinable()) thread_.join();
+    close(socket_);
+  }
+  int port() const { return port_; }
+  void Start(int aircraft_port, int ground_port) {
+    aircraft_port_ = aircraft_port;
+    ground_port_ = ground_port;
+    thread_ = std::thread([this] { Relay(); });
+  }
+  void ReflectToTheAircraft(int datagrams) { reflect_ += datagrams; }
+  int reflected() const { return reflected_; }
+
+ private:
+  static sockaddr_in Loopback(int port) {
+    sockaddr_in address{};
+    address.sin_family = AF_INET;
+    address.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    address.sin_port = htons(static_cast<uint16_t>(port));
+    return address;
+  }
+  void Relay() {
+    std::vector<char> buffer(65536);
+    while (!stop_) {
+      sockaddr_in from{};
+      socklen_t length = sizeof(from);
+      const ssize_t size =
+          recvfrom(socket_, buffer.data(), buffer.size(), 0, reinterpret_cast<sockaddr*>(&from), &length);
+      if (size < 0) continue;
+      const bool from_aircraft = ntohs(from.sin_port) == aircraft_port_;
+      const sockaddr_in to = Loopback(from_aircraft ? ground_port_ : aircraft_port_);
+      sendto(socket_, buffer.data(), static_cast<size_t>(size), 0, reinterpret_cast<const sockaddr*>(&to), sizeof(to));
+      if (from_aircraft && reflect_ > 0) {
+        --reflect_;
+        ++reflected_;
+        const sockaddr_in back = Loopback(aircraft_port_);
+        sendto(socket_, buffer.data(), static_cast<size_t>(size), 0, reinterpret_cast<const sockaddr*>(&back),
+               sizeof(back));
+      }
+    }
+  }
+  int socket_;
+  int port_ = 0, aircraft_port_ = 0, ground_port_ = 0;
+  std::atomic<int> reflect_{0}, reflected_{0};
+  std::atomic<bool> stop_{false};
+  std::thread thread_;
+};
+
+// The security issue's row: one aircraft datagram sent back to the aircraft from the ground's
+// address passed for the ground restarting (one key both ways, a session newer than the
+// ground's), and the aircraft then refused every real ground datagram as replayed. Each
+// direction has its own key now, and a bridge refuses its own session unsealed too.
+TEST(LinkBridge, ADatagramReflectedBackToItsSenderIsRefused) {
+  for (const bool insecure : {false, true}) {
+    SCOPED_TRACE(insecure ? "insecure" : "authenticated");
+    testing::TempDir dir;
+    LinkOptions aircraft_options, ground_options;
+    if (insecure) {
+      aircraft_options.insecure = ground_options.insecure = true;
+    } else {
+      aircraft_options.key_file = ground_options.key_file = (dir.path() / "link.key").string();
+      link::GenerateKeyFile(aircraft_options.key_file);
+    }
+    aircraft_options.side = "aircraft";
+    ground_options.side = "ground";
+    aircraft_options.forward = "uav0/SUBMAP";
+    ground_options.forward = "uav0/SUBMAP_REQUEST";
+    aircraft_options.report_interval_s = ground_options.report_interval_s = 0;
+    Radio radio;
+    const int aircraft_port = FreeUdpPort(), ground_port = FreeUdpPort();
+    aircraft_options.listen = "127.0.0.1:" + std::to_string(aircraft_port);
+    ground_options.listen = "127.0.0.1:" + std::to_string(ground_port);
+    aircraft_options.peer = ground_options.peer = "127.0.0.1:" + std::to_string(radio.port());
+    radio.Start(aircraft_port, ground_port);
+    auto aircraft_bus = bus::OpenLcm("memq://"), ground_bus = bus::OpenLcm("memq://");
+    Collector aircraft_seen(aircraft_bus.get(), "uav0/.*"), ground_seen(ground_bus.get(), "uav0/.*");
+    // The ground station starts first, as in a flight: the aircraft's session is the newer.
+    LinkBridge ground(ground_bus.get(), ground_options);
+    std::this_thread::sleep_for(5ms);
+    LinkBridge aircraft(aircraft_bus.get(), aircraft_options);
+    bus::Dispatcher aircraft_dispatcher(aircraft_bus.get()), ground_dispatcher(ground_bus.get());
+    aircraft_dispatcher.Start();
+    ground_dispatcher.Start();
+    ground.Start();
+    aircraft.Start();
+    Publish(aircraft_bus.get(), "uav0/SUBMAP", "before");
+    Publish(ground_bus.get(), "uav0/SUBMAP_REQUEST", "ask before");
+    ASSERT_TRUE(ground_seen.WaitFor("uav0/SUBMAP", 1, 5s));
+    ASSERT_TRUE(aircraft_seen.WaitFor("uav0/SUBMAP_REQUEST", 1, 5s));
+    radio.ReflectToTheAircraft(20);
+    for (int i = 0; i < 10; ++i) Publish(aircraft_bus.get(), "uav0/SUBMAP", "during " + std::to_string(i));
+    std::this_thread::sleep_for(600ms);  // statuses too (every 0.25 s)
+    EXPECT_GE(radio.reflected(), 10);
+    // The link still works both ways.
+    Publish(ground_bus.get(), "uav0/SUBMAP_REQUEST", "ask after");
+    Publish(aircraft_bus.get(), "uav0/SUBMAP", "after");
+    EXPECT_TRUE(aircraft_seen.WaitFor("uav0/SUBMAP_REQUEST", 2, 5s)) << aircraft.Describe();
+    EXPECT_TRUE(ground_seen.WaitFor("uav0/SUBMAP", 12, 5s)) << ground.Describe();
+    const LinkCounts counts = aircraft.counts();
+    EXPECT_EQ(counts.datagrams_refused, radio.reflected()) << aircraft.Describe();
+    EXPECT_EQ(insecure ? counts.datagrams_replayed : counts.datagrams_unauthenticated, radio.reflected());
+    aircraft_dispatcher.Stop();
+    ground_dispatcher.Stop();
+  }
 }
 
 // The security issue's row: a FRAME sent up to the aircraft's bridge was published on the
@@ -494,6 +619,12 @@ TEST(LinkBridge, BadSettingsAreRefusedWithTheReason) {
   EXPECT_NE(refused(options).find("stitch link keygen"), std::string::npos);  // no key, not insecure
   options.key_file = "/nonexistent/link.key";
   EXPECT_NE(refused(options).find("no link key file"), std::string::npos);
+  testing::TempDir dir;
+  options.key_file = (dir.path() / "link.key").string();
+  link::GenerateKeyFile(options.key_file);
+  EXPECT_NE(refused(options).find("link.side"), std::string::npos);  // a key, but which direction is whose?
+  options.side = "satellite";
+  EXPECT_NE(refused(options).find("aircraft or ground"), std::string::npos);
   options = LinkOptions();
   options.peer = "nowhere";
   EXPECT_NE(refused(options).find("ADDRESS:PORT"), std::string::npos);

@@ -56,6 +56,8 @@ int main(int argc, char** argv) {
   args.AddOption("--key", &given.key_file, "FILE",
                  "key both bridges share, from `stitch-link keygen FILE` (overrides link.key_file)");
   args.AddFlag("--insecure", &given.insecure, "run without a key: datagrams unauthenticated (overrides link.insecure)");
+  args.AddOption("--side", &given.side, "aircraft|ground",
+                 "which bridge of the pair this is: each direction has its own key (overrides link.side)");
   args.AddOption("--loss", &given.loss, "P", "inject: drop each datagram sent with probability P (tests, rehearsals)");
   args.AddOption("--delay-ms", &given.delay_ms, "MS", "inject: delay every datagram sent by MS");
   args.AddOption("--jitter-ms", &given.jitter_ms, "MS", "inject: extra uniform delay up to MS (reorders)");
@@ -63,10 +65,11 @@ int main(int argc, char** argv) {
   args.AddEpilog(
       "Example, the aircraft (10.0.0.2) and the ground station (10.0.0.1), with a key made once by\n"
       "`stitch-link keygen uav0.key` and copied to both:\n"
-      "  aircraft$ stitch-link --forward 'uav0/(SUBMAP|SEQUENCE|TRACKING_STATUS|POSE|SERVICE|LINK_STATUS)' --key "
-      "uav0.key \\\n"
+      "  aircraft$ stitch-link --side aircraft --forward "
+      "'uav0/(SUBMAP|SEQUENCE|TRACKING_STATUS|POSE|SERVICE|LINK_STATUS)' "
+      "--key uav0.key \\\n"
       "              --accept 'uav0/SUBMAP_REQUEST' --listen 0.0.0.0:7720 --peer 10.0.0.1:7721 --budget 250000\n"
-      "  ground$   stitch-link --forward 'uav0/SUBMAP_REQUEST' --key uav0.key --listen 0.0.0.0:7721 \\\n"
+      "  ground$   stitch-link --side ground --forward 'uav0/SUBMAP_REQUEST' --key uav0.key --listen 0.0.0.0:7721 \\\n"
       "              --accept 'uav0/(SUBMAP|SEQUENCE|TRACKING_STATUS|POSE|SERVICE|LINK_STATUS)' --peer 10.0.0.2:7720\n"
       "Every 10 s the log says what was sent, repaired and received.\n");
   if (!args.Parse(argc, argv)) return args.exit_code();
@@ -78,6 +81,7 @@ int main(int argc, char** argv) {
   if (args.Given("--budget")) settings.push_back(NumberSetting("link.budget_bytes_per_s", given.budget_bytes_per_s));
   if (args.Given("--key")) settings.push_back(TextSetting("link.key_file", given.key_file));
   if (given.insecure) settings.push_back("link.insecure=true");
+  if (args.Given("--side")) settings.push_back(TextSetting("link.side", given.side));
   if (args.Given("--loss")) settings.push_back(NumberSetting("link.loss", given.loss));
   if (args.Given("--delay-ms")) settings.push_back(NumberSetting("link.delay_ms", given.delay_ms));
   if (args.Given("--jitter-ms")) settings.push_back(NumberSetting("link.jitter_ms", given.jitter_ms));

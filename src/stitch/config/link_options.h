@@ -32,6 +32,10 @@ struct LinkOptions {
   // `insecure` says to run unauthenticated (a closed network, a tunnel that authenticates).
   std::string key_file;
   bool insecure = false;
+  // Which bridge of the pair this is, "aircraft" or "ground" (required with a key): each
+  // direction seals with its own key, derived from the pair's (a datagram reflected back to the
+  // bridge that sent it cannot be opened there).
+  std::string side;
   double loss = 0;
   double delay_ms = 0;
   double jitter_ms = 0;
@@ -55,6 +59,8 @@ struct LinkOptions {
     v("report_interval_s", report_interval_s, "log the link's figures this often, seconds (0: never)");
     v("key_file", key_file, "key both bridges share, from `stitch link keygen FILE` (every datagram authenticated)");
     v("insecure", insecure, "run without a key: datagrams unauthenticated, anyone who reaches the port is believed");
+    v("side", side,
+      "aircraft or ground: which bridge of the pair this is (each direction has its own key, derived from key_file)");
     v("loss", loss, "injected: probability that a datagram sent is dropped (tests, rehearsals)");
     v("delay_ms", delay_ms, "injected: delay of every datagram sent, ms");
     v("jitter_ms", jitter_ms, "injected: extra uniform delay in [0, jitter_ms], which reorders datagrams");
@@ -83,6 +89,7 @@ struct LinkOptions {
     if (repair_rounds < 0) return fail("link.repair_rounds must be >= 0");
     if (!(status_interval_s > 0)) return fail("link.status_interval_s must be > 0");
     if (!(report_interval_s >= 0)) return fail("link.report_interval_s must be >= 0");
+    if (!side.empty() && side != "aircraft" && side != "ground") return fail("link.side must be aircraft or ground");
     if (!(loss >= 0 && loss < 1)) return fail("link.loss must be in [0, 1)");
     if (!(delay_ms >= 0 && delay_ms <= 60000)) return fail("link.delay_ms must be in [0, 60000]");
     if (!(jitter_ms >= 0 && jitter_ms <= 60000)) return fail("link.jitter_ms must be in [0, 60000]");

@@ -118,13 +118,13 @@ LaunchPlan PlanRun(const RunArgs& a, const std::string& out) {
       key = {"--key", plan.link_key};
     }
     plan.services.push_back({"link-ground", "stitch-link",
-                             With(With(ground, {"--forward", ground_sends, "--accept", aircraft_sends, "--listen",
-                                                ground_at, "--peer", air_at}),
+                             With(With(ground, {"--side", "ground", "--forward", ground_sends, "--accept",
+                                                aircraft_sends, "--listen", ground_at, "--peer", air_at}),
                                   key),
                              true});
     plan.services.push_back({"link-aircraft", "stitch-link",
-                             With(With(aircraft, {"--forward", aircraft_sends, "--accept", ground_sends, "--listen",
-                                                  air_at, "--peer", ground_at}),
+                             With(With(aircraft, {"--side", "aircraft", "--forward", aircraft_sends, "--accept",
+                                                  ground_sends, "--listen", air_at, "--peer", ground_at}),
                                   key),
                              false});
   }

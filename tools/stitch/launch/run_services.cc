@@ -1,5 +1,6 @@
 #include "tools/stitch/launch/run_services.h"
 
+#include <algorithm>
 #include <cmath>
 #include <csignal>
 #include <cstdio>
@@ -11,15 +12,41 @@ namespace stitch {
 
 RunServices::RunServices(const LaunchPlan& plan, const SplitNetwork* network) : plan_(plan), network_(network) {}
 
-void RunServices::StartAll() {
-  const std::string bin = ExecutableDir();
-  for (const PlannedService& service : plan_.services) {
-    if (network_) service.on_ground ? network_->EnterGround() : network_->EnterAircraft();
-    children_.push_back(std::make_unique<ChildProcess>(
-        service.name, bin + "/" + service.program, service.args,
-        (fs::path(plan_.out) / "logs" / (service.name + ".log")).string(), service.niceness));
-  }
+std::unique_ptr<ChildProcess> RunServices::Start(const PlannedService& service, const std::string& log_name) const {
+  if (network_) service.on_ground ? network_->EnterGround() : network_->EnterAircraft();
+  auto child =
+      std::make_unique<ChildProcess>(service.name, ExecutableDir() + "/" + service.program, service.args,
+                                     (fs::path(plan_.out) / "logs" / (log_name + ".log")).string(), service.niceness);
   if (network_) network_->EnterAircraft();  // the launcher listens on the aircraft's side
+  return child;
+}
+
+void RunServices::StartAll() {
+  for (const PlannedService& service : plan_.services) children_.push_back(Start(service, service.name));
+}
+
+void RunServices::RestartViewer(std::unique_ptr<ChildProcess>* viewer) {
+  const int status = *(*viewer)->Poll();
+  const int restarts = static_cast<int>(ended_viewers_.size());
+  std::string note =
+      "the viewer exited unexpectedly (status " + std::to_string(status) + "; " + (*viewer)->log_path() + ")";
+  const auto planned = std::find_if(plan_.services.begin(), plan_.services.end(),
+                                    [](const PlannedService& s) { return s.name == "viewer"; });
+  std::unique_ptr<ChildProcess> again;
+  if (restarts < kViewerRestarts && planned != plan_.services.end()) {
+    try {
+      again = Start(*planned, "viewer-" + std::to_string(restarts + 2));
+      note += "; started again, the flight goes on";
+    } catch (const std::exception& e) {
+      note += std::string("; cannot start it again (") + e.what() + "), the flight goes on without it";
+    }
+  } else {
+    note += "; not started again (it ended " + std::to_string(restarts + 1) + " times), the flight goes on without it";
+  }
+  std::fprintf(stderr, "stitch run: %s\n", note.c_str());
+  viewer_notes_.push_back(note);
+  ended_viewers_.push_back(std::move(*viewer));
+  *viewer = std::move(again);
 }
 
 ChildProcess* RunServices::Find(const std::string& name) const {
@@ -30,8 +57,13 @@ ChildProcess* RunServices::Find(const std::string& name) const {
 }
 
 std::string RunServices::Failure() {
+  for (auto& child : children_) {
+    if (child->name() == "viewer" && child->Poll()) RestartViewer(&child);
+    if (!child) break;  // not started again: it is erased below
+  }
+  children_.erase(std::remove(children_.begin(), children_.end(), nullptr), children_.end());
   for (const auto& child : children_) {
-    if (child->name() == "ingest" || !child->Poll()) continue;
+    if (child->name() == "ingest" || child->name() == "viewer" || !child->Poll()) continue;
     return "the " + child->name() + " exited unexpectedly (status " + std::to_string(*child->Poll()) + "); end of " +
            child->log_path() + ":\n" + child->LogTail(8);
   }
@@ -82,6 +114,11 @@ void RunServices::Report(RunInfo* info) const {
     info->peak_rss_mb[child->name()] = child->peak_resident_mb();
     info->cpu_s[child->name()] = child->cpu_seconds();
   }
+  for (const auto& viewer : ended_viewers_) {  // a viewer that ended and was started again
+    info->peak_rss_mb["viewer"] = std::max(info->peak_rss_mb["viewer"], viewer->peak_resident_mb());
+    info->cpu_s["viewer"] += viewer->cpu_seconds();
+  }
+  info->notes.insert(info->notes.end(), viewer_notes_.begin(), viewer_notes_.end());
   for (const auto& child : children_) {
     if (child->name().rfind("link", 0) != 0) continue;
     const std::string tail = child->LogTail(3);

@@ -25,6 +25,8 @@ class RunServices {
   // Null when not planned (or not started).
   ChildProcess* Find(const std::string& name) const;
   // Why the run must stop: a service other than ingest ended, or ingest failed ("" if none).
+  // The viewer is a window on the flight, never a reason to stop it: one that ended is started
+  // again (at most kViewerRestarts times), said on stderr and in the run's notes.
   std::string Failure();
   // Whether ingest has played everything (and ended well).
   bool IngestDone();
@@ -38,10 +40,19 @@ class RunServices {
   // the errors each logged (also printed).
   void Report(RunInfo* info) const;
 
+  static constexpr int kViewerRestarts = 5;
+
  private:
+  // Starts `service`, its log under logs/ as `log_name`.log.
+  std::unique_ptr<ChildProcess> Start(const PlannedService& service, const std::string& log_name) const;
+  // The viewer ended: started again while restarts are left.
+  void RestartViewer(std::unique_ptr<ChildProcess>* viewer);
+
   const LaunchPlan& plan_;
   const SplitNetwork* network_;
   std::vector<std::unique_ptr<ChildProcess>> children_;
+  std::vector<std::unique_ptr<ChildProcess>> ended_viewers_;  // kept for their CPU and memory
+  std::vector<std::string> viewer_notes_;
   std::unique_ptr<std::ofstream> memory_samples_;
 };
 
