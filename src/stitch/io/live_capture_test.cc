@@ -41,6 +41,21 @@ bool GStreamerPlays(const std::string& pipeline) {
   return probe.isOpened() && probe.read(frame) && !frame.empty();
 }
 
+// A test that plays a folder of frames through a pipeline: the folder, and the options that
+// name its calibration.
+class LivePipeline : public ::testing::Test {
+ protected:
+  static constexpr const char* kCannotPlay = "GStreamer cannot play PNG files here (gstreamer1.0-plugins-good)";
+  // Writes `count` frames played at `fps`; their pipeline, or "" where GStreamer cannot play it.
+  std::string Pipeline(int count, int fps) {
+    const std::string pipeline = WriteFramesAndPipeline(dir, count, fps);
+    options.calibration_path = dir / "camera.yaml";
+    return GStreamerPlays(pipeline) ? pipeline : "";
+  }
+  testing::TempDir dir;
+  LiveCaptureOptions options;
+};
+
 TEST(LiveCapture, TellsTheKindOfSourceFromItsName) {
   EXPECT_EQ(LiveSourceKind("/dev/video0"), "v4l2");
   EXPECT_EQ(LiveSourceKind("v4l2:/dev/video2"), "v4l2");
@@ -75,12 +90,9 @@ TEST(LiveCapture, RefusesASourceItCannotOpenOrOneWithoutCalibration) {
   EXPECT_THROW(LiveCapture("no-such-element-anywhere ! appsink", options), Error);
 }
 
-TEST(LiveCapture, PlaysAPipelineAtItsRateAndKeepsOnlyTheNewestFrame) {
-  testing::TempDir dir;
-  const std::string pipeline = WriteFramesAndPipeline(dir, 40, 20);
-  if (!GStreamerPlays(pipeline)) GTEST_SKIP() << "GStreamer cannot play PNG files here (gstreamer1.0-plugins-good)";
-  LiveCaptureOptions options;
-  options.calibration_path = dir / "camera.yaml";
+TEST_F(LivePipeline, PlaysAPipelineAtItsRateAndKeepsOnlyTheNewestFrame) {
+  const std::string pipeline = Pipeline(40, 20);
+  if (pipeline.empty()) GTEST_SKIP() << kCannotPlay;
   options.clock = "wall";
   LiveCapture live(pipeline, options);
   EXPECT_TRUE(live.live());
@@ -112,12 +124,9 @@ TEST(LiveCapture, PlaysAPipelineAtItsRateAndKeepsOnlyTheNewestFrame) {
 
 // Played on the stream's clock, the frames keep their times in the clip (frame i at i / 20 s) to
 // within a millisecond, also those taken late.
-TEST(LiveCapture, OnTheStreamClockFramesKeepTheirTimesInTheClip) {
-  testing::TempDir dir;
-  const std::string pipeline = WriteFramesAndPipeline(dir, 12, 20);
-  if (!GStreamerPlays(pipeline)) GTEST_SKIP() << "GStreamer cannot play PNG files here (gstreamer1.0-plugins-good)";
-  LiveCaptureOptions options;
-  options.calibration_path = dir / "camera.yaml";
+TEST_F(LivePipeline, OnTheStreamClockFramesKeepTheirTimesInTheClip) {
+  const std::string pipeline = Pipeline(12, 20);
+  if (pipeline.empty()) GTEST_SKIP() << kCannotPlay;
   LiveCapture live(pipeline, options);  // auto: a pipeline reading files
   EXPECT_NE(live.description().find("stream clock"), std::string::npos) << live.description();
   std::vector<int64_t> times;
@@ -135,12 +144,9 @@ TEST(LiveCapture, OnTheStreamClockFramesKeepTheirTimesInTheClip) {
   EXPECT_LT(times.back(), 12 * 50'000'000LL);
 }
 
-TEST(LiveCapture, StopsAfterMaxFrames) {
-  testing::TempDir dir;
-  const std::string pipeline = WriteFramesAndPipeline(dir, 10, 50);
-  if (!GStreamerPlays(pipeline)) GTEST_SKIP() << "GStreamer cannot play PNG files here (gstreamer1.0-plugins-good)";
-  LiveCaptureOptions options;
-  options.calibration_path = dir / "camera.yaml";
+TEST_F(LivePipeline, StopsAfterMaxFrames) {
+  const std::string pipeline = Pipeline(10, 50);
+  if (pipeline.empty()) GTEST_SKIP() << kCannotPlay;
   options.max_frames = 3;
   LiveCapture live(pipeline, options);
   SequenceFrame frame;
