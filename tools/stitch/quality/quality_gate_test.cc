@@ -81,6 +81,28 @@ TEST(QualityGate, RefusesAMatrixItCannotCheck) {
   refused("tolerance: {ate_m: {relative: -1}}\ncases:\n  - name: a\n", "slack must be >= 0");
   refused("tolerance: {}\ncases:\n  - name: a\n    repeats: 0\n", "repeats must be in [1, 20]");
   refused("tolerance: {}\ncases: [\n", "quality.yaml");
+  refused("tolerance: {}\ncases:\n  - name: a\n    render: [\"--max-frames\", \"9\"]\n", "give both or neither");
+  refused("tolerance: {}\ncases:\n  - name: a\n    run: [\"--dataset\", \"${rendered}\"]\n", "give both or neither");
+}
+
+// A case that plays a clip it renders: the clip's path stands for ${rendered}, and the command
+// that reproduces the case renders it first.
+TEST(QualityGate, ACaseThatRendersItsClipPlaysItAndSaysHowToMakeIt) {
+  testing::TempDir dir;
+  const QualityMatrix matrix = WriteAndLoad(
+      dir,
+      "tolerance: {}\ncases:\n  - name: hd\n    run: [\"--dataset\", \"${rendered}\", \"--pacing\", \"realtime\"]\n"
+      "    render: [\"--set\", \"synthetic.width=1920\"]\n");
+  const QualityCase& hd = matrix.cases[0];
+  EXPECT_EQ(hd.render, (std::vector<std::string>{"--set", "synthetic.width=1920"}));
+  EXPECT_EQ(CaseRunArguments(hd, "/data", "/runs/q/clips/hd.mp4"),
+            (std::vector<std::string>{"--dataset", "/runs/q/clips/hd.mp4", "--pacing", "realtime"}));
+  EXPECT_EQ(ReproduceCommand(hd, "/data"),
+            "build/bin/stitch render --set synthetic.width=1920 --out hd.mp4 && build/bin/stitch run --dataset hd.mp4 "
+            "--pacing realtime");
+  // Written back as read.
+  SaveQualityMatrix(matrix, dir / "again.yaml");
+  EXPECT_EQ(LoadQualityMatrix(dir / "again.yaml").cases[0].render, hd.render);
 }
 
 TEST(QualityGate, ARegressionIsAFigureWorseThanItsToleranceAllows) {
