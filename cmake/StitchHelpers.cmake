@@ -37,7 +37,7 @@ function(stitch_add_test name)
   if(NOT ARG_LABELS)
     set(ARG_LABELS unit)
   endif()
-  # STITCH_SANITIZER_ENVIRONMENT: the sanitizer's runtime options (one variable), in sanitizer builds.
+  # STITCH_SANITIZER_ENVIRONMENT: the sanitizer's runtime options (a list of VAR=VALUE), in sanitizer builds.
   gtest_discover_tests(${name}
     DISCOVERY_TIMEOUT 60
     PROPERTIES TIMEOUT ${ARG_TIMEOUT} LABELS "${ARG_LABELS}" ENVIRONMENT "${STITCH_SANITIZER_ENVIRONMENT}")
