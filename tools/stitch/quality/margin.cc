@@ -186,6 +186,15 @@ int MarginCommand(int argc, char** argv) {
     }
     if (!(options.max_dropped_share >= 0 && options.max_dropped_share < 1))
       throw Error("--max-dropped must be in [0, 1)");
+    if (label.empty()) label = case_name.empty() ? "run" : case_name;
+    if (out_dir.empty()) out_dir = "runs/margin-" + LocalTimestamp("%Y%m%d-%H%M%S");
+    if (fs::exists(out_dir) && !fs::is_empty(out_dir))
+      throw Error(out_dir + " exists and is not empty; give a new --out");
+    fs::create_directories(out_dir);
+    if (clip_case != nullptr && !clip_case->render.empty()) {
+      run_args =
+          CaseRunArguments(*clip_case, datasets_dir, RenderCaseClip(*clip_case, (fs::path(out_dir) / "clip").string()));
+    }
     if (!config_path.empty()) {
       run_args.push_back("--config");
       run_args.push_back(config_path);
@@ -193,17 +202,6 @@ int MarginCommand(int argc, char** argv) {
     for (const std::string& setting : settings) {
       run_args.push_back("--set");
       run_args.push_back(setting);
-    }
-    if (label.empty()) label = case_name.empty() ? "run" : case_name;
-    if (out_dir.empty()) out_dir = "runs/margin-" + LocalTimestamp("%Y%m%d-%H%M%S");
-    if (fs::exists(out_dir) && !fs::is_empty(out_dir))
-      throw Error(out_dir + " exists and is not empty; give a new --out");
-    fs::create_directories(out_dir);
-    if (clip_case != nullptr && !clip_case->render.empty()) {
-      std::printf("rendering the clip of %s\n", clip_case->name.c_str());
-      const std::string clip = RenderCaseClip(*clip_case, (fs::path(out_dir) / "clip").string());
-      const std::vector<std::string> case_args = CaseRunArguments(*clip_case, datasets_dir, clip);
-      std::copy(case_args.begin(), case_args.end(), run_args.begin());  // the case's own lead run_args
     }
     const std::string stitch = ExecutableDir() + "/stitch";
     const auto play = [&](double speed) {

@@ -129,6 +129,8 @@ std::string RenderCaseClip(const QualityCase& c, const std::string& dir) {
   args.insert(args.end(), c.render.begin(), c.render.end());
   args.push_back("--out");
   args.push_back(clip);
+  std::printf("rendering the clip of %s\n", c.name.c_str());
+  std::fflush(stdout);
   ChildProcess render("render " + c.name, ExecutableDir() + "/stitch", args, clip + ".log");
   std::optional<int> status;
   while (!(status = render.Poll())) std::this_thread::sleep_for(std::chrono::milliseconds(200));
@@ -244,14 +246,13 @@ void SaveQualityMatrix(const QualityMatrix& matrix, const std::string& path) {
   for (const QualityCase& c : matrix.cases) {
     out << "  - name: " << c.name << "\n";
     if (!c.about.empty()) out << "    about: " << quoted(c.about) << "\n";
-    out << "    run: [";
-    for (size_t i = 0; i < c.run.size(); ++i) out << (i ? ", " : "") << quoted(c.run[i]);
-    out << "]\n";
-    if (!c.render.empty()) {
-      out << "    render: [";
-      for (size_t i = 0; i < c.render.size(); ++i) out << (i ? ", " : "") << quoted(c.render[i]);
+    const auto write_list = [&](const char* key, const std::vector<std::string>& items) {
+      out << "    " << key << ": [";
+      for (size_t i = 0; i < items.size(); ++i) out << (i ? ", " : "") << quoted(items[i]);
       out << "]\n";
-    }
+    };
+    write_list("run", c.run);
+    if (!c.render.empty()) write_list("render", c.render);
     if (!c.needs.empty()) out << "    needs: " << quoted(c.needs) << "\n";
     if (c.alone) out << "    alone: true\n";
     if (c.ci) out << "    ci: true\n";
@@ -549,8 +550,6 @@ std::vector<CaseResult> RunCases(const QualityMatrix& matrix, const std::vector<
       continue;
     }
     if (!c.render.empty()) {
-      std::printf("rendering the clip of %s\n", c.name.c_str());
-      std::fflush(stdout);
       try {
         results[i].rendered = RenderCaseClip(c, (fs::path(out_dir) / "clips").string());
       } catch (const Error& e) {
