@@ -73,12 +73,6 @@ TEST(ViewerInBrowser, ThePageShowsTheFlightsSubmapsKeyframesPointsAndTrackingSta
     GTEST_SKIP() << "Chromium is not installed (Debian's chromium; .ci/run installs it): the viewer's page is not "
                     "loaded in a browser here";
   }
-#if defined(__SANITIZE_ADDRESS__)
-  // Debian builds civetweb with 100 kB thread stacks; under AddressSanitizer its own WebSocket
-  // handshake with a browser (mg_printf's 8 kB buffer, the sanitizer's larger frames) overflows
-  // them and the viewer dies. The release and ThreadSanitizer runs load the page.
-  GTEST_SKIP() << "under AddressSanitizer civetweb's WebSocket handshake overflows its 100 kB thread stacks";
-#endif
   stitch::testing::TempDir dir;
   const int port = bus::UnusedTcpPort();
   const std::string url = "http://127.0.0.1:" + std::to_string(port) + "/";

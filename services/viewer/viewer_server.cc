@@ -1,17 +1,38 @@
 #include "services/viewer/viewer_server.h"
 
+#include <arpa/inet.h>
 #include <civetweb.h>
+#include <dlfcn.h>
+#include <pthread.h>
 
+#include <algorithm>
+#include <cctype>
+#include <cerrno>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <sstream>
 #include <vector>
 
 #include "services/viewer/web_assets.h"
 #include "stitch/util/error.h"
 #include "stitch/util/log.h"
 #include "stitch/util/time.h"
+
+// civetweb as Debian builds it (CIVETWEB_THREAD_STACK_SIZE, 100 kB) gives each of its threads a
+// 100 kB stack, and in this process the libraries' thread-local storage takes much of it: a
+// WebSocket frame cut off by its client sent the reading thread into civetweb's error log (an
+// 8 kB buffer and vsnprintf), past the end of its stack, and the viewer died (SIGSEGV, within 2 s
+// of the attack). The threads this process starts with a stated stack size get at least 1 MB:
+// this definition comes before the C library's for every library in the process (the
+// executable's symbols are searched first).
+extern "C" int pthread_attr_setstacksize(pthread_attr_t* attributes, size_t bytes) {
+  using SetStackSize = int (*)(pthread_attr_t*, size_t);
+  static const auto set_stack_size = reinterpret_cast<SetStackSize>(dlsym(RTLD_NEXT, "pthread_attr_setstacksize"));
+  constexpr size_t kMinThreadStackBytes = size_t{1} << 20;
+  return set_stack_size ? set_stack_size(attributes, std::max(bytes, kMinThreadStackBytes)) : EINVAL;
+}
 
 namespace stitch {
 
@@ -29,13 +50,18 @@ ViewerServer::Asset ThreeFile(const std::string& three_dir, const std::string& r
   return {"text/javascript; charset=utf-8", std::move(body)};
 }
 
-// The page's own origin, as the browser names it in a WebSocket's Origin header.
+// The page's own origin, as the browser names it in a WebSocket's Origin header (a browser always
+// sends one; a client without one is refused).
 bool SameOrigin(const mg_connection* connection) {
   const char* origin = mg_get_header(connection, "Origin");
   const char* host = mg_get_header(connection, "Host");
-  if (!origin) return true;  // not a browser (a browser always sends one)
-  if (!host) return false;
+  if (!origin || !host) return false;
   return std::string(origin) == "http://" + std::string(host);
+}
+
+std::string Lower(std::string text) {
+  for (char& c : text) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  return text;
 }
 
 int SendBody(mg_connection* connection, int status, const char* status_text, const std::string& content_type,
@@ -55,6 +81,12 @@ int SendBody(mg_connection* connection, int status, const char* status_text, con
 }  // namespace
 
 ViewerServer::ViewerServer(const ViewerOptions& options, const ViewerState* state) : options_(options), state_(state) {
+  std::stringstream names(options_.allowed_hosts);
+  for (std::string name; std::getline(names, name, ',');) {
+    name.erase(0, name.find_first_not_of(' '));
+    name.erase(name.find_last_not_of(' ') + 1);
+    if (!name.empty()) allowed_hosts_.insert(Lower(name));
+  }
   for (const auto& [path, asset] : ViewerWebAssets()) assets_[path] = {asset.first, asset.second};
   assets_["/"] = assets_.at("/index.html");
   assets_["/three/three.min.js"] = ThreeFile(options_.three_dir, "build/three.min.js");
@@ -113,6 +145,17 @@ int ViewerServer::HandleRequest(mg_connection* connection, void* self) {
   return static_cast<ViewerServer*>(self)->Serve(connection);
 }
 
+bool ViewerServer::HostAllowed(const mg_connection* connection) const {
+  const char* header = mg_get_header(connection, "Host");
+  if (!header) return false;  // HTTP/1.1 requires one; browsers always send it
+  const std::string host = Lower(header);
+  if (!host.empty() && host.front() == '[') return host.find(']') != std::string::npos;  // an IPv6 address
+  const std::string name = host.substr(0, host.find(':'));  // any port: an SSH tunnel maps it
+  in_addr address{};
+  if (inet_pton(AF_INET, name.c_str(), &address) == 1) return true;  // an address is no DNS name to rebind
+  return name == "localhost" || allowed_hosts_.count(name) > 0;
+}
+
 int ViewerServer::Serve(mg_connection* connection) {
   const mg_request_info* request = mg_get_request_info(connection);
   const std::string method = request->request_method ? request->request_method : "";
@@ -125,6 +168,7 @@ int ViewerServer::Serve(mg_connection* connection) {
     }
     return SendBody(connection, status, text, "text/plain; charset=utf-8", std::string(text) + "\n", head);
   };
+  if (!HostAllowed(connection)) return refuse(403, "Forbidden");
   if (method != "GET" && !head) return refuse(405, "Method Not Allowed");
   if (path == "/live") return refuse(400, "Bad Request");  // a WebSocket only
   if (path == "/state.json" || path == "/cloud.bin") {
@@ -146,10 +190,12 @@ int ViewerServer::Serve(mg_connection* connection) {
 int ViewerServer::OnSocketConnect(const mg_connection* connection, void* self) {
   auto* server = static_cast<ViewerServer*>(self);
   std::lock_guard<std::mutex> lock(server->sockets_mutex_);
-  if (!SameOrigin(connection)) {
+  if (!server->HostAllowed(connection) || !SameOrigin(connection)) {
     ++server->refused_;
-    STITCH_LOG(WARNING) << "refused a WebSocket from another origin: "
-                        << (mg_get_header(connection, "Origin") ? mg_get_header(connection, "Origin") : "");
+    const char* origin = mg_get_header(connection, "Origin");
+    const char* host = mg_get_header(connection, "Host");
+    STITCH_LOG(WARNING) << "refused a WebSocket from origin '" << (origin ? origin : "(none)") << "' for host '"
+                        << (host ? host : "(none)") << "' (the page's own origin and a host of this machine only)";
     return 1;
   }
   if (static_cast<int>(server->sockets_.size()) + server->pending_sockets_ >= server->options_.max_pages) {

@@ -2,13 +2,16 @@
 // The viewer's web server (civetweb): serves the page, three.js from Debian's libjs-three, the
 // state as JSON and the points as binary over HTTP, and pushes updates to each open page over a
 // WebSocket (/live). Only GET and HEAD of the fixed paths are answered (nothing is served from a
-// folder a request could name); a WebSocket is accepted only from the page's own origin (another
-// site open in the same browser cannot read the map) and only while fewer than max_pages are open.
+// folder a request could name), and only for a Host that names this machine (localhost, an IP
+// address, viewer.allowed_hosts: a page of another site whose name was made to resolve here is
+// refused); a WebSocket is accepted only from the page's own origin, stated (another site open in
+// the same browser cannot read the map), and only while fewer than max_pages are open.
 
 #include <cstdint>
 #include <map>
 #include <memory>
 #include <mutex>
+#include <set>
 #include <string>
 
 #include "services/viewer/viewer_state.h"
@@ -60,10 +63,13 @@ class ViewerServer {
   static int OnSocketData(mg_connection* connection, int bits, char* data, size_t length, void* self);
   static void OnSocketClose(const mg_connection* connection, void* self);
   int Serve(mg_connection* connection);
+  // Whether the request's Host names this machine (above).
+  bool HostAllowed(const mg_connection* connection) const;
   // The updates as the state is now, kept for requests and pushes.
   void Refresh(double now_s);
 
   ViewerOptions options_;
+  std::set<std::string> allowed_hosts_;  // viewer.allowed_hosts, lower case
   const ViewerState* state_;
   std::map<std::string, Asset> assets_;
   mg_context* context_ = nullptr;

@@ -10,6 +10,7 @@
 #include <cstring>
 #include <limits>
 #include <string>
+#include <vector>
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -266,7 +267,7 @@ TEST(ViewerServer, AnUnusedTestPortIsNeverOneAServerHolds) {
   ViewerOptions options;
   options.port = bus::UnusedTcpPort();
   ViewerServer server(options, &state);
-  ASSERT_EQ(StatusLine(Exchange(options.port, "GET / HTTP/1.1\r\nHost: x\r\n\r\n")), "HTTP/1.1 200 OK");
+  ASSERT_EQ(StatusLine(Exchange(options.port, "GET / HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")), "HTTP/1.1 200 OK");
   for (int i = 0; i < 50; ++i) EXPECT_NE(bus::UnusedTcpPort(options.port, 2), options.port);
 }
 
@@ -276,33 +277,78 @@ TEST(ViewerServer, ServesThePageAndThreeJsAndNothingElse) {
   options.port = bus::UnusedTcpPort();
   ViewerServer server(options, &state);
   const int port = options.port;
-  const std::string page = Exchange(port, "GET / HTTP/1.1\r\nHost: x\r\n\r\n");
+  const std::string page = Exchange(port, "GET / HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n");
   EXPECT_EQ(StatusLine(page), "HTTP/1.1 200 OK");
   EXPECT_NE(page.find("/three/three.min.js"), std::string::npos);
   EXPECT_NE(page.find("Content-Security-Policy: default-src 'self'"), std::string::npos);
-  EXPECT_EQ(StatusLine(Exchange(port, "GET /three/three.min.js HTTP/1.1\r\nHost: x\r\n\r\n")), "HTTP/1.1 200 OK");
-  EXPECT_EQ(StatusLine(Exchange(port, "GET /three/OrbitControls.js HTTP/1.1\r\nHost: x\r\n\r\n")), "HTTP/1.1 200 OK");
-  EXPECT_EQ(StatusLine(Exchange(port, "GET /viewer.js HTTP/1.1\r\nHost: x\r\n\r\n")), "HTTP/1.1 200 OK");
-  const std::string json = Exchange(port, "GET /state.json HTTP/1.1\r\nHost: x\r\n\r\n");
+  EXPECT_EQ(StatusLine(Exchange(port, "GET /three/three.min.js HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")),
+            "HTTP/1.1 200 OK");
+  EXPECT_EQ(StatusLine(Exchange(port, "GET /three/OrbitControls.js HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")),
+            "HTTP/1.1 200 OK");
+  EXPECT_EQ(StatusLine(Exchange(port, "GET /viewer.js HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")), "HTTP/1.1 200 OK");
+  const std::string json = Exchange(port, "GET /state.json HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n");
   ASSERT_EQ(StatusLine(json), "HTTP/1.1 200 OK");
   EXPECT_NO_THROW(nlohmann::json::parse(json.substr(json.find("\r\n\r\n") + 4)));
-  EXPECT_EQ(StatusLine(Exchange(port, "GET /cloud.bin HTTP/1.1\r\nHost: x\r\n\r\n")), "HTTP/1.1 200 OK");
+  EXPECT_EQ(StatusLine(Exchange(port, "GET /cloud.bin HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")), "HTTP/1.1 200 OK");
   // Hostile requests: other paths (a way out of any folder among them), other methods, garbage.
   for (const char* path : {"/../../../etc/passwd", "/three/../../../../etc/passwd", "/%2e%2e/%2e%2e/etc/passwd",
                            "/etc/passwd", "/live.json", "/three/"}) {
-    const std::string reply = Exchange(port, std::string("GET ") + path + " HTTP/1.1\r\nHost: x\r\n\r\n");
+    const std::string reply = Exchange(port, std::string("GET ") + path + " HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n");
     EXPECT_EQ(reply.find("root:"), std::string::npos) << path;
     EXPECT_NE(StatusLine(reply).substr(9, 3), "200") << path << ": " << StatusLine(reply);
   }
-  EXPECT_EQ(StatusLine(Exchange(port, "POST / HTTP/1.1\r\nHost: x\r\nContent-Length: 3\r\n\r\nabc")),
+  EXPECT_EQ(StatusLine(Exchange(port, "POST / HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: 3\r\n\r\nabc")),
             "HTTP/1.1 405 Method Not Allowed");
-  EXPECT_EQ(StatusLine(Exchange(port, "GET /live HTTP/1.1\r\nHost: x\r\n\r\n")), "HTTP/1.1 400 Bad Request");
+  EXPECT_EQ(StatusLine(Exchange(port, "GET /live HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")), "HTTP/1.1 400 Bad Request");
   Exchange(port, "\x16\x03\x01\x02\x00garbage\r\n\r\n");
-  Exchange(port, "GET / HTTP/1.1\r\nHost: x\r\nX-Long: " + std::string(200000, 'a') + "\r\n\r\n");
+  Exchange(port, "GET / HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Long: " + std::string(200000, 'a') + "\r\n\r\n");
   Exchange(port, "GET / HTTP/1.1\r\n");  // never finished: the request timeout frees the thread
   // ...and it still serves.
-  EXPECT_EQ(StatusLine(Exchange(port, "GET / HTTP/1.1\r\nHost: x\r\n\r\n")), "HTTP/1.1 200 OK");
+  EXPECT_EQ(StatusLine(Exchange(port, "GET / HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")), "HTTP/1.1 200 OK");
   EXPECT_GE(server.requests_refused(), 8);  // 6 paths, a method, a plain GET of /live
+}
+
+// DNS rebinding: a page of evil.example whose name was made to resolve to this machine sends
+// Host (and Origin) evil.example. Only hosts that name this machine are answered: localhost, an
+// IP address (with any port: an SSH tunnel maps it), viewer.allowed_hosts.
+TEST(ViewerServer, AnswersOnlyHostsThatNameThisMachine) {
+  ViewerState state(1000);
+  ViewerOptions options;
+  options.port = bus::UnusedTcpPort();
+  options.allowed_hosts = "ground.local, Station";
+  ViewerServer server(options, &state);
+  const int port = options.port;
+  const std::string p = std::to_string(port);
+  const auto get = [&](const std::string& host_line) {
+    return StatusLine(Exchange(port, "GET /state.json HTTP/1.1\r\n" + host_line + "\r\n"));
+  };
+  for (const std::string& host :
+       std::vector<std::string>{"127.0.0.1:" + p, "localhost:" + p, "LOCALHOST:9000", "192.168.1.5:" + p, "[::1]:" + p,
+                                "ground.local:" + p, "station"}) {
+    EXPECT_EQ(get("Host: " + host + "\r\n"), "HTTP/1.1 200 OK") << host;
+  }
+  const int64_t refused_before = server.requests_refused();
+  for (const std::string& host :
+       std::vector<std::string>{"evil.example:" + p, "evil.example", "127.0.0.1.evil.example:" + p,
+                                "localhost.evil.example", "ground.local.evil.example"}) {
+    EXPECT_EQ(get("Host: " + host + "\r\n"), "HTTP/1.1 403 Forbidden") << host;
+  }
+  EXPECT_EQ(get(""), "HTTP/1.1 403 Forbidden") << "no Host at all";
+  EXPECT_EQ(server.requests_refused(), refused_before + 6);
+  // A WebSocket under a rebound name, even from its own origin, and one without an Origin.
+  const std::string rebound = "GET /live HTTP/1.1\r\nHost: evil.example:" + p +
+                              "\r\nUpgrade: websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Key: "
+                              "dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\nOrigin: http://evil.example:" +
+                              p + "\r\n\r\n";
+  EXPECT_NE(StatusLine(Exchange(port, rebound, false)), "HTTP/1.1 101 Switching Protocols");
+  std::string without_origin = WebSocketRequest(port, "x");
+  without_origin.erase(without_origin.find("Origin: x\r\n"), std::string("Origin: x\r\n").size());
+  EXPECT_NE(StatusLine(Exchange(port, without_origin, false)), "HTTP/1.1 101 Switching Protocols");
+  EXPECT_EQ(server.open_pages(), 0);
+  // Names with a port or a slash are refused as settings.
+  ViewerOptions wrong;
+  wrong.allowed_hosts = "ground.local:8080";
+  EXPECT_FALSE(wrong.Check(nullptr));
 }
 
 TEST(ViewerServer, AWebSocketOnlyFromThePagesOwnOriginAndOnlyAsManyAsAllowed) {

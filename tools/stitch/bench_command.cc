@@ -53,8 +53,15 @@ Stat Summarize(std::vector<double> values) {
 
 struct BenchArgs {
   SourceSpec source;  // with failures "none" by default: the flight without gusts
-  std::string config_path, settings, json_path;
+  std::string config_path, json_path;
+  std::vector<std::string> settings;  // --set, each KEY=VALUE, as every stitch command takes them
 };
+
+std::string JoinSettings(const std::vector<std::string>& settings) {
+  std::string joined;
+  for (const std::string& s : settings) joined += (joined.empty() ? "" : ", ") + s;
+  return joined;
+}
 
 // One run in this process: prints the figures and returns them as JSON.
 nlohmann::json BenchOnce(const BenchArgs& a) {
@@ -67,7 +74,7 @@ nlohmann::json BenchOnce(const BenchArgs& a) {
   auto sequence = OpenSource(spec, &spoil);
   if (!spoil.empty()) throw Error("stitch bench applies failure schedules to the synthetic flight only");
   std::printf("stitch bench: %s, %dx%d%s%s\n", sequence->description().c_str(), sequence->camera().width(),
-              sequence->camera().height(), a.settings.empty() ? "" : ", ", a.settings.c_str());
+              sequence->camera().height(), a.settings.empty() ? "" : ", ", JoinSettings(a.settings).c_str());
   const Stopwatch clock;
   int done = 0;
   const InlineRun run = RunInline(*sequence, config.pipeline(), vocabulary, [&](const InlineFrame&) {
@@ -129,7 +136,7 @@ nlohmann::json BenchOnce(const BenchArgs& a) {
   json["sequence"] = sequence->description();
   json["width"] = sequence->camera().width();
   json["height"] = sequence->camera().height();
-  json["settings"] = a.settings;
+  json["settings"] = JoinSettings(a.settings);
   std::printf("\n  per tracked frame (%zu frames)   median     p95    mean   [ms]\n", total.size());
   const std::pair<const char*, const std::vector<double>*> rows[] = {{"feature extraction", &extraction},
                                                                      {"frame-to-frame tracking", &frame_to_frame},
@@ -224,18 +231,14 @@ nlohmann::json BenchOptions(const BenchArgs& a) {
     std::printf("[%zu/%zu] %s ...", i + 1, variants.size(), v.name.c_str());
     std::fflush(stdout);
     const std::string json_path = (scratch / ("variant" + std::to_string(i) + ".json")).string();
-    std::string settings = a.settings;
-    if (!v.settings.empty()) settings += (settings.empty() ? "" : ",") + v.settings;
+    std::vector<std::string> settings = a.settings;
+    if (!v.settings.empty()) settings.push_back(v.settings);
     std::vector<std::string> args{"bench", "--json", json_path};
     const std::vector<std::string> source_args =
         SourceArguments(a.source, kDatasetFlag | kCalibFlag | kFailuresFlag | kMaxFramesFlag);
     args.insert(args.end(), source_args.begin(), source_args.end());
-    const std::pair<const char*, const std::string*> passed[] = {{"--config", &a.config_path}, {"--set", &settings}};
-    for (const auto& [flag, value] : passed) {
-      if (value->empty()) continue;
-      args.push_back(flag);
-      args.push_back(*value);
-    }
+    if (!a.config_path.empty()) args.insert(args.end(), {"--config", a.config_path});
+    for (const std::string& setting : settings) args.insert(args.end(), {"--set", setting});
     const Stopwatch clock;
     ChildProcess child("bench", ExecutableDir() + "/stitch", args,
                        (scratch / ("variant" + std::to_string(i) + ".log")).string());
@@ -291,8 +294,8 @@ int BenchCommand(int argc, char** argv) {
   AddSourceOptions(&args, &a.source, kDatasetFlag | kCalibFlag | kFailuresFlag | kMaxFramesFlag);
   args.AddOption("--config", &a.config_path, "FILE",
                  "YAML settings (e.g. synthetic.width: 752 for EuRoC-sized frames)");
-  args.AddOption("--set", &a.settings, "K=V,...",
-                 "settings over the configuration, e.g. tracker.tracking.orb.threads=2");
+  args.AddOption("--set", &a.settings, "KEY=VALUE",
+                 "a setting over the configuration, e.g. tracker.tracking.orb.threads=2");
   args.AddFlag("--options", &options,
                "run once per speed option switched (homography tracking and its region of interest, reference "
                "matching, extraction threads, keyframe worker) and print them side by side");

@@ -12,6 +12,10 @@ struct ViewerOptions {
   double updates_per_s = 4;      // pushes to each open page
   int max_page_points = 500000;  // points sent to a page (the merger thins to merger.map_cloud_points)
   int max_pages = 4;             // pages open at once (each holds a server thread)
+  // Host names the page may be asked for by, besides localhost and any IP address (comma
+  // separated, e.g. "ground.local"): a request naming any other host (a page of another site
+  // whose name was made to resolve here, DNS rebinding) is refused.
+  std::string allowed_hosts;
   // Where Debian's libjs-three put three.js (build/three.min.js, examples/js/controls/OrbitControls.js).
   std::string three_dir = "/usr/share/javascript/three";
 
@@ -24,6 +28,9 @@ struct ViewerOptions {
     v("updates_per_s", updates_per_s, "updates pushed to each open page per second");
     v("max_page_points", max_page_points, "map points sent to a page at most");
     v("max_pages", max_pages, "pages open at once; more are refused");
+    v("allowed_hosts", allowed_hosts,
+      "host names the page may be asked for by besides localhost and IP addresses, comma separated (e.g. "
+      "ground.local); requests naming another host are refused (DNS rebinding)");
     v("three_dir", three_dir, "folder of three.js (Debian's libjs-three), served to the page");
   }
 
@@ -41,6 +48,8 @@ struct ViewerOptions {
     if (max_page_points < 0 || max_page_points > 5'000'000)
       return fail("viewer.max_page_points must be in [0, 5000000]");
     if (max_pages < 1 || max_pages > 64) return fail("viewer.max_pages must be in [1, 64]");
+    if (allowed_hosts.find_first_of(":/[]") != std::string::npos)
+      return fail("viewer.allowed_hosts: names only, comma separated, without ports (e.g. ground.local)");
     if (three_dir.empty()) return fail("viewer.three_dir must name the folder of three.js");
     return true;
   }
