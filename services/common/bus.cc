@@ -24,7 +24,6 @@ std::string Channel(const std::string& agent, const char* suffix) {
   return agent + "/" + suffix;
 }
 
-// A 2 MiB receive buffer holds several full frames; the kernel caps it at net.core.rmem_max.
 std::vector<std::string> SplitAgents(const std::string& list) {
   std::vector<std::string> agents;
   size_t start = 0;
@@ -38,11 +37,17 @@ std::vector<std::string> SplitAgents(const std::string& list) {
 }
 
 std::string DefaultLcmUrl() {
-  return "udpm://239.255.76.67:7667?ttl=0&recv_buf_size=2097152";
+  return LocalUdpUrl(7667);
 }
 
 std::string LocalUdpUrl(int port) {
-  return "udpm://239.255.76.67:" + std::to_string(port) + "?ttl=0&recv_buf_size=2097152";
+  return WithReceiveBuffer("udpm://239.255.76.67:" + std::to_string(port) + "?ttl=0");
+}
+
+std::string WithReceiveBuffer(const std::string& url) {
+  if (url.rfind("udpm://", 0) != 0 || url.find("recv_buf_size=") != std::string::npos) return url;
+  return url + (url.find('?') == std::string::npos ? "?" : "&") +
+         "recv_buf_size=" + std::to_string(kReceiveBufferBytes);
 }
 
 namespace {
@@ -91,7 +96,8 @@ std::string UnusedLocalUdpUrl() {
   return LocalUdpUrl(UnusedUdpPort());
 }
 
-std::unique_ptr<lcm::LCM> OpenLcm(const std::string& url) {
+std::unique_ptr<lcm::LCM> OpenLcm(const std::string& given_url) {
+  const std::string url = WithReceiveBuffer(given_url);
   auto lcm = std::make_unique<lcm::LCM>(url);
   if (!lcm->good()) {
     throw Error("cannot open LCM at '" + url +

@@ -69,7 +69,15 @@ int UnusedTcpPort(int first = 18000, int count = 2000);
 // LocalUdpUrl(UnusedUdpPort()).
 std::string UnusedLocalUdpUrl();
 
-// Opens LCM, throwing stitch::Error with what to check when it cannot (no multicast route...).
+// A udpm:// URL that names no receive buffer gets kReceiveBufferBytes (LCM's default is the
+// kernel's, about 200 kB: a recorder beside a flight lost 83 of 1,367 submap messages); any
+// other URL is returned as it is. Where the kernel caps the buffer lower (net.core.rmem_max),
+// LCM says so on stderr when it opens.
+inline constexpr int kReceiveBufferBytes = 2097152;
+std::string WithReceiveBuffer(const std::string& url);
+
+// Opens LCM (WithReceiveBuffer), throwing stitch::Error with what to check when it cannot (no
+// multicast route...).
 std::unique_ptr<lcm::LCM> OpenLcm(const std::string& url);
 
 // Stamps the header of each message and publishes it. Thread-safe.

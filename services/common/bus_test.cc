@@ -129,6 +129,18 @@ TEST(Bus, MalformedAndForeignMessagesNeverReachTheHandler) {
   EXPECT_EQ(subscriber.rejected(), 6);
 }
 
+// Every tool that opens a multicast bus asks for a receive buffer that holds a flight's traffic
+// (the docs' address form named none: a recorder lost submap messages); one the user names stays.
+TEST(Bus, AMulticastAddressWithoutAReceiveBufferGetsOne) {
+  EXPECT_EQ(WithReceiveBuffer("udpm://239.255.76.67:7746?ttl=0"),
+            "udpm://239.255.76.67:7746?ttl=0&recv_buf_size=2097152");
+  EXPECT_EQ(WithReceiveBuffer("udpm://239.255.76.67:7746"), "udpm://239.255.76.67:7746?recv_buf_size=2097152");
+  EXPECT_EQ(WithReceiveBuffer("udpm://239.255.76.67:7746?ttl=0&recv_buf_size=8388608"),
+            "udpm://239.255.76.67:7746?ttl=0&recv_buf_size=8388608");
+  EXPECT_EQ(WithReceiveBuffer("memq://"), "memq://");
+  EXPECT_EQ(DefaultLcmUrl(), "udpm://239.255.76.67:7667?ttl=0&recv_buf_size=2097152");
+}
+
 TEST(Bus, AgentNamesAreChecked) {
   EXPECT_EQ(Channel("uav0", kFrame), "uav0/FRAME");
   EXPECT_THROW(Channel("uav 0", kFrame), Error);

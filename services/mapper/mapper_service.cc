@@ -5,6 +5,7 @@
 
 #include "services/common/convert.h"
 #include "services/common/map_convert.h"
+#include "stitch/io/output_frames.h"
 #include "stitch/io/ply.h"
 #include "stitch/link_status_t.hpp"
 #include "stitch/records/keyframe_record.h"
@@ -339,7 +340,7 @@ void MapperService::WriteRecords() const {
                          culled.cam_from_world.Inverse()});
   }
   WriteKeyframeRecords((std::filesystem::path(record_dir_) / "keyframes.tsv").string(), keyframes);
-  WritePly((std::filesystem::path(record_dir_) / "submaps.ply").string(), cloud);
+  WritePly((std::filesystem::path(record_dir_) / "submaps.ply").string(), cloud, output_frames::kEachSubmap);
   if (!released_.empty()) {
     std::error_code ignored;
     std::filesystem::remove(released_points_path(), ignored);

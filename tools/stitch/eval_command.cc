@@ -60,7 +60,7 @@ int EvalCommand(int argc, char** argv) {
     input.submaps = estimate.empty() ? 0 : 1;
     if (!truth_path.empty()) input.ground_truth = ReadGroundTruth(truth_path, kitti_times);
     const Evaluation evaluation = Evaluate(input);
-    std::printf("%s", Summarize(evaluation).c_str());
+    std::printf("%s", SummarizeTrajectory(evaluation, frames_total > 0).c_str());
     if (!out_dir.empty()) {
       fs::create_directories(out_dir);
       WriteReport((fs::path(out_dir) / "report.json").string(), evaluation);

@@ -16,11 +16,12 @@ int RecordCommand(int argc, char** argv) {
   std::vector<std::string> files;
   std::string lcm_url = bus::DefaultLcmUrl(), agents = "uav0";
   bool all = false, force = false;
-  ArgParser args("stitch record",
-                 "Records a flight's features with lcm-logger until Ctrl-C: for each aircraft its submap updates and "
-                 "requests, tracking and service statuses, its pose stream, sequence information, the global map and the "
-                 "map cloud (never images, unless --all). `stitch map FILE` rebuilds the merged map from the "
-                 "recording; lcm-logplayer replays it onto a bus, where stitch-viewer shows it as it was flown.");
+  ArgParser args(
+      "stitch record",
+      "Records a flight's features with lcm-logger until Ctrl-C: for each aircraft its submap updates and "
+      "requests, tracking and service statuses, its pose stream, sequence information, the global map and the "
+      "map cloud (never images, unless --all). `stitch map FILE` rebuilds the merged map from the "
+      "recording; lcm-logplayer replays it onto a bus, where stitch-viewer shows it as it was flown.");
   args.AddPositional(&files, "FILE", "the LCM log to write");
   args.AddOption("--lcm-url", &lcm_url, "URL", "the bus to record");
   args.AddOption("--agents", &agents, "A,B,...", "the aircraft whose channels to record");
@@ -35,8 +36,10 @@ int RecordCommand(int argc, char** argv) {
     if (names.empty()) throw Error("--agents: name at least one aircraft");
     const std::string channels =
         "(" + names + ")/" +
-        (all ? std::string(".*") : "(SUBMAP|SUBMAP_REQUEST|TRACKING_STATUS|POSE|SERVICE|SEQUENCE|GLOBAL_MAP|MAP_CLOUD)");
-    std::vector<std::string> command = {"lcm-logger", "--lcm-url=" + lcm_url, "--channel=" + channels, "-f", files[0]};
+        (all ? std::string(".*")
+             : "(SUBMAP|SUBMAP_REQUEST|TRACKING_STATUS|POSE|SERVICE|SEQUENCE|GLOBAL_MAP|MAP_CLOUD)");
+    std::vector<std::string> command = {"lcm-logger", "--lcm-url=" + bus::WithReceiveBuffer(lcm_url),
+                                        "--channel=" + channels, "-f", files[0]};
     std::vector<char*> argv_out;
     for (std::string& s : command) argv_out.push_back(s.data());
     argv_out.push_back(nullptr);

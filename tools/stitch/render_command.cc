@@ -10,6 +10,7 @@
 #include "stitch/config/stitch_config.h"
 #include "stitch/io/calibration.h"
 #include "stitch/io/image_file.h"
+#include "stitch/io/output_frames.h"
 #include "stitch/io/video_file_writer.h"
 #include "stitch/source/source.h"
 #include "stitch/util/args.h"
@@ -74,7 +75,7 @@ int RenderCommand(int argc, char** argv) {
       }
     }
     if (writer) writer->Finish();
-    truth.WriteTum(truth_path.string());
+    truth.WriteTum(truth_path.string(), output_frames::kGroundTruth);
     std::printf("\nwrote %d frames to %s in %.1f s (%s)\n", total, out.c_str(), clock.ElapsedSeconds(),
                 sequence->description().c_str());
     return 0;

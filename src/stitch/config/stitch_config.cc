@@ -31,11 +31,21 @@ std::string DefaultVocabularyPath() {
   return std::filesystem::exists(installed) ? installed.lexically_normal().string() : STITCH_DEFAULT_VOCABULARY;
 }
 
+std::string VocabularyDoubts(const Vocabulary& vocabulary) {
+  constexpr int kFewWords = 10000;
+  if (vocabulary.num_words() >= kFewWords) return "";
+  return "the vocabulary has only " + std::to_string(vocabulary.num_words()) +
+         " words: its bags of words tell few places apart, so relocalization and merging find few right "
+         "candidates (the default has 98,390; ORB-SLAM's about a million; `stitch vocab` trains one)";
+}
+
 Vocabulary LoadVocabulary(const StitchConfig& config) {
   const std::string path = config.vocabulary.empty() ? DefaultVocabularyPath() : config.vocabulary;
   Vocabulary vocabulary = Vocabulary::Load(path);
   STITCH_LOG(INFO) << "vocabulary " << path << ": " << vocabulary.num_words()
                    << " words (k = " << vocabulary.branching() << ", L = " << vocabulary.depth() << ")";
+  if (const std::string doubt = VocabularyDoubts(vocabulary); !doubt.empty())
+    STITCH_LOG(WARNING) << path << ": " << doubt;
   return vocabulary;
 }
 

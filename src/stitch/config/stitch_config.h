@@ -47,8 +47,11 @@ struct StitchConfig {
   PipelineOptions pipeline() const { return {tracker.tracking, tracker.on_loss, mapper.mapping, merger}; }
 };
 
-// The vocabulary the configuration names (or the shipped default); throws stitch::Error.
+// The vocabulary the configuration names (or the shipped default); throws stitch::Error. Logs a
+// warning with VocabularyDoubts.
 Vocabulary LoadVocabulary(const StitchConfig& config);
+// What makes a vocabulary a poor one for retrieval, as a sentence ("" when nothing): too few words.
+std::string VocabularyDoubts(const Vocabulary& vocabulary);
 std::string DefaultVocabularyPath();
 
 // Defaults when `path` is empty. Throws stitch::Error naming the file and key on any problem.

@@ -7,6 +7,7 @@
 
 #include "stitch/testing/temp_dir.h"
 #include "stitch/util/options.h"
+#include "stitch/util/rng.h"
 
 namespace stitch {
 namespace {
@@ -55,6 +56,31 @@ TEST(StitchConfig, CommittedDefaultFileMatchesTheCode) {
   text << in.rdbuf();
   EXPECT_NE(text.str().find(DumpOptions(StitchConfig())), std::string::npos)
       << "config/default.yaml is out of date: regenerate it with build/bin/stitch config > config/default.yaml";
+}
+
+// A vocabulary of a few words is read without complaint by the services: the summary doubts it.
+TEST(StitchConfig, DoubtsAVocabularyOfFewWords) {
+  Rng rng(3);
+  std::vector<std::vector<Descriptor>> images(20);
+  for (auto& image : images) {
+    image.resize(40);
+    for (Descriptor& d : image) {
+      for (uint8_t& byte : d) byte = static_cast<uint8_t>(rng.UniformInt(0, 255));
+    }
+  }
+  VocabularyTrainingOptions tiny;
+  tiny.branching = 3;
+  tiny.depth = 2;
+  const Vocabulary few = Vocabulary::Train(images, tiny);
+  const std::string doubt = VocabularyDoubts(few);
+  EXPECT_NE(doubt.find("only " + std::to_string(few.num_words()) + " words"), std::string::npos) << doubt;
+  testing::TempDir dir;
+  few.Save(dir / "tiny.stitchvoc");
+  StitchConfig config;
+  config.vocabulary = dir / "tiny.stitchvoc";
+  EXPECT_EQ(LoadVocabulary(config).num_words(), few.num_words());
+  config.vocabulary = "";
+  EXPECT_EQ(VocabularyDoubts(LoadVocabulary(config)), "") << "the shipped vocabulary";
 }
 
 }  // namespace

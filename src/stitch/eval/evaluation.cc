@@ -282,6 +282,37 @@ void WriteReport(const std::string& path, const Evaluation& evaluation, const nl
   WriteFileAtomically(path, report.dump(2) + "\n");
 }
 
+namespace {
+
+// The error lines of a summary: ATE, the path it is a share of, RPE.
+std::string ErrorLines(const Evaluation& e) {
+  char line[256];
+  std::string text;
+  if (e.errors) {
+    std::snprintf(line, sizeof(line),
+                  "  ATE RMSE          %.4f m over %d frames (Sim3-aligned; median %.4f, max %.4f)\n",
+                  e.errors->ate_rmse_m, e.errors->pairs, e.errors->ate_median_m, e.errors->ate_max_m);
+  } else if (e.has_ground_truth) {
+    std::snprintf(line, sizeof(line), "  ATE RMSE          n/a (fewer than 3 posed frames with ground truth)\n");
+  } else {
+    std::snprintf(line, sizeof(line), "  ATE RMSE          n/a (no ground truth)\n");
+  }
+  text += line;
+  if (e.errors && e.ground_truth_path_m > 0) {
+    std::snprintf(line, sizeof(line), "  path              %.1f m flown in the largest map (ATE %.2f%% of it)\n",
+                  e.ground_truth_path_m, 100.0 * e.errors->ate_rmse_m / e.ground_truth_path_m);
+    text += line;
+  }
+  if (e.errors) {
+    std::snprintf(line, sizeof(line), "  RPE RMSE          %.4f m, %.3f deg between consecutive posed frames\n",
+                  e.errors->rpe_translation_rmse_m, e.errors->rpe_rotation_rmse_deg);
+    text += line;
+  }
+  return text;
+}
+
+}  // namespace
+
 std::string Summarize(const Evaluation& e) {
   char line[256];
   std::string text;
@@ -301,21 +332,7 @@ std::string Summarize(const Evaluation& e) {
   std::snprintf(line, sizeof(line), "  keyframes         %d\n  submaps           %d (%d in the largest map)\n",
                 e.keyframes, e.submaps, e.submaps_merged);
   text += line;
-  if (e.errors) {
-    std::snprintf(line, sizeof(line),
-                  "  ATE RMSE          %.4f m over %d frames (Sim3-aligned; median %.4f, max %.4f)\n",
-                  e.errors->ate_rmse_m, e.errors->pairs, e.errors->ate_median_m, e.errors->ate_max_m);
-  } else if (e.has_ground_truth) {
-    std::snprintf(line, sizeof(line), "  ATE RMSE          n/a (fewer than 3 posed frames with ground truth)\n");
-  } else {
-    std::snprintf(line, sizeof(line), "  ATE RMSE          n/a (no ground truth)\n");
-  }
-  text += line;
-  if (e.errors && e.ground_truth_path_m > 0) {
-    std::snprintf(line, sizeof(line), "  path              %.1f m flown in the largest map (ATE %.2f%% of it)\n",
-                  e.ground_truth_path_m, 100.0 * e.errors->ate_rmse_m / e.ground_truth_path_m);
-    text += line;
-  }
+  text += ErrorLines(e);
   if (e.submaps_merged > 1) {
     for (const auto& s : e.per_submap) {
       if (s.component != e.largest_component || !s.ate_in_map_m || !s.ate_rmse_m) continue;
@@ -339,6 +356,18 @@ std::string Summarize(const Evaluation& e) {
     text += line;
   }
   return text;
+}
+
+std::string SummarizeTrajectory(const Evaluation& e, bool frames_total_known) {
+  char line[256];
+  if (frames_total_known) {
+    std::snprintf(line, sizeof(line), "  frames posed      %d of %d (%.1f%%)\n", e.frames_localized, e.frames_total,
+                  100.0 * e.completeness);
+  } else {
+    std::snprintf(line, sizeof(line), "  frames posed      %d (the sequence's frames not given: --frames-total)\n",
+                  e.frames_localized);
+  }
+  return line + ErrorLines(e);
 }
 
 void WriteTrajectoryPlot(const std::string& path, const EvaluationInput& input, const Evaluation& evaluation,

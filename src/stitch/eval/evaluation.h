@@ -91,6 +91,10 @@ void WriteReport(const std::string& path, const Evaluation& evaluation, const nl
                  const nlohmann::json& merges = nullptr);
 // A few lines for the terminal.
 std::string Summarize(const Evaluation& evaluation);
+// The same for a trajectory alone (another system's, `stitch eval --est`): the frames it poses
+// (completeness only when the sequence's frame count is known), ATE, path and RPE; no keyframes
+// or submaps, which a trajectory file does not tell.
+std::string SummarizeTrajectory(const Evaluation& evaluation, bool frames_total_known);
 
 // Top view of the plane of the motion (the two largest principal axes of the ground truth, else
 // of the estimate): the ground truth of the frames the run covers (grey) and every map aligned

@@ -132,6 +132,25 @@ TEST(Evaluation, ThePathFlownIsTheTruePathThroughTheLargestMapsFramesInTimeOrder
   EXPECT_NEAR(EvaluationFromJson(ToJson(e)).ground_truth_path_m, 14.5, 1e-9);
 }
 
+// Another system's trajectory file (`stitch eval --est`): what it poses, ATE and RPE, and nothing it
+// cannot tell (it said "keyframes 0, submaps 1" and 100% of a sequence it did not know).
+TEST(Evaluation, ATrajectoryAloneIsSummarizedByWhatItTells) {
+  const Trajectory gt = GroundTruth(60);
+  EvaluationInput input;
+  input.ground_truth = gt;
+  input.poses = Estimate(gt, kEstFromGt, 0.01);
+  input.frames_total = 60;
+  const Evaluation e = Evaluate(input);
+  const std::string alone = SummarizeTrajectory(e, false);
+  EXPECT_NE(alone.find("frames posed      60 (the sequence's frames not given"), std::string::npos) << alone;
+  EXPECT_EQ(alone.find("keyframes"), std::string::npos) << alone;
+  EXPECT_EQ(alone.find("submaps"), std::string::npos) << alone;
+  EXPECT_NE(alone.find("ATE RMSE"), std::string::npos) << alone;
+  EXPECT_NE(alone.find("RPE RMSE"), std::string::npos) << alone;
+  const std::string known = SummarizeTrajectory(e, true);
+  EXPECT_NE(known.find("frames posed      60 of 60 (100.0%)"), std::string::npos) << known;
+}
+
 TEST(Evaluation, AMisplacedSubmapShowsInItsAteInTheMergedMap) {
   const Trajectory gt = GroundTruth(100);
   std::vector<PoseRecord> poses = Estimate(gt, kEstFromGt, 0.0, 0);

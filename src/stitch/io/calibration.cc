@@ -1,5 +1,6 @@
 #include "stitch/io/calibration.h"
 
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
@@ -198,6 +199,20 @@ std::map<std::string, double> ReadOrbExtractorSettings(const std::string& path) 
     if (settings->Has(key)) stated[name] = settings->Number(key);
   }
   return stated;
+}
+
+std::string CalibrationDoubts(const Camera& camera) {
+  constexpr double kFarFromCentre = 0.2;  // of the image's width or height
+  const double off_x = std::abs(camera.cx() - 0.5 * camera.width()) / camera.width();
+  const double off_y = std::abs(camera.cy() - 0.5 * camera.height()) / camera.height();
+  if (off_x <= kFarFromCentre && off_y <= kFarFromCentre) return "";
+  std::ostringstream text;
+  text.precision(4);
+  text << "the calibration's principal point (" << camera.cx() << ", " << camera.cy()
+       << ") is far from the centre of the " << camera.width() << "x" << camera.height() << " image ("
+       << 0.5 * camera.width() << ", " << 0.5 * camera.height()
+       << "): is it this camera's calibration? (a lens's is within a few percent of the centre)";
+  return text.str();
 }
 
 void SaveCalibration(const Camera& camera, const std::string& path) {

@@ -23,6 +23,11 @@ Camera LoadCalibration(const std::string& path, int image_width = 0, int image_h
 // empty for a file of another layout. Throws stitch::Error for a value that is no number.
 std::map<std::string, double> ReadOrbExtractorSettings(const std::string& path);
 
+// What looks wrong in a calibration for its images, as a sentence ("" when nothing): a principal
+// point far from the image's centre (more than a fifth of its width or height away), as another
+// camera's settings give (ORB-SLAM2's KITTI file, cx 607, on a 640-wide image).
+std::string CalibrationDoubts(const Camera& camera);
+
 // Writes the camera as an ORB-SLAM-style settings file.
 void SaveCalibration(const Camera& camera, const std::string& path);
 

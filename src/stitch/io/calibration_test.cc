@@ -69,6 +69,17 @@ TEST(Calibration, ReadsOrbSlamExampleSettingsAsTheyAre) {
             std::string::npos);
 }
 
+// Another camera's settings on these images: ORB-SLAM2's KITTI file (cx 607) on a 640x480 camera
+// is doubted; each file on its own camera is not.
+TEST(Calibration, DoubtsAPrincipalPointFarFromTheImagesCentre) {
+  EXPECT_EQ(CalibrationDoubts(LoadCalibration(Example("orbslam2_tum1.yaml"), 640, 480)), "");
+  EXPECT_EQ(CalibrationDoubts(LoadCalibration(Example("orbslam2_kitti00-02.yaml"), 1241, 376)), "");
+  EXPECT_EQ(CalibrationDoubts(LoadCalibration(Example("orbslam3_euroc_mono.yaml"))), "");
+  const std::string doubt = CalibrationDoubts(LoadCalibration(Example("orbslam2_kitti00-02.yaml"), 640, 480));
+  EXPECT_NE(doubt.find("principal point (607.2, 185.2)"), std::string::npos) << doubt;
+  EXPECT_NE(doubt.find("640x480 image (320, 240)"), std::string::npos) << doubt;
+}
+
 TEST(Calibration, ReadsTheFeatureSettingsOfAnOrbSlamFile) {
   const auto kitti = ReadOrbExtractorSettings(Example("orbslam2_kitti00-02.yaml"));
   ASSERT_EQ(kitti.size(), 5u);

@@ -2,11 +2,14 @@
 // behind: a trajectory, a point cloud, a plot.
 
 #include <filesystem>
+#include <fstream>
 #include <functional>
+#include <iterator>
 
 #include <gtest/gtest.h>
 
 #include "stitch/io/image_file.h"
+#include "stitch/io/output_frames.h"
 #include "stitch/io/ply.h"
 #include "stitch/io/trajectory.h"
 #include "stitch/testing/full_disk.h"
@@ -45,6 +48,29 @@ TEST(OutputFiles, AFullDiskIsAnErrorNamingTheFile) {
   EXPECT_EQ(ReadPly(dir / "map.ply").size(), 100u);
   WritePng(dir / "trajectory.png", plot);
   EXPECT_GT(std::filesystem::file_size(dir / "trajectory.png"), 0u);
+}
+
+// Each trajectory and point cloud says its frame and units in its header, where the readers of
+// the formats (TUM's tools, evo, MeshLab, CloudCompare, ours) take it as a comment.
+TEST(OutputFiles, TrajectoriesAndCloudsStateTheirFrameInTheirHeaders) {
+  testing::TempDir dir;
+  Trajectory trajectory;
+  for (int i = 0; i < 3; ++i) trajectory.Add({int64_t{1'000'000'000} * i, Rigid3d()});
+  trajectory.WriteTum(dir / "trajectory.tum", output_frames::kLargestMap);
+  EXPECT_EQ(Trajectory::ReadTum(dir / "trajectory.tum").size(), 3u);
+  std::ifstream tum(dir / "trajectory.tum");
+  std::string first, second;
+  std::getline(tum, first);
+  std::getline(tum, second);
+  EXPECT_NE(first.find("world_from_cam; seconds"), std::string::npos) << first;
+  EXPECT_EQ(second, std::string("# frame: ") + output_frames::kLargestMap);
+  WritePly(dir / "map.ply", {ColouredPoint{Eigen::Vector3f(1, 2, 3)}}, output_frames::kLargestMap);
+  EXPECT_EQ(ReadPly(dir / "map.ply").size(), 1u);
+  std::ifstream ply(dir / "map.ply", std::ios::binary);
+  std::string header((std::istreambuf_iterator<char>(ply)), std::istreambuf_iterator<char>());
+  header = header.substr(0, header.find("end_header"));
+  EXPECT_NE(header.find(std::string("comment frame: ") + output_frames::kLargestMap + "\n"), std::string::npos)
+      << header;
 }
 
 }  // namespace

@@ -9,9 +9,11 @@
 
 namespace stitch {
 
-void WritePly(const std::string& path, const std::vector<ColouredPoint>& points) {
+void WritePly(const std::string& path, const std::vector<ColouredPoint>& points, const std::string& frame) {
   std::ostringstream out(std::ios::binary);
-  out << "ply\nformat binary_little_endian 1.0\ncomment written by stitch\nelement vertex " << points.size()
+  out << "ply\nformat binary_little_endian 1.0\ncomment written by stitch\n";
+  if (!frame.empty()) out << "comment frame: " << frame << "\n";  // one line: the frame texts hold no newline
+  out << "element vertex " << points.size()
       << "\nproperty float x\nproperty float y\nproperty float z\nproperty uchar red\n"
          "property uchar green\nproperty uchar blue\nend_header\n";
   for (const auto& p : points) {

@@ -15,7 +15,8 @@ struct ColouredPoint {
   uint8_t red = 200, green = 200, blue = 200;
 };
 
-void WritePly(const std::string& path, const std::vector<ColouredPoint>& points);
+// `frame`, when given, goes into the header as "comment frame: ..." (output_frames.h).
+void WritePly(const std::string& path, const std::vector<ColouredPoint>& points, const std::string& frame = "");
 // Reads what WritePly writes (for tests and tools); throws stitch::Error on anything else.
 std::vector<ColouredPoint> ReadPly(const std::string& path);
 

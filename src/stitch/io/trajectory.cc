@@ -69,8 +69,9 @@ Trajectory Trajectory::ReadTum(const std::string& path) {
   return Trajectory(std::move(poses));
 }
 
-void Trajectory::WriteTum(const std::string& path) const {
-  std::string text = "# timestamp tx ty tz qx qy qz qw (world_from_cam)\n";
+void Trajectory::WriteTum(const std::string& path, const std::string& frame) const {
+  std::string text = "# timestamp tx ty tz qx qy qz qw (world_from_cam; seconds)\n";
+  if (!frame.empty()) text += "# frame: " + frame + "\n";
   for (const auto& pose : poses_) text += FormatSeconds(pose.t_ns) + " " + FormatTumPose(pose.world_from_cam) + "\n";
   WriteFileAtomically(path, text);
 }

@@ -29,7 +29,8 @@ class Trajectory {
 
   // Throws stitch::Error with the file and line for anything that is not a TUM line.
   static Trajectory ReadTum(const std::string& path);
-  void WriteTum(const std::string& path) const;
+  // `frame`, when given, goes into the header as "# frame: ..." (output_frames.h).
+  void WriteTum(const std::string& path, const std::string& frame = "") const;
 
   const std::vector<StampedPose>& poses() const { return poses_; }
   bool empty() const { return poses_.empty(); }

@@ -5,6 +5,7 @@
 #include <filesystem>
 
 #include "stitch/io/colmap_model.h"
+#include "stitch/io/output_frames.h"
 #include "stitch/io/ply.h"
 #include "stitch/io/trajectory.h"
 #include "stitch/map/map_export.h"
@@ -296,7 +297,7 @@ void MergeSession::WriteLiveTrajectory() {
     const std::string name = agents_.size() <= 1 ? "trajectory.tum" : "trajectory-" + agent + ".tum";
     try {
       std::filesystem::create_directories(dir);
-      trajectory.WriteTum((dir / name).string());
+      trajectory.WriteTum((dir / name).string(), output_frames::kLargestMap);
     } catch (const std::exception& e) {
       STITCH_LOG(ERROR) << "writing the trajectory failed: " << e.what();
     }
@@ -308,8 +309,21 @@ std::optional<MergeSession::MapCloud> MergeSession::TakeMapCloud() {
   const int max_points = merger_.options().map_cloud_points;
   if (max_points <= 0 || latest_placement_.empty()) return std::nullopt;
   // The refined merged map's points (fused and adjusted) for the submaps whose merged map still
-  // has the same frame; the others' own points through their placement.
-  std::map<SubmapId, std::vector<Eigen::Vector3f>> points;
+  // has the same frame; the others' own points through their placement. Each map (component)
+  // without the points map.ply leaves out (merger.map_export: seen by too few keyframes, or far
+  // beyond the scene), so that the page frames the scene (TUM fr1/rpy: a point 2,390 units out
+  // made the whole map one dot).
+  struct Candidate {
+    SubmapId submap;
+    Eigen::Vector3d position;
+  };
+  std::map<int, std::vector<Candidate>> candidates;  // by component
+  std::map<int, std::vector<int>> observations;
+  const auto add = [&](SubmapId submap, const Eigen::Vector3d& position, const MapPoint& point) {
+    const int component = latest_placement_.at(submap).component;
+    candidates[component].push_back({submap, position});
+    observations[component].push_back(static_cast<int>(point.observations.size()));
+  };
   std::set<SubmapId> refined;
   if (refined_ && refined_->merged) {
     for (const auto& [id, point] : refined_->merged->map.points()) {
@@ -320,7 +334,7 @@ std::optional<MergeSession::MapCloud> MergeSession::TakeMapCloud() {
           then->second.root != now->second.root) {
         continue;
       }
-      points[submap].push_back(point.position.cast<float>());
+      add(submap, point.position, point);
       refined.insert(submap);
     }
   }
@@ -328,9 +342,21 @@ std::optional<MergeSession::MapCloud> MergeSession::TakeMapCloud() {
     if (refined.count(id)) continue;
     const auto replica = merger_.submaps().find(id);
     if (replica == merger_.submaps().end()) continue;
-    std::vector<Eigen::Vector3f>& list = points[id];
     for (const auto& [point_id, point] : replica->second.map.points()) {
-      list.push_back((placement.world_from_submap * point.position).cast<float>());
+      add(id, placement.world_from_submap * point.position, point);
+    }
+  }
+  std::map<SubmapId, std::vector<Eigen::Vector3f>> points;
+  for (const auto& [id, placement] : latest_placement_) {
+    if (merger_.submaps().count(id)) points[id];  // every placed submap, even one left without points
+  }
+  for (const auto& [component, list] : candidates) {
+    std::vector<Eigen::Vector3d> positions;
+    positions.reserve(list.size());
+    for (const Candidate& c : list) positions.push_back(c.position);
+    const std::vector<bool> keep = PointsToExport(positions, observations[component], merger_.options().map_export);
+    for (size_t i = 0; i < list.size(); ++i) {
+      if (keep[i]) points[list[i].submap].push_back(list[i].position.cast<float>());
     }
   }
   MapCloud cloud;
@@ -422,7 +448,7 @@ void MergeSession::WriteRecords(const Merger::Graph& graph, const MergedMap* mer
       }
     }
     // map.ply without the gross outliers a sparse map holds; map_raw.ply with every point.
-    WritePly((dir / "map_raw.ply").string(), cloud);
+    WritePly((dir / "map_raw.ply").string(), cloud, output_frames::kLargestMap);
     const std::vector<bool> keep = PointsToExport(positions, observations, merger_.options().map_export);
     std::vector<ColouredPoint> exported;
     for (size_t i = 0; i < cloud.size(); ++i) {
@@ -433,7 +459,7 @@ void MergeSession::WriteRecords(const Merger::Graph& graph, const MergedMap* mer
                        << cloud.size() - exported.size()
                        << " seen by too few keyframes or far beyond the scene left out; all in map_raw.ply)";
     }
-    WritePly((dir / "map.ply").string(), exported);
+    WritePly((dir / "map.ply").string(), exported, output_frames::kLargestMap);
   }
   std::vector<MergedKeyframeRecord> merged_keyframes;
   for (const auto& [id, pose] : graph.keyframe_poses) {

@@ -80,10 +80,11 @@ class MergeSession {
   void WriteLiveTrajectoryIfDue();
 
   // Every placed submap's points in its merged map's frame (the refined merged map's where it
-  // still holds), thinned to merger.map_cloud_points in all.
+  // still holds), less those map.ply leaves out (merger.map_export, per merged map), thinned to
+  // merger.map_cloud_points in all.
   struct MapCloud {
     int revision = 0;
-    int64_t points_in_maps = 0;  // before thinning
+    int64_t points_in_maps = 0;  // kept, before thinning
     struct Submap {
       SubmapId id;
       int component = -1;

@@ -98,6 +98,35 @@ TEST(Merge, AMergeWhoseJunctionTheAdjustmentDoesNotHoldIsRolledBack) {
   EXPECT_NE(rolled_back.placement.begin()->second.component, rolled_back.placement.rbegin()->second.component);
 }
 
+// The viewer's cloud leaves out what map.ply leaves out (merger.map_export), so that the page
+// frames the scene and not one far point (TUM fr1/rpy: a point 2,390 units out).
+TEST(Merge, TheViewersCloudLeavesOutWhatTheMapExportLeavesOut) {
+  const GustRun& g = Gust();
+  const auto cloud = [&](const MapExportOptions& map_export) {
+    MergerOptions options = g.options.merger;
+    options.map_export = map_export;
+    MergeSession session(options, &testing::DefaultVocabulary(), ScalePyramid::From(g.options.tracking.orb));
+    for (const SubmapUpdate& update : g.run.submap_updates) session.Apply(update, "uav0", true);
+    session.Refine("test");
+    const auto taken = session.TakeMapCloud();
+    EXPECT_TRUE(taken);
+    return taken ? *taken : MergeSession::MapCloud();
+  };
+  const MergeSession::MapCloud all = cloud(MapExportOptions());
+  ASSERT_EQ(all.submaps.size(), 2u);
+  ASSERT_GT(all.points_in_maps, 1000);
+  MapExportOptions near;
+  near.max_extent_ratio = 1;  // the least allowed: the tenth of the points farthest out is out
+  const MergeSession::MapCloud inner = cloud(near);
+  EXPECT_LT(inner.points_in_maps, 0.95 * all.points_in_maps);
+  EXPECT_GT(inner.points_in_maps, 0);
+  MapExportOptions seen_often;
+  seen_often.min_observations = 1000;  // no point is seen by so many keyframes
+  const MergeSession::MapCloud none = cloud(seen_often);
+  EXPECT_EQ(none.points_in_maps, 0);
+  EXPECT_EQ(none.submaps.size(), 2u) << "every placed submap is still named";
+}
+
 TEST(Merge, DroppedRepeatedAndReorderedUpdatesStillMerge) {
   const GustRun& g = Gust();
   ASSERT_FALSE(g.run.submap_updates.empty());

@@ -1,10 +1,13 @@
 #include "tools/stitch/launch/launch_plan.h"
 
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 
 #include "services/common/bus.h"
 #include "services/link/link_auth.h"
+#include "stitch/io/calibration.h"
+#include "stitch/io/output_frames.h"
 #include "stitch/util/error.h"
 #include "stitch/util/time.h"
 #include "tools/stitch/launch/split_network.h"
@@ -53,7 +56,12 @@ LaunchPlan PlanRun(const RunArgs& a, const std::string& out) {
   RunInfo& info = plan.info;
   if (!calibration.empty()) {
     for (const std::string& setting : OrbSlamFeatureSettings(calibration)) {
-      info.notes.push_back("from the ORB-SLAM settings " + calibration + ": " + setting);
+      // A --set of the same key comes later and wins: the note says which value runs.
+      const std::string key = setting.substr(0, setting.find('=') + 1);
+      const auto over = std::find_if(a.settings.rbegin(), a.settings.rend(),
+                                     [&](const std::string& s) { return s.rfind(key, 0) == 0; });
+      info.notes.push_back("from the ORB-SLAM settings " + calibration + ": " + setting +
+                           (over == a.settings.rend() ? "" : ", overridden by --set " + *over));
     }
   }
   plan.config = LoadStitchConfig(a.config_path, CommandLineSettings(calibration, a.vocabulary, settings));
@@ -65,6 +73,14 @@ LaunchPlan PlanRun(const RunArgs& a, const std::string& out) {
   plan.spec.max_working_pixels = config.ingest.max_working_pixels;
   plan.source = SummarizeSource(plan.spec);
   if (plan.source.num_frames == 0) throw Error("the sequence has no frames");
+  if (!calibration.empty()) {
+    if (const std::string doubt = CalibrationDoubts(plan.source.camera); !doubt.empty()) info.notes.push_back(doubt);
+  }
+  if (!config.vocabulary.empty()) {  // one the user chose: read once here too, so the summary can doubt it
+    if (const std::string doubt = VocabularyDoubts(LoadVocabulary(config)); !doubt.empty()) {
+      info.notes.push_back(config.vocabulary + ": " + doubt);
+    }
+  }
 
   plan.linked = a.link || a.netns;
   plan.netns = a.netns;
@@ -150,7 +166,8 @@ void PrepareRunFolder(const LaunchPlan& plan) {
   }
   fs::create_directories(out / "logs");
   SaveStitchConfig(plan.config, (out / "config.yaml").string());
-  if (!plan.source.ground_truth.empty()) plan.source.ground_truth.WriteTum((out / "groundtruth.tum").string());
+  if (!plan.source.ground_truth.empty())
+    plan.source.ground_truth.WriteTum((out / "groundtruth.tum").string(), output_frames::kGroundTruth);
   SaveRunInfo(plan.info, plan.out);
   if (!plan.link_key.empty()) link::GenerateKeyFile(plan.link_key);
 }

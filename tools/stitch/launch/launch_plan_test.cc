@@ -55,6 +55,24 @@ TEST(LaunchPlan, TheDefaultRunStartsTheGroundFirstAndIngestLastOnOneBus) {
   EXPECT_EQ(plan.info.frames_unusable, 3);
 }
 
+// ORB-SLAM settings set the extractor, and a --set of the same key wins: the note says so
+// (it named the file's value while the --set one ran).
+TEST(LaunchPlan, TheNoteOfAnOrbSlamSettingSaysWhenASetOverridesIt) {
+  RunArgs args = ShortFlight();
+  args.source.calibration_path = std::string(STITCH_SOURCE_DIR) + "/src/stitch/io/testdata/orbslam2_kitti00-02.yaml";
+  args.settings = {"tracker.tracking.orb.num_features=1500"};
+  const LaunchPlan plan = PlanRun(args, "/tmp/planned");
+  EXPECT_EQ(plan.config.tracker.tracking.orb.num_features, 1500);
+  const auto note = std::find_if(plan.info.notes.begin(), plan.info.notes.end(),
+                                 [](const std::string& n) { return n.find("num_features=2000") != std::string::npos; });
+  ASSERT_NE(note, plan.info.notes.end());
+  EXPECT_NE(note->find("overridden by --set tracker.tracking.orb.num_features=1500"), std::string::npos) << *note;
+  const auto scale = std::find_if(plan.info.notes.begin(), plan.info.notes.end(),
+                                  [](const std::string& n) { return n.find("scale_factor=") != std::string::npos; });
+  ASSERT_NE(scale, plan.info.notes.end());
+  EXPECT_EQ(scale->find("overridden"), std::string::npos) << *scale;
+}
+
 TEST(LaunchPlan, ALinkPutsTheMergerOnABusOfItsOwnBehindTwoBridgesThatNameEachOther) {
   RunArgs args = ShortFlight();
   args.link = true;

@@ -1,5 +1,6 @@
 #include "tools/stitch/launch/run_outputs.h"
 
+#include <cctype>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -7,6 +8,7 @@
 #include <set>
 #include <sstream>
 
+#include "stitch/io/output_frames.h"
 #include "stitch/io/ply.h"
 #include "stitch/io/trajectory.h"
 #include "stitch/merging/frame_trajectory.h"
@@ -55,7 +57,7 @@ void WriteEveryTrajectory(const std::string& folder, const std::vector<PoseRecor
       name = "submap-" + SubmapName(SubmapId(*submaps.begin())) + ".tum";
       std::replace(name.begin(), name.end(), ':', '-');
     }
-    trajectory.WriteTum((fs::path(folder) / name).string());
+    trajectory.WriteTum((fs::path(folder) / name).string(), output_frames::kOwnMap);
     std::string names;
     for (int64_t submap : submaps) names += (names.empty() ? "" : ",") + SubmapName(SubmapId(submap));
     index << name << "\t" << frames << "\t" << names << "\t" << (component == largest_component ? "yes" : "no") << "\n";
@@ -86,6 +88,26 @@ void WriteKittiTrajectory(const std::string& dir, const std::vector<PoseRecord>&
   WriteFileAtomically((fs::path(dir) / "trajectory_kitti_frames.txt").string(), frames.str());
 }
 
+// Where no frame was localized: why, from the frames' states and reasons ("95 initializing
+// (initialization failed)"), and what a map needs to begin. Empty when some frame was localized.
+std::string WhyNothingWasLocalized(const std::vector<FrameRecord>& records) {
+  std::map<std::string, int> counts;  // "initializing (initialization failed)" -> frames
+  for (const FrameRecord& r : records) {
+    if (r.state == "OK") return "";
+    std::string state = r.state;
+    for (char& c : state) c = static_cast<char>(c == '_' ? ' ' : std::tolower(static_cast<unsigned char>(c)));
+    const bool known = r.reason > 0 && r.reason <= static_cast<int>(TrackingReason::kNotRelocalized);
+    counts[state +
+           (known ? std::string(" (") + TrackingReasonName(static_cast<TrackingReason>(r.reason)) + ")" : "")]++;
+  }
+  std::string text;
+  for (const auto& [what, frames] : counts) text += (text.empty() ? "" : ", ") + std::to_string(frames) + " " + what;
+  return "no frame was localized: " + text +
+         ". A map begins from two views of the same features with enough parallax between them "
+         "(tracker.tracking.initialization.min_parallax_deg): a camera that does not move sideways, or sees "
+         "too little texture, never starts one; logs/tracker.log says why each frame waited";
+}
+
 }  // namespace
 
 Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
@@ -113,17 +135,15 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
     }
   }
   std::set<int64_t> submaps;
-  int no_core = 0, keyframes_made = 0;
+  int keyframes_made = 0;
   constexpr int kReasonUndecodable = static_cast<int>(TrackingReason::kUndecodableFrame);
   constexpr int kReasonDropped = static_cast<int>(TrackingReason::kDropped);
-  constexpr int kReasonNoTracker = static_cast<int>(TrackingReason::kNoTracker);
   for (const auto& r : records) {
     input.frames_unreadable += r.reason == kReasonUndecodable;
     input.frames_dropped += r.reason == kReasonDropped;
     if (r.tracking_ms > 0) input.tracking_ms.push_back(r.tracking_ms);
     if (r.is_keyframe) ++keyframes_made;
     if (r.state == "OK") submaps.insert(r.submap_id);
-    if (r.reason == kReasonNoTracker) ++no_core;
   }
   input.keyframes = fs::exists(dir / "keyframes.tsv") ? keyframes_retained : keyframes_made;
   input.submaps = static_cast<int>(submaps.size());
@@ -169,20 +189,19 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
   for (const auto& p : input.poses) {
     if (p.component == evaluation.largest_component) trajectory.Add({p.t_ns, p.world_from_cam});
   }
-  trajectory.WriteTum((dir / "trajectory.tum").string());
+  trajectory.WriteTum((dir / "trajectory.tum").string(), output_frames::kLargestMap);
   WriteEveryTrajectory((dir / "trajectories").string(), input.poses, evaluation.largest_component);
   if (info->source.rfind("KITTI ", 0) == 0) {
     WriteKittiTrajectory(dir.string(), input.poses, evaluation, info->start_frame);
   }
   if (!fs::exists(dir / "map.ply")) {
-    WritePly((dir / "map.ply").string(), {});
+    WritePly((dir / "map.ply").string(), {}, output_frames::kLargestMap);
     info->notes.push_back("map.ply is empty: no merger wrote a map in this run");
   }
-  if (!records.empty() && no_core == static_cast<int>(records.size())) {
-    info->notes.push_back("the tracker has no SLAM core yet (issue #3): all " + std::to_string(records.size()) +
-                          " frames were received, decoded and reported NOT_TRACKED; no poses were estimated");
-  } else if (records.empty()) {
+  if (records.empty()) {
     info->notes.push_back("the tracker reported no frame (see logs/tracker.log)");
+  } else if (const std::string why = WhyNothingWasLocalized(records); !why.empty()) {
+    info->notes.push_back(why);
   }
   if (static_cast<int>(records.size()) < info->frames_total && !info->interrupted) {
     info->notes.push_back(std::to_string(info->frames_total - static_cast<int>(records.size())) +
