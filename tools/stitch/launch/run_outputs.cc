@@ -66,23 +66,32 @@ void WriteEveryTrajectory(const std::string& folder, const std::vector<PoseRecor
 }
 
 // For a KITTI sequence: the largest map in KITTI's format (the 3x4 world_from_cam, row by row),
-// in the ground truth's frame and scale when it can be aligned, one line per frame it holds;
-// trajectory_kitti_frames.txt gives each line's frame number in the sequence (the devkit wants
-// every frame: the frames stitch did not pose are not there).
+// in the ground truth's frame and scale when it can be aligned, one line for every frame played,
+// as KITTI's devkit counts them: a frame the largest map does not hold takes the pose of the
+// nearest earlier one it holds (the first it holds, before that). trajectory_kitti_frames.txt
+// gives each line's frame number in the sequence (--start-frame counted) and whether the map
+// posed it (1) or the line holds a neighbour's pose (0).
 void WriteKittiTrajectory(const std::string& dir, const std::vector<PoseRecord>& poses, const Evaluation& evaluation,
-                          int start_frame) {
+                          int start_frame, int frames_played) {
   const Sim3d align = evaluation.errors ? evaluation.errors->ground_truth_from_estimate : Sim3d();
-  std::ostringstream lines, frames;
-  lines.precision(9);
+  std::map<int, Sim3d> posed;  // by frame played
   for (const auto& p : poses) {
     if (p.component != evaluation.largest_component) continue;
-    const Sim3d pose = align * Sim3d(1.0, p.world_from_cam.rotation, p.world_from_cam.translation);
+    posed[p.frame_index] = align * Sim3d(1.0, p.world_from_cam.rotation, p.world_from_cam.translation);
+  }
+  std::ostringstream lines, frames;
+  lines.precision(9);
+  for (int frame = 0; frame < frames_played; ++frame) {
+    auto it = posed.upper_bound(frame);                                     // the first posed after `frame`
+    const bool own = it != posed.begin() && std::prev(it)->first == frame;  // posed by the map itself
+    if (it != posed.begin()) --it;  // the nearest at or before it, where there is one
+    const Sim3d pose = it == posed.end() ? Sim3d() : it->second;
     const Eigen::Matrix3d r = pose.rotation.toRotationMatrix();
     for (int row = 0; row < 3; ++row) {
       lines << r(row, 0) << " " << r(row, 1) << " " << r(row, 2) << " " << pose.translation[row]
             << (row == 2 ? "\n" : " ");
     }
-    frames << start_frame + p.frame_index << "\n";
+    frames << start_frame + frame << " " << (own ? 1 : 0) << "\n";
   }
   WriteFileAtomically((fs::path(dir) / "trajectory_kitti.txt").string(), lines.str());
   WriteFileAtomically((fs::path(dir) / "trajectory_kitti_frames.txt").string(), frames.str());
@@ -192,7 +201,7 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
   trajectory.WriteTum((dir / "trajectory.tum").string(), output_frames::kLargestMap);
   WriteEveryTrajectory((dir / "trajectories").string(), input.poses, evaluation.largest_component);
   if (info->source.rfind("KITTI ", 0) == 0) {
-    WriteKittiTrajectory(dir.string(), input.poses, evaluation, info->start_frame);
+    WriteKittiTrajectory(dir.string(), input.poses, evaluation, info->start_frame, info->frames_total);
   }
   if (!fs::exists(dir / "map.ply")) {
     WritePly((dir / "map.ply").string(), {}, output_frames::kLargestMap);
