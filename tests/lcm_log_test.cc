@@ -128,19 +128,13 @@ TEST(LcmLog, TwoRecordersBesideARunOnABusyMachineMissNothing) {
   ChildProcess everything("recorder-all", Bin("stitch"), {"record", "--all", "--lcm-url", url, dir / "all.lcmlog"},
                           dir / "all.log");
   std::this_thread::sleep_for(1s);
-  std::atomic<bool> busy{true};
-  std::vector<std::thread> loops;
-  for (int i = 0; i < 2; ++i) {
-    loops.emplace_back([&] {
-      volatile uint64_t spin = 0;
-      while (busy.load(std::memory_order_relaxed)) spin = spin + 1;
-    });
+  testing::CommandResult run;
+  {
+    const testing::BusyLoops loaded(2);
+    run = RunProgram({Bin("stitch"), "run", "--lcm-url", url, "--config", testing::ShortFlightConfig(), "--failures",
+                      "none", "--out", dir / "run", "--quiet"},
+                     300);
   }
-  const auto run = RunProgram({Bin("stitch"), "run", "--lcm-url", url, "--config", testing::ShortFlightConfig(),
-                               "--failures", "none", "--out", dir / "run", "--quiet"},
-                              300);
-  busy = false;
-  for (auto& loop : loops) loop.join();
   std::this_thread::sleep_for(500ms);  // the recorders write the last messages
   features.Terminate(std::chrono::seconds(10));
   everything.Terminate(std::chrono::seconds(10));

@@ -4,12 +4,10 @@
 // expectations rest on.
 
 #include <algorithm>
-#include <atomic>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
-#include <thread>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -119,17 +117,10 @@ TEST(Determinism, ALockstepRunIsTheSameRunBesideTwoBusyLoops) {
     EXPECT_EQ(result.exit_code, 0) << result.output;
   };
   run("quiet");
-  std::atomic<bool> busy{true};
-  std::vector<std::thread> loops;
-  for (int i = 0; i < 2; ++i) {
-    loops.emplace_back([&] {
-      volatile uint64_t spin = 0;
-      while (busy.load(std::memory_order_relaxed)) spin = spin + 1;
-    });
+  {
+    const testing::BusyLoops loaded(2);
+    run("loaded");
   }
-  run("loaded");
-  busy = false;
-  for (auto& loop : loops) loop.join();
   const RunSummary quiet = Summarize(dir / "quiet"), loaded = Summarize(dir / "loaded");
   ASSERT_GT(quiet.frames.size(), 50u);
   EXPECT_EQ(quiet.frames, loaded.frames) << "every frame's state, pose, points and keyframe";

@@ -9,6 +9,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 #include <chrono>
+#include <cstdint>
 #include <cstdlib>
 #include <fstream>
 #include <thread>
@@ -131,6 +132,20 @@ std::optional<std::string> HttpGet(int port, const std::string& path) {
   const size_t body = reply.find("\r\n\r\n");
   if (reply.rfind("HTTP/1.1 200", 0) != 0 || body == std::string::npos) return std::nullopt;
   return reply.substr(body + 4);
+}
+
+BusyLoops::BusyLoops(int threads) {
+  for (int i = 0; i < threads; ++i) {
+    loops_.emplace_back([this] {
+      volatile uint64_t spin = 0;
+      while (busy_.load(std::memory_order_relaxed)) spin = spin + 1;
+    });
+  }
+}
+
+BusyLoops::~BusyLoops() {
+  busy_ = false;
+  for (auto& loop : loops_) loop.join();
 }
 
 }  // namespace stitch::testing

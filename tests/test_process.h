@@ -1,9 +1,11 @@
 #pragma once
 // Running the project's programs from tests: exit status and combined output.
 
+#include <atomic>
 #include <csignal>
 #include <optional>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <nlohmann/json.hpp>
@@ -45,5 +47,18 @@ int ConnectToLocalPort(int port);
 std::string HttpExchange(int port, const std::string& request, bool until_close = true);
 // "GET `path`": the reply's body when the status is 200, else nullopt.
 std::optional<std::string> HttpGet(int port, const std::string& path);
+
+// Threads that spin while it lives: a loaded machine for a test.
+class BusyLoops {
+ public:
+  explicit BusyLoops(int threads);
+  ~BusyLoops();
+  BusyLoops(const BusyLoops&) = delete;
+  BusyLoops& operator=(const BusyLoops&) = delete;
+
+ private:
+  std::atomic<bool> busy_{true};
+  std::vector<std::thread> loops_;
+};
 
 }  // namespace stitch::testing
