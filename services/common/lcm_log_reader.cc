@@ -8,6 +8,7 @@
 #include <cstring>
 #include <filesystem>
 
+#include "services/common/big_endian.h"
 #include "stitch/util/error.h"
 
 namespace stitch {
@@ -17,12 +18,6 @@ constexpr uint8_t kSync[4] = {0xED, 0xA1, 0xDA, 0x01};
 constexpr int64_t kHeaderBytes = 4 + 8 + 8 + 4 + 4;
 constexpr int32_t kMaxChannelLength = 999;  // as liblcm's reader
 constexpr int64_t kScanChunk = 1 << 16;
-
-int64_t BigEndian(const uint8_t* bytes, int count) {
-  uint64_t value = 0;
-  for (int i = 0; i < count; ++i) value = (value << 8) | bytes[i];
-  return count == 4 ? static_cast<int32_t>(static_cast<uint32_t>(value)) : static_cast<int64_t>(value);
-}
 
 }  // namespace
 

@@ -1,17 +1,8 @@
 #include "services/common/sequence_gaps.h"
 
+#include "services/common/big_endian.h"
+
 namespace stitch {
-namespace {
-
-// LCM's encoding: big-endian integers.
-int64_t ReadBigEndian(const uint8_t* bytes, int count) {
-  uint64_t value = 0;
-  for (int i = 0; i < count; ++i) value = (value << 8) | bytes[i];
-  if (count == 4) return static_cast<int32_t>(static_cast<uint32_t>(value));
-  return static_cast<int64_t>(value);
-}
-
-}  // namespace
 
 bool SequenceGaps::Observe(const std::string& channel, const void* data, size_t size) {
   ++messages_;
@@ -22,15 +13,15 @@ bool SequenceGaps::Observe(const std::string& channel, const void* data, size_t 
     ++unreadable_;
     return false;
   }
-  const int64_t length = ReadBigEndian(bytes + kFingerprint, 4);
+  const int64_t length = BigEndian(bytes + kFingerprint, 4);
   const size_t agent_at = kFingerprint + 4;
   if (length < 1 || static_cast<uint64_t>(length) > size - agent_at || size - agent_at - length < 16) {
     ++unreadable_;
     return false;
   }
   const std::string agent(reinterpret_cast<const char*>(bytes + agent_at), static_cast<size_t>(length - 1));
-  const int64_t session = ReadBigEndian(bytes + agent_at + length, 8);
-  const int64_t seq = ReadBigEndian(bytes + agent_at + length + 8, 8);
+  const int64_t session = BigEndian(bytes + agent_at + length, 8);
+  const int64_t seq = BigEndian(bytes + agent_at + length + 8, 8);
   const auto [it, first] = last_seq_.try_emplace({channel, agent, session}, seq);
   if (first || seq <= it->second) return true;
   const int64_t gap = seq - it->second - 1;

@@ -36,7 +36,7 @@ std::string VocabularyDoubts(const Vocabulary& vocabulary) {
   if (vocabulary.num_words() >= kFewWords) return "";
   return "the vocabulary has only " + std::to_string(vocabulary.num_words()) +
          " words: its bags of words tell few places apart, so relocalization and merging find few right "
-         "candidates (the default has 98,390; ORB-SLAM's about a million; `stitch vocab` trains one)";
+         "candidates (the shipped one has about 100,000; ORB-SLAM's about a million; `stitch vocab` trains one)";
 }
 
 Vocabulary LoadVocabulary(const StitchConfig& config) {
