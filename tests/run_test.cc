@@ -398,7 +398,20 @@ TEST(StitchRun, TracksA1080pH264ClipAsAFileAndAsALivePipeline) {
   ASSERT_EQ(evaluated.exit_code, 0) << evaluated.output;
   const auto live_report = ReadJson(dir / "live-eval/report.json");
   ASSERT_FALSE(live_report["ate_rmse_m"].is_null()) << evaluated.output;
-  EXPECT_LT(live_report["ate_rmse_m"].get<double>(), 1.0);  // about 0.12 m in a release build
+  // Every pose within the ground truth's span is at a time the ground truth has.
+  const Trajectory truth_trajectory = Trajectory::ReadTum(truth);
+  const auto within_truth =
+      std::count_if(live_trajectory.poses().begin(), live_trajectory.poses().end(), [&](const auto& pose) {
+        return pose.t_ns >= truth_trajectory.poses().front().t_ns && pose.t_ns <= truth_trajectory.poses().back().t_ns;
+      });
+  EXPECT_GT(within_truth, 0);
+  EXPECT_EQ(live_report["frames_with_ground_truth"].get<long>(), within_truth) << evaluated.output;
+  // The error is a measure only where the tracker kept up: with most frames dropped (a sanitizer's
+  // build on a loaded machine) the map starts from frames far apart, and CI saw 2.7 m from 20-odd
+  // poses. A clock off by a frame or more shows here in a release build (about 0.12 m on time).
+  if (live_trajectory.size() >= 50) {
+    EXPECT_LT(live_report["ate_rmse_m"].get<double>(), 1.0) << live.output;
+  }
 }
 
 // The processes whose parent is `parent` (from /proc).
