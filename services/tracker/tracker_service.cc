@@ -400,6 +400,7 @@ void TrackerService::RecordFrame(int frame_index, int64_t t_ns, const TrackResul
     record.tracked_points = result.num_tracked_points;
     record.is_keyframe = result.is_keyframe;
     record.tracking_ms = tracking_ms;
+    record.note = result.detail;
     if (result.reference_keyframe.valid() && result.cam_from_reference) {
       record.reference_keyframe = result.reference_keyframe.value;
       record.cam_from_reference = *result.cam_from_reference;

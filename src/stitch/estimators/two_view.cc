@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core/eigen.hpp>
@@ -158,6 +159,12 @@ Rigid3d ToRigid(const cv::Mat& r, const cv::Mat& t) {
                  norm > 0 ? Eigen::Vector3d(translation / norm) : translation);
 }
 
+std::string TooLittleParallax(double parallax_deg, double needed_deg) {
+  char text[80];
+  std::snprintf(text, sizeof(text), "parallax %.2f deg, need %.2f", parallax_deg, needed_deg);
+  return text;
+}
+
 }  // namespace
 
 bool TwoViewOptions::Check(std::string* why) const {
@@ -209,7 +216,8 @@ std::optional<TwoViewResult> InitializeTwoView(const std::vector<Eigen::Vector2d
     score_f = ScoreFundamental(k_inv.transpose() * e * k_inv, p1, p2, sigma, &inliers_f);
   }
   if (score_h + score_f <= 0) return fail("neither a homography nor an essential matrix explains the matches");
-  const bool use_h = score_h / (score_h + score_f) > options.homography_ratio;
+  const double homography_share = score_h / (score_h + score_f);
+  const bool use_h = homography_share > options.homography_ratio;
 
   std::vector<Candidate> candidates;
   int model_inliers = 0;
@@ -228,7 +236,9 @@ std::optional<TwoViewResult> InitializeTwoView(const std::vector<Eigen::Vector2d
       for (double sign : {1.0, -1.0}) candidates.push_back(Check(ToRigid(r, sign * t), p1, p2, inliers_f, k, sigma));
     }
   }
-  const std::string model = use_h ? "homography" : "essential matrix";
+  char share[48];
+  std::snprintf(share, sizeof(share), " (homography's share of the score %.2f)", homography_share);
+  const std::string model = (use_h ? "homography" : "essential matrix") + std::string(share);
   if (candidates.empty()) return fail(model + ": the model has no decomposition");
   // Only motions with parallax compete: a decomposition that explains the matches as an almost
   // pure rotation (points near infinity) is not a reconstruction. One with less parallax than the
@@ -244,8 +254,7 @@ std::optional<TwoViewResult> InitializeTwoView(const std::vector<Eigen::Vector2d
   if (valid.empty()) {
     double best_parallax = 0;
     for (const Candidate& c : candidates) best_parallax = std::max(best_parallax, c.parallax_deg);
-    return fail(model + ": parallax " + std::to_string(best_parallax) + " deg, need " +
-                std::to_string(options.min_parallax_deg));
+    return fail(model + ": " + TooLittleParallax(best_parallax, options.min_parallax_deg));
   }
   std::sort(valid.begin(), valid.end(), [](const Candidate& a, const Candidate& b) { return a.num_good > b.num_good; });
   Candidate best = valid[0];
@@ -293,8 +302,7 @@ std::optional<TwoViewResult> InitializeTwoView(const std::vector<Eigen::Vector2d
     }
   }
   if (best.parallax_deg < options.min_parallax_deg) {
-    return fail(model + ": parallax " + std::to_string(best.parallax_deg) + " deg, need " +
-                std::to_string(options.min_parallax_deg));
+    return fail(model + ": " + TooLittleParallax(best.parallax_deg, options.min_parallax_deg));
   }
   if (best.num_good < options.min_triangulated) {
     return fail(model + ": " + std::to_string(best.num_good) + " points triangulate, need " +
@@ -312,6 +320,7 @@ std::optional<TwoViewResult> InitializeTwoView(const std::vector<Eigen::Vector2d
   result.points_in_cam1 = chosen.points;
   result.triangulated = chosen.good;
   result.used_homography = use_h;
+  result.homography_share = homography_share;
   result.parallax_deg = chosen.parallax_deg;
   result.num_triangulated = static_cast<int>(std::count(chosen.good.begin(), chosen.good.end(), 1));
   return result;

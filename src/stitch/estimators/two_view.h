@@ -41,12 +41,14 @@ struct TwoViewResult {
   std::vector<Eigen::Vector3d> points_in_cam1;  // per match; meaningful where triangulated
   std::vector<char> triangulated;               // per match
   bool used_homography = false;
+  double homography_share = 0;  // SH / (SH + SF): the homography's share of the two models' scores
   double parallax_deg = 0;
   int num_triangulated = 0;
 };
 
 // `pixels1[i]` and `pixels2[i]` are matched undistorted pixels. Empty with `why` set when the
-// views do not allow a reliable initialization (too few matches, too little parallax, ambiguous).
+// views do not allow a reliable initialization (too few matches, too little parallax, ambiguous);
+// past the scoring, `why` names the model chosen and the homography's share of the score.
 std::optional<TwoViewResult> InitializeTwoView(const std::vector<Eigen::Vector2d>& pixels1,
                                                const std::vector<Eigen::Vector2d>& pixels2,
                                                const PinholeIntrinsics& intrinsics, const TwoViewOptions& options,

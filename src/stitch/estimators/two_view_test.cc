@@ -153,10 +153,95 @@ TEST(TwoView, RefusesTooLittleParallax) {
   const TwoViewCase c = MakeCase(points, rotation_only, 0.5, 0.0, 6);
   std::string why;
   EXPECT_FALSE(InitializeTwoView(c.p1, c.p2, kCamera, TwoViewOptions(), &why));
-  EXPECT_FALSE(why.empty());
+  // A homography explains it, and its two decompositions equally (the ambiguity rule refuses it).
+  EXPECT_NE(why.find("two motions explain the matches almost equally"), std::string::npos) << why;
+  // A small baseline: under a degree of parallax at these depths. Refused for it, and accepted
+  // where the rule asks for less.
+  Rng near_rng(3);
+  std::vector<Eigen::Vector3d> near;
+  for (int i = 0; i < 300; ++i)
+    near.emplace_back(near_rng.Uniform(-3, 3), near_rng.Uniform(-2, 2), near_rng.Uniform(2, 9));
+  const Rigid3d short_baseline(rotation_only.rotation, Eigen::Vector3d(0.08, 0, 0));
+  const TwoViewCase small = MakeCase(near, short_baseline, 0.3, 0.0, 7);
+  EXPECT_FALSE(InitializeTwoView(small.p1, small.p2, kCamera, TwoViewOptions(), &why));
+  EXPECT_NE(why.find(": parallax 0."), std::string::npos) << why;
+  EXPECT_NE(why.find("deg, need 1.00"), std::string::npos) << why;
+  TwoViewOptions less;
+  less.min_parallax_deg = 0.5;
+  EXPECT_TRUE(InitializeTwoView(small.p1, small.p2, kCamera, less, &why)) << why;
   // Too few matches.
   EXPECT_FALSE(InitializeTwoView({c.p1.begin(), c.p1.begin() + 20}, {c.p2.begin(), c.p2.begin() + 20}, kCamera,
                                  TwoViewOptions(), &why));
+  EXPECT_NE(why.find("20 matches, need 50"), std::string::npos) << why;
+}
+
+// A general motion through a box of points, and its matches with `outliers` of them random.
+TwoViewCase GeneralMotion(double outliers) {
+  Rng rng(11);
+  std::vector<Eigen::Vector3d> points;
+  for (int i = 0; i < 400; ++i) points.emplace_back(rng.Uniform(-3, 3), rng.Uniform(-2, 2), rng.Uniform(4, 9));
+  const Rigid3d motion(Eigen::Quaterniond(Eigen::AngleAxisd(0.05, Eigen::Vector3d::UnitY())),
+                       Eigen::Vector3d(-0.5, 0.05, 0.1));
+  return MakeCase(points, motion, 0.5, outliers, 12);
+}
+
+// The model is chosen by the stated rule: the homography when its share of the two scores
+// exceeds homography_ratio; the share is reported either way.
+TEST(TwoView, ChoosesTheModelByTheHomographysShareOfTheScore) {
+  const TwoViewCase c = GeneralMotion(0.1);
+  std::string why;
+  const auto chosen = InitializeTwoView(c.p1, c.p2, kCamera, TwoViewOptions(), &why);
+  ASSERT_TRUE(chosen) << why;
+  EXPECT_FALSE(chosen->used_homography);
+  EXPECT_GT(chosen->homography_share, 0.0);
+  EXPECT_LT(chosen->homography_share, TwoViewOptions().homography_ratio);
+  TwoViewOptions favouring_h;
+  favouring_h.homography_ratio = 0.5 * chosen->homography_share;
+  const auto with_h = InitializeTwoView(c.p1, c.p2, kCamera, favouring_h, &why);
+  if (with_h) {
+    EXPECT_TRUE(with_h->used_homography);
+  } else {
+    EXPECT_EQ(why.rfind("homography (homography's share of the score", 0), 0u) << why;
+  }
+}
+
+// Fewer points triangulate than the map needs (a third of the matches are wrong): refused, with
+// the count; a smaller need initializes from the same matches.
+TEST(TwoView, RefusesTooFewWellTriangulatedPoints) {
+  const TwoViewCase c = GeneralMotion(0.35);
+  TwoViewOptions options;
+  options.min_triangulated = static_cast<int>(0.8 * c.p1.size());
+  std::string why;
+  EXPECT_FALSE(InitializeTwoView(c.p1, c.p2, kCamera, options, &why));
+  EXPECT_NE(why.find("points triangulate, need " + std::to_string(options.min_triangulated)), std::string::npos) << why;
+  options.min_triangulated = static_cast<int>(0.4 * c.p1.size());
+  EXPECT_TRUE(InitializeTwoView(c.p1, c.p2, kCamera, options, &why)) << why;
+}
+
+// Matches that agree with the epipolar geometry but triangulate behind the cameras (each on its
+// epipolar line, on the side a point behind the camera would be): the model's inliers are not a
+// reconstruction, and the pair is refused; without the rule the same pair initializes.
+TEST(TwoView, RefusesAModelWhoseInliersMostlyTriangulateBadly) {
+  Rng rng(21);
+  const Rigid3d motion(Eigen::Quaterniond(Eigen::AngleAxisd(0.05, Eigen::Vector3d::UnitY())),
+                       Eigen::Vector3d(-0.5, 0.05, 0.1));
+  const Rigid3d mirrored(motion.rotation, -motion.translation);
+  std::vector<Eigen::Vector2d> p1, p2;
+  for (int i = 0; i < 400; ++i) {
+    const Eigen::Vector3d x(rng.Uniform(-3, 3), rng.Uniform(-2, 2), rng.Uniform(4, 9));
+    // x seen from the mirrored camera is the point -x (behind both cameras) seen from the true one.
+    const Eigen::Vector3d in2 = (i % 10 < 3 ? mirrored : motion) * x;
+    const Eigen::Vector2d u1 = kCamera.Project(x), u2 = kCamera.Project(in2);
+    if (in2.z() <= 0 || u2.x() < 0 || u2.y() < 0 || u2.x() > 639 || u2.y() > 479) continue;
+    p1.push_back(u1 + 0.3 * Eigen::Vector2d(rng.Normal(), rng.Normal()));
+    p2.push_back(u2 + 0.3 * Eigen::Vector2d(rng.Normal(), rng.Normal()));
+  }
+  std::string why;
+  EXPECT_FALSE(InitializeTwoView(p1, p2, kCamera, TwoViewOptions(), &why));
+  EXPECT_NE(why.find("inliers triangulate well"), std::string::npos) << why;
+  TwoViewOptions without_rule;
+  without_rule.min_good_fraction = 0;
+  EXPECT_TRUE(InitializeTwoView(p1, p2, kCamera, without_rule, &why)) << why;
 }
 
 }  // namespace

@@ -12,11 +12,26 @@
 #include "stitch/util/text_file.h"
 
 namespace stitch {
+namespace {
+
+// `text` on one line of single spaces: no line break or tab of a message ends a record early.
+std::string OneLine(const std::string& text) {
+  std::string line;
+  for (char c : text) {
+    const bool space = c == '\n' || c == '\r' || c == '\t' || c == ' ';
+    if (space && (line.empty() || line.back() == ' ')) continue;
+    line += space ? ' ' : c;
+  }
+  while (!line.empty() && line.back() == ' ') line.pop_back();
+  return line;
+}
+
+}  // namespace
 
 std::string FrameRecordHeader() {
   return "# frame_index t_ns state reason submap_id tx ty tz qx qy qz qw num_features tracked_points keyframe "
-         "tracking_ms reference_keyframe rtx rty rtz rqx rqy rqz rqw (pose: world_from_cam in the submap's frame; "
-         "r*: reference_from_cam)\n";
+         "tracking_ms reference_keyframe rtx rty rtz rqx rqy rqz rqw note (pose: world_from_cam in the submap's frame; "
+         "r*: reference_from_cam; note: the tracker's words, to the line's end)\n";
 }
 
 std::string FormatFrameRecord(const FrameRecord& r) {
@@ -25,7 +40,8 @@ std::string FormatFrameRecord(const FrameRecord& r) {
                 r.tracking_ms);
   return std::to_string(r.frame_index) + " " + std::to_string(r.t_ns) + " " + r.state + " " + std::to_string(r.reason) +
          " " + std::to_string(r.submap_id) + " " + FormatTumPose(r.world_from_cam) + counts +
-         std::to_string(r.reference_keyframe) + " " + FormatTumPose(r.cam_from_reference.Inverse()) + "\n";
+         std::to_string(r.reference_keyframe) + " " + FormatTumPose(r.cam_from_reference.Inverse()) +
+         (r.note.empty() ? "" : " " + OneLine(r.note)) + "\n";
 }
 
 std::vector<FrameRecord> ReadFrameRecords(const std::string& path) {
@@ -46,6 +62,7 @@ std::vector<FrameRecord> ReadFrameRecords(const std::string& path) {
       truncated = true;  // acceptable only as the last line: a killed tracker may cut it short
       return;
     }
+    std::getline(fields >> std::ws, r.note);
     r.is_keyframe = keyframe != 0;
     r.cam_from_reference = reference_from_cam.Inverse();
     const auto [seen, first] = line_of.try_emplace(r.frame_index, records.size());

@@ -24,6 +24,10 @@ struct FrameRecord {
   int tracked_points = 0;
   bool is_keyframe = false;
   double tracking_ms = 0;
+  // The tracker's word on the frame where it has one (why it was not tracked, how a map
+  // initialized: model, score share, parallax, points, refusals); one line, no tabs. Last column;
+  // records written before it had none.
+  std::string note;
 };
 
 std::string FrameRecordHeader();                           // "# ..." line, with newline

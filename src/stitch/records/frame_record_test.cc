@@ -82,6 +82,31 @@ TEST(FrameRecord, AFramesLaterLineReplacesItsFirstKeepingItsTrackingTime) {
   EXPECT_EQ(records[1].frame_index, 1);
 }
 
+// The tracker's words on a frame (how a map initialized, why a frame was not tracked) end the
+// line; a message with line breaks or tabs stays one record, and a record without words (as
+// written before there were any) reads with none.
+TEST(FrameRecord, TheTrackersWordsOnAFrameEndItsLineAndReadBack) {
+  testing::TempDir dir;
+  const std::string path = dir / "frames.tsv";
+  FrameRecord initialized = Record(0);
+  initialized.note = "initialized from an essential matrix (homography's share of the score 0.31)\twith 54 points";
+  FrameRecord refused = Record(1);
+  refused.state = "INITIALIZING";
+  refused.note = "essential matrix: parallax 0.4 deg,\n  need 1 ";
+  AppendToFrameRecord(path) << FormatFrameRecord(initialized) << FormatFrameRecord(refused)
+                            << FormatFrameRecord(Record(2));
+  EXPECT_EQ(FormatFrameRecord(Record(2)).find("  "), std::string::npos);
+  const std::vector<FrameRecord> records = ReadFrameRecords(path);
+  ASSERT_EQ(records.size(), 3u);
+  EXPECT_EQ(records[0].note,
+            "initialized from an essential matrix (homography's share of the score 0.31) with 54 points");
+  EXPECT_EQ(records[0].tracked_points, 300);
+  EXPECT_EQ(records[1].note, "essential matrix: parallax 0.4 deg, need 1");
+  EXPECT_EQ(records[1].state, "INITIALIZING");
+  EXPECT_EQ(records[2].note, "");
+  EXPECT_EQ(records[2].frame_index, 2);
+}
+
 TEST(FrameRecord, AppendingWhereNothingCanBeWrittenSaysWhy) {
   try {
     AppendToFrameRecord("/nonexistent-folder/frames.tsv");

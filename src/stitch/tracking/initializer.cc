@@ -1,6 +1,7 @@
 #include "stitch/tracking/initializer.h"
 
 #include <algorithm>
+#include <cstdio>
 
 #include "stitch/estimators/bundle_adjustment.h"
 #include "stitch/estimators/pose_optimizer.h"
@@ -16,6 +17,8 @@ void Initializer::Reset() {
   reference_.reset();
   previous_.clear();
   between_.clear();
+  refused_ = 0;
+  last_refusal_.clear();
 }
 
 Initializer::Result Initializer::Add(Frame frame, SubmapId submap) {
@@ -41,6 +44,8 @@ Initializer::Result Initializer::Add(Frame frame, SubmapId submap) {
     previous_ = frame.undistorted;
     reference_ = std::move(frame);
     between_.clear();
+    refused_ = 0;
+    last_refusal_.clear();
     return result;
   }
   std::vector<Eigen::Vector2d> p1, p2;
@@ -55,6 +60,8 @@ Initializer::Result Initializer::Add(Frame frame, SubmapId submap) {
   const auto two_view = InitializeTwoView(p1, p2, geometry_->intrinsics, options_.initialization, &why);
   if (!two_view) {
     result.detail = why;
+    ++refused_;
+    last_refusal_ = why;
     if (options_.place_initialization_frames) {
       if (between_.size() == kMaxBetween) between_.erase(between_.begin());
       Between b;
@@ -83,17 +90,32 @@ Initializer::Result Initializer::Add(Frame frame, SubmapId submap) {
   if (result.map && options_.place_initialization_frames) {
     result.earlier = PlaceEarlierFrames(*result.map, *reference_, frame);
   }
-  Reset();
   if (!result.map) {
+    Reset();
     result.detail = why;
     return result;
   }
   result.reason = TrackingReason::kNone;
-  result.detail = std::string("initialized from ") +
-                  (two_view->used_homography ? "a homography" : "an essential matrix") + " with " +
-                  std::to_string(two_view->num_triangulated) + " points";
+  result.detail = DescribeInitialization(*two_view, frame.frame_index - reference_->frame_index);
+  Reset();
   result.frame = std::move(frame);
   return result;
+}
+
+std::string Initializer::DescribeInitialization(const TwoViewResult& two_view, int frames_since_reference) const {
+  char figures[160];
+  std::snprintf(figures, sizeof(figures),
+                " (homography's share of the score %.2f, choosing it above %.2f) with %d points, parallax %.1f deg, "
+                "%d frames after its reference",
+                two_view.homography_share, options_.initialization.homography_ratio, two_view.num_triangulated,
+                two_view.parallax_deg, frames_since_reference);
+  std::string detail =
+      std::string("initialized from ") + (two_view.used_homography ? "a homography" : "an essential matrix") + figures;
+  if (refused_ > 0) {
+    detail += "; " + std::to_string(refused_) + (refused_ == 1 ? " attempt" : " attempts") +
+              " refused before it, the last: " + last_refusal_;
+  }
+  return detail;
 }
 
 std::unique_ptr<Map> Initializer::BuildMap(Frame* frame, const std::vector<int>& matches, const TwoViewResult& two_view,

@@ -59,6 +59,10 @@ class Initializer {
   std::unique_ptr<Map> BuildMap(Frame* frame, const std::vector<int>& matches, const TwoViewResult& two_view,
                                 SubmapId submap, std::string* why);
 
+  // The log's line for an initialization: the model and its share of the score, points, parallax,
+  // and the attempts refused with this reference.
+  std::string DescribeInitialization(const TwoViewResult& two_view, int frames_since_reference) const;
+
   TrackingOptions options_;
   const ViewGeometry* geometry_;
   const Vocabulary* vocabulary_;
@@ -68,6 +72,10 @@ class Initializer {
 
   std::optional<Frame> reference_;
   std::vector<Eigen::Vector2d> previous_;  // where each reference feature was last matched
+  // Attempts with this reference that two-view geometry or the initial map refused, and why the
+  // last one was: an initialization says what it waited through.
+  int refused_ = 0;
+  std::string last_refusal_;
   // Frames since the reference that matched it but did not initialize: only what places them,
   // each match's reference feature and where the frame saw it; at most kMaxBetween, the newest.
   struct Between {

@@ -110,6 +110,30 @@ TEST(Initializer, AStillCameraNeverInitializes) {
   }
 }
 
+// The log and frames.tsv say how a map began: the model, its share of the score, points,
+// parallax, and the attempts with the same reference it refused before (and why the last was).
+TEST(Initializer, AnInitializationSaysItsModelScoresPointsParallaxAndTheAttemptsItRefused) {
+  Initializer initializer(TrackingOptions(), &Strip().geometry(), &DefaultVocabulary());
+  const Rigid3d still = Strip().WorldFromCam(20);
+  for (int i = 0; i < 3; ++i) {
+    const Initializer::Result waiting =
+        initializer.Add(Strip().RenderPose(still, i, nullptr, &InitializationExtractor()), MakeSubmapId(0, 1));
+    ASSERT_FALSE(waiting.map) << waiting.detail;
+  }
+  const Initializer::Result result = initializer.Add(
+      Strip().RenderPose(Strip().WorldFromCam(32), 3, nullptr, &InitializationExtractor()), MakeSubmapId(0, 1));
+  ASSERT_TRUE(result.map) << result.detail;
+  const std::string& detail = result.detail;
+  EXPECT_EQ(detail.rfind("initialized from a homography (homography's share of the score 0.", 0), 0u) << detail;
+  EXPECT_NE(detail.find("choosing it above 0.40"), std::string::npos) << detail;
+  EXPECT_NE(detail.find(" with " + std::to_string(result.map->num_points()) + " points"), std::string::npos) << detail;
+  EXPECT_NE(detail.find(", parallax "), std::string::npos) << detail;
+  EXPECT_NE(detail.find("3 frames after its reference"), std::string::npos) << detail;
+  EXPECT_NE(detail.find("; 2 attempts refused before it, the last: "), std::string::npos) << detail;
+  // The still frames' refusal names the model scored and its share.
+  EXPECT_NE(detail.find("the last: homography (homography's share of the score"), std::string::npos) << detail;
+}
+
 TEST(Initializer, AFrameWithoutFeaturesForgetsTheReference) {
   Initializer initializer(TrackingOptions(), &Strip().geometry(), &DefaultVocabulary());
   initializer.Add(Strip().RenderPose(Strip().WorldFromCam(0), 0, nullptr, &InitializationExtractor()),
