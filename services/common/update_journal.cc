@@ -1,8 +1,12 @@
 #include "services/common/update_journal.h"
 
+#include <algorithm>
+#include <array>
 #include <cstdio>
 #include <filesystem>
 #include <vector>
+
+#include <sodium.h>
 
 #include "services/common/bus.h"
 #include "stitch/util/error.h"
@@ -16,26 +20,89 @@ UpdateJournal::UpdateJournal(const std::string& dir, std::set<std::string> chann
   std::error_code error;
   std::filesystem::create_directories(dir, error);
   if (error) throw Error("merger state folder " + dir + ": " + error.message());
+  if (sodium_init() < 0) throw Error("libsodium cannot be initialized");
 }
+
+namespace {
+
+constexpr size_t kChecksumBytes = 16;
+
+// BLAKE2b of a record's channel and bytes (the channel's terminating zero between them).
+std::array<uint8_t, kChecksumBytes> RecordChecksum(const std::string& channel, const uint8_t* data, size_t size) {
+  crypto_generichash_state state;
+  crypto_generichash_init(&state, nullptr, 0, kChecksumBytes);
+  crypto_generichash_update(&state, reinterpret_cast<const unsigned char*>(channel.c_str()), channel.size() + 1);
+  crypto_generichash_update(&state, data, size);
+  std::array<uint8_t, kChecksumBytes> checksum{};
+  crypto_generichash_final(&state, checksum.data(), checksum.size());
+  return checksum;
+}
+
+bool ChecksumMatches(const LcmLogRecord& record, const std::vector<uint8_t>& checksum) {
+  const auto expected = RecordChecksum(record.channel, record.data.data(), record.data.size());
+  return checksum.size() == expected.size() && std::equal(expected.begin(), expected.end(), checksum.begin());
+}
+
+}  // namespace
 
 SubmapUpdateLogRead ReadSubmapUpdateLog(const std::string& path, const std::set<std::string>& channels,
                                         const std::function<void(const stitch::submap_update_t&)>& each) {
+  if (sodium_init() < 0) throw Error("libsodium cannot be initialized");
   LcmLogReader reader(path);
   SubmapUpdateLogRead read;
-  while (std::optional<LcmLogRecord> record = reader.Next()) {
-    if (!channels.count(record->channel)) continue;
+  std::vector<LcmLogDamage> mismatched;
+  // A record is passed on once the next one shows whether a checksum follows it.
+  std::optional<LcmLogRecord> waiting;
+  const auto settle = [&](const LcmLogRecord& record, bool checked) {
+    if (!channels.count(record.channel)) return;
     stitch::submap_update_t update;
-    const int length = static_cast<int>(record->data.size());
-    if (update.decode(record->data.data(), 0, length) != length) {
+    const int length = static_cast<int>(record.data.size());
+    if (update.decode(record.data.data(), 0, length) != length) {
       ++read.undecodable;
-      continue;
+      return;
     }
     each(update);
     ++read.updates;
+    if (!checked) ++read.unchecked;
+  };
+  while (std::optional<LcmLogRecord> record = reader.Next()) {
+    if (record->channel != kJournalChecksumChannel) {
+      if (waiting) settle(*waiting, false);
+      waiting = std::move(record);
+      continue;
+    }
+    const bool follows = waiting && waiting->end == record->offset;
+    if (follows && ChecksumMatches(*waiting, record->data)) {
+      settle(*waiting, true);
+    } else {
+      // The record before it (when it is right before it) and the checksum are set aside.
+      if (waiting && !follows) settle(*waiting, false);
+      const int64_t from = follows ? waiting->offset : record->offset;
+      mismatched.push_back({from, record->end - from});
+      ++read.checksum_mismatches;
+    }
+    waiting.reset();
   }
-  read.damage = reader.damage();
+  if (waiting) settle(*waiting, false);
+  // The reader's damage and the mismatched records, in file order, a stretch that ends where the
+  // next begins joined to it (a record cut off from its checksum is one damaged stretch).
+  std::vector<LcmLogDamage> damage = reader.damage();
+  damage.insert(damage.end(), mismatched.begin(), mismatched.end());
+  std::sort(damage.begin(), damage.end(),
+            [](const LcmLogDamage& a, const LcmLogDamage& b) { return a.offset < b.offset; });
+  for (const LcmLogDamage& stretch : damage) {
+    if (!read.damage.empty() && read.damage.back().offset + read.damage.back().length == stretch.offset) {
+      read.damage.back().length += stretch.length;
+    } else {
+      read.damage.push_back(stretch);
+    }
+  }
   if (read.undecodable > 0) {
     STITCH_LOG(WARNING) << path << ": skipped " << read.undecodable << " submap update records that do not decode";
+  }
+  if (read.checksum_mismatches > 0) {
+    STITCH_LOG(WARNING) << path << ": skipped " << read.checksum_mismatches
+                        << " records whose checksum does not match their bytes (damaged on disk)";
   }
   return read;
 }
@@ -78,7 +145,15 @@ void UpdateJournal::Append(const stitch::submap_update_t& update) {
   event.channel = bus::Channel(update.header.agent, bus::kSubmap);
   event.datalen = static_cast<int32_t>(bytes.size());
   event.data = bytes.data();
-  if (writer_->writeEvent(&event) != 0 || std::fflush(writer_->getFilePtr()) != 0) {
+  auto checksum = RecordChecksum(event.channel, bytes.data(), bytes.size());
+  lcm::LogEvent checksum_event;
+  checksum_event.eventnum = appended_;
+  checksum_event.timestamp = event.timestamp;
+  checksum_event.channel = kJournalChecksumChannel;
+  checksum_event.datalen = static_cast<int32_t>(checksum.size());
+  checksum_event.data = checksum.data();
+  if (writer_->writeEvent(&event) != 0 || writer_->writeEvent(&checksum_event) != 0 ||
+      std::fflush(writer_->getFilePtr()) != 0) {
     throw Error(path_ + ": writing the merger's journal failed (disk full?)");
   }
   ++appended_;

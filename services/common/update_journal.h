@@ -3,6 +3,11 @@
 // and flushed one by one, so a merger killed at any moment (SIGKILL included) and restarted with
 // the same folder reads them back and carries on with nothing lost. Being an LCM log, the journal
 // can also be replayed with lcm-logplayer into another merger, or kept as the run's record.
+//
+// Each update record is followed by a checksum record (channel kJournalChecksumChannel: a 16-byte
+// BLAKE2b hash of the update's channel and bytes), so damage inside a record that still decodes
+// (a flipped bit in a point) is found, set aside and counted, never taken silently. A record
+// without one (an lcm-logger recording, a journal cut between the two) is read unchecked.
 
 #include <cstdint>
 #include <functional>
@@ -18,18 +23,26 @@
 
 namespace stitch {
 
+// The channel of the journal's checksum records (no service subscribes to it).
+inline constexpr char kJournalChecksumChannel[] = "STITCH_JOURNAL_CHECKSUM";
+
 // What reading a log of submap updates found.
 struct SubmapUpdateLogRead {
-  int64_t updates = 0;               // passed on
-  int64_t undecodable = 0;           // records on the channels that do not decode (skipped)
-  std::vector<LcmLogDamage> damage;  // stretches of the file that hold no whole record
+  int64_t updates = 0;      // passed on
+  int64_t unchecked = 0;    // of those, read without a checksum record after them
+  int64_t undecodable = 0;  // records on the channels that do not decode (skipped)
+  // Records whose checksum does not match their bytes, or a checksum record with no record
+  // before it: stepped over, their bytes in `damage`.
+  int64_t checksum_mismatches = 0;
+  std::vector<LcmLogDamage> damage;  // stretches of the file that hold no whole, intact record
   bool lost_anything() const { return undecodable > 0 || !damage.empty(); }
 };
 
 // Reads the submap updates on `channels` (<agent>/SUBMAP of each aircraft) from an LCM log (the
 // journal, or an lcm-logger recording of a flight, whose other channels are passed over) and
-// calls `each` with them in order. Damaged stretches are stepped over (LcmLogReader): every
-// intact record after them is read. Throws stitch::Error when the file cannot be read.
+// calls `each` with them in order. Damaged stretches are stepped over (LcmLogReader), and so is
+// a record whose checksum record does not match it: every intact record after them is read.
+// Throws stitch::Error when the file cannot be read.
 SubmapUpdateLogRead ReadSubmapUpdateLog(const std::string& path, const std::set<std::string>& channels,
                                         const std::function<void(const stitch::submap_update_t&)>& each);
 
@@ -47,8 +60,9 @@ class UpdateJournal {
   // decode is skipped with a warning.
   int64_t Recover(const std::function<void(const stitch::submap_update_t&)>& each);
 
-  // Appends one update (on <its header's agent>/SUBMAP) and flushes it to the operating system. Throws stitch::Error on
-  // a write failure (a full disk): the caller must know the store is no longer complete.
+  // Appends one update (on <its header's agent>/SUBMAP) and its checksum record, and flushes them
+  // to the operating system. Throws stitch::Error on a write failure (a full disk): the caller
+  // must know the store is no longer complete.
   void Append(const stitch::submap_update_t& update);
 
   const std::string& path() const { return path_; }

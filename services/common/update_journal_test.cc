@@ -36,26 +36,6 @@ TEST(UpdateJournal, WhatWasAppendedComesBackInOrderAfterARestart) {
   EXPECT_EQ(Revisions(&again), (std::vector<int>{1, 2, 3}));
 }
 
-TEST(UpdateJournal, ARecordCutShortByAKillIsDroppedAndTheJournalGoesOn) {
-  testing::TempDir dir;
-  std::string path;
-  {
-    UpdateJournal journal(dir.path().string(), {"uav0/SUBMAP"});
-    Revisions(&journal);
-    for (int r = 1; r <= 4; ++r) journal.Append(Update(r));
-    path = journal.path();
-  }
-  // The process died while writing the fourth record.
-  std::filesystem::resize_file(path, std::filesystem::file_size(path) - 7);
-  {
-    UpdateJournal journal(dir.path().string(), {"uav0/SUBMAP"});
-    EXPECT_EQ(Revisions(&journal), (std::vector<int>{1, 2, 3}));
-    journal.Append(Update(5));
-  }
-  UpdateJournal again(dir.path().string(), {"uav0/SUBMAP"});
-  EXPECT_EQ(Revisions(&again), (std::vector<int>{1, 2, 3, 5}));
-}
-
 // A journal in `dir` holding revisions 1..last; where each record starts, and the journal's path.
 std::vector<int64_t> JournalOfRevisions(const testing::TempDir& dir, int last, std::string* path) {
   UpdateJournal journal(dir.path().string(), {"uav0/SUBMAP"});
@@ -67,6 +47,31 @@ std::vector<int64_t> JournalOfRevisions(const testing::TempDir& dir, int last, s
   }
   *path = journal.path();
   return offsets;
+}
+
+TEST(UpdateJournal, ARecordCutShortByAKillIsDroppedAndTheJournalGoesOn) {
+  testing::TempDir dir;
+  std::string path;
+  const std::vector<int64_t> offsets = JournalOfRevisions(dir, 4, &path);
+  // The process died while writing the fourth record.
+  std::filesystem::resize_file(path, static_cast<uintmax_t>(offsets[3] + 40));
+  {
+    UpdateJournal journal(dir.path().string(), {"uav0/SUBMAP"});
+    EXPECT_EQ(Revisions(&journal), (std::vector<int>{1, 2, 3}));
+    journal.Append(Update(5));
+  }
+  {
+    UpdateJournal again(dir.path().string(), {"uav0/SUBMAP"});
+    EXPECT_EQ(Revisions(&again), (std::vector<int>{1, 2, 3, 5}));
+    again.Append(Update(6));
+  }
+  // Killed between an update and its checksum: the update is whole, and read unchecked.
+  std::filesystem::resize_file(path, std::filesystem::file_size(path) - 7);
+  const SubmapUpdateLogRead read = ReadSubmapUpdateLog(path, {"uav0/SUBMAP"}, [](const auto&) {});
+  EXPECT_EQ(read.updates, 5);
+  EXPECT_EQ(read.unchecked, 1);
+  UpdateJournal last(dir.path().string(), {"uav0/SUBMAP"});
+  EXPECT_EQ(Revisions(&last), (std::vector<int>{1, 2, 3, 5, 6}));
 }
 
 void Overwrite(const std::string& path, int64_t offset, const std::string& bytes) {
@@ -105,6 +110,65 @@ TEST(UpdateJournal, ALengthFieldOfTwoGigabytesNeitherCrashesNorLosesTheOtherReco
   Overwrite(path, offsets[1] + 24, "\x7f\xff\xff\xff");
   UpdateJournal journal(dir.path().string(), {"uav0/SUBMAP"});
   EXPECT_EQ(Revisions(&journal), (std::vector<int>{1, 3, 4, 5}));
+}
+
+// The security issue's row: bit flips inside records that still decode changed the outputs
+// without a word. A record whose bytes no longer match its checksum is set aside and counted.
+TEST(UpdateJournal, ARecordDamagedInsideIsFoundByItsChecksumAndSetAside) {
+  testing::TempDir dir;
+  std::string path;
+  const std::vector<int64_t> offsets = JournalOfRevisions(dir, 5, &path);
+  // The third update's agent "uav0" becomes "uavX": it still decodes, as another aircraft's.
+  std::ifstream in(path, std::ios::binary);
+  const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const size_t data = static_cast<size_t>(offsets[2]) + 28 + std::string("uav0/SUBMAP").size();
+  const size_t agent = bytes.find("uav0", data);
+  ASSERT_LT(agent, static_cast<size_t>(offsets[3]));
+  Overwrite(path, static_cast<int64_t>(agent) + 3, "X");
+  std::vector<std::string> agents;
+  const SubmapUpdateLogRead read = ReadSubmapUpdateLog(path, {"uav0/SUBMAP"}, [&](const stitch::submap_update_t& u) {
+    agents.push_back(u.header.agent + ":" + std::to_string(u.revision));
+  });
+  EXPECT_EQ(agents, (std::vector<std::string>{"uav0:1", "uav0:2", "uav0:4", "uav0:5"}));
+  EXPECT_EQ(read.checksum_mismatches, 1);
+  EXPECT_EQ(read.unchecked, 0);
+  EXPECT_TRUE(read.lost_anything());
+  // The merger sets the record and its checksum aside, and the journal goes on without them.
+  UpdateJournal journal(dir.path().string(), {"uav0/SUBMAP"});
+  EXPECT_EQ(Revisions(&journal), (std::vector<int>{1, 2, 4, 5}));
+  EXPECT_EQ(std::filesystem::file_size(path + ".damaged"), static_cast<uintmax_t>(offsets[3] - offsets[2]));
+  const SubmapUpdateLogRead again = ReadSubmapUpdateLog(path, {"uav0/SUBMAP"}, [](const auto&) {});
+  EXPECT_EQ(again.updates, 4);
+  EXPECT_FALSE(again.lost_anything());
+}
+
+// A recording without checksum records (lcm-logger's, or a journal written before them) is read
+// whole, each update counted as unchecked.
+TEST(UpdateJournal, ALogWithoutChecksumsIsReadUnchecked) {
+  testing::TempDir dir;
+  const std::string path = dir / "recording.lcmlog";
+  {
+    lcm::LogFile log(path, "w");
+    for (int r = 1; r <= 3; ++r) {
+      const stitch::submap_update_t update = Update(r);
+      std::vector<uint8_t> bytes(static_cast<size_t>(update.getEncodedSize()));
+      update.encode(bytes.data(), 0, static_cast<int>(bytes.size()));
+      lcm::LogEvent event;
+      event.eventnum = r;
+      event.timestamp = r;
+      event.channel = "uav0/SUBMAP";
+      event.datalen = static_cast<int32_t>(bytes.size());
+      event.data = bytes.data();
+      ASSERT_EQ(log.writeEvent(&event), 0);
+    }
+  }
+  std::vector<int> revisions;
+  const SubmapUpdateLogRead read = ReadSubmapUpdateLog(
+      path, {"uav0/SUBMAP"}, [&](const stitch::submap_update_t& u) { revisions.push_back(u.revision); });
+  EXPECT_EQ(revisions, (std::vector<int>{1, 2, 3}));
+  EXPECT_EQ(read.unchecked, 3);
+  EXPECT_EQ(read.checksum_mismatches, 0);
+  EXPECT_FALSE(read.lost_anything());
 }
 
 TEST(UpdateJournal, OtherChannelsOfARecordingArePassedOver) {

@@ -74,11 +74,12 @@ int MapCommand(int argc, char** argv) {
     if (read.lost_anything()) {
       // The map is made of what was intact; say what it lacks and fail, so no script takes it as whole.
       std::fprintf(stderr,
-                   "stitch map: warning: %s is damaged: %zu damaged stretches (%lld bytes, the first at offset %lld) "
-                   "and %lld records that do not decode were stepped over; the map lacks what they held\n",
+                   "stitch map: warning: %s is damaged: %zu damaged stretches (%lld bytes, the first at offset %lld; "
+                   "%lld of them records whose checksum does not match) and %lld records that do not decode were "
+                   "stepped over; the map lacks what they held\n",
                    logs[0].c_str(), read.damage.size(), static_cast<long long>(DamagedBytes(read.damage)),
                    static_cast<long long>(read.damage.empty() ? -1 : read.damage.front().offset),
-                   static_cast<long long>(read.undecodable));
+                   static_cast<long long>(read.checksum_mismatches), static_cast<long long>(read.undecodable));
       return 3;
     }
     return 0;
