@@ -1,14 +1,10 @@
 #include "services/link/link_auth.h"
 
-#include <fcntl.h>
 #include <sodium.h>
-#include <sys/stat.h>
-#include <unistd.h>
 
-#include <cerrno>
 #include <cstring>
-#include <fstream>
 
+#include "services/common/secret_file.h"
 #include "stitch/util/error.h"
 
 namespace stitch::link {
@@ -41,48 +37,11 @@ void MakeNonce(uint64_t session, uint64_t counter, uint8_t* nonce) {
 }  // namespace
 
 void GenerateKeyFile(const std::string& path) {
-  InitSodium();
-  LinkKey key;
-  randombytes_buf(key.data(), key.size());
-  char hex[2 * 32 + 1];
-  sodium_bin2hex(hex, sizeof(hex), key.data(), key.size());
-  sodium_memzero(key.data(), key.size());
-  const int fd = open(path.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0600);
-  if (fd < 0) {
-    throw Error(path + ": cannot create the key file (" + std::strerror(errno) +
-                (errno == EEXIST ? "; a key is never overwritten: remove it first if you mean to" : "") + ")");
-  }
-  const std::string text = std::string(hex) + "\n";
-  const bool written = write(fd, text.data(), text.size()) == static_cast<ssize_t>(text.size()) && fsync(fd) == 0;
-  const int write_error = errno;
-  close(fd);
-  sodium_memzero(hex, sizeof(hex));
-  if (!written) {
-    unlink(path.c_str());
-    throw Error(path + ": writing the key failed (" + std::strerror(write_error) + ")");
-  }
+  GenerateSecretFile(path, "link key");
 }
 
 LinkKey LoadKeyFile(const std::string& path) {
-  InitSodium();
-  struct stat info {};
-  if (stat(path.c_str(), &info) != 0) throw Error(path + ": no link key file (make one with `stitch link keygen`)");
-  if ((info.st_mode & 077) != 0) {
-    throw Error(path +
-                ": the link key is readable by others; chmod 600 it (and give both sides a new one if it "
-                "may have leaked)");
-  }
-  std::ifstream file(path);
-  std::string hex;
-  if (!(file >> hex)) throw Error(path + ": cannot read the link key");
-  LinkKey key;
-  size_t length = 0;
-  if (hex.size() != 64 ||
-      sodium_hex2bin(key.data(), key.size(), hex.data(), hex.size(), nullptr, &length, nullptr) != 0 ||
-      length != key.size()) {
-    throw Error(path + ": not a link key (64 hex digits, as `stitch link keygen` writes)");
-  }
-  return key;
+  return LoadSecretFile(path, "link key", "make one with `stitch link keygen`");
 }
 
 LinkKey DirectionKey(const LinkKey& pair_key, const std::string& sending_side) {

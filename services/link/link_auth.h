@@ -22,11 +22,13 @@
 #include <string>
 #include <vector>
 
+#include "services/common/secret_file.h"
+
 namespace stitch::link {
 
 inline constexpr int kSealOverheadBytes = 4 + 8 + 8 + 16;
 
-using LinkKey = std::array<uint8_t, 32>;
+using LinkKey = Secret;  // services/common/secret_file.h
 
 // Writes a new random key to `path` (hex, mode 0600); throws stitch::Error when the file exists
 // or cannot be written.

@@ -4,6 +4,7 @@
 #include <civetweb.h>
 #include <dlfcn.h>
 #include <pthread.h>
+#include <sodium.h>
 
 #include <algorithm>
 #include <cctype>
@@ -15,6 +16,7 @@
 #include <sstream>
 #include <vector>
 
+#include "services/common/secret_file.h"
 #include "services/viewer/web_assets.h"
 #include "stitch/util/error.h"
 #include "stitch/util/log.h"
@@ -64,15 +66,33 @@ std::string Lower(std::string text) {
   return text;
 }
 
+constexpr char kTokenCookie[] = "stitch_viewer_token";
+
+// Whether `text` holds `key`=`value` among its `separator`-separated pairs (a query, a Cookie
+// header), compared in constant time.
+bool HasPair(const char* text, char separator, const std::string& key, const std::string& value) {
+  if (!text) return false;
+  std::stringstream pairs(text);
+  bool found = false;
+  for (std::string pair; std::getline(pairs, pair, separator);) {
+    pair.erase(0, pair.find_first_not_of(' '));
+    if (pair.size() != key.size() + 1 + value.size() || pair.compare(0, key.size() + 1, key + "=") != 0) continue;
+    found |= sodium_memcmp(pair.data() + key.size() + 1, value.data(), value.size()) == 0;
+  }
+  return found;
+}
+
 int SendBody(mg_connection* connection, int status, const char* status_text, const std::string& content_type,
-             const std::string& body, bool head) {
+             const std::string& body, bool head, const std::string& extra_headers = "") {
   // Written without mg_printf: its 8 kB buffer and vsnprintf overflow civetweb's small thread
   // stacks under AddressSanitizer.
   const std::string headers =
       "HTTP/1.1 " + std::to_string(status) + " " + status_text + "\r\nContent-Type: " + content_type +
       "\r\nContent-Length: " + std::to_string(body.size()) +
       "\r\nCache-Control: no-store\r\nX-Content-Type-Options: nosniff\r\nX-Frame-Options: DENY\r\n"
-      "Content-Security-Policy: default-src 'self'; img-src 'self' data:\r\nConnection: close\r\n\r\n";
+      "Referrer-Policy: no-referrer\r\n"
+      "Content-Security-Policy: default-src 'self'; img-src 'self' data:\r\nConnection: close\r\n" +
+      extra_headers + "\r\n";
   mg_write(connection, headers.data(), headers.size());
   if (!head) mg_write(connection, body.data(), body.size());
   return status;
@@ -86,6 +106,12 @@ ViewerServer::ViewerServer(const ViewerOptions& options, const ViewerState* stat
     name.erase(0, name.find_first_not_of(' '));
     name.erase(name.find_last_not_of(' ') + 1);
     if (!name.empty()) allowed_hosts_.insert(Lower(name));
+  }
+  if (!options_.access_token_file.empty()) {
+    token_ = SecretHex(LoadSecretFile(options_.access_token_file, "viewer access token",
+                                      "`stitch run --viewer` makes one beside its outputs"));
+  } else if (!options_.Loopback()) {
+    token_ = SecretHex(RandomSecret());
   }
   for (const auto& [path, asset] : ViewerWebAssets()) assets_[path] = {asset.first, asset.second};
   assets_["/"] = assets_.at("/index.html");
@@ -128,7 +154,8 @@ ViewerServer::~ViewerServer() {
 }
 
 std::string ViewerServer::url() const {
-  return "http://" + options_.bind_address + ":" + std::to_string(options_.port) + "/";
+  return "http://" + options_.bind_address + ":" + std::to_string(options_.port) + "/" +
+         (token_.empty() ? "" : "?token=" + token_);
 }
 
 int ViewerServer::open_pages() const {
@@ -156,6 +183,13 @@ bool ViewerServer::HostAllowed(const mg_connection* connection) const {
   return name == "localhost" || allowed_hosts_.count(name) > 0;
 }
 
+ViewerServer::Token ViewerServer::TokenOf(const mg_connection* connection) const {
+  if (token_.empty()) return Token::kNotNeeded;
+  if (HasPair(mg_get_request_info(connection)->query_string, '&', "token", token_)) return Token::kInQuery;
+  if (HasPair(mg_get_header(connection, "Cookie"), ';', kTokenCookie, token_)) return Token::kInCookie;
+  return Token::kNone;
+}
+
 int ViewerServer::Serve(mg_connection* connection) {
   const mg_request_info* request = mg_get_request_info(connection);
   const std::string method = request->request_method ? request->request_method : "";
@@ -169,6 +203,12 @@ int ViewerServer::Serve(mg_connection* connection) {
     return SendBody(connection, status, text, "text/plain; charset=utf-8", std::string(text) + "\n", head);
   };
   if (!HostAllowed(connection)) return refuse(403, "Forbidden");
+  const Token token = TokenOf(connection);
+  if (token == Token::kNone) return refuse(401, "Unauthorized");
+  // The token of the page's address, kept by the browser for the page's own requests and socket.
+  const std::string cookie = token != Token::kInQuery ? ""
+                                                      : std::string("Set-Cookie: ") + kTokenCookie + "=" + token_ +
+                                                            "; Path=/; HttpOnly; SameSite=Strict\r\n";
   if (method != "GET" && !head) return refuse(405, "Method Not Allowed");
   if (path == "/live") return refuse(400, "Bad Request");  // a WebSocket only
   if (path == "/state.json" || path == "/cloud.bin") {
@@ -179,12 +219,13 @@ int ViewerServer::Serve(mg_connection* connection) {
       map = map_;
       cloud = cloud_;
     }
-    if (path == "/cloud.bin") return SendBody(connection, 200, "OK", "application/octet-stream", *cloud, head);
-    return SendBody(connection, 200, "OK", "application/json", "{\"live\":" + *live + ",\"map\":" + *map + "}", head);
+    if (path == "/cloud.bin") return SendBody(connection, 200, "OK", "application/octet-stream", *cloud, head, cookie);
+    return SendBody(connection, 200, "OK", "application/json", "{\"live\":" + *live + ",\"map\":" + *map + "}", head,
+                    cookie);
   }
   const auto asset = assets_.find(path);
   if (asset == assets_.end()) return refuse(404, "Not Found");
-  return SendBody(connection, 200, "OK", asset->second.content_type, asset->second.body, head);
+  return SendBody(connection, 200, "OK", asset->second.content_type, asset->second.body, head, cookie);
 }
 
 int ViewerServer::OnSocketConnect(const mg_connection* connection, void* self) {
@@ -196,6 +237,11 @@ int ViewerServer::OnSocketConnect(const mg_connection* connection, void* self) {
     const char* host = mg_get_header(connection, "Host");
     STITCH_LOG(WARNING) << "refused a WebSocket from origin '" << (origin ? origin : "(none)") << "' for host '"
                         << (host ? host : "(none)") << "' (the page's own origin and a host of this machine only)";
+    return 1;
+  }
+  if (server->TokenOf(connection) == Token::kNone) {
+    ++server->refused_;
+    STITCH_LOG(WARNING) << "refused a WebSocket without the page's access token";
     return 1;
   }
   if (static_cast<int>(server->sockets_.size()) + server->pending_sockets_ >= server->options_.max_pages) {

@@ -5,7 +5,10 @@
 // folder a request could name), and only for a Host that names this machine (localhost, an IP
 // address, viewer.allowed_hosts: a page of another site whose name was made to resolve here is
 // refused); a WebSocket is accepted only from the page's own origin, stated (another site open in
-// the same browser cannot read the map), and only while fewer than max_pages are open.
+// the same browser cannot read the map), and only while fewer than max_pages are open. With an
+// access token (always off loopback: viewer_options.h) every request must carry it, in the
+// address's query (?token=..., answered with a cookie holding it) or that cookie, or it is refused
+// (401) and counted.
 
 #include <cstdint>
 #include <map>
@@ -40,6 +43,7 @@ class ViewerServer {
   // points when newer. Returns the pages pushed to. Call it from a thread of the caller's: the
   // server's own threads only copy out what the last push made (their stacks are small).
   int Push(double now_s);
+  // The page's address, with its access token when it has one.
   std::string url() const;
   int open_pages() const;
   int64_t requests_refused() const;
@@ -65,11 +69,16 @@ class ViewerServer {
   int Serve(mg_connection* connection);
   // Whether the request's Host names this machine (above).
   bool HostAllowed(const mg_connection* connection) const;
+  // How the request carries the access token: kNone (or none is needed: kNotNeeded), in its
+  // query, in its cookie.
+  enum class Token { kNotNeeded, kNone, kInQuery, kInCookie };
+  Token TokenOf(const mg_connection* connection) const;
   // The updates as the state is now, kept for requests and pushes.
   void Refresh(double now_s);
 
   ViewerOptions options_;
   std::set<std::string> allowed_hosts_;  // viewer.allowed_hosts, lower case
+  std::string token_;                    // 64 hex digits; empty: none needed
   const ViewerState* state_;
   std::map<std::string, Asset> assets_;
   mg_context* context_ = nullptr;

@@ -8,6 +8,7 @@
 
 #include <cmath>
 #include <cstring>
+#include <filesystem>
 #include <limits>
 #include <string>
 #include <vector>
@@ -17,8 +18,10 @@
 
 #include "services/common/bus.h"
 #include "services/common/convert.h"
+#include "services/common/secret_file.h"
 #include "services/viewer/viewer_server.h"
 #include "services/viewer/viewer_state.h"
+#include "stitch/testing/temp_dir.h"
 #include "stitch/util/error.h"
 #include "stitch/util/ids.h"
 #include "tests/test_process.h"
@@ -406,6 +409,85 @@ TEST(ViewerServer, AWebSocketOnlyFromThePagesOwnOriginAndOnlyAsManyAsAllowed) {
   for (int fd : {first, second, third}) close(fd);
   for (int i = 0; i < 100 && server.open_pages() > 0; ++i) usleep(20000);
   EXPECT_EQ(server.open_pages(), 0);
+}
+
+// #45: a viewer that others can reach needs its access token on every request: in the page's
+// address (answered with a cookie that holds it), then in that cookie (the page's own requests and
+// WebSocket); anything else is refused and counted.
+TEST(ViewerServer, WithAnAccessTokenEveryRequestAndSocketMustCarryIt) {
+  testing::TempDir dir;
+  const std::string token_file = dir / "viewer.token";
+  GenerateSecretFile(token_file, "viewer access token");
+  const std::string token = SecretHex(LoadSecretFile(token_file, "viewer access token", ""));
+  ViewerState state(1000);
+  ViewerOptions options;
+  options.port = bus::UnusedTcpPort();
+  options.access_token_file = token_file;
+  ViewerServer server(options, &state);
+  const int port = options.port;
+  EXPECT_EQ(server.url(), "http://127.0.0.1:" + std::to_string(port) + "/?token=" + token);
+  const auto get = [&](const std::string& target, const std::string& more_headers = "") {
+    return Exchange(port, "GET " + target + " HTTP/1.1\r\nHost: 127.0.0.1\r\n" + more_headers + "\r\n");
+  };
+  const int64_t refused_before = server.requests_refused();
+  std::string wrong = token;
+  wrong[10] = wrong[10] == 'a' ? 'b' : 'a';
+  for (const std::string& target :
+       std::vector<std::string>{"/", "/state.json", "/cloud.bin", "/?token=" + wrong, "/?token=" + token.substr(0, 63),
+                                "/?token=", "/state.json?x=1&token=" + token + "0"}) {
+    EXPECT_EQ(StatusLine(get(target)), "HTTP/1.1 401 Unauthorized") << target;
+  }
+  EXPECT_EQ(StatusLine(get("/", "Cookie: stitch_viewer_token=" + wrong + "\r\n")), "HTTP/1.1 401 Unauthorized");
+  EXPECT_EQ(server.requests_refused(), refused_before + 8);
+  // The page's address: served, with the cookie for what the page asks next.
+  const std::string page = get("/?token=" + token);
+  EXPECT_EQ(StatusLine(page), "HTTP/1.1 200 OK");
+  EXPECT_NE(page.find("Set-Cookie: stitch_viewer_token=" + token + "; Path=/; HttpOnly; SameSite=Strict\r\n"),
+            std::string::npos);
+  EXPECT_NE(page.find("Referrer-Policy: no-referrer"), std::string::npos);
+  EXPECT_EQ(StatusLine(get("/state.json?a=b&token=" + token)), "HTTP/1.1 200 OK");
+  const std::string cookie = "Cookie: theme=dark; stitch_viewer_token=" + token + "\r\n";
+  const std::string json = get("/state.json", cookie);
+  EXPECT_EQ(StatusLine(json), "HTTP/1.1 200 OK");
+  EXPECT_EQ(json.find("Set-Cookie"), std::string::npos) << "set once, from the address";
+  // The WebSocket: refused without the cookie, even from the page's own origin; accepted with it.
+  const std::string origin = "http://127.0.0.1:" + std::to_string(port);
+  EXPECT_NE(StatusLine(Exchange(port, WebSocketRequest(port, origin), false)), "HTTP/1.1 101 Switching Protocols");
+  std::string with_cookie = WebSocketRequest(port, origin);
+  with_cookie.insert(with_cookie.size() - 2, cookie);
+  EXPECT_EQ(StatusLine(Exchange(port, with_cookie, false)), "HTTP/1.1 101 Switching Protocols");
+}
+
+// Off loopback without a token file the server makes a token of its own, in the address it gives.
+TEST(ViewerServer, OffLoopbackItMakesATokenOfItsOwn) {
+  ViewerState state(1000);
+  ViewerOptions options;
+  options.port = bus::UnusedTcpPort();
+  options.bind_address = "0.0.0.0";
+  ViewerServer server(options, &state);
+  const std::string prefix = "http://0.0.0.0:" + std::to_string(options.port) + "/?token=";
+  ASSERT_EQ(server.url().rfind(prefix, 0), 0u) << server.url();
+  const std::string token = server.url().substr(prefix.size());
+  EXPECT_EQ(token.size(), 64u);
+  EXPECT_EQ(token.find_first_not_of("0123456789abcdef"), std::string::npos);
+  EXPECT_EQ(StatusLine(Exchange(options.port, "GET / HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")),
+            "HTTP/1.1 401 Unauthorized");
+  EXPECT_EQ(StatusLine(Exchange(options.port, "GET /?token=" + token + " HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")),
+            "HTTP/1.1 200 OK");
+  // A token file others may read is refused, with why.
+  testing::TempDir dir;
+  const std::string token_file = dir / "viewer.token";
+  GenerateSecretFile(token_file, "viewer access token");
+  std::filesystem::permissions(token_file, std::filesystem::perms::others_read, std::filesystem::perm_options::add);
+  ViewerOptions leaked;
+  leaked.port = bus::UnusedTcpPort();
+  leaked.access_token_file = token_file;
+  try {
+    ViewerServer refused(leaked, &state);
+    ADD_FAILURE() << "no error";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("readable by others"), std::string::npos) << e.what();
+  }
 }
 
 TEST(ViewerServer, WithoutThreeJsItSaysWhatToInstall) {

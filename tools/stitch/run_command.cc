@@ -68,7 +68,8 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
   if (plan.linked) std::printf("  merger on %s behind a link: %s\n", plan.ground_url.c_str(), info.link.c_str());
   if (network) std::printf("  %s\n", network->Describe().c_str());
   std::printf("  output %s/\n", out.c_str());
-  if (!plan.viewer_url.empty()) std::printf("  viewer %s\n", plan.viewer_url.c_str());
+  const std::string viewer_address = ViewerAddress(plan);
+  if (!viewer_address.empty()) std::printf("  viewer %s\n", viewer_address.c_str());
   std::fflush(stdout);
 
   const auto& stop = InstallStopSignals();
@@ -112,7 +113,7 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
     outcome.evaluation = evaluation;
     ChildProcess* viewer = services.Find("viewer");
     if (viewer && !viewer->Poll() && !stop.load()) {
-      std::printf("viewer: %s shows the finished flight; Ctrl-C ends it\n", plan.viewer_url.c_str());
+      std::printf("viewer: %s shows the finished flight; Ctrl-C ends it\n", viewer_address.c_str());
       std::fflush(stdout);
       while (!stop.load() && !viewer->Poll()) std::this_thread::sleep_for(std::chrono::milliseconds(100));
       viewer->Terminate(std::chrono::milliseconds(5000));

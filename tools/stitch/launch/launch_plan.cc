@@ -5,6 +5,7 @@
 #include <filesystem>
 
 #include "services/common/bus.h"
+#include "services/common/secret_file.h"
 #include "services/link/link_auth.h"
 #include "stitch/io/calibration.h"
 #include "stitch/io/output_frames.h"
@@ -147,6 +148,12 @@ LaunchPlan PlanRun(const RunArgs& a, const std::string& out) {
   if (a.viewer) {
     const int port = a.viewer_port >= 0 ? a.viewer_port : config.viewer.port;
     plan.viewer_url = "http://" + config.viewer.bind_address + ":" + std::to_string(port) + "/";
+    // Off this machine's loopback the page needs a token: one made for this run (beside its
+    // outputs, mode 0600) unless the config names one; the address printed carries it.
+    if (!config.viewer.Loopback() && config.viewer.access_token_file.empty()) {
+      plan.viewer_token = (fs::path(out) / "viewer.token").string();
+      plan.config.viewer.access_token_file = plan.viewer_token;
+    }
     plan.services.push_back(
         {"viewer", "stitch-viewer", With(ground, {"--port", std::to_string(port)}), true, ground_niceness});
   }
@@ -170,6 +177,14 @@ void PrepareRunFolder(const LaunchPlan& plan) {
     plan.source.ground_truth.WriteTum((out / "groundtruth.tum").string(), output_frames::kGroundTruth);
   SaveRunInfo(plan.info, plan.out);
   if (!plan.link_key.empty()) link::GenerateKeyFile(plan.link_key);
+  if (!plan.viewer_token.empty()) GenerateSecretFile(plan.viewer_token, "viewer access token");
+}
+
+std::string ViewerAddress(const LaunchPlan& plan) {
+  if (plan.viewer_url.empty() || plan.config.viewer.access_token_file.empty()) return plan.viewer_url;
+  return plan.viewer_url + "?token=" +
+         SecretHex(
+             LoadSecretFile(plan.config.viewer.access_token_file, "viewer access token", "viewer.access_token_file"));
 }
 
 double StopGraceSeconds(const LaunchPlan& plan, const std::string& name) {

@@ -59,7 +59,8 @@ struct LaunchPlan {
   bool linked = false;                   // a link bridge pair between them
   bool netns = false;                    // the two sides in two network namespaces
   std::string link_key;                  // a key made for this run, written by PrepareRunFolder ("" when none)
-  std::string viewer_url;                // "" without a viewer
+  std::string viewer_url;                // "" without a viewer; without its token (ViewerAddress)
+  std::string viewer_token;              // an access token made for this run's viewer ("" when none)
   std::vector<PlannedService> services;  // in the order they start
 };
 
@@ -67,9 +68,13 @@ struct LaunchPlan {
 LaunchPlan PlanRun(const RunArgs& args, const std::string& out);
 
 // Creates the run folder (never over another run's: the tracker appends to frames.tsv) with its
-// logs/, and writes config.yaml, groundtruth.tum (when known), run.json and the run's link key.
-// Throws stitch::Error.
+// logs/, and writes config.yaml, groundtruth.tum (when known), run.json, the run's link key and
+// its viewer's access token. Throws stitch::Error.
 void PrepareRunFolder(const LaunchPlan& plan);
+
+// The viewer page's address with its access token (read from its file: call it after
+// PrepareRunFolder); "" without a viewer.
+std::string ViewerAddress(const LaunchPlan& plan);
 
 // How long a service may take to stop after SIGTERM: each drains its queue and writes its files.
 // The mapper waits for its link bridge to catch up and for the merger's last requests, a bridge

@@ -4,9 +4,12 @@
 #include "tools/stitch/launch/launch_plan.h"
 
 #include <algorithm>
+#include <filesystem>
 
 #include <gtest/gtest.h>
 
+#include "stitch/config/stitch_config.h"
+#include "stitch/testing/temp_dir.h"
 #include "stitch/util/error.h"
 
 namespace stitch {
@@ -99,7 +102,28 @@ TEST(LaunchPlan, ALinkPutsTheMergerOnABusOfItsOwnBehindTwoBridgesThatNameEachOth
   }
   EXPECT_EQ(Argument(Service(plan, "merger"), "--state"), "/tmp/planned/merger");
   EXPECT_EQ(plan.viewer_url, "http://127.0.0.1:8080/");
+  EXPECT_TRUE(plan.viewer_token.empty()) << "on loopback the page needs no token";
   EXPECT_NE(plan.info.link.find("authenticated"), std::string::npos) << plan.info.link;
+}
+
+// A viewer off this machine's loopback gets an access token made for the run, beside its outputs;
+// the config the services read names it, and the address printed carries it.
+TEST(LaunchPlan, AViewerOffLoopbackGetsAnAccessTokenOfTheRuns) {
+  testing::TempDir dir;
+  RunArgs args = ShortFlight();
+  args.viewer = true;
+  args.settings = {"viewer.bind_address=0.0.0.0"};
+  const std::string out = dir / "run";
+  const LaunchPlan plan = PlanRun(args, out);
+  EXPECT_EQ(plan.viewer_token, out + "/viewer.token");
+  EXPECT_EQ(plan.config.viewer.access_token_file, plan.viewer_token);
+  PrepareRunFolder(plan);
+  EXPECT_EQ(std::filesystem::status(plan.viewer_token).permissions() & std::filesystem::perms::group_read,
+            std::filesystem::perms::none);
+  const std::string address = ViewerAddress(plan);
+  ASSERT_EQ(address.rfind("http://0.0.0.0:8080/?token=", 0), 0u) << address;
+  EXPECT_EQ(address.size(), std::string("http://0.0.0.0:8080/?token=").size() + 64);
+  EXPECT_EQ(LoadStitchConfig(out + "/config.yaml", {}).viewer.access_token_file, plan.viewer_token);
 }
 
 TEST(LaunchPlan, FlagsBecomeSettingsOverTheFile) {
