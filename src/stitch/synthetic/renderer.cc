@@ -121,18 +121,36 @@ class Rasterizer {
 
 }  // namespace
 
-Renderer::Renderer(const SyntheticWorld& world, const Camera& camera) : world_(world), camera_(camera) {
+Renderer::Renderer(const SyntheticWorld& world, const Camera& camera)
+    : world_(world), camera_(camera), canvas_(0, 0, camera.width(), camera.height()) {
   if (camera_.HasDistortion()) {
-    // For each pixel of the distorted image, where it lies in the pinhole image.
-    distort_map_x_.create(camera_.height(), camera_.width(), CV_32F);
-    distort_map_y_.create(camera_.height(), camera_.width(), CV_32F);
-    for (int y = 0; y < camera_.height(); ++y) {
-      for (int x = 0; x < camera_.width(); ++x) {
+    // For each pixel of the distorted image, where it lies in the pinhole image; the pinhole
+    // canvas is widened to hold every such place (a barrel lens sees past the pinhole image's
+    // corners), within twice the image's size each way.
+    const int w = camera_.width(), h = camera_.height();
+    distort_map_x_.create(h, w, CV_32F);
+    distort_map_y_.create(h, w, CV_32F);
+    double x0 = 0, y0 = 0, x1 = w - 1, y1 = h - 1;
+    for (int y = 0; y < h; ++y) {
+      for (int x = 0; x < w; ++x) {
         const Eigen::Vector2d p = camera_.UndistortPixel(Eigen::Vector2d(x, y));
         distort_map_x_.at<float>(y, x) = static_cast<float>(p.x());
         distort_map_y_.at<float>(y, x) = static_cast<float>(p.y());
+        if (std::isfinite(p.x()) && std::isfinite(p.y())) {
+          x0 = std::min(x0, p.x());
+          x1 = std::max(x1, p.x());
+          y0 = std::min(y0, p.y());
+          y1 = std::max(y1, p.y());
+        }
       }
     }
+    const int left = static_cast<int>(std::floor(std::max(x0, -1.0 * w))) - 1;
+    const int top = static_cast<int>(std::floor(std::max(y0, -1.0 * h))) - 1;
+    const int right = static_cast<int>(std::ceil(std::min(x1, 2.0 * w))) + 2;
+    const int bottom = static_cast<int>(std::ceil(std::min(y1, 2.0 * h))) + 2;
+    canvas_ = cv::Rect(left, top, right - left, bottom - top);
+    distort_map_x_ -= left;
+    distort_map_y_ -= top;
   }
 }
 
@@ -146,14 +164,14 @@ cv::Mat Renderer::Render(const Rigid3d& cam_from_world, cv::Mat* depth) const {
 }
 
 cv::Mat Renderer::RenderPinhole(const Rigid3d& cam_from_world, cv::Mat* depth) const {
-  const int width = camera_.width(), height = camera_.height();
+  const int width = canvas_.width, height = canvas_.height;
   // Koschmieder: contrast falls to 2% (ln 50 = 3.912) at the visibility distance.
   const double visibility = world_.options().visibility_m;
   Rasterizer raster(width, height, visibility > 0 ? static_cast<float>(3.912 / visibility) : 0.0f);
   const Eigen::Matrix3f r = cam_from_world.RotationMatrix().cast<float>();
   const Eigen::Vector3f t = cam_from_world.translation.cast<float>();
   const float fx = static_cast<float>(camera_.fx()), fy = static_cast<float>(camera_.fy());
-  const float cx = static_cast<float>(camera_.cx()), cy = static_cast<float>(camera_.cy());
+  const float cx = static_cast<float>(camera_.cx() - canvas_.x), cy = static_cast<float>(camera_.cy() - canvas_.y);
 
   const auto make_vertex = [&](const Eigen::Vector3f& world_point, float tu, float tv, float shade) {
     const Eigen::Vector3f p = r * world_point + t;

@@ -18,15 +18,20 @@ class Renderer {
   Renderer(const SyntheticWorld& world, const Camera& camera);
 
   // A CV_8UC1 image of the world seen from `cam_from_world`. When `depth` is given it receives
-  // CV_32F z in camera coordinates per pixel (0 where nothing was drawn; pinhole image only).
+  // CV_32F z in camera coordinates per pixel (0 where nothing was drawn) of the pinhole image:
+  // for a distorted camera, that of the canvas the distorted image is sampled from (canvas()).
   cv::Mat Render(const Rigid3d& cam_from_world, cv::Mat* depth = nullptr) const;
+  const cv::Rect& canvas() const { return canvas_; }
 
  private:
   cv::Mat RenderPinhole(const Rigid3d& cam_from_world, cv::Mat* depth) const;
 
   const SyntheticWorld& world_;
   Camera camera_;
-  cv::Mat distort_map_x_, distort_map_y_;  // pinhole -> distorted image, when needed
+  cv::Mat distort_map_x_, distort_map_y_;  // pinhole canvas -> distorted image, when needed
+  // Where the pinhole image is rendered, in the camera's pixels: the image itself, or for a
+  // distorted camera whatever its pixels see.
+  cv::Rect canvas_;
 };
 
 }  // namespace stitch

@@ -1,5 +1,8 @@
 #include "stitch/synthetic/synthetic_sequence.h"
 
+#include <algorithm>
+#include <cmath>
+
 #include <opencv2/imgproc.hpp>
 
 #include "stitch/util/error.h"
@@ -18,17 +21,20 @@ bool SyntheticOptions::Check(std::string* why) const {
   }
   if (!(focal_px > 1 && focal_px < 100000)) return fail("synthetic.focal_px must be in (1, 100000)");
   if (!(noise_sigma >= 0 && noise_sigma <= 50)) return fail("synthetic.noise_sigma must be in [0, 50]");
-  return flight.Check(why) && gust.Check(why) && world.Check(why);
+  return camera.Check(why) && flight.Check(why) && gust.Check(why) && world.Check(why);
 }
 
 Camera SyntheticOptions::MakeCamera() const {
-  return Camera::Pinhole(width, height, focal_px, focal_px, (width - 1) / 2.0, (height - 1) / 2.0);
+  return Camera::Pinhole(width, height, focal_px, focal_px, (width - 1) / 2.0, (height - 1) / 2.0, camera.lens_k1,
+                         camera.lens_k2);
 }
 
 SyntheticSequence::SyntheticSequence(const SyntheticOptions& options, const FailureSchedule& gusts)
     : options_((CheckOptions(options, "synthetic"), options)),
       camera_(options.MakeCamera()),
-      flight_(options.flight, options.gust, camera_, gusts, static_cast<uint64_t>(options.seed)) {
+      flight_(options.flight, options.gust, camera_, gusts, static_cast<uint64_t>(options.seed)),
+      imperfections_(options.camera, options.width, options.height, options.flight.num_frames, options.flight.fps,
+                     static_cast<uint64_t>(options.seed)) {
   WorldRoute route;
   for (const Rigid3d& world_from_cam : flight_.world_from_cam())
     route.camera_centres.push_back(world_from_cam.translation);
@@ -60,11 +66,69 @@ void SyntheticSequence::AddSensorNoise(cv::Mat* image, uint64_t key) const {
 }
 
 cv::Mat SyntheticSequence::RenderFrame(int index, cv::Mat* depth) const {
-  cv::Mat image = renderer_->Render(flight_.WorldFromCam(index).Inverse(), depth);
+  const CameraImperfectionOptions& flaws = options_.camera;
+  cv::Mat own_depth;
+  if (!depth && flaws.exposure_time_ms > 0) depth = &own_depth;
+  cv::Mat image = flaws.rolling_shutter_line_us > 0 ? RenderRollingShutter(index, depth)
+                                                    : renderer_->Render(flight_.WorldFromCam(index).Inverse(), depth);
   const auto [blur_px, blur_angle] = flight_.GustBlur(index);
-  if (blur_px > 0) ApplyMotionBlur(&image, blur_px, blur_angle);
+  if (blur_px > 0) {
+    ApplyMotionBlur(&image, blur_px, blur_angle);
+  } else if (flaws.exposure_time_ms > 0) {
+    const auto [length_px, angle] = ExposureBlur(index, *depth);
+    if (length_px >= 1) ApplyMotionBlur(&image, length_px, angle);
+  }
+  imperfections_.ApplyOptics(index, &image);
   AddSensorNoise(&image, static_cast<uint64_t>(index));
+  imperfections_.ApplyCompression(&image);
   return image;
+}
+
+cv::Mat SyntheticSequence::RenderRollingShutter(int index, cv::Mat* depth) const {
+  const Rigid3d now = flight_.WorldFromCam(index);
+  const Rigid3d next = flight_.WorldFromCam(std::min(index + 1, flight_.num_frames() - 1));
+  const int height = options_.height, bands = std::min(options_.camera.rolling_shutter_bands, height);
+  cv::Mat image(height, options_.width, CV_8UC1);
+  for (int band = 0; band < bands; ++band) {
+    const int first = band * height / bands, end = (band + 1) * height / bands;
+    // The band's mid row is read this many frames after the first row.
+    const double frames =
+        0.5 * (first + end - 1) * options_.camera.rolling_shutter_line_us * 1e-6 * options_.flight.fps;
+    Rigid3d world_from_cam;
+    world_from_cam.rotation = now.rotation.slerp(frames, next.rotation);
+    world_from_cam.translation = now.translation + frames * (next.translation - now.translation);
+    const cv::Mat rendered = renderer_->Render(world_from_cam.Inverse(), band == 0 ? depth : nullptr);
+    rendered.rowRange(first, end).copyTo(image.rowRange(first, end));
+  }
+  return image;
+}
+
+std::pair<double, double> SyntheticSequence::ExposureBlur(int index, const cv::Mat& depth) const {
+  // The scene's depth about the image's centre (what is drawn there), else the flight's height.
+  const int w = options_.width, h = options_.height;
+  double depth_sum = 0;
+  int depth_count = 0;
+  if (!depth.empty()) {
+    const cv::Mat centre = depth(cv::Rect(w / 4, h / 4, w / 2, h / 2));
+    for (int y = 0; y < centre.rows; y += 4) {
+      for (int x = 0; x < centre.cols; x += 4) {
+        const float z = centre.at<float>(y, x);
+        if (z > 0) {
+          depth_sum += z;
+          ++depth_count;
+        }
+      }
+    }
+  }
+  const double z = depth_count > 0 ? depth_sum / depth_count : options_.flight.altitude_m;
+  // Where the centre's scene point is one frame on (or was one frame before, at the last frame).
+  const int other = index + 1 < flight_.num_frames() ? index + 1 : std::max(0, index - 1);
+  const Eigen::Vector3d world = flight_.WorldFromCam(index) * Eigen::Vector3d(0, 0, z);
+  const Eigen::Vector3d seen = flight_.WorldFromCam(other).Inverse() * world;
+  if (seen.z() <= 0 || other == index) return {0, 0};
+  const Eigen::Vector2d moved(options_.focal_px * seen.x() / seen.z(), options_.focal_px * seen.y() / seen.z());
+  const double per_exposure = options_.camera.exposure_time_ms * 1e-3 * options_.flight.fps;
+  return {moved.norm() * per_exposure, std::atan2(moved.y(), moved.x())};
 }
 
 cv::Mat SyntheticSequence::RenderAt(const Rigid3d& world_from_cam, uint64_t noise_key, cv::Mat* depth) const {

@@ -6,6 +6,7 @@
 #include <string>
 
 #include "stitch/io/image_sequence.h"
+#include "stitch/synthetic/camera_imperfections.h"
 #include "stitch/synthetic/flight.h"
 #include "stitch/synthetic/renderer.h"
 #include "stitch/synthetic/world.h"
@@ -17,7 +18,8 @@ struct SyntheticOptions {
   int width = 640;
   int height = 480;
   double focal_px = 450.0;
-  double noise_sigma = 2.0;  // sensor noise, grey levels
+  double noise_sigma = 2.0;          // sensor noise, grey levels
+  CameraImperfectionOptions camera;  // a real camera's flaws, each off by default
   FlightOptions flight;
   GustOptions gust;
   WorldOptions world;
@@ -27,8 +29,9 @@ struct SyntheticOptions {
     v("seed", seed, "scene, flight and noise are deterministic from this");
     v("width", width, "image width, pixels");
     v("height", height, "image height, pixels");
-    v("focal_px", focal_px, "focal length, pixels (pinhole, no distortion)");
+    v("focal_px", focal_px, "focal length, pixels (pinhole; distortion: camera.lens_k1, lens_k2)");
     v("noise_sigma", noise_sigma, "sensor noise, grey levels");
+    v("camera", camera, "a real camera's flaws, each off by default");
     v("flight", flight, "the survey path");
     v("gust", gust, "what a scheduled gust does");
     v("world", world, "the terrain, textures and buildings");
@@ -49,7 +52,8 @@ class SyntheticSequence : public ImageSequence {
   const Trajectory& ground_truth() const override { return ground_truth_; }
   bool Next(SequenceFrame* frame) override;
 
-  // Random access, for tests and tools.
+  // Random access, for tests and tools. With a rolling shutter, `depth` is that of the first
+  // rows' pose.
   cv::Mat RenderFrame(int index, cv::Mat* depth = nullptr) const;
   // The world seen from any pose (no gust blur), with the sensor noise drawn from `noise_key`.
   cv::Mat RenderAt(const Rigid3d& world_from_cam, uint64_t noise_key, cv::Mat* depth = nullptr) const;
@@ -59,12 +63,19 @@ class SyntheticSequence : public ImageSequence {
 
  private:
   void AddSensorNoise(cv::Mat* image, uint64_t key) const;
+  // Frame `index` through a rolling shutter: bands of rows, each rendered at the pose of its
+  // rows' mid readout time (the frame's time is its first row's).
+  cv::Mat RenderRollingShutter(int index, cv::Mat* depth) const;
+  // The blur of the camera's own motion over the exposure at frame `index`: length (pixels) and
+  // direction of the image's centre's motion; `depth` is the frame's.
+  std::pair<double, double> ExposureBlur(int index, const cv::Mat& depth) const;
 
   SyntheticOptions options_;
   Camera camera_;
   FlightPlan flight_;
   std::unique_ptr<SyntheticWorld> world_;
   std::unique_ptr<Renderer> renderer_;
+  ImageImperfections imperfections_;
   Trajectory ground_truth_;
   int next_ = 0;
 };
