@@ -57,7 +57,7 @@ int RenderCommand(int argc, char** argv) {
     } else {
       fs::create_directories(out);
     }
-    SaveCalibration(sequence->camera(), calibration.string());
+    SaveCalibration(sequence->camera(), calibration.string(), spec.synthetic.camera.rolling_shutter_line_us);
     const Stopwatch clock;
     SequenceFrame frame;
     Trajectory truth;

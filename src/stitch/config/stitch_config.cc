@@ -119,7 +119,12 @@ std::vector<std::string> OrbSlamFeatureSettings(const std::string& calibration_p
 std::vector<std::string> CommandLineSettings(const std::string& calibration_path, const std::string& vocabulary,
                                              const std::vector<std::string>& settings) {
   std::vector<std::string> all;
-  if (!calibration_path.empty()) all = OrbSlamFeatureSettings(calibration_path);
+  if (!calibration_path.empty()) {
+    all = OrbSlamFeatureSettings(calibration_path);
+    if (const auto line_delay_us = ReadLineDelayUs(calibration_path)) {
+      all.push_back(NumberSetting("tracker.tracking.rolling_shutter_line_us", *line_delay_us));
+    }
+  }
   if (!vocabulary.empty()) all.push_back(TextSetting("vocabulary", vocabulary));
   all.insert(all.end(), settings.begin(), settings.end());
   return all;

@@ -201,6 +201,12 @@ std::map<std::string, double> ReadOrbExtractorSettings(const std::string& path) 
   return stated;
 }
 
+std::optional<double> ReadLineDelayUs(const std::string& path) {
+  const auto settings = OrbSlamSettings::Read(path);
+  if (!settings || !settings->Has("Camera.line_delay_us")) return std::nullopt;
+  return settings->Number("Camera.line_delay_us");
+}
+
 std::string CalibrationDoubts(const Camera& camera) {
   constexpr double kFarFromCentre = 0.2;  // of the image's width or height
   const double off_x = std::abs(camera.cx() - 0.5 * camera.width()) / camera.width();
@@ -215,7 +221,7 @@ std::string CalibrationDoubts(const Camera& camera) {
   return text.str();
 }
 
-void SaveCalibration(const Camera& camera, const std::string& path) {
+void SaveCalibration(const Camera& camera, const std::string& path, double line_delay_us) {
   std::ostringstream out;
   out.precision(12);
   const auto p = camera.params();
@@ -234,6 +240,9 @@ void SaveCalibration(const Camera& camera, const std::string& path) {
         << "\n";
   }
   out << "Camera.width: " << camera.width() << "\nCamera.height: " << camera.height() << "\n";
+  if (line_delay_us > 0)
+    out << "# Rolling shutter: readout delay from one row to the next.\nCamera.line_delay_us: " << line_delay_us
+        << "\n";
   WriteFileAtomically(path, out.str());
 }
 

@@ -7,6 +7,7 @@
 //  - KITTI odometry calib.txt (P0: 3x4 projection matrix; rectified, no distortion).
 
 #include <map>
+#include <optional>
 #include <string>
 
 #include "stitch/geometry/camera.h"
@@ -28,7 +29,13 @@ std::map<std::string, double> ReadOrbExtractorSettings(const std::string& path);
 // camera's settings give (ORB-SLAM2's KITTI file, cx 607, on a 640-wide image).
 std::string CalibrationDoubts(const Camera& camera);
 
-// Writes the camera as an ORB-SLAM-style settings file.
-void SaveCalibration(const Camera& camera, const std::string& path);
+// A rolling shutter's readout delay from one row to the next a calibration file states
+// (`Camera.line_delay_us`, microseconds; stitch's key, which ORB-SLAM ignores); empty when it
+// states none (or is no settings file). Throws stitch::Error for a value that is no number.
+std::optional<double> ReadLineDelayUs(const std::string& path);
+
+// Writes the camera as an ORB-SLAM-style settings file, with Camera.line_delay_us when a rolling
+// shutter's `line_delay_us` is given.
+void SaveCalibration(const Camera& camera, const std::string& path, double line_delay_us = 0);
 
 }  // namespace stitch

@@ -161,6 +161,16 @@ TEST(Calibration, SaveThenLoadRoundTrips) {
   const Camera back = LoadCalibration(dir / "out.yaml");
   EXPECT_EQ(back.params(), camera.params());
   EXPECT_EQ(back.width(), 752);
+  EXPECT_FALSE(ReadLineDelayUs(dir / "out.yaml")) << "a global shutter states none";
+}
+
+// A rolling shutter's readout delay per row rides along in the calibration (stitch's own key).
+TEST(Calibration, ARollingShuttersLineDelayIsWrittenAndReadBack) {
+  testing::TempDir dir;
+  SaveCalibration(Camera::Pinhole(640, 480, 450, 450, 319.5, 239.5), dir / "rolling.yaml", 40);
+  ASSERT_TRUE(ReadLineDelayUs(dir / "rolling.yaml"));
+  EXPECT_DOUBLE_EQ(*ReadLineDelayUs(dir / "rolling.yaml"), 40);
+  EXPECT_EQ(LoadCalibration(dir / "rolling.yaml").width(), 640);
 }
 
 }  // namespace

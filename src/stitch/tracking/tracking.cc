@@ -101,6 +101,10 @@ Tracking::Output Tracking::TrackFrame(const cv::Mat& image, int frame_index, int
   }
   const Stopwatch clock;
   Frame frame = MakeFrame(image, frame_index, t_ns, &extractor_, geometry_.undistorter);
+  if (options_.rolling_shutter_line_us > 0 && velocity_ && !lost_) {
+    UnrollRollingShutter(&frame, *velocity_, velocity_interval_s_, options_.rolling_shutter_line_us * 1e-6, last_depth_,
+                         geometry_.undistorter);
+  }
   Output output;
   TrackResult& result = output.result;
   result.timings.extraction = clock.ElapsedMs();
@@ -295,9 +299,11 @@ void Tracking::OnTracked(Frame* frame, Output* output, bool may_make_keyframe) {
   const int gap = last_frame_ ? frame->frame_index - last_frame_->frame_index : 0;
   if (last_frame_ && gap == 1) {
     velocity_ = *frame->cam_from_world * last_frame_->cam_from_world->Inverse();
+    velocity_interval_s_ = (frame->t_ns - last_frame_->t_ns) * 1e-9;
   } else {
     velocity_.reset();  // after a skipped frame the motion model is not trusted
   }
+  if (options_.rolling_shutter_line_us > 0) last_depth_ = FitInverseDepthPlane(map, *frame);
   const int inliers = frame->CountTracked();
   typical_sharpness_ = typical_sharpness_ > 0 ? 0.9 * typical_sharpness_ + 0.1 * frame->sharpness : frame->sharpness;
   consecutive_failures_ = 0;

@@ -41,6 +41,7 @@
 #include "stitch/tracking/initializer.h"
 #include "stitch/tracking/keyframe_bow.h"
 #include "stitch/tracking/relocalizer.h"
+#include "stitch/tracking/rolling_shutter.h"
 #include "stitch/tracking/submap_store.h"
 #include "stitch/tracking/tracking_options.h"
 #include "stitch/tracking/tracking_result.h"
@@ -173,6 +174,8 @@ class Tracking {
   std::optional<Frame> last_frame_;  // last tracked frame
   std::deque<Frame> missed_;         // frames since last_frame_ that found no pose, oldest first
   std::optional<Rigid3d> velocity_;  // cam_from_world(k) * world_from_cam(k - 1)
+  double velocity_interval_s_ = 0;   // between frames k - 1 and k
+  InverseDepthPlane last_depth_;     // of the last tracked frame's points, in its camera (rolling shutter)
   KeyframeId reference_keyframe_;
   int last_keyframe_frame_index_ = -1;
   int consecutive_failures_ = 0;

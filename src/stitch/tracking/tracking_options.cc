@@ -42,6 +42,8 @@ bool TrackingOptions::Check(std::string* why) const {
   if (max_keyframe_gap < 0) return fail("tracker.tracking.max_keyframe_gap must be >= 0");
   if (!(min_relative_sharpness >= 0 && min_relative_sharpness < 1))
     return fail("tracker.tracking.min_relative_sharpness must be in [0, 1)");
+  if (!(rolling_shutter_line_us == -1 || (rolling_shutter_line_us >= 0 && rolling_shutter_line_us <= 1000)))
+    return fail("tracker.tracking.rolling_shutter_line_us must be -1 (the source's) or in [0, 1000]");
   if (!(resume_max_parallax_deg >= 0 && resume_max_parallax_deg <= 90)) {
     return fail("tracker.tracking.resume_max_parallax_deg must be in [0, 90]");
   }

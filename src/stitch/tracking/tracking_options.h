@@ -47,6 +47,11 @@ struct TrackingOptions {
   int keyframes_in_flight = 2;
   // Frames sharper than this x the recent tracked frames are tracked; others are blurred.
   double min_relative_sharpness = 0.45;
+  // The camera's readout delay from one image row to the next, microseconds (0: a global
+  // shutter): each frame's features are moved to where its first row's instant saw them, by the
+  // motion model (rolling_shutter.h). -1: the source's (`stitch run` resolves it: the synthetic
+  // flight's, a calibration's Camera.line_delay_us, else 0).
+  double rolling_shutter_line_us = -1;
   int relocalization_candidates = 8;  // keyframes tried per frame when relocalizing
   // Submap policy: frames a new map tries to initialize before closed submaps are tried.
   int relocalize_closed_after_frames = 20;
@@ -143,6 +148,10 @@ struct TrackingOptions {
       "a keyframe is made while fewer than this many sent ones wait for the mapper (1: only when it caught up)");
     v("min_relative_sharpness", min_relative_sharpness,
       "a frame less sharp than this fraction of recent tracked frames is skipped as motion-blurred (0: off)");
+    v("rolling_shutter_line_us", rolling_shutter_line_us,
+      "the camera's readout delay from one image row to the next, microseconds: each frame's features are moved to "
+      "where its first row's instant saw them, by the motion model (0: a global shutter; -1: the source's, the "
+      "synthetic flight's synthetic.camera.rolling_shutter_line_us or a calibration's Camera.line_delay_us, else 0)");
     v("relocalize_closed_after_frames", relocalize_closed_after_frames,
       "submap policy: frames a new map tries to initialize alone before relocalization into closed submaps is tried "
       "too");

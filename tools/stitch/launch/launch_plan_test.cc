@@ -106,6 +106,23 @@ TEST(LaunchPlan, ALinkPutsTheMergerOnABusOfItsOwnBehindTwoBridgesThatNameEachOth
   EXPECT_NE(plan.info.link.find("authenticated"), std::string::npos) << plan.info.link;
 }
 
+// The tracker unrolls a rolling shutter by the readout the source states: the synthetic flight's
+// camera, per row of the frames it sees; a value set by hand (0: a global shutter) stays.
+TEST(LaunchPlan, TheTrackerTakesTheSourcesRollingShutterUnlessSetByHand) {
+  RunArgs args = ShortFlight();
+  EXPECT_EQ(PlanRun(args, "/tmp/planned").config.tracker.tracking.rolling_shutter_line_us, 0);
+  args.settings = {"synthetic.camera.rolling_shutter_line_us=40"};
+  EXPECT_EQ(PlanRun(args, "/tmp/planned").config.tracker.tracking.rolling_shutter_line_us, 40);
+  args.settings = {"synthetic.camera.rolling_shutter_line_us=40", "synthetic.width=1920", "synthetic.height=1080",
+                   "synthetic.focal_px=1350"};
+  const LaunchPlan reduced = PlanRun(args, "/tmp/planned");
+  EXPECT_NEAR(reduced.config.tracker.tracking.rolling_shutter_line_us, 40.0 * 1080 / reduced.source.camera.height(),
+              1e-9)
+      << "frames reduced to " << reduced.source.camera.height() << " rows";
+  args.settings = {"synthetic.camera.rolling_shutter_line_us=40", "tracker.tracking.rolling_shutter_line_us=0"};
+  EXPECT_EQ(PlanRun(args, "/tmp/planned").config.tracker.tracking.rolling_shutter_line_us, 0);
+}
+
 // A viewer off this machine's loopback gets an access token made for the run, beside its outputs;
 // the config the services read names it, and the address printed carries it.
 TEST(LaunchPlan, AViewerOffLoopbackGetsAnAccessTokenOfTheRuns) {
