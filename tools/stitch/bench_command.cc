@@ -65,7 +65,7 @@ std::string JoinSettings(const std::vector<std::string>& settings) {
 
 // One run in this process: prints the figures and returns them as JSON.
 nlohmann::json BenchOnce(const BenchArgs& a) {
-  const StitchConfig config = ApplySettings(LoadStitchConfig(a.config_path), a.settings);
+  StitchConfig config = ApplySettings(LoadStitchConfig(a.config_path), a.settings);
   const Vocabulary vocabulary = LoadVocabulary(config);
   SourceSpec spec = a.source;
   spec.synthetic = config.synthetic;
@@ -73,6 +73,9 @@ nlohmann::json BenchOnce(const BenchArgs& a) {
   FailureSchedule spoil;
   auto sequence = OpenSource(spec, &spoil);
   if (!spoil.empty()) throw Error("stitch bench applies failure schedules to the synthetic flight only");
+  if (config.tracker.tracking.rolling_shutter_line_us < 0) {
+    config.tracker.tracking.rolling_shutter_line_us = SourceLineDelayUs(spec, sequence->camera());
+  }
   std::printf("stitch bench: %s, %dx%d%s%s\n", sequence->description().c_str(), sequence->camera().width(),
               sequence->camera().height(), a.settings.empty() ? "" : ", ", JoinSettings(a.settings).c_str());
   const Stopwatch clock;

@@ -1,7 +1,10 @@
 #include "stitch/source/source.h"
 
+#include <filesystem>
+
 #include <algorithm>
 #include <cmath>
+#include <filesystem>
 #include <tuple>
 
 #include <opencv2/imgproc.hpp>
@@ -247,6 +250,33 @@ std::vector<std::string> SourceArguments(const SourceSpec& spec, unsigned which)
     args.push_back(value);
   }
   return args;
+}
+
+double SourceLineDelayUs(const SourceSpec& spec, const Camera& working) {
+  if (spec.dataset_path.empty() && spec.live_uri.empty()) {
+    return spec.synthetic.camera.rolling_shutter_line_us * spec.synthetic.height / working.height();
+  }
+  const std::filesystem::path data(spec.dataset_path);
+  std::vector<std::filesystem::path> candidates;
+  if (!spec.calibration_path.empty()) candidates.push_back(spec.calibration_path);
+  if (!spec.dataset_path.empty()) {
+    candidates.insert(candidates.end(),
+                      {data / "camera.yaml", data / "calibration.yaml",
+                       std::filesystem::path(data).replace_extension(".yaml"), data.parent_path() / "camera.yaml"});
+  }
+  for (const std::filesystem::path& candidate : candidates) {
+    std::error_code error;
+    if (!std::filesystem::is_regular_file(candidate, error)) continue;
+    if (const auto line_delay_us = ReadLineDelayUs(candidate.string())) {
+      int rows = working.height();  // a calibration that states no image size is the frames'
+      try {
+        rows = LoadCalibration(candidate.string()).height();
+      } catch (const Error&) {
+      }
+      return *line_delay_us * rows / working.height();
+    }
+  }
+  return 0;
 }
 
 }  // namespace stitch

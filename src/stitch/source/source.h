@@ -74,4 +74,11 @@ struct SourceSummary {
 };
 SourceSummary SummarizeSource(const SourceSpec& spec);
 
+// The rolling shutter's readout delay per row of the frames the tracker sees (`working`: frames
+// reduced to a working size take as long per row as the source's rows they hold) as the source
+// states it: the synthetic flight's camera, else Camera.line_delay_us in the calibration found
+// beside the data (as `stitch render` writes it); 0 when none says. What
+// tracker.tracking.rolling_shutter_line_us -1 resolves to.
+double SourceLineDelayUs(const SourceSpec& spec, const Camera& working);
+
 }  // namespace stitch

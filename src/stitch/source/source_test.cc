@@ -2,7 +2,12 @@
 
 #include "stitch/source/source.h"
 
+#include <filesystem>
+
 #include <gtest/gtest.h>
+
+#include "stitch/io/calibration.h"
+#include "stitch/testing/temp_dir.h"
 
 namespace stitch {
 namespace {
@@ -84,6 +89,23 @@ TEST(SourceArguments, TheFlagsHandOnWhatWasGivenAndNothingElse) {
   live.live_uri = "filesrc location=f.mp4 ! decodebin ! appsink";
   live.live_clock = "wall";
   EXPECT_EQ(SourceArguments(live), (std::vector<std::string>{"--live", live.live_uri, "--live-clock", "wall"}));
+}
+
+// What tracker.tracking.rolling_shutter_line_us -1 becomes: the synthetic camera's readout per
+// row of the working frames, or a rendered folder's calibration's (Camera.line_delay_us).
+TEST(SourceLineDelay, IsTheSyntheticCamerasOrTheCalibrationBesideTheData) {
+  SourceSpec spec;
+  EXPECT_EQ(SourceLineDelayUs(spec, spec.synthetic.MakeCamera()), 0);
+  spec.synthetic.camera.rolling_shutter_line_us = 40;
+  EXPECT_EQ(SourceLineDelayUs(spec, spec.synthetic.MakeCamera()), 40);
+  EXPECT_EQ(SourceLineDelayUs(spec, spec.synthetic.MakeCamera().Resized(320, 240)), 80) << "half the rows";
+  testing::TempDir dir;
+  spec.dataset_path = dir / "frames";
+  std::filesystem::create_directories(spec.dataset_path);
+  const Camera camera = Camera::Pinhole(640, 480, 450, 450, 319.5, 239.5);
+  EXPECT_EQ(SourceLineDelayUs(spec, camera), 0) << "no calibration states one";
+  SaveCalibration(camera, spec.dataset_path + "/camera.yaml", 25);
+  EXPECT_EQ(SourceLineDelayUs(spec, camera), 25);
 }
 
 }  // namespace

@@ -19,37 +19,6 @@ namespace stitch {
 
 namespace {
 
-// The rolling shutter's readout delay per row of the frames the tracker sees (`working`: frames
-// reduced to a working size take as long per row as the source's rows they hold) as the source
-// states it: the synthetic flight's camera, else Camera.line_delay_us in the calibration found
-// beside the data (as `stitch render` writes it); 0 when none says.
-double SourceLineDelayUs(const SourceSpec& spec, const Camera& working) {
-  if (spec.dataset_path.empty() && spec.live_uri.empty()) {
-    return spec.synthetic.camera.rolling_shutter_line_us * spec.synthetic.height / working.height();
-  }
-  const fs::path data(spec.dataset_path);
-  std::vector<fs::path> candidates;
-  if (!spec.calibration_path.empty()) candidates.push_back(spec.calibration_path);
-  if (!spec.dataset_path.empty()) {
-    candidates.insert(candidates.end(),
-                      {data / "camera.yaml", data / "calibration.yaml", fs::path(data).replace_extension(".yaml"),
-                       data.parent_path() / "camera.yaml"});
-  }
-  for (const fs::path& candidate : candidates) {
-    std::error_code error;
-    if (!fs::is_regular_file(candidate, error)) continue;
-    if (const auto line_delay_us = ReadLineDelayUs(candidate.string())) {
-      int rows = working.height();  // a calibration that states no image size is the frames'
-      try {
-        rows = LoadCalibration(candidate.string()).height();
-      } catch (const Error&) {
-      }
-      return *line_delay_us * rows / working.height();
-    }
-  }
-  return 0;
-}
-
 std::vector<std::string> With(std::vector<std::string> args, const std::vector<std::string>& more) {
   args.insert(args.end(), more.begin(), more.end());
   return args;
