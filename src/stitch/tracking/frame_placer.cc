@@ -197,6 +197,8 @@ bool FramePlacer::PoseFromMatches(const Map& map, Frame* frame) {
 }
 
 bool FramePlacer::TrackWithHomography(const Map& map, Frame* frame, const Frame& last) {
+  // A frame followed by optical flow has no descriptors to match.
+  if (last.descriptors.rows != static_cast<int>(last.size())) return false;
   // Where the last frame's tracked features went, from descriptors alone (no pose needed).
   std::fill(frame->points.begin(), frame->points.end(), MapPointId());
   std::vector<char> tracked(last.size(), 0);

@@ -53,7 +53,8 @@ class FramePlacer {
   // The points tracked in `last` searched around their projection at `predicted`, then the pose
   // optimized; outliers dropped. Inliers kept (0: failed).
   int TrackWithMotionModel(const Map& map, Frame* frame, const Frame& last, const Rigid3d& predicted);
-  // The last frame's tracked features followed through a homography; true when placed.
+  // The last frame's tracked features followed through a homography; true when placed (never from a
+  // `last` without descriptors: a frame followed by optical flow).
   bool TrackWithHomography(const Map& map, Frame* frame, const Frame& last);
   // The reference keyframe's points matched without a pose; the newest keyframe stands in for a
   // culled reference (and becomes `*reference`). Starts from `last`'s pose when given.

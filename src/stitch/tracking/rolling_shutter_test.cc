@@ -144,7 +144,7 @@ TEST(RollingShutter, TheInverseDepthPlaneIsTheGroundsUnderTheTrackedPoints) {
   }
   const InverseDepthPlane plane = FitInverseDepthPlane(map, frame);
   ASSERT_TRUE(plane.valid());
-  for (const Eigen::Vector2d xy : {Eigen::Vector2d(0, 0), Eigen::Vector2d(0.5, 0.4), Eigen::Vector2d(-0.5, 0.1)}) {
+  for (const Eigen::Vector2d& xy : {Eigen::Vector2d(0, 0), Eigen::Vector2d(0.5, 0.4), Eigen::Vector2d(-0.5, 0.1)}) {
     const double truth = down.dot(Eigen::Vector3d(xy.x(), xy.y(), 1)) / 20.0;
     EXPECT_NEAR(plane.At(xy.x(), xy.y()), truth, 0.1 * truth) << xy.transpose();
   }

@@ -1,6 +1,7 @@
 #include "stitch/tracking/tracking.h"
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <iterator>
 #include <unordered_map>
@@ -32,6 +33,7 @@ Tracking::Tracking(const TrackingOptions& options, const Camera& camera, const V
       policy_(policy),
       initializer_(options, &geometry_, vocabulary),
       placer_(options, &geometry_, vocabulary, [this] { AdoptKeyframeBow(/*wait=*/true); }),
+      flow_(options.flow),
       relocalizer_(options, &placer_, vocabulary, [this] { AdoptKeyframeBow(/*wait=*/true); }),
       next_submap_number_(options.first_submap_number) {
   CheckOptions(options_, "tracker");
@@ -53,6 +55,7 @@ void Tracking::AdoptKeyframeBow(bool wait) {
 void Tracking::ForgetMotion() {
   last_frame_.reset();
   velocity_.reset();
+  flow_.Clear();
 }
 
 std::optional<SubmapId> Tracking::CloseSubmap() {
@@ -96,6 +99,77 @@ Tracking::Output Tracking::Track(const cv::Mat& image, int frame_index, int64_t 
 }
 
 Tracking::Output Tracking::TrackFrame(const cv::Mat& image, int frame_index, int64_t t_ns) {
+  Output output;
+  if (TryFollow(image, frame_index, t_ns, &output)) {
+    ++followed_in_a_row_;
+    return output;
+  }
+  output = TrackExtracted(image, frame_index, t_ns);
+  // A frame extracted and tracked now is the flow's source for the frames after it.
+  followed_in_a_row_ = 0;
+  if (options_.flow.enabled && output.result.state == TrackingState::kOk && store_.current() && last_frame_ &&
+      last_frame_->frame_index == frame_index) {
+    flow_.KeepSource(image, *last_frame_);
+  } else {
+    flow_.Clear();
+  }
+  return output;
+}
+
+bool Tracking::TryFollow(const cv::Mat& image, int frame_index, int64_t t_ns, Output* output) {
+  const Map* map = store_.current();
+  if (!options_.flow.enabled || !flow_.has_source() || followed_in_a_row_ >= options_.flow.max_frames || !map ||
+      lost_ || !last_frame_ || !velocity_ || consecutive_failures_ > 0 || !missed_.empty() ||
+      young_submap_started_at_ >= 0) {
+    return false;
+  }
+  const int gap = frame_index - last_frame_->frame_index;
+  const Keyframe* reference = map->FindKeyframe(reference_keyframe_);
+  if (gap < 1 || !reference) return false;
+  // A frame an extracted one could make a keyframe of is extracted: this one must keep at least
+  // the share of the reference's points below which a keyframe is made (the along-axis share for
+  // a camera moving along its axis; the flow keeps at most the source's points).
+  const int reference_points = ReferencePoints(*map, *reference);
+  const auto needed = [&](double ratio) {
+    const double share = std::min(1.0, ratio + options_.flow.keyframe_margin);
+    return std::max(options_.min_inliers, static_cast<int>(std::ceil(share * reference_points)));
+  };
+  if (flow_.source_points() < needed(options_.keyframe_ratio)) return false;
+  // Lucas-Kanade shifts its window but does not turn or warp it: a camera turning fast is extracted.
+  if (RotationAngle(velocity_->rotation) * 180.0 / M_PI > options_.flow.max_turn_deg) return false;
+  const Stopwatch clock;
+  Rigid3d predicted = *last_frame_->cam_from_world;
+  for (int i = 0; i < gap; ++i) predicted = *velocity_ * predicted;
+  Frame frame = flow_.Follow(image, frame_index, t_ns, *map, predicted, geometry_.camera, geometry_.undistorter);
+  frame.sharpness = ImageSharpness(image);
+  if (static_cast<int>(frame.size()) < needed(options_.keyframe_ratio) || Blurred(frame)) return false;
+  if (options_.rolling_shutter_line_us > 0) {
+    UnrollRollingShutter(&frame, *velocity_, velocity_interval_s_, options_.rolling_shutter_line_us * 1e-6, last_depth_,
+                         geometry_.undistorter);
+  }
+  const double followed_ms = clock.ElapsedMs();
+  const int inliers = placer_.OptimizeFramePose(*map, &frame, /*discard_outliers=*/true);
+  KeyframeDecisionInput decision;
+  decision.tracked_points = inliers;
+  decision.reference_points = reference_points;
+  if (options_.keyframe_ratio_along_axis != options_.keyframe_ratio && inliers >= needed(options_.keyframe_ratio)) {
+    decision.motion_axis_angle_deg = MotionAxisAngleDeg(*reference, frame);
+  }
+  if (inliers < needed(KeyframeRatio(decision, options_))) return false;
+  if (options_.keyframe_min_coverage > 0 &&
+      TrackedCoverage(frame, geometry_.camera.width(), geometry_.camera.height()) < options_.keyframe_min_coverage) {
+    return false;
+  }
+  TrackResult& result = output->result;
+  result.num_features = static_cast<int>(frame.size());
+  result.timings.extraction = followed_ms;
+  result.timings.frame_to_frame = clock.ElapsedMs() - followed_ms;
+  result.tracked_by = "optical flow";
+  OnTracked(&frame, output, /*may_make_keyframe=*/false);
+  return true;
+}
+
+Tracking::Output Tracking::TrackExtracted(const cv::Mat& image, int frame_index, int64_t t_ns) {
   if (!store_.current()) {
     return Initialize(MakeFrame(image, frame_index, t_ns, &init_extractor_, geometry_.undistorter));
   }

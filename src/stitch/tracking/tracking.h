@@ -37,6 +37,7 @@
 #include "stitch/map/local_map_update.h"
 #include "stitch/map/map.h"
 #include "stitch/map/view_geometry.h"
+#include "stitch/tracking/feature_flow.h"
 #include "stitch/tracking/frame_placer.h"
 #include "stitch/tracking/initializer.h"
 #include "stitch/tracking/keyframe_bow.h"
@@ -98,6 +99,12 @@ class Tracking {
 
  private:
   Output TrackFrame(const cv::Mat& image, int frame_index, int64_t t_ns);
+  // Tracks the frame by following the flow source's points (feature_flow.h) where a frame
+  // extracted from it could not become a keyframe; false (nothing changed) where it may, or the
+  // flow does not hold.
+  bool TryFollow(const cv::Mat& image, int frame_index, int64_t t_ns, Output* output);
+  // Extracts the frame's features and tracks it (initializes, relocalizes, or tracks in the submap).
+  Output TrackExtracted(const cv::Mat& image, int frame_index, int64_t t_ns);
   // No current submap: initialize a new one, or relocalize into a closed one.
   Output Initialize(Frame frame);
   // Lost (relocalize policy): relocalize in the kept submap or discard the frame.
@@ -153,6 +160,8 @@ class Tracking {
   std::unique_ptr<KeyframeBowWorker> keyframe_bow_;  // with options_.keyframe_worker
   Initializer initializer_;
   FramePlacer placer_;
+  FeatureFlow flow_;           // its source: the last frame extracted and tracked, while frames follow it
+  int followed_in_a_row_ = 0;  // frames tracked by flow since the source
   Relocalizer relocalizer_;
 
   int next_submap_number_;

@@ -4,12 +4,28 @@
 
 namespace stitch {
 
+bool FeatureFlowOptions::Check(std::string* why) const {
+  const auto fail = [why](const char* text) {
+    if (why) *why = text;
+    return false;
+  };
+  if (max_frames < 1 || max_frames > 30) return fail("tracker.tracking.flow.max_frames must be in [1, 30]");
+  if (window_px < 5 || window_px > 61 || window_px % 2 == 0)
+    return fail("tracker.tracking.flow.window_px must be odd and in [5, 61]");
+  if (levels < 0 || levels > 6) return fail("tracker.tracking.flow.levels must be in [0, 6]");
+  if (!(max_error > 0 && max_error <= 255)) return fail("tracker.tracking.flow.max_error must be in (0, 255]");
+  if (!(max_turn_deg >= 0 && max_turn_deg <= 45)) return fail("tracker.tracking.flow.max_turn_deg must be in [0, 45]");
+  if (!(keyframe_margin >= 0 && keyframe_margin <= 1))
+    return fail("tracker.tracking.flow.keyframe_margin must be in [0, 1]");
+  return true;
+}
+
 bool TrackingOptions::Check(std::string* why) const {
   auto fail = [&](const std::string& m) {
     if (why) *why = m;
     return false;
   };
-  if (!orb.Check(why) || !initialization.Check(why)) return false;
+  if (!orb.Check(why) || !flow.Check(why) || !initialization.Check(why)) return false;
   if (init_min_features < 8 || init_min_matches < 8)
     return fail("tracker.tracking: init_min_features and init_min_matches must be >= 8");
   if (init_window_px < 5) return fail("tracker.tracking.init_window_px must be >= 5");

@@ -9,8 +9,44 @@
 
 namespace stitch {
 
+// Frames between keyframes followed by optical flow (feature_flow.h).
+struct FeatureFlowOptions {
+  // Off by default: it takes 15-33% of the CPU off a frame and costs accuracy (fewer keyframes,
+  // poses without the local map's search; docs/speed.md has the gate's figures).
+  bool enabled = false;  // follow features between keyframes (false: every frame extracted)
+  int max_frames = 4;    // frames followed in a row before one is extracted again
+  int window_px = 21;    // Lucas-Kanade window, pixels (odd)
+  int levels = 3;        // pyramid levels above the image (each half the size)
+  // A followed position whose flow error (mean absolute difference over the window, grey levels)
+  // is above this is dropped.
+  double max_error = 20.0;
+  // A followed frame is kept only with this share of the reference keyframe's points above the
+  // share below which a keyframe is made: flow keeps points that an extracted frame's matching
+  // may lose, so at the threshold itself an extracted frame might have become a keyframe.
+  double keyframe_margin = 0.05;
+  // Frames are followed only while the motion model turns the camera by at most this many degrees
+  // a frame: Lucas-Kanade shifts its window but does not turn or warp it (a handheld camera's fast
+  // turns, TUM fr1/rpy's, lost the map more often followed than extracted).
+  double max_turn_deg = 1.0;
+
+  template <class Visitor>
+  void VisitFields(Visitor& v) {
+    v("enabled", enabled, "follow the map points into frames between keyframes by optical flow, extracting less");
+    v("max_frames", max_frames, "frames followed in a row before one is extracted again");
+    v("window_px", window_px, "Lucas-Kanade window, pixels (odd)");
+    v("levels", levels, "Lucas-Kanade pyramid levels above the image");
+    v("max_error", max_error, "largest flow error kept (mean absolute grey-level difference over the window)");
+    v("max_turn_deg", max_turn_deg,
+      "frames are followed only while the camera turns at most this many degrees a frame");
+    v("keyframe_margin", keyframe_margin,
+      "a followed frame is kept only with this share of the reference keyframe's points above the keyframe ratio");
+  }
+  bool Check(std::string* why) const;
+};
+
 struct TrackingOptions {
   OrbOptions orb;
+  FeatureFlowOptions flow;  // frames between keyframes followed by optical flow (feature_flow.h)
   TwoViewOptions initialization;
   int init_min_features = 100;         // a frame needs this many features to take part in initialization
   int init_min_matches = 50;           // matches with the reference frame to keep it and attempt initialization
@@ -113,6 +149,7 @@ struct TrackingOptions {
   template <class Visitor>
   void VisitFields(Visitor& v) {
     v("orb", orb, "feature extraction");
+    v("flow", flow, "frames between keyframes: the map points followed by optical flow instead of extracted");
     v("initialization", initialization, "two-view map initialization");
     v("init_min_features", init_min_features, "features a frame needs to take part in initialization");
     v("init_min_matches", init_min_matches, "matches with the reference frame needed to attempt initialization");
