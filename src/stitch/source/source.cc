@@ -1,7 +1,5 @@
 #include "stitch/source/source.h"
 
-#include <filesystem>
-
 #include <algorithm>
 #include <cmath>
 #include <filesystem>

@@ -36,8 +36,9 @@ Frame FeatureFlow::Follow(const cv::Mat& image, int frame_index, int64_t t_ns, c
   if (!has_source() || positions_.empty()) return frame;
   // Each flow starts where the predicted pose projects its point (else where the source saw it).
   std::vector<cv::Point2f> guesses(positions_);
+  std::vector<const MapPoint*> found(points_.size());  // null: culled since the source
   for (size_t i = 0; i < points_.size(); ++i) {
-    const MapPoint* point = map.FindPoint(points_[i]);
+    const MapPoint* point = found[i] = map.FindPoint(points_[i]);
     if (!point) continue;
     const std::optional<Eigen::Vector2d> pixel = camera.Project(predicted * point->position);
     if (pixel && camera.InImage(*pixel)) guesses[i] = cv::Point2f(pixel->x(), pixel->y());
@@ -51,7 +52,7 @@ Frame FeatureFlow::Follow(const cv::Mat& image, int frame_index, int64_t t_ns, c
   for (size_t i = 0; i < positions_.size(); ++i) {
     if (!status[i] || !(error[i] <= options_.max_error)) continue;
     const Eigen::Vector2d pixel(guesses[i].x, guesses[i].y);
-    if (!camera.InImage(pixel, 1.0) || !map.FindPoint(points_[i])) continue;
+    if (!found[i] || !camera.InImage(pixel, 1.0)) continue;
     cv::KeyPoint keypoint(guesses[i], 31.0f);
     keypoint.octave = octaves_[i];
     frame.keypoints.push_back(keypoint);

@@ -24,6 +24,13 @@ struct Source {
   Map map{SubmapId(), ScalePyramid()};
   Frame frame;
   cv::Mat image;
+  FeatureFlow flow{FeatureFlowOptions()};
+
+  // `image` (of the strip's camera) followed from the source as frame `index`.
+  Frame Follow(const cv::Mat& image, int index, const Rigid3d& predicted, int64_t t_ns = 0) const {
+    RenderedViews& strip = testing::SharedStrip();
+    return flow.Follow(image, index, t_ns, map, predicted, strip.sequence().camera(), strip.geometry().undistorter);
+  }
 };
 
 Source MakeSource(int index) {
@@ -36,6 +43,7 @@ Source MakeSource(int index) {
   source.map = strip.MapFromFrame(source.frame, depth, &keyframe);
   source.frame.points = keyframe.points;
   source.frame.outlier.assign(source.frame.size(), 0);
+  source.flow.KeepSource(source.image, source.frame);
   return source;
 }
 
@@ -50,15 +58,13 @@ Rigid3d Predicted(const Rigid3d& truth) {
 
 TEST(FeatureFlow, FollowsTheMapPointsToWhereTheNextViewSeesThem) {
   RenderedViews& strip = testing::SharedStrip();
-  const Source source = MakeSource(0);
-  FeatureFlow flow((FeatureFlowOptions()));
-  flow.KeepSource(source.image, source.frame);
+  Source source = MakeSource(0);
+  FeatureFlow& flow = source.flow;
   EXPECT_EQ(flow.source_frame_index(), 0);
   EXPECT_GT(flow.source_points(), 300);
   // Two frames on (2.3 m, about 15 pixels of motion).
   const Rigid3d truth = strip.WorldFromCam(2).Inverse();
-  const Frame followed = flow.Follow(strip.sequence().RenderFrame(2), 2, 7, source.map, Predicted(truth),
-                                     strip.sequence().camera(), strip.geometry().undistorter);
+  const Frame followed = source.Follow(strip.sequence().RenderFrame(2), 2, Predicted(truth), 7);
   EXPECT_EQ(followed.frame_index, 2);
   EXPECT_EQ(followed.t_ns, 7);
   EXPECT_EQ(followed.descriptors.rows, 0) << "a followed frame has no descriptors";
@@ -84,12 +90,10 @@ TEST(FeatureFlow, FollowsTheMapPointsToWhereTheNextViewSeesThem) {
 
 TEST(FeatureFlow, AFollowedFramesPoseComesOutNearTheTruth) {
   RenderedViews& strip = testing::SharedStrip();
-  const Source source = MakeSource(0);
-  FeatureFlow flow((FeatureFlowOptions()));
-  flow.KeepSource(source.image, source.frame);
+  Source source = MakeSource(0);
+  FeatureFlow& flow = source.flow;
   const Rigid3d truth = strip.WorldFromCam(3).Inverse();
-  Frame followed = flow.Follow(strip.sequence().RenderFrame(3), 3, 0, source.map, Predicted(truth),
-                               strip.sequence().camera(), strip.geometry().undistorter);
+  Frame followed = source.Follow(strip.sequence().RenderFrame(3), 3, Predicted(truth));
   FramePlacer placer(TrackingOptions(), &strip.geometry(), &testing::DefaultVocabulary());
   const int inliers = placer.OptimizeFramePose(source.map, &followed, /*discard_outliers=*/true);
   EXPECT_GT(inliers, 0.8 * flow.source_points());
@@ -101,32 +105,26 @@ TEST(FeatureFlow, AFollowedFramesPoseComesOutNearTheTruth) {
 
 TEST(FeatureFlow, NothingIsFollowedIntoAnImageThatDoesNotShowIt) {
   RenderedViews& strip = testing::SharedStrip();
-  const Source source = MakeSource(0);
-  FeatureFlow flow((FeatureFlowOptions()));
-  flow.KeepSource(source.image, source.frame);
+  Source source = MakeSource(0);
+  FeatureFlow& flow = source.flow;
   const Rigid3d truth = strip.WorldFromCam(2).Inverse();
   // A grey image (a lens cap, a dead sensor) and another place altogether (frame 150: 170 m on).
   const cv::Mat grey(source.image.size(), CV_8UC1, cv::Scalar(128));
-  const Frame into_grey =
-      flow.Follow(grey, 2, 0, source.map, truth, strip.sequence().camera(), strip.geometry().undistorter);
+  const Frame into_grey = source.Follow(grey, 2, truth);
   // A few low-contrast patches stay within the flow's error of grey; the tracker keeps a followed
   // frame only with most of its reference keyframe's points (flow.keyframe_margin).
   EXPECT_LT(into_grey.size(), 0.1 * flow.source_points());
-  Frame elsewhere = flow.Follow(strip.sequence().RenderFrame(150), 2, 0, source.map, truth, strip.sequence().camera(),
-                                strip.geometry().undistorter);
+  Frame elsewhere = source.Follow(strip.sequence().RenderFrame(150), 2, truth);
   FramePlacer placer(TrackingOptions(), &strip.geometry(), &testing::DefaultVocabulary());
   EXPECT_LT(placer.OptimizeFramePose(source.map, &elsewhere, true), TrackingOptions().min_inliers)
       << "what flow finds in another place does not agree on a pose";
   flow.Clear();
   EXPECT_FALSE(flow.has_source());
-  EXPECT_EQ(flow.Follow(strip.sequence().RenderFrame(2), 2, 0, source.map, truth, strip.sequence().camera(),
-                        strip.geometry().undistorter)
-                .size(),
-            0u);
+  EXPECT_EQ(source.Follow(strip.sequence().RenderFrame(2), 2, truth).size(), 0u);
 }
 
-// The tracker on the strip's first 15 frames (without a mapper's points it loses the strip after): which frames flow
-// placed, and which were keyframes.
+// The tracker on the strip's first 15 frames (without a mapper's points it loses the strip
+// after): which frames flow placed, and which were keyframes.
 struct StripRun {
   int followed = 0;
   int followed_keyframes = 0;

@@ -141,8 +141,9 @@ bool Tracking::TryFollow(const cv::Mat& image, int frame_index, int64_t t_ns, Ou
   Rigid3d predicted = *last_frame_->cam_from_world;
   for (int i = 0; i < gap; ++i) predicted = *velocity_ * predicted;
   Frame frame = flow_.Follow(image, frame_index, t_ns, *map, predicted, geometry_.camera, geometry_.undistorter);
+  if (static_cast<int>(frame.size()) < needed(options_.keyframe_ratio)) return false;
   frame.sharpness = ImageSharpness(image);
-  if (static_cast<int>(frame.size()) < needed(options_.keyframe_ratio) || Blurred(frame)) return false;
+  if (Blurred(frame)) return false;
   if (options_.rolling_shutter_line_us > 0) {
     UnrollRollingShutter(&frame, *velocity_, velocity_interval_s_, options_.rolling_shutter_line_us * 1e-6, last_depth_,
                          geometry_.undistorter);

@@ -25,8 +25,8 @@ struct FeatureFlowOptions {
   // may lose, so at the threshold itself an extracted frame might have become a keyframe.
   double keyframe_margin = 0.05;
   // Frames are followed only while the motion model turns the camera by at most this many degrees
-  // a frame: Lucas-Kanade shifts its window but does not turn or warp it (a handheld camera's fast
-  // turns, TUM fr1/rpy's, lost the map more often followed than extracted).
+  // a frame: Lucas-Kanade shifts its window but does not turn or warp it (a conservative limit,
+  // not shown to help on TUM fr1/rpy: docs/speed.md).
   double max_turn_deg = 1.0;
 
   template <class Visitor>
