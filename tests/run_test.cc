@@ -398,14 +398,16 @@ TEST(StitchRun, TracksA1080pH264ClipAsAFileAndAsALivePipeline) {
   ASSERT_EQ(evaluated.exit_code, 0) << evaluated.output;
   const auto live_report = ReadJson(dir / "live-eval/report.json");
   ASSERT_FALSE(live_report["ate_rmse_m"].is_null()) << evaluated.output;
-  // Every pose within the ground truth's span is at a time the ground truth has.
+  // Every pose within the ground truth's span is at a time the ground truth has (the evaluator
+  // also takes a pose just past either end, within its association tolerance).
   const Trajectory truth_trajectory = Trajectory::ReadTum(truth);
   const auto within_truth =
       std::count_if(live_trajectory.poses().begin(), live_trajectory.poses().end(), [&](const auto& pose) {
         return pose.t_ns >= truth_trajectory.poses().front().t_ns && pose.t_ns <= truth_trajectory.poses().back().t_ns;
       });
   EXPECT_GT(within_truth, 0);
-  EXPECT_EQ(live_report["frames_with_ground_truth"].get<long>(), within_truth) << evaluated.output;
+  EXPECT_GE(live_report["frames_with_ground_truth"].get<long>(), within_truth) << evaluated.output;
+  EXPECT_LE(live_report["frames_with_ground_truth"].get<long>(), static_cast<long>(live_trajectory.size()));
   // The error is a measure only where the tracker kept up: with most frames dropped (a sanitizer's
   // build on a loaded machine) the map starts from frames far apart, and CI saw 2.7 m from 20-odd
   // poses. A clock off by a frame or more shows here in a release build (about 0.12 m on time).
