@@ -1,6 +1,7 @@
 #include "services/tracker/tracker_service.h"
 
 #include <algorithm>
+#include <cmath>
 #include <filesystem>
 
 #include "services/common/convert.h"
@@ -257,6 +258,24 @@ void TrackerService::WaitForMapper() {
   }
 }
 
+void TrackerService::WaitForNewPoints() {
+  if (!tracking_ || !live_ || options_.live_wait_for_points_s <= 0 || !tracking_->mapper_connected() ||
+      last_tracked_points_ >= options_.live_wait_below_points || tracking_->NewestKeyframePointsReceived() ||
+      waited_for_keyframe_ == tracking_->last_keyframe_sent())
+    return;
+  // A thin map: the next frame may lose track where the newest keyframe's points would hold it.
+  waited_for_keyframe_ = tracking_->last_keyframe_sent();
+  ++points_waits_;
+  const double started = MonotonicSeconds();
+  const double deadline = started + options_.live_wait_for_points_s;
+  while (!tracking_->NewestKeyframePointsReceived() && running_.load()) {
+    const double left = deadline - MonotonicSeconds();
+    if (left <= 0) break;
+    ApplyUpdates(std::chrono::milliseconds(std::max(1, static_cast<int>(std::ceil(left * 1000)))));
+  }
+  points_wait_s_.store(points_wait_s_.load() + MonotonicSeconds() - started);  // one writer: the worker
+}
+
 void TrackerService::WatchMapper() {
   if (!tracking_ || !live_) return;
   const double now = MonotonicSeconds();
@@ -275,6 +294,7 @@ void TrackerService::Work() {
   while (true) {
     ApplyUpdates(std::chrono::milliseconds(0));
     WaitForMapper();
+    WaitForNewPoints();
     WatchMapper();
     RefreshReportedState();
     if (tracking_ && tracking_->MapperCaughtUp()) {
@@ -311,6 +331,7 @@ void TrackerService::Process(const stitch::frame_t& frame) {
       STITCH_LOG(INFO) << "camera " << camera.Describe();
     }
     output = tracking_->Track(image, frame.frame_index, frame.t_ns);
+    last_tracked_points_ = output.result.num_tracked_points;
   } catch (const Error& e) {
     output.result.state = TrackingState::kSkipped;
     output.result.reason = TrackingReason::kUndecodableFrame;

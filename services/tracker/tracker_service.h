@@ -50,12 +50,19 @@ class TrackerService {
   int64_t keyframes_published() const { return keyframes_.load(); }
   // Times the worker held a frame back to wait for the mapper (lockstep frames only).
   int64_t mapper_waits() const { return mapper_waits_.load(); }
+  // Times the worker waited for a keyframe's new points on a thin map (live frames), and how
+  // long in all.
+  int64_t points_waits() const { return points_waits_.load(); }
+  double points_wait_s() const { return points_wait_s_.load(); }
 
  private:
   void OnFrame(std::unique_ptr<stitch::frame_t> frame);
   void Work();
   void ApplyUpdates(std::chrono::milliseconds wait);
   void WaitForMapper();
+  // Live frames: after a keyframe, on a thin map, a short wait for its new points
+  // (TrackerOptions::live_wait_for_points_s).
+  void WaitForNewPoints();
   // Live frames: a mapper silent for mapper_timeout_s with keyframes unanswered is reported absent.
   void WatchMapper();
   void Process(const stitch::frame_t& frame);
@@ -101,11 +108,14 @@ class TrackerService {
   // The last frame came from a live source (frame_t::pacing): the tracker never waits for the
   // mapper then; it makes keyframes as the mapper takes them. Worker thread only.
   bool live_ = false;
-  double mapper_heard_at_ = 0;  // the last update applied, or the first keyframe it left unanswered
+  double mapper_heard_at_ = 0;      // the last update applied, or the first keyframe it left unanswered
+  int last_tracked_points_ = 0;     // map points the last frame tracked (WaitForNewPoints)
+  KeyframeId waited_for_keyframe_;  // the keyframe WaitForNewPoints last waited for
   // When this agent's mapper last said it was running (its heartbeat, about 1 Hz; 0: never).
   std::atomic<double> mapper_alive_at_{0};
   std::atomic<bool> running_{false};
-  std::atomic<int64_t> received_{0}, tracked_{0}, dropped_{0}, keyframes_{0}, mapper_waits_{0};
+  std::atomic<int64_t> received_{0}, tracked_{0}, dropped_{0}, keyframes_{0}, mapper_waits_{0}, points_waits_{0};
+  std::atomic<double> points_wait_s_{0};
   std::atomic<int> highest_received_{-1}, highest_processed_{-1};  // frame numbers of...
   std::atomic<int64_t> ingest_session_{0};                         // ...this ingest's frames
   // tracking_'s state for Report(), which also runs in the dispatcher thread (late and dropped

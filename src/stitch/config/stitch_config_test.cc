@@ -32,6 +32,13 @@ TEST(StitchConfig, TyposAndBadValuesAreErrors) {
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("on_loss"), std::string::npos) << e.what();
   }
+  std::ofstream(dir / "wait.yaml") << "tracker:\n  live_wait_for_points_s: 5\n";
+  try {
+    LoadStitchConfig(dir / "wait.yaml");
+    FAIL() << "a live tracker waiting seconds for the mapper";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("live_wait_for_points_s"), std::string::npos) << e.what();
+  }
   std::ofstream(dir / "section.yaml") << "mystery:\n  a: 1\n";
   EXPECT_THROW(LoadStitchConfig(dir / "section.yaml"), Error);
 }

@@ -13,7 +13,13 @@ struct TrackerOptions {
   bool wait_for_mapper = true;          // lockstep frames: after a keyframe, wait for the mapper's update first
   double mapper_timeout_s = 5.0;        // ...for at most this long; then track on without it and say so
   double mapper_busy_max_wait_s = 120;  // ...unless its heartbeat says it is running: then this long at most
-  std::string state_file;               // keeps the next submap number across restarts ("" = none)
+  // Live frames: after a keyframe, while the last frame tracked fewer than live_wait_below_points
+  // map points, wait at most this long for the points the mapper triangulates for it before the
+  // next frame (once per keyframe; 0: never). A thin map (a young one, a fast turn) is what loses
+  // track, and the keyframe's points are what thickens it; lockstep frames always wait.
+  double live_wait_for_points_s = 0.05;
+  int live_wait_below_points = 100;
+  std::string state_file;  // keeps the next submap number across restarts ("" = none)
   TrackingOptions tracking;
 
   template <class Visitor>
@@ -29,6 +35,12 @@ struct TrackerOptions {
     v("mapper_busy_max_wait_s", mapper_busy_max_wait_s,
       "lockstep frames: longest wait for the mapper's answer to a keyframe while its heartbeat says it is running, "
       "seconds (at least mapper_timeout_s; a slow or starved machine: the run stays the same run)");
+    v("live_wait_for_points_s", live_wait_for_points_s,
+      "live frames: after a keyframe, while the last frame tracked fewer than live_wait_below_points map points, "
+      "wait at most this long for the mapper's points for it before the next frame, seconds (once per keyframe; 0: "
+      "never)");
+    v("live_wait_below_points", live_wait_below_points,
+      "live frames: the map points tracked below which the tracker waits for a keyframe's new points");
     v("state_file", state_file,
       "file keeping the next submap number, so submap ids stay unique across tracker restarts (empty: none)");
     v("tracking", tracking, "the tracking algorithm");
@@ -44,6 +56,9 @@ struct TrackerOptions {
     if (on_loss != "submap" && on_loss != "relocalize") return fail("tracker.on_loss must be submap or relocalize");
     if (!(mapper_timeout_s > 0)) return fail("tracker.mapper_timeout_s must be > 0");
     if (!(mapper_busy_max_wait_s > 0)) return fail("tracker.mapper_busy_max_wait_s must be > 0");
+    if (!(live_wait_for_points_s >= 0 && live_wait_for_points_s <= 1))
+      return fail("tracker.live_wait_for_points_s must be in [0, 1]");
+    if (live_wait_below_points < 0) return fail("tracker.live_wait_below_points must be >= 0");
     return tracking.Check(why);
   }
 };

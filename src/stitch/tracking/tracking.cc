@@ -708,7 +708,7 @@ Keyframe Tracking::CreateKeyframe(const Frame& frame) {
 }
 
 void Tracking::NoteKeyframeSent(KeyframeId id) {
-  keyframes_sent_.push_back({id, false});
+  keyframes_sent_.push_back({id, false, false});
   if (keyframes_sent_.size() > 16) keyframes_sent_.pop_front();
 }
 
@@ -717,9 +717,19 @@ int Tracking::KeyframesInFlight() const {
       std::count_if(keyframes_sent_.begin(), keyframes_sent_.end(), [](const SentKeyframe& k) { return !k.answered; }));
 }
 
+bool Tracking::NewestKeyframePointsReceived() const {
+  return keyframes_sent_.empty() || keyframes_sent_.back().answered || keyframes_sent_.back().points_received;
+}
+
 void Tracking::ApplyUpdate(const LocalMapUpdate& update, bool last_part) {
   if (!store_.Apply(update)) return;
   mapper_connected_ = true;
+  if (!keyframes_sent_.empty() && !keyframes_sent_.back().points_received) {
+    const KeyframeId newest = keyframes_sent_.back().id;
+    keyframes_sent_.back().points_received =
+        std::any_of(update.associations.begin(), update.associations.end(),
+                    [&](const auto& association) { return association.first == newest; });
+  }
   if (!last_part || !update.last_keyframe.valid()) return;
   // Keyframes are told apart by id, not ordered by it: those of a reopened submap have lower ids
   // than the newer submap's the mapper answered before.

@@ -84,6 +84,9 @@ class Tracking {
   // Keyframes sent that the mapper has not answered yet (counted up to the last 16 sent).
   int KeyframesInFlight() const;
   KeyframeId last_keyframe_sent() const { return keyframes_sent_.empty() ? KeyframeId() : keyframes_sent_.back().id; }
+  // The mapper has sent the points it triangulated for the newest keyframe sent (its early update,
+  // or its whole answer); true when none was sent.
+  bool NewestKeyframePointsReceived() const;
   void SetMapperConnected(bool connected) { mapper_connected_ = connected; }
   bool mapper_connected() const { return mapper_connected_; }
   int submaps_closed() const { return submaps_closed_; }
@@ -195,6 +198,7 @@ class Tracking {
   struct SentKeyframe {
     KeyframeId id;
     bool answered = false;
+    bool points_received = false;  // an update carried the mapper's points for it
   };
   std::deque<SentKeyframe> keyframes_sent_;  // the last ones, oldest first
   bool mapper_connected_ = true;

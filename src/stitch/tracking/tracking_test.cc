@@ -413,6 +413,36 @@ TEST(KeyframeDecision, KeyframesWaitWhileKeyframesInFlightAreUnanswered) {
   EXPECT_EQ(keyframes_made(3, 3), 6);
 }
 
+// A live tracker on a thin map waits for the newest keyframe's points (tracker service,
+// live_wait_for_points_s): they have come with the mapper's early update (its associations name
+// the keyframe) or its whole answer, not with an update about older keyframes.
+TEST(KeyframeDecision, TheNewestKeyframesPointsComeWithAnUpdateNamingIt) {
+  Tracking tracking(TrackingOptions(), Strip().sequence().camera(), &testing::DefaultVocabulary(), 20);
+  EXPECT_TRUE(tracking.NewestKeyframePointsReceived()) << "no keyframe sent yet";
+  std::vector<Keyframe> sent;
+  for (int i = 0; i < 15 && sent.empty(); ++i) {
+    Tracking::Output output =
+        tracking.Track(Strip().sequence().RenderFrame(i), i, Strip().sequence().flight().TimestampNs(i));
+    for (Keyframe& keyframe : output.new_keyframes) sent.push_back(std::move(keyframe));
+  }
+  ASSERT_EQ(sent.size(), 2u) << "initialization's two keyframes";
+  const Keyframe& newest = sent.back();
+  ASSERT_EQ(tracking.last_keyframe_sent(), newest.id);
+  EXPECT_FALSE(tracking.NewestKeyframePointsReceived());
+  LocalMapUpdate older;
+  older.submap = SubmapOf(newest.id);
+  older.revision = 1;
+  older.associations.push_back({sent[0].id, sent[0].points});
+  tracking.ApplyUpdate(older, false);
+  EXPECT_FALSE(tracking.NewestKeyframePointsReceived()) << "an update about an older keyframe";
+  LocalMapUpdate early = older;  // MakeNewPointsUpdate's shape: associations, no last_keyframe
+  early.revision = 2;
+  early.associations.push_back({newest.id, newest.points});
+  tracking.ApplyUpdate(early, false);
+  EXPECT_TRUE(tracking.NewestKeyframePointsReceived());
+  EXPECT_EQ(tracking.KeyframesInFlight(), static_cast<int>(sent.size())) << "its whole answer has not come";
+}
+
 TEST(KeyframeDecision, ReferencePointsCountPointsSeenOften) {
   const ThreeKeyframes& scene = SharedThreeKeyframes();
   const Keyframe& middle = *scene.map.FindKeyframe(scene.keyframes[1]);
