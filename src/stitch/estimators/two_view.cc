@@ -312,9 +312,15 @@ std::optional<TwoViewResult> InitializeTwoView(const std::vector<Eigen::Vector2d
     return fail(model + ": only " + std::to_string(best.num_good) + " of " + std::to_string(model_inliers) +
                 " inliers triangulate well");
   }
-  // Refine the motion, then triangulate again with it.
+  // Refine the motion, then triangulate again with it. The refined motion is the better
+  // estimate: where it keeps the points but not the parallax, the unrefined one overstated the
+  // baseline (a mostly rotating camera), and a later frame may do better.
   const Candidate refined = Check(Refine(best, p1, p2, k, sigma), p1, p2, inliers, k, sigma);
-  const Candidate& chosen = refined.num_good >= best.num_good * 0.95 ? refined : best;
+  const bool take_refined = refined.num_good >= best.num_good * 0.95;
+  if (take_refined && refined.parallax_deg < options.min_parallax_deg) {
+    return fail(model + ", refined: " + TooLittleParallax(refined.parallax_deg, options.min_parallax_deg));
+  }
+  const Candidate& chosen = take_refined ? refined : best;
   TwoViewResult result;
   result.cam2_from_cam1 = chosen.cam2_from_cam1;
   result.points_in_cam1 = chosen.points;
