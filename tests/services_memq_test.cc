@@ -431,7 +431,9 @@ TEST(ServicesInProcess, LockstepFramesWaitForAMapperWhoseHeartbeatSaysItIsRunnin
 // Frames from a live source never wait for the mapper: with none answering, the tracker takes
 // every frame as it comes (how many it drops depends on the machine: a sanitizer build on a
 // loaded one drops most), reports the mapper absent once its keyframes went unanswered for
-// mapper_timeout_s, and goes on making keyframes. Lockstep frames wait (the test above).
+// mapper_timeout_s, and goes on making keyframes. Lockstep frames wait (the test above). On a
+// thin map a live tracker waits a moment for a keyframe's points (live_wait_for_points_s), at
+// most once per keyframe, and not at all once the mapper is reported absent.
 TEST(ServicesInProcess, LiveFramesNeverWaitForTheMapper) {
   InProcessStack stack(
       [](StitchConfig* c) {
@@ -447,6 +449,7 @@ TEST(ServicesInProcess, LiveFramesNeverWaitForTheMapper) {
   ASSERT_FALSE(statuses.empty());
   EXPECT_FALSE(statuses.back().mapper_connected);
   EXPECT_GT(stack.tracker.keyframes_published(), 2);  // more than initialization's two
+  EXPECT_LE(stack.tracker.points_waits(), stack.tracker.keyframes_published());
 }
 
 // A live camera's 60 frames published in one burst: the tracker drops most for newer ones. Each
