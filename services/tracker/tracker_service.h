@@ -106,7 +106,8 @@ class TrackerService {
   bool record_failed_ = false;  // said once
   std::thread worker_;
   // The last frame came from a live source (frame_t::pacing): the tracker never waits for the
-  // mapper then; it makes keyframes as the mapper takes them. Worker thread only.
+  // mapper's answer then (only, on a thin map, a moment for a keyframe's points:
+  // WaitForNewPoints); it makes keyframes as the mapper takes them. Worker thread only.
   bool live_ = false;
   double mapper_heard_at_ = 0;      // the last update applied, or the first keyframe it left unanswered
   int last_tracked_points_ = 0;     // map points the last frame tracked (WaitForNewPoints)
