@@ -708,7 +708,7 @@ Keyframe Tracking::CreateKeyframe(const Frame& frame) {
 }
 
 void Tracking::NoteKeyframeSent(KeyframeId id) {
-  keyframes_sent_.push_back({id, false, false});
+  keyframes_sent_.push_back({id});
   if (keyframes_sent_.size() > 16) keyframes_sent_.pop_front();
 }
 
