@@ -2,14 +2,17 @@
 // during the short flight, with hostile updates between the real ones.
 
 #include <climits>
+#include <cmath>
 
 #include <gtest/gtest.h>
 
+#include "services/common/convert.h"
 #include "services/common/map_convert.h"
 #include "services/merger/merger_service.h"
 #include "stitch/config/stitch_config.h"
 #include "stitch/pipeline/inline_pipeline.h"
 #include "stitch/source/source.h"
+#include "stitch/testing/temp_dir.h"
 #include "tests/memq_dispatched.h"
 
 namespace stitch {
@@ -36,15 +39,16 @@ std::vector<stitch::submap_update_t> MappersUpdates(const StitchConfig& config, 
 // was sent is handled.
 class MergerOnMemq {
  public:
-  MergerOnMemq(const StitchConfig& config, const Vocabulary& vocabulary)
+  MergerOnMemq(const StitchConfig& config, const Vocabulary& vocabulary, const std::string& record_dir = "")
       : lcm_(bus::OpenLcm("memq://")),
         publisher_(lcm_.get(), "uav0"),
-        merger_(lcm_.get(), &publisher_, config.merger, config.tracker.tracking.orb, &vocabulary, ""),
+        merger_(lcm_.get(), &publisher_, config.merger, config.tracker.tracking.orb, &vocabulary, record_dir),
         dispatcher_(lcm_.get()) {
     dispatcher_.Start();
     merger_.Start();
   }
   void Send(stitch::submap_update_t message) { publisher_.Publish(bus::Channel("uav0", bus::kSubmap), &message); }
+  void Send(stitch::gnss_fix_t message) { publisher_.Publish(bus::Channel("uav0", bus::kGnss), &message); }
   const Merger& Finish() {
     testing::WaitUntilDispatched(lcm_.get());
     merger_.Stop();
@@ -100,6 +104,38 @@ TEST(MergerServiceInProcess, AForgedRevisionFarAheadIsRefusedAndTheRealUpdatesSt
     ASSERT_NE(received, nullptr);
     EXPECT_LT((received->position - point.position).norm(), 1e-9) << id.value;
   }
+}
+
+// The aircraft's GNSS fixes reach the ground's records (gnss_received.csv), each time once; a fix
+// that is no place on Earth, or of a type no receiver has, is refused.
+TEST(MergerServiceInProcess, KeepsTheAircraftsGnssFixesAndRefusesImpossibleOnes) {
+  const StitchConfig config = ShortFlight();
+  const Vocabulary vocabulary = LoadVocabulary(config);
+  testing::TempDir dir;
+  MergerOnMemq merger(config, vocabulary, dir.path().string());
+  GnssFix fix;
+  fix.position = {48.0, 11.0, 650.0};
+  fix.horizontal_accuracy_m = 2;
+  fix.vertical_accuracy_m = 3;
+  for (int i = 0; i < 20; ++i) {
+    fix.t_ns = i * 200'000'000LL;
+    fix.position.latitude_deg = 48.0 + i * 1e-5;
+    merger.Send(ToMessage(fix));
+  }
+  merger.Send(ToMessage(fix));  // the link repeats one
+  stitch::gnss_fix_t nowhere = ToMessage(fix);
+  nowhere.t_ns += 1;
+  nowhere.latitude_deg = NAN;
+  merger.Send(nowhere);
+  stitch::gnss_fix_t unknown = ToMessage(fix);
+  unknown.t_ns += 2;
+  unknown.fix_type = 9;
+  merger.Send(unknown);
+  merger.Finish();
+  const GnssTrack received = ReadGnssCsv(dir / "gnss_received.csv");
+  ASSERT_EQ(received.fixes.size(), 20u);
+  EXPECT_EQ(received.fixes[19].t_ns, 19 * 200'000'000LL);
+  EXPECT_DOUBLE_EQ(received.fixes[19].position.latitude_deg, 48.0 + 19 * 1e-5);
 }
 
 }  // namespace

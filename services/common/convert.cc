@@ -110,6 +110,36 @@ stitch::frame_pose_t FramePoseMessage(int frame_index, int64_t t_ns, SubmapId su
   return pose;
 }
 
+stitch::gnss_fix_t ToMessage(const GnssFix& fix) {
+  stitch::gnss_fix_t message{};
+  message.t_ns = fix.t_ns;
+  message.latitude_deg = fix.position.latitude_deg;
+  message.longitude_deg = fix.position.longitude_deg;
+  message.height_m = fix.position.height_m;
+  message.horizontal_accuracy_m = fix.horizontal_accuracy_m;
+  message.vertical_accuracy_m = fix.vertical_accuracy_m;
+  message.fix_type = static_cast<int8_t>(fix.type);
+  return message;
+}
+
+GnssFix FromMessage(const stitch::gnss_fix_t& message) {
+  static_assert(stitch::gnss_fix_t::FIX_NONE == static_cast<int>(GnssFixType::kNone) &&
+                    stitch::gnss_fix_t::FIX_RTK_FIXED == static_cast<int>(GnssFixType::kRtkFixed),
+                "the bus's fix types are the core's");
+  if (message.fix_type < stitch::gnss_fix_t::FIX_NONE || message.fix_type > stitch::gnss_fix_t::FIX_RTK_FIXED) {
+    throw Error("gnss_fix: unknown fix type " + std::to_string(message.fix_type));
+  }
+  if (message.t_ns < 0) throw Error("gnss_fix: negative time");
+  GnssFix fix;
+  fix.t_ns = message.t_ns;
+  fix.position = {message.latitude_deg, message.longitude_deg, message.height_m};
+  fix.horizontal_accuracy_m = message.horizontal_accuracy_m;
+  fix.vertical_accuracy_m = message.vertical_accuracy_m;
+  fix.type = static_cast<GnssFixType>(message.fix_type);
+  if (const std::string why = WhyNotAFix(fix); !why.empty()) throw Error("gnss_fix: " + why);
+  return fix;
+}
+
 ImageEncoding ParseImageEncoding(const std::string& name) {
   if (name == "gray8") return ImageEncoding::kGray8;
   if (name == "jpeg") return ImageEncoding::kJpeg;

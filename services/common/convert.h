@@ -11,8 +11,10 @@
 #include "stitch/delivery/delivery.h"
 #include "stitch/frame_pose_t.hpp"
 #include "stitch/frame_t.hpp"
+#include "stitch/geo/gnss_fix.h"
 #include "stitch/geometry/camera.h"
 #include "stitch/geometry/rigid3.h"
+#include "stitch/gnss_fix_t.hpp"
 #include "stitch/rigid3_t.hpp"
 #include "stitch/sim3_t.hpp"
 #include "stitch/submap_request_t.hpp"
@@ -36,6 +38,11 @@ Rigid3d FromFloatPose(const float* wxyz_xyz, const char* what);
 // `cam_from_reference`: tracked against no keyframe.
 stitch::frame_pose_t FramePoseMessage(int frame_index, int64_t t_ns, SubmapId submap, const Rigid3d& cam_from_submap,
                                       KeyframeId reference, const std::optional<Rigid3d>& cam_from_reference);
+
+// A GNSS fix on the bus (<agent>/GNSS). The reader throws stitch::Error for a fix type it does
+// not know, or a fix that is no place on Earth or states no accuracy (WhyNotAFix).
+stitch::gnss_fix_t ToMessage(const GnssFix& fix);
+GnssFix FromMessage(const stitch::gnss_fix_t& message);
 
 // The name of a tracking state on the bus (tracking_status_t::STATE_*), as TrackingStateName
 // says it in the core ("UNKNOWN" for a value no tracker sends). Not the core's function: this

@@ -1,6 +1,7 @@
 #include "services/common/convert.h"
 
 #include <cmath>
+#include <functional>
 #include <limits>
 
 #include <gtest/gtest.h>
@@ -111,6 +112,49 @@ TEST(Convert, AJpegIsRefusedBeforeDecodingWhenItsHeaderClaimsAnotherSize) {
   EXPECT_EQ(JpegSize(std::vector<uint8_t>(frame.data.begin(), frame.data.begin() + 20)), std::nullopt);
   EXPECT_EQ(JpegSize(std::vector<uint8_t>(100, 0xFF)), std::nullopt);
   EXPECT_EQ(JpegSize({}), std::nullopt);
+}
+
+}  // namespace
+}  // namespace stitch
+
+namespace stitch {
+namespace {
+
+TEST(Convert, GnssFixesRoundTripAndImpossibleOnesAreRefused) {
+  GnssFix fix;
+  fix.t_ns = 123'456'789;
+  fix.position = {48.1234567891, 11.5, 612.25};
+  fix.horizontal_accuracy_m = 1.5;
+  fix.vertical_accuracy_m = 2.5;
+  fix.type = GnssFixType::kRtkFloat;
+  const GnssFix back = FromMessage(ToMessage(fix));
+  EXPECT_EQ(back.t_ns, fix.t_ns);
+  EXPECT_EQ(back.position.latitude_deg, fix.position.latitude_deg);
+  EXPECT_EQ(back.position.height_m, fix.position.height_m);
+  EXPECT_EQ(back.vertical_accuracy_m, 2.5);
+  EXPECT_EQ(back.type, GnssFixType::kRtkFloat);
+  stitch::gnss_fix_t sized = ToMessage(fix);
+  sized.header.agent = "uav0";
+  EXPECT_EQ(sized.getEncodedSize(), 90);  // what docs/messages.md says it costs the link
+  const std::vector<std::pair<std::function<void(stitch::gnss_fix_t*)>, std::string>> spoilt = {
+      {[](stitch::gnss_fix_t* m) { m->fix_type = 6; }, "unknown fix type 6"},
+      {[](stitch::gnss_fix_t* m) { m->fix_type = -1; }, "unknown fix type -1"},
+      {[](stitch::gnss_fix_t* m) { m->t_ns = -1; }, "negative time"},
+      {[](stitch::gnss_fix_t* m) { m->latitude_deg = NAN; }, "not a finite number"},
+      {[](stitch::gnss_fix_t* m) { m->longitude_deg = 540; }, "longitude 540"},
+      {[](stitch::gnss_fix_t* m) { m->horizontal_accuracy_m = 0; }, "accuracy"},
+      {[](stitch::gnss_fix_t* m) { m->vertical_accuracy_m = INFINITY; }, "accuracy"},
+  };
+  for (const auto& [spoil, expected] : spoilt) {
+    stitch::gnss_fix_t message = ToMessage(fix);
+    spoil(&message);
+    try {
+      FromMessage(message);
+      ADD_FAILURE() << "accepted, expected: " << expected;
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find(expected), std::string::npos) << e.what();
+    }
+  }
 }
 
 }  // namespace

@@ -1,6 +1,7 @@
 #include "services/ingest/ingest_service.h"
 
 #include <fstream>
+#include <limits>
 #include <thread>
 
 #include "services/common/convert.h"
@@ -80,8 +81,8 @@ void IngestService::PublishSequenceInfo(const ImageSequence& sequence, const Ing
   publisher_->Publish(bus::Channel(publisher_->agent(), bus::kSequence), &info);
 }
 
-IngestSummary IngestService::Play(ImageSequence& sequence, const FailureSchedule& spoil,
-                                  const std::atomic<bool>& stop) {
+IngestSummary IngestService::Play(ImageSequence& sequence, const FailureSchedule& spoil, const std::atomic<bool>& stop,
+                                  const std::vector<GnssFix>& gnss) {
   // A live camera does not wait for anyone: its frames go out as they come.
   const bool live = sequence.live();
   const bool lockstep = options_.pacing == "lockstep" && !live;
@@ -92,6 +93,16 @@ IngestSummary IngestService::Play(ImageSequence& sequence, const FailureSchedule
   const FailureStyle failure_style = ParseFailureStyle(options_.failure_style);
   const std::string frame_channel = bus::Channel(publisher_->agent(), bus::kFrame);
   IngestSummary summary;
+  const std::string gnss_channel = bus::Channel(publisher_->agent(), bus::kGnss);
+  size_t next_fix = 0;
+  // The fixes up to `t_ns` not sent yet.
+  const auto publish_fixes_until = [&](int64_t t_ns) {
+    for (; next_fix < gnss.size() && gnss[next_fix].t_ns <= t_ns; ++next_fix) {
+      stitch::gnss_fix_t fix = ToMessage(gnss[next_fix]);
+      publisher_->Publish(gnss_channel, &fix);
+      ++summary.gnss_fixes_published;
+    }
+  };
   STITCH_LOG(INFO) << "playing " << sequence.description() << ", " << (live ? "live" : options_.pacing) << " pacing, "
                    << options_.encoding << " frames"
                    << (spoil.empty() ? std::string() : ", spoiling frames " + spoil.ToString());
@@ -152,6 +163,7 @@ IngestSummary IngestService::Play(ImageSequence& sequence, const FailureSchedule
       std::lock_guard<std::mutex> lock(mutex_);
       highest_sent_ = std::max(highest_sent_, frame.index);
     }
+    publish_fixes_until(frame.t_ns);
     publisher_->Publish(frame_channel, &message);
     ++summary.frames_published;
     ++published_;
@@ -175,6 +187,7 @@ IngestSummary IngestService::Play(ImageSequence& sequence, const FailureSchedule
     }
   }
   summary.stopped = stop.load();
+  if (!summary.stopped) publish_fixes_until(std::numeric_limits<int64_t>::max());
   summary.seconds = clock.ElapsedSeconds();
   summary.frames_dropped_at_source = sequence.dropped_at_source();
   {
@@ -193,6 +206,8 @@ IngestSummary IngestService::Play(ImageSequence& sequence, const FailureSchedule
   STITCH_LOG(INFO) << "published " << summary.frames_published << " frames in " << summary.seconds << " s ("
                    << summary.frames_replaced << " spoiled, " << summary.frames_unreadable << " unreadable, "
                    << summary.frames_unacked << " unacknowledged, " << summary.resends << " re-sends"
+                   << (gnss.empty() ? std::string()
+                                    : ", " + std::to_string(summary.gnss_fixes_published) + " GNSS fixes")
                    << (live ? ", " + std::to_string(summary.frames_dropped_at_source) +
                                   " captured but replaced by a newer one before they could be sent"
                             : std::string())

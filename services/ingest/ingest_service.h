@@ -11,6 +11,7 @@
 #include "services/common/bus.h"
 #include "stitch/config/ingest_options.h"
 #include "stitch/frame_ack_t.hpp"
+#include "stitch/geo/gnss_fix.h"
 #include "stitch/io/failure_schedule.h"
 #include "stitch/io/image_sequence.h"
 #include "stitch/service_status_t.hpp"
@@ -23,6 +24,7 @@ struct IngestSummary {
   int frames_unreadable = 0;  // the source could not read them; sent empty so they are counted
   int frames_unacked = 0;     // lockstep: given up on after max_resends
   int resends = 0;
+  int gnss_fixes_published = 0;
   int64_t frames_dropped_at_source = 0;  // live: captured, but a newer frame came before it could be sent
   int64_t acks_refused = 0;              // acks for frames not sent yet (forged)
   double seconds = 0;
@@ -44,7 +46,10 @@ class IngestService {
   // Plays `sequence` to its end or until `stop`. `spoil` names frames to replace by unusable
   // ones (datasets; the synthetic flight renders its gusts itself). Throws stitch::Error when
   // lockstep finds no tracker.
-  IngestSummary Play(ImageSequence& sequence, const FailureSchedule& spoil, const std::atomic<bool>& stop);
+  // `gnss`: the source's GNSS fixes, each published on <agent>/GNSS just before the first frame
+  // at or after its time (the rest after the last frame).
+  IngestSummary Play(ImageSequence& sequence, const FailureSchedule& spoil, const std::atomic<bool>& stop,
+                     const std::vector<GnssFix>& gnss = {});
 
   // Waits (at most options.wait_for_tracker_s) for a tracker on the bus; true once one runs. A
   // live camera is best opened after it: its frames do not wait.

@@ -21,6 +21,7 @@
 #include "services/common/convert.h"
 #include "services/tracker/tracker_service.h"
 #include "stitch/frame_ack_t.hpp"
+#include "stitch/gnss_fix_t.hpp"
 #include "stitch/records/frame_record.h"
 #include "stitch/source/source.h"
 #include "stitch/testing/temp_dir.h"
@@ -50,12 +51,20 @@ struct Recorder {
   std::map<int, cv::Mat> frames;
   std::vector<stitch::tracking_status_t> statuses;
   int frame_messages = 0;
+  // Frames ('F') and GNSS fixes ('G') with their times, in the order they came.
+  std::vector<std::pair<char, int64_t>> order;
 
   void Subscribe(bus::Subscriber* subscriber, const std::string& agent) {
+    subscriber->Subscribe<stitch::gnss_fix_t>(bus::Channel(agent, bus::kGnss),
+                                              [this](std::unique_ptr<stitch::gnss_fix_t> f, const std::string&) {
+                                                std::lock_guard<std::mutex> lock(mutex);
+                                                order.emplace_back('G', f->t_ns);
+                                              });
     subscriber->Subscribe<stitch::frame_t>(bus::Channel(agent, bus::kFrame),
                                            [this](std::unique_ptr<stitch::frame_t> f, const std::string&) {
                                              std::lock_guard<std::mutex> lock(mutex);
                                              ++frame_messages;
+                                             order.emplace_back('F', f->t_ns);
                                              if (f->num_bytes > 0) frames[f->frame_index] = DecodeImage(*f);
                                            });
     subscriber->Subscribe<stitch::tracking_status_t>(
@@ -105,7 +114,7 @@ struct InProcessRun {
     FailureSchedule spoil;
     auto sequence = OpenSource(spec, &spoil);
     std::atomic<bool> stop{false};
-    const IngestSummary summary = ingest.Play(*sequence, spoil, stop);
+    const IngestSummary summary = ingest.Play(*sequence, spoil, stop, SourceGnss(spec, *sequence).fixes);
     tracker.Stop();
     dispatcher.Stop();
     return summary;
@@ -154,6 +163,24 @@ TEST(Ingest, LockstepWithTheTrackerDeliversEveryFrameOnceInProcess) {
   }
   // The tracker's record has a line per frame.
   EXPECT_EQ(ReadFrameRecords(dir / "frames.tsv").size(), 15u);
+  // The synthetic receiver's fixes (5 Hz over 0.7 s: 4), each just before the first frame at or
+  // after its time.
+  EXPECT_EQ(summary.gnss_fixes_published, 4);
+  int fixes = 0;
+  int64_t latest_frame = -1;
+  for (size_t i = 0; i < recorder.order.size(); ++i) {
+    const auto& [kind, t_ns] = recorder.order[i];
+    if (kind == 'F') {
+      latest_frame = std::max(latest_frame, t_ns);
+      continue;
+    }
+    ++fixes;
+    EXPECT_LT(latest_frame, t_ns) << "the fix at " << t_ns << " came after a frame at " << latest_frame;
+    const auto next_frame = std::find_if(recorder.order.begin() + i, recorder.order.end(),
+                                         [](const auto& event) { return event.first == 'F'; });
+    if (next_frame != recorder.order.end()) EXPECT_GE(next_frame->second, t_ns);
+  }
+  EXPECT_EQ(fixes, 4);
 }
 
 // Ingest never sends an acknowledged frame again, so a tracker killed right after an ack must

@@ -59,6 +59,16 @@ MergerService::MergerService(lcm::LCM* lcm, bus::Publisher* publisher, const Mer
           }
           subscriber_.Reject(on, why);
         });
+    subscriber_.Subscribe<stitch::gnss_fix_t>(
+        bus::Channel(agent, bus::kGnss), [this](std::unique_ptr<stitch::gnss_fix_t> message, const std::string& on) {
+          std::string why;
+          try {
+            if (session_.AddGnssFix(message->header.agent, FromMessage(*message), &why)) return;
+          } catch (const Error& e) {
+            why = e.what();
+          }
+          subscriber_.Reject(on, why);
+        });
   }
   heartbeat_ = std::make_unique<Heartbeat>(publisher_, "merger", [this] {
     return Heartbeat::Counts{received_.load(), processed_.load(), subscriber_.rejected() + rejected_.load()};

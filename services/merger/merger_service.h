@@ -4,8 +4,8 @@
 // folder), applies them in its own worker thread, asks the mappers on <agent>/SUBMAP_REQUEST for
 // what the link lost, and publishes the merged maps on <agent>/GLOBAL_MAP and their points on
 // <agent>/MAP_CLOUD. The aircraft's pose stream (<agent>/POSE) feeds the session's per-frame
-// trajectory. With a record folder the session writes the merger's records there
-// (src/stitch/merging/merge_session.h).
+// trajectory; its GNSS fixes (<agent>/GNSS) are kept and written with the records. With a record folder the session
+// writes the merger's records there (src/stitch/merging/merge_session.h).
 
 #include <atomic>
 #include <memory>
@@ -18,6 +18,7 @@
 #include "services/common/update_journal.h"
 #include "stitch/delivery/submap_receiver.h"
 #include "stitch/frame_pose_t.hpp"
+#include "stitch/gnss_fix_t.hpp"
 #include "stitch/merging/merge_session.h"
 #include "stitch/submap_update_t.hpp"
 #include "stitch/util/bounded_queue.h"

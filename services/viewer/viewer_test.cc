@@ -140,7 +140,7 @@ TEST(ViewerState, BothSidesLinkBridgesAreShownEachByWhatItSends) {
   std::string why;
   stitch::link_status_t down{}, up{};
   down.header.agent = up.header.agent = "uav0";
-  down.forward = "uav0/(SUBMAP|SEQUENCE|TRACKING_STATUS|POSE|SERVICE|LINK_STATUS)";
+  down.forward = "uav0/(SUBMAP|SEQUENCE|TRACKING_STATUS|POSE|GNSS|SERVICE|LINK_STATUS)";
   down.backlog_s = 12.5;
   up.forward = "uav0/SUBMAP_REQUEST";
   for (int i = 0; i < 3; ++i) {

@@ -10,7 +10,7 @@ local types = {
   TRACKING_STATUS = 'tracking_status_t', KEYFRAME = 'keyframe_t', LOCAL_MAP = 'local_map_update_t',
   SUBMAP = 'submap_update_t', SUBMAP_REQUEST = 'submap_request_t', GLOBAL_MAP = 'global_map_t',
   SERVICE = 'service_status_t', LINK_STATUS = 'link_status_t', POSE = 'frame_pose_t',
-  MAP_CLOUD = 'map_cloud_t',
+  MAP_CLOUD = 'map_cloud_t', GNSS = 'gnss_fix_t',
 }
 
 -- A big-endian unsigned integer of `n` bytes at `at` (1-based); Lua 5.2 has no string.unpack.

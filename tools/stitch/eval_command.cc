@@ -41,6 +41,7 @@ int EvalCommand(int argc, char** argv) {
       info.notes.clear();
       const Evaluation evaluation = FinishRunOutputs(run_dirs[0], &info);
       std::printf("%s\n%s", info.source.c_str(), Summarize(evaluation).c_str());
+      for (const auto& figures : info.geo_figures) std::printf("%s\n", figures.c_str());
       for (const auto& note : info.notes) std::printf("note: %s\n", note.c_str());
       return 0;
     }

@@ -102,7 +102,7 @@ int RecordCommand(int argc, char** argv) {
     const std::string channels =
         "(" + names + ")/" +
         (all ? std::string(".*")
-             : "(SUBMAP|SUBMAP_REQUEST|TRACKING_STATUS|POSE|SERVICE|SEQUENCE|GLOBAL_MAP|MAP_CLOUD)");
+             : "(SUBMAP|SUBMAP_REQUEST|TRACKING_STATUS|POSE|SERVICE|SEQUENCE|GLOBAL_MAP|MAP_CLOUD|GNSS)");
     const std::atomic<bool>& stop = InstallStopSignals();
     auto lcm = bus::OpenLcm(lcm_url);
     lcm::LogFile log(files[0], "w");

@@ -28,11 +28,13 @@ int RenderCommand(int argc, char** argv) {
   std::vector<std::string> settings;
   SourceSpec spec;
   H264FileOptions video;
-  ArgParser args("stitch render",
-                 "Renders the synthetic UAV survey flight to an image folder (frames as PNG named by timestamp, "
-                 "camera.yaml and groundtruth.txt, TUM) or, for --out FILE.mp4 (.mkv, .mov), to an H.264 video as "
-                 "an aircraft's camera records one, with FILE.yaml and FILE.groundtruth.txt beside it (GStreamer's "
-                 "x264enc: gstreamer1.0-plugins-ugly).");
+  ArgParser args(
+      "stitch render",
+      "Renders the synthetic UAV survey flight to an image folder (frames as PNG named by timestamp, "
+      "camera.yaml and groundtruth.txt, TUM) or, for --out FILE.mp4 (.mkv, .mov), to an H.264 video as "
+      "an aircraft's camera records one, with FILE.yaml and FILE.groundtruth.txt beside it (GStreamer's "
+      "x264enc: gstreamer1.0-plugins-ugly); the synthetic GNSS receiver's fixes go to gnss.csv (FILE.gnss.csv "
+      "beside a video; synthetic.gnss.rate_hz=0: none).");
   args.AddOption("--out", &out, "DIR|FILE", "output folder, or a video file (.mp4, .mkv, .mov) (required)");
   args.AddOption("--config", &config_path, "FILE", "YAML settings; its synthetic: section shapes the flight");
   args.AddOption("--set", &settings, "KEY=VALUE", "a setting over the file, e.g. synthetic.flight.altitude_m=40");
@@ -76,6 +78,9 @@ int RenderCommand(int argc, char** argv) {
     }
     if (writer) writer->Finish();
     truth.WriteTum(truth_path.string(), output_frames::kGroundTruth);
+    // The receiver's fixes of the frames rendered, where `stitch run --dataset` looks for them.
+    const GnssTrack gnss = SimulateGnssReceiver(truth, spec.synthetic.gnss, static_cast<uint64_t>(spec.synthetic.seed));
+    if (!gnss.fixes.empty()) WriteGnssCsv(GnssFileBeside(out), gnss);
     std::printf("\nwrote %d frames to %s in %.1f s (%s)\n", total, out.c_str(), clock.ElapsedSeconds(),
                 sequence->description().c_str());
     return 0;

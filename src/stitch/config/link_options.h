@@ -9,7 +9,7 @@ namespace stitch {
 struct LinkOptions {
   // LCM channels (a regular expression, as LCM subscribes) sent to the peer. The aircraft sends
   // its features and state down; the ground sends the merger's requests up.
-  std::string forward = "uav0/(SUBMAP|SEQUENCE|TRACKING_STATUS|POSE|SERVICE|LINK_STATUS)";
+  std::string forward = "uav0/(SUBMAP|SEQUENCE|TRACKING_STATUS|POSE|GNSS|SERVICE|LINK_STATUS)";
   // LCM channels (a regular expression) this bridge publishes from the other side: what the
   // other side's `forward` names, so a datagram for any other channel (a FRAME sent up to the
   // aircraft) is refused. ".*": whatever the other side sends.

@@ -275,10 +275,11 @@ Evaluation ReadReport(const std::string& path) {
 }
 
 void WriteReport(const std::string& path, const Evaluation& evaluation, const nlohmann::json& run,
-                 const nlohmann::json& merges) {
+                 const nlohmann::json& merges, const nlohmann::json& georeference) {
   nlohmann::json report = ToJson(evaluation);
   if (!run.is_null()) report["run"] = run;
   if (!merges.is_null()) report["merges"] = merges;
+  if (!georeference.is_null()) report["georeference"] = georeference;
   WriteFileAtomically(path, report.dump(2) + "\n");
 }
 

@@ -86,9 +86,10 @@ nlohmann::json ToJson(const Evaluation& evaluation);
 Evaluation EvaluationFromJson(const nlohmann::json& json);
 Evaluation ReadReport(const std::string& path);
 // Writes report.json (ToJson, with `run` under "run" when given) atomically: the one writer.
-// `run` (run.json's content) and `merges` (the merger's edges and their verdicts) go in as they are.
+// `run` (run.json's content), `merges` (the merger's edges and their verdicts) and `georeference`
+// (RunGeoReference::ToJson) go in as they are.
 void WriteReport(const std::string& path, const Evaluation& evaluation, const nlohmann::json& run = nullptr,
-                 const nlohmann::json& merges = nullptr);
+                 const nlohmann::json& merges = nullptr, const nlohmann::json& georeference = nullptr);
 // A few lines for the terminal.
 std::string Summarize(const Evaluation& evaluation);
 // The same for a trajectory alone (another system's, `stitch eval --est`): the frames it poses

@@ -17,6 +17,8 @@ namespace stitch {
 namespace {
 // Frames of the pose stream kept per aircraft: 9 hours at 30 fps.
 constexpr size_t kMaxFramePoses = 1'000'000;
+// Fixes kept in all: 10 hours at 10 Hz.
+constexpr size_t kMaxGnssFixes = 360'000;
 // Merges rolled back by the check after placement in one refinement, at most (each round solves
 // and adjusts the largest map again).
 constexpr int kMaxRollbacksPerRefinement = 3;
@@ -237,6 +239,31 @@ bool MergeSession::AddFramePose(const std::string& agent, const TrackedFramePose
   return true;
 }
 
+bool MergeSession::AddGnssFix(const std::string& agent, const GnssFix& fix, std::string* why) {
+  if (const std::string wrong = WhyNotAFix(fix); !wrong.empty()) {
+    *why = wrong;
+    return false;
+  }
+  std::lock_guard<std::mutex> lock(gnss_mutex_);
+  std::map<int64_t, GnssFix>& fixes = gnss_[agent];
+  if (!fixes.count(fix.t_ns)) {
+    size_t held = 0;
+    for (const auto& item : gnss_) held += item.second.size();
+    if (held >= kMaxGnssFixes) {
+      *why = "the merger holds " + std::to_string(kMaxGnssFixes) + " fixes already";
+      return false;
+    }
+  }
+  fixes[fix.t_ns] = fix;
+  ++gnss_received_;
+  return true;
+}
+
+int64_t MergeSession::gnss_fixes_received() const {
+  std::lock_guard<std::mutex> lock(gnss_mutex_);
+  return gnss_received_;
+}
+
 int64_t MergeSession::frame_poses_received() const {
   std::lock_guard<std::mutex> lock(poses_mutex_);
   return poses_received_;
@@ -405,6 +432,17 @@ void MergeSession::WriteRecords(const Merger::Graph& graph, const MergedMap* mer
                        replica.closed, placement.world_from_submap});
   }
   WriteSubmapRecords((dir / "submaps.tsv").string(), submaps);
+  {
+    // What the ground received of each aircraft's GNSS fixes.
+    std::lock_guard<std::mutex> lock(gnss_mutex_);
+    for (const auto& [agent, fixes] : gnss_) {
+      GnssTrack track;
+      track.source = "received by the merger from " + agent;
+      for (const auto& item : fixes) track.fixes.push_back(item.second);
+      WriteGnssCsv((dir / (agents_.size() <= 1 ? "gnss_received.csv" : "gnss_received-" + agent + ".csv")).string(),
+                   track);
+    }
+  }
   {
     // map.ply: the largest merged map's points in its frame, one colour per submap.
     static const uint8_t kPalette[][3] = {{30, 90, 200}, {220, 40, 40}, {40, 160, 40}, {180, 40, 180},  {220, 150, 20},

@@ -10,11 +10,13 @@
 #include <functional>
 #include <map>
 #include <mutex>
+
 #include <optional>
 #include <set>
 #include <string>
 #include <utility>
 #include <vector>
+#include "stitch/geo/gnss_fix.h"
 
 #include <Eigen/Core>
 
@@ -73,6 +75,12 @@ class MergeSession {
   // 9 hours at 30 fps waiting; thread-safe (the subscriber's thread calls it).
   bool AddFramePose(const std::string& agent, const TrackedFramePose& pose, std::string* why);
   int64_t frame_poses_received() const;
+  // The aircraft's GNSS fixes (<agent>/GNSS): kept by aircraft and time (a fix again at a time
+  // already held replaces it), written to gnss_received.csv (gnss_received-<agent>.csv for
+  // several aircraft) with the records. Refuses (false, with why) a fix that is no place on Earth
+  // or states no accuracy, and fixes beyond 10 hours at 10 Hz; thread-safe.
+  bool AddGnssFix(const std::string& agent, const GnssFix& fix, std::string* why);
+  int64_t gnss_fixes_received() const;
   // trajectory.tum (or one per aircraft): every frame of the pose stream that lies in the
   // largest merged map, with the newest placement and the last refinement's keyframe poses.
   void WriteLiveTrajectory();
@@ -138,6 +146,9 @@ class MergeSession {
   int64_t poses_received_ = 0;
   std::map<std::string, std::map<int, TrackedFramePose>> frame_poses_;
   bool trajectory_stale_ = false;
+  mutable std::mutex gnss_mutex_;
+  std::map<std::string, std::map<int64_t, GnssFix>> gnss_;  // by aircraft, by time
+  int64_t gnss_received_ = 0;
   double trajectory_written_at_ = 0;  // MonotonicSeconds()
   bool cloud_stale_ = false;
   int cloud_revision_ = 0;

@@ -4,6 +4,7 @@
 
 #include <string>
 
+#include "stitch/geo/geo_registration.h"
 #include "stitch/map/map_export.h"
 
 namespace stitch {
@@ -115,6 +116,7 @@ struct MergerOptions {
   MergedMapOptions merged_map;            // fusing points and the global bundle adjustment
   AcceptanceOptions acceptance;           // checks before a connection or an edge may place a submap
   MapExportOptions map_export;            // what of the merged map goes into map.ply
+  GeoReferenceOptions georeference;       // each map placed on Earth by the aircraft's GNSS fixes
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
@@ -148,6 +150,9 @@ struct MergerOptions {
     v("acceptance", acceptance, "checks a connected frame and an edge must pass before they may place a submap");
     v("map_export", map_export,
       "what of the merged map goes into map.ply (everything, gross outliers included, goes into map_raw.ply)");
+    v("georeference", georeference,
+      "each map placed on Earth by the aircraft's GNSS fixes (gnss.csv in the run folder), its trajectory in WGS84 "
+      "(geo/)");
   }
   bool Check(std::string* why) const;
 };

@@ -1,9 +1,13 @@
 #include "stitch/records/pose_record.h"
 
+#include <algorithm>
+#include <map>
+#include <set>
 #include <sstream>
 
 #include "stitch/io/trajectory.h"
 #include "stitch/util/error.h"
+#include "stitch/util/ids.h"
 #include "stitch/util/text_file.h"
 
 namespace stitch {
@@ -22,6 +26,37 @@ std::vector<PoseRecord> ReadPoseRecords(const std::string& path) {
     poses.push_back(p);
   });
   return poses;
+}
+
+std::vector<RunMap> MapsOfRun(const std::vector<PoseRecord>& poses, int largest_component) {
+  std::map<int, RunMap> by_component;
+  std::map<int, std::set<int64_t>> submaps;
+  for (const auto& p : poses) {
+    RunMap& map = by_component[p.component];
+    map.component = p.component;
+    ++map.frames;
+    submaps[p.component].insert(p.submap_id);
+  }
+  std::vector<RunMap> maps;
+  for (auto& [component, map] : by_component) {
+    map.submaps.assign(submaps[component].begin(), submaps[component].end());
+    map.largest = component == largest_component;
+    maps.push_back(map);
+  }
+  std::stable_sort(maps.begin(), maps.end(), [](const RunMap& a, const RunMap& b) {
+    if (a.largest != b.largest) return a.largest;
+    return a.frames > b.frames;
+  });
+  int merged_maps = 0;
+  for (RunMap& map : maps) {
+    if (map.submaps.size() > 1) {
+      map.name = "map-" + std::to_string(merged_maps++);
+    } else {
+      map.name = "submap-" + SubmapName(SubmapId(map.submaps.front()));
+      std::replace(map.name.begin(), map.name.end(), ':', '-');
+    }
+  }
+  return maps;
 }
 
 void WritePoseRecords(const std::string& path, const std::vector<PoseRecord>& poses) {

@@ -25,4 +25,16 @@ struct PoseRecord {
 std::vector<PoseRecord> ReadPoseRecords(const std::string& path);
 void WritePoseRecords(const std::string& path, const std::vector<PoseRecord>& poses);
 
+// The maps of a run's poses, named as its outputs name them: a merged map of several submaps
+// "map-K" (K = 0 the largest, then by frames), a submap on its own "submap-A-N"; the largest
+// map first, then by frames.
+struct RunMap {
+  int component = -1;
+  std::string name;
+  int frames = 0;
+  std::vector<int64_t> submaps;  // ascending
+  bool largest = false;
+};
+std::vector<RunMap> MapsOfRun(const std::vector<PoseRecord>& poses, int largest_component);
+
 }  // namespace stitch

@@ -26,6 +26,7 @@ nlohmann::json RunInfo::ToJson() const {
           {"interrupted", interrupted},
           {"link", link},
           {"link_figures", link_figures},
+          {"geo_figures", geo_figures},
           {"notes", notes},
           {"peak_rss_mb", peak_rss_mb},
           {"cpu_s", cpu_s}};
@@ -46,6 +47,7 @@ RunInfo RunInfo::FromJson(const nlohmann::json& j) {
     info.agent = j.value("agent", "");
     info.link = j.value("link", "");
     info.link_figures = j.value("link_figures", std::vector<std::string>{});
+    info.geo_figures = j.value("geo_figures", std::vector<std::string>{});
     info.started_at = j.value("started_at", "");
     info.wall_seconds = j.value("wall_seconds", 0.0);
     info.interrupted = j.value("interrupted", false);

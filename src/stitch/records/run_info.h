@@ -23,6 +23,7 @@ struct RunInfo {
   std::string agent;
   std::string link;                       // the link bridges between the sides; "" when one bus
   std::vector<std::string> link_figures;  // each bridge's last word: what it sent, repaired, received
+  std::vector<std::string> geo_figures;   // where each map was placed on Earth by the GNSS fixes (geo/)
   std::string started_at;
   double wall_seconds = 0;
   bool interrupted = false;

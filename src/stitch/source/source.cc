@@ -171,6 +171,7 @@ SourceSummary SummarizeSource(const SourceSpec& spec) {
     summary.ground_truth = Trajectory(std::move(poses));
     summary.num_frames = played;
     summary.fps = options.flight.fps;
+    summary.gnss = SimulateGnssReceiver(summary.ground_truth, options.gnss, static_cast<uint64_t>(options.seed));
     summary.description = Str() << "synthetic UAV survey (seed " << options.seed << ", " << played << " frames, gusts "
                                 << summary.failures.ToString() << ")";
     return summary;
@@ -192,7 +193,29 @@ SourceSummary SummarizeSource(const SourceSpec& spec) {
   summary.camera = sequence->camera();
   summary.ground_truth = sequence->ground_truth();
   summary.failures = spoil;
+  if (const std::string gnss = GnssFileBeside(spec.dataset_path); std::filesystem::is_regular_file(gnss)) {
+    summary.gnss = ReadGnssCsv(gnss);
+  }
   return summary;
+}
+
+GnssTrack SourceGnss(const SourceSpec& spec, const ImageSequence& sequence) {
+  if (spec.synthetic_source()) {
+    return SimulateGnssReceiver(sequence.ground_truth(), spec.synthetic.gnss,
+                                static_cast<uint64_t>(spec.synthetic.seed));
+  }
+  if (const std::string gnss = GnssFileBeside(spec.dataset_path);
+      !gnss.empty() && std::filesystem::is_regular_file(gnss)) {
+    return ReadGnssCsv(gnss);
+  }
+  return {};
+}
+
+std::string GnssFileBeside(const std::string& dataset_path) {
+  namespace fs = std::filesystem;
+  if (dataset_path.empty()) return "";
+  if (fs::is_directory(dataset_path)) return (fs::path(dataset_path) / "gnss.csv").string();
+  return fs::path(dataset_path).replace_extension(".gnss.csv").string();
 }
 
 void AddSourceOptions(ArgParser* args, SourceSpec* spec, unsigned which) {

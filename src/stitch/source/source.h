@@ -6,6 +6,7 @@
 #include <utility>
 #include <vector>
 
+#include "stitch/geo/gnss_fix.h"
 #include "stitch/io/failure_schedule.h"
 #include "stitch/io/image_sequence.h"
 #include "stitch/synthetic/synthetic_sequence.h"
@@ -71,8 +72,19 @@ struct SourceSummary {
   Camera camera;
   Trajectory ground_truth;
   FailureSchedule failures;
+  // The aircraft's GNSS fixes: the synthetic receiver's, or a dataset's gnss.csv (GnssFileBeside);
+  // no fixes where there are none.
+  GnssTrack gnss;
 };
 SourceSummary SummarizeSource(const SourceSpec& spec);
+
+// The GNSS fixes of what `spec` plays, `sequence` being it opened (OpenSource): the synthetic
+// receiver's of its flight, a dataset's gnss.csv; none for a live camera. Throws stitch::Error
+// for a malformed gnss.csv.
+GnssTrack SourceGnss(const SourceSpec& spec, const ImageSequence& sequence);
+// Where a dataset's GNSS fixes are: DIR/gnss.csv for a folder, FILE.gnss.csv beside a video
+// FILE.mp4 (what `stitch render` writes).
+std::string GnssFileBeside(const std::string& dataset_path);
 
 // The rolling shutter's readout delay per row of the frames the tracker sees (`working`: frames
 // reduced to a working size take as long per row as the source's rows they hold) as the source

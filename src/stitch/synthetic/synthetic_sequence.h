@@ -8,6 +8,7 @@
 #include "stitch/io/image_sequence.h"
 #include "stitch/synthetic/camera_imperfections.h"
 #include "stitch/synthetic/flight.h"
+#include "stitch/synthetic/gnss_receiver.h"
 #include "stitch/synthetic/renderer.h"
 #include "stitch/synthetic/world.h"
 
@@ -23,6 +24,7 @@ struct SyntheticOptions {
   FlightOptions flight;
   GustOptions gust;
   WorldOptions world;
+  GnssReceiverOptions gnss;  // the aircraft's GNSS receiver
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
@@ -35,6 +37,7 @@ struct SyntheticOptions {
     v("flight", flight, "the survey path");
     v("gust", gust, "what a scheduled gust does");
     v("world", world, "the terrain, textures and buildings");
+    v("gnss", gnss, "the aircraft's GNSS receiver: fixes of the true positions with noise, dropouts, jumps");
   }
   bool Check(std::string* why) const;
   Camera MakeCamera() const;

@@ -127,7 +127,7 @@ LaunchPlan PlanRun(const RunArgs& a, const std::string& out) {
     const std::vector<int> ports = bus::UnusedUdpPorts(2);
     const std::string air_at = air_host + ":" + std::to_string(ports[0]);
     const std::string ground_at = ground_host + ":" + std::to_string(ports[1]);
-    const std::string aircraft_sends = a.agent + "/(SUBMAP|SEQUENCE|TRACKING_STATUS|POSE|SERVICE|LINK_STATUS)";
+    const std::string aircraft_sends = a.agent + "/(SUBMAP|SEQUENCE|TRACKING_STATUS|POSE|GNSS|SERVICE|LINK_STATUS)";
     const std::string ground_sends = a.agent + "/" + bus::kSubmapRequest;
     // Authenticated as deployed: the config's key, else one made for this run (beside its outputs).
     std::vector<std::string> key;
@@ -178,6 +178,7 @@ void PrepareRunFolder(const LaunchPlan& plan) {
   SaveStitchConfig(plan.config, (out / "config.yaml").string());
   if (!plan.source.ground_truth.empty())
     plan.source.ground_truth.WriteTum((out / "groundtruth.tum").string(), output_frames::kGroundTruth);
+  if (!plan.source.gnss.fixes.empty()) WriteGnssCsv((out / "gnss.csv").string(), plan.source.gnss);
   SaveRunInfo(plan.info, plan.out);
   if (!plan.link_key.empty()) link::GenerateKeyFile(plan.link_key);
   if (!plan.viewer_token.empty()) GenerateSecretFile(plan.viewer_token, "viewer access token");

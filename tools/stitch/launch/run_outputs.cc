@@ -8,6 +8,8 @@
 #include <set>
 #include <sstream>
 
+#include "stitch/config/stitch_config.h"
+#include "stitch/eval/georeference.h"
 #include "stitch/io/output_frames.h"
 #include "stitch/io/ply.h"
 #include "stitch/io/trajectory.h"
@@ -32,35 +34,15 @@ namespace {
 void WriteEveryTrajectory(const std::string& folder, const std::vector<PoseRecord>& poses, int largest_component) {
   fs::remove_all(folder);
   fs::create_directories(folder);
-  std::map<int, std::vector<const PoseRecord*>> by_component;
-  for (const auto& p : poses) by_component[p.component].push_back(&p);
-  std::vector<std::pair<int, int>> order;  // (component, frames), the largest first, then by frames
-  for (const auto& [component, list] : by_component) order.push_back({component, static_cast<int>(list.size())});
-  std::stable_sort(order.begin(), order.end(), [&](const auto& a, const auto& b) {
-    if ((a.first == largest_component) != (b.first == largest_component)) return a.first == largest_component;
-    return a.second > b.second;
-  });
+  std::map<int, Trajectory> by_component;
+  for (const auto& p : poses) by_component[p.component].Add({p.t_ns, p.world_from_cam});
   std::ostringstream index;
   index << "file\tframes\tsubmaps\tlargest\n";
-  int merged_maps = 0;
-  for (const auto& [component, frames] : order) {
-    std::set<int64_t> submaps;
-    Trajectory trajectory;
-    for (const PoseRecord* p : by_component[component]) {
-      submaps.insert(p->submap_id);
-      trajectory.Add({p->t_ns, p->world_from_cam});
-    }
-    std::string name;
-    if (submaps.size() > 1) {
-      name = "map-" + std::to_string(merged_maps++) + ".tum";
-    } else {
-      name = "submap-" + SubmapName(SubmapId(*submaps.begin())) + ".tum";
-      std::replace(name.begin(), name.end(), ':', '-');
-    }
-    trajectory.WriteTum((fs::path(folder) / name).string(), output_frames::kOwnMap);
+  for (const RunMap& map : MapsOfRun(poses, largest_component)) {
+    by_component[map.component].WriteTum((fs::path(folder) / (map.name + ".tum")).string(), output_frames::kOwnMap);
     std::string names;
-    for (int64_t submap : submaps) names += (names.empty() ? "" : ",") + SubmapName(SubmapId(submap));
-    index << name << "\t" << frames << "\t" << names << "\t" << (component == largest_component ? "yes" : "no") << "\n";
+    for (int64_t submap : map.submaps) names += (names.empty() ? "" : ",") + SubmapName(SubmapId(submap));
+    index << map.name << ".tum\t" << map.frames << "\t" << names << "\t" << (map.largest ? "yes" : "no") << "\n";
   }
   WriteFileAtomically((fs::path(folder) / "index.tsv").string(), index.str());
 }
@@ -239,7 +221,40 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
       }
     }
   }
-  WriteReport((dir / "report.json").string(), evaluation, info->ToJson(), merges);
+  // On Earth: every map placed by the aircraft's GNSS fixes, where the run has them: those the
+  // ground received (the merger's gnss_received.csv), else the source's (gnss.csv, which also
+  // says where the truth's frame is on Earth).
+  nlohmann::json georeference = nullptr;
+  info->geo_figures.clear();
+  const bool received = fs::exists(dir / "gnss_received.csv");
+  if (received || fs::exists(dir / "gnss.csv")) {
+    try {
+      // The run's own settings (the defaults for a folder without them).
+      const GeoReferenceOptions options = fs::exists(dir / "config.yaml")
+                                              ? LoadStitchConfig((dir / "config.yaml").string()).merger.georeference
+                                              : GeoReferenceOptions();
+      if (options.enabled) {
+        GnssTrack gnss = ReadGnssCsv((dir / (received ? "gnss_received.csv" : "gnss.csv")).string());
+        if (received && fs::exists(dir / "gnss.csv")) {
+          const GnssTrack sent = ReadGnssCsv((dir / "gnss.csv").string());
+          gnss.ground_truth_enu_origin = sent.ground_truth_enu_origin;
+          gnss.source = sent.source + ", as the ground received them";
+          if (sent.fixes.size() > gnss.fixes.size()) {
+            info->notes.push_back("the ground received " + std::to_string(gnss.fixes.size()) + " of the source's " +
+                                  std::to_string(sent.fixes.size()) + " GNSS fixes");
+          }
+        }
+        const RunGeoReference geo =
+            GeoReferenceRun(input.poses, evaluation.largest_component, gnss, input.ground_truth, options);
+        WriteGeoOutputs((dir / "geo").string(), geo, input.poses);
+        georeference = geo.ToJson();
+        info->geo_figures = geo.Summary();
+      }
+    } catch (const std::exception& e) {  // the rest of the outputs stand without it
+      info->notes.push_back(std::string("not placed on Earth: ") + e.what());
+    }
+  }
+  WriteReport((dir / "report.json").string(), evaluation, info->ToJson(), merges, georeference);
   WriteTrajectoryPlot((dir / "trajectory.png").string(), input, evaluation, info->source);
   return evaluation;
 }

@@ -2,10 +2,14 @@
 
 #include "tools/stitch/launch/run_outputs.h"
 
+#include <filesystem>
 #include <fstream>
+
+#include <nlohmann/json.hpp>
 
 #include <gtest/gtest.h>
 
+#include "stitch/geo/gnss_fix.h"
 #include "stitch/records/frame_record.h"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/tracking/tracking_result.h"
@@ -60,6 +64,59 @@ TEST(RunOutputs, SaysNothingOfTheKindWhereAFrameWasLocalized) {
   info.frames_total = 2;
   FinishRunOutputs(dir.path().string(), &info);
   EXPECT_FALSE(SomeNoteSays(info, "no frame was localized"));
+}
+
+// A run folder with the aircraft's GNSS fixes: the largest map placed on Earth (geo/), the
+// figures in the summary and report.json; a damaged gnss.csv is a note, not a failed run.
+TEST(RunOutputs, PlacesTheRunOnEarthWhereItHasFixes) {
+  testing::TempDir dir;
+  std::vector<FrameRecord> records;
+  GnssTrack gnss;
+  gnss.source = "test";
+  gnss.ground_truth_enu_origin = GeodeticPoint{48.0, 11.0, 600.0};
+  const LocalTangentPlane plane(*gnss.ground_truth_enu_origin);
+  Trajectory truth;
+  for (int i = 0; i < 400; ++i) {
+    FrameRecord r = Frame(i, "OK", TrackingReason::kNone);
+    r.submap_id = 1;
+    const int strip = i / 100;
+    const Eigen::Vector3d centre(strip % 2 ? 99 - i % 100 : i % 100, 30.0 * strip, 70.0);
+    truth.Add({r.t_ns, Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX())), centre)});
+    // The map's own frame: a tenth of a metre, turned.
+    r.world_from_cam = TransformPose(
+        Sim3d(0.1, Eigen::Quaterniond(Eigen::AngleAxisd(0.5, Eigen::Vector3d::UnitZ())), Eigen::Vector3d(1, 2, 3)),
+        truth.poses().back().world_from_cam);
+    records.push_back(r);
+    if (i % 4 == 0) {
+      GnssFix fix;
+      fix.t_ns = r.t_ns;
+      fix.position = plane.ToGeodetic(centre);
+      fix.horizontal_accuracy_m = 1;
+      fix.vertical_accuracy_m = 1;
+      gnss.fixes.push_back(fix);
+    }
+  }
+  WriteFrames(dir, records);
+  WriteGnssCsv(dir / "gnss.csv", gnss);
+  truth.WriteTum(dir / "groundtruth.tum");
+  RunInfo info;
+  info.frames_total = 400;
+  FinishRunOutputs(dir.path().string(), &info);
+  ASSERT_EQ(info.geo_figures.size(), 2u);
+  EXPECT_NE(info.geo_figures[1].find("placed by 100 of 100 fixes"), std::string::npos) << info.geo_figures[1];
+  for (const char* file : {"trajectory_wgs84.csv", "trajectory.geojson", "trajectory.kml", "georeference.json"}) {
+    EXPECT_TRUE(std::filesystem::exists(dir.path() / "geo" / file)) << file;
+  }
+  std::ifstream in(dir / "report.json");
+  const nlohmann::json report = nlohmann::json::parse(in);
+  EXPECT_LT(report["georeference"]["maps"][0]["absolute"]["horizontal_rms_m"].get<double>(), 0.01);
+
+  std::ofstream(dir / "gnss.csv", std::ios::app) << "1,2,3\n";
+  RunInfo again;
+  again.frames_total = 400;
+  FinishRunOutputs(dir.path().string(), &again);
+  EXPECT_TRUE(again.geo_figures.empty());
+  EXPECT_TRUE(SomeNoteSays(again, "not placed on Earth: " + (dir / "gnss.csv") + ":"));
 }
 
 }  // namespace

@@ -48,6 +48,7 @@ const Figure kFigures[] = {
     {"ate_m", "ATE [m]", "%.4f"},
     {"worst_submap_ate_in_map_m", "worst submap in map [m]", "%.4f"},
     {"wrong_merges", "wrong merges", "%.0f"},
+    {"on_earth_m", "on Earth [m]", "%.3f"},
     {"keyframes_created", "keyframes made", "%.0f"},
     {"keyframes_kept", "kept", "%.0f"},
     {"median_tracked_points", "tracked points (median)", "%.0f"},
@@ -291,6 +292,18 @@ std::map<std::string, double> MeasureRun(const std::string& run_dir, double cpu_
   }
   if (worst >= 0) m["worst_submap_ate_in_map_m"] = worst;
   m["wrong_merges"] = e.wrong_merges;
+  // Placed on Earth by the GNSS fixes: the largest map's keyframes against the truth, unaligned.
+  {
+    std::ifstream in(dir / "report.json");
+    const nlohmann::json report = nlohmann::json::parse(in, nullptr, false);
+    if (report.is_object() && report.contains("georeference")) {
+      for (const auto& map : report["georeference"].value("maps", nlohmann::json::array())) {
+        if (map.value("largest", false) && map.contains("absolute")) {
+          m["on_earth_m"] = map["absolute"].value("keyframe_horizontal_rms_m", 0.0);
+        }
+      }
+    }
+  }
   std::vector<FrameRecord> frames;
   if (fs::exists(dir / "frames.tsv")) frames = ReadFrameRecords((dir / "frames.tsv").string());
   int created = 0, dropped = 0;

@@ -51,8 +51,10 @@ void SaveQualityMatrix(const QualityMatrix& matrix, const std::string& path);
 
 // One case's figures, from its run folder (report.json, frames.tsv, keyframes.tsv) and the
 // run's CPU and wall time. Keys: frames_in_largest_map, completeness, submaps, submaps_merged,
-// ate_m, worst_submap_ate_in_map_m, wrong_merges, keyframes_created, keyframes_kept,
-// median_tracked_points, cpu_s_per_frame, wall_s, dropped_frames; and frames_total.
+// ate_m, worst_submap_ate_in_map_m, wrong_merges, on_earth_m (where the run was placed on Earth
+// and its truth is in the fixes' frame: the largest map's keyframes' horizontal RMS error, no
+// alignment), keyframes_created, keyframes_kept, median_tracked_points, cpu_s_per_frame, wall_s,
+// dropped_frames; and frames_total.
 std::map<std::string, double> MeasureRun(const std::string& run_dir, double cpu_seconds, double wall_seconds);
 
 // A regression: the figure, what was measured, what was expected, and the limit it crossed.

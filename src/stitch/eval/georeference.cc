@@ -1,0 +1,218 @@
+#include "stitch/eval/georeference.h"
+
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <map>
+
+#include "stitch/geo/geo_outputs.h"
+#include "stitch/geometry/similarity.h"
+#include "stitch/util/error.h"
+#include "stitch/util/ids.h"
+#include "stitch/util/text_file.h"
+
+namespace fs = std::filesystem;
+
+namespace stitch {
+
+namespace {
+
+std::string SubmapList(const RunMap& map) {
+  std::string names;
+  for (int64_t submap : map.submaps) names += (names.empty() ? "" : ",") + SubmapName(SubmapId(submap));
+  return names;
+}
+
+std::optional<AbsoluteErrors> MeasureAbsolute(const std::vector<const PoseRecord*>& poses, const Sim3d& enu_from_map,
+                                              const Trajectory& ground_truth) {
+  AbsoluteErrors e;
+  double horizontal = 0, vertical = 0, key_horizontal = 0, key_vertical = 0;
+  std::vector<Eigen::Vector3d> placed, truth;
+  for (const PoseRecord* p : poses) {
+    const std::optional<Rigid3d> true_pose = ground_truth.PoseAt(p->t_ns);
+    if (!true_pose) continue;
+    const Eigen::Vector3d at = enu_from_map * p->world_from_cam.translation;
+    const Eigen::Vector3d d = at - true_pose->translation;
+    const double h = d.x() * d.x() + d.y() * d.y(), v = d.z() * d.z();
+    ++e.frames;
+    horizontal += h;
+    vertical += v;
+    if (p->is_keyframe) {
+      ++e.keyframes;
+      key_horizontal += h;
+      key_vertical += v;
+    }
+    placed.push_back(at);
+    truth.push_back(true_pose->translation);
+  }
+  if (e.frames == 0) return std::nullopt;
+  e.horizontal_rms_m = std::sqrt(horizontal / e.frames);
+  e.vertical_rms_m = std::sqrt(vertical / e.frames);
+  if (e.keyframes > 0) {
+    e.keyframe_horizontal_rms_m = std::sqrt(key_horizontal / e.keyframes);
+    e.keyframe_vertical_rms_m = std::sqrt(key_vertical / e.keyframes);
+  }
+  try {
+    e.scale_error = AlignPoints(placed, truth, true).scale - 1.0;
+  } catch (const Error&) {
+    e.scale_error = 0.0;  // collinear: the scale is still the placement's; not measured
+  }
+  return e;
+}
+
+}  // namespace
+
+RunGeoReference GeoReferenceRun(const std::vector<PoseRecord>& poses, int largest_component, const GnssTrack& gnss,
+                                const Trajectory& ground_truth, const GeoReferenceOptions& options) {
+  RunGeoReference geo;
+  geo.gnss_source = gnss.source;
+  const GnssFix* first = nullptr;
+  for (const GnssFix& f : gnss.fixes) {
+    if (!f.usable()) continue;
+    if (!first) first = &f;
+    ++geo.fixes;
+  }
+  if (!first) throw Error("the GNSS track has no usable fix");
+  geo.origin = gnss.ground_truth_enu_origin ? *gnss.ground_truth_enu_origin : first->position;
+  const LocalTangentPlane plane(geo.origin);
+  const std::vector<EnuFix> fixes = ToEnu(gnss.fixes, plane);
+  std::map<int, std::vector<const PoseRecord*>> by_component;
+  for (const PoseRecord& p : poses) by_component[p.component].push_back(&p);
+  for (const RunMap& map : MapsOfRun(poses, largest_component)) {
+    MapGeoReference m;
+    m.map = map;
+    Trajectory trajectory;
+    for (const PoseRecord* p : by_component[map.component]) trajectory.Add({p->t_ns, p->world_from_cam});
+    m.placement = PlaceByGnss(trajectory, fixes, options);
+    if (m.placement.placed && gnss.ground_truth_enu_origin && !ground_truth.empty()) {
+      m.absolute = MeasureAbsolute(by_component[map.component], m.placement.enu_from_map, ground_truth);
+    }
+    geo.maps.push_back(std::move(m));
+  }
+  return geo;
+}
+
+nlohmann::json RunGeoReference::ToJson() const {
+  nlohmann::json list = nlohmann::json::array();
+  for (const MapGeoReference& m : maps) {
+    const GeoPlacement& p = m.placement;
+    nlohmann::json map = {{"map", m.map.name},
+                          {"submaps", SubmapList(m.map)},
+                          {"frames", m.map.frames},
+                          {"largest", m.map.largest},
+                          {"placed", p.placed},
+                          {"placed_by", p.placed ? p.method : ""},
+                          {"fixes_matched", p.fixes_matched},
+                          {"inliers", p.inliers},
+                          {"spread_m", p.spread_m}};
+    if (!p.placed) map["why_not"] = p.why_not;
+    if (p.inliers > 0) {
+      const Sim3d& s = p.enu_from_map;
+      map["horizontal_rms_m"] = p.horizontal_rms_m;
+      map["vertical_rms_m"] = p.vertical_rms_m;
+      map["enu_from_map"] = {{"scale", s.scale},
+                             {"rotation_xyzw", {s.rotation.x(), s.rotation.y(), s.rotation.z(), s.rotation.w()}},
+                             {"translation", {s.translation.x(), s.translation.y(), s.translation.z()}}};
+      nlohmann::json spans = nlohmann::json::array();
+      for (const auto& [from, to] : p.outlier_spans) spans.push_back({from, to});
+      map["outlier_spans_ns"] = spans;
+      if (p.disagreement) {
+        map["disagreeing_fixes"] = {{"fixes", p.disagreement->fixes},
+                                    {"first_ns", p.disagreement->first_ns},
+                                    {"last_ns", p.disagreement->last_ns},
+                                    {"apart_m", p.disagreement->apart_m}};
+      }
+    }
+    if (m.absolute) {
+      const AbsoluteErrors& e = *m.absolute;
+      map["absolute"] = {{"frames", e.frames},
+                         {"horizontal_rms_m", e.horizontal_rms_m},
+                         {"vertical_rms_m", e.vertical_rms_m},
+                         {"keyframes", e.keyframes},
+                         {"keyframe_horizontal_rms_m", e.keyframe_horizontal_rms_m},
+                         {"keyframe_vertical_rms_m", e.keyframe_vertical_rms_m},
+                         {"scale_error", e.scale_error}};
+    }
+    list.push_back(map);
+  }
+  return {{"origin",
+           {{"latitude_deg", origin.latitude_deg},
+            {"longitude_deg", origin.longitude_deg},
+            {"height_m", origin.height_m},
+            {"crs", "EPSG:4979 (WGS 84, ellipsoidal height)"}}},
+          {"frame", "local ENU at the origin: x east, y north, z up, metres"},
+          {"gnss_source", gnss_source},
+          {"fixes", fixes},
+          {"maps", list}};
+}
+
+std::vector<std::string> RunGeoReference::Summary() const {
+  std::vector<std::string> lines;
+  char line[640];
+  std::snprintf(line, sizeof(line), "  on Earth          %d GNSS fixes (%s); ENU origin %.6f, %.6f, %.1f m (geo/)",
+                fixes, gnss_source.empty() ? "gnss.csv" : gnss_source.c_str(), origin.latitude_deg,
+                origin.longitude_deg, origin.height_m);
+  lines.push_back(line);
+  for (const MapGeoReference& m : maps) {
+    const GeoPlacement& p = m.placement;
+    if (!p.placed) {
+      std::snprintf(line, sizeof(line), "    %s (%d frames) not placed: %s", m.map.name.c_str(), m.map.frames,
+                    p.why_not.c_str());
+    } else {
+      int written = std::snprintf(line, sizeof(line),
+                                  "    %s (%d frames) placed by %d of %d fixes%s: %.2f m horizontal, %.2f m vertical "
+                                  "RMS from them",
+                                  m.map.name.c_str(), m.map.frames, p.inliers, p.fixes_matched,
+                                  p.method == "gnss" ? "" : " (along a line: with the cameras' up)", p.horizontal_rms_m,
+                                  p.vertical_rms_m);
+      if (p.disagreement && written > 0 && written < static_cast<int>(sizeof(line))) {
+        written += std::snprintf(line + written, sizeof(line) - written,
+                                 "; %d fixes from %.1f s to %.1f s agree with each other but put it %.1f m off: a "
+                                 "receiver that jumped or was spoofed, not followed",
+                                 p.disagreement->fixes, p.disagreement->first_ns * 1e-9, p.disagreement->last_ns * 1e-9,
+                                 p.disagreement->apart_m);
+      }
+      if (m.absolute && written > 0 && written < static_cast<int>(sizeof(line))) {
+        std::snprintf(line + written, sizeof(line) - written,
+                      "; against the truth, unaligned: keyframes %.2f m horizontal, %.2f m vertical RMS, scale off by "
+                      "%.2f%%",
+                      m.absolute->keyframe_horizontal_rms_m, m.absolute->keyframe_vertical_rms_m,
+                      100.0 * m.absolute->scale_error);
+      }
+    }
+    lines.push_back(line);
+  }
+  return lines;
+}
+
+void WriteGeoOutputs(const std::string& folder, const RunGeoReference& geo, const std::vector<PoseRecord>& poses) {
+  fs::create_directories(folder);
+  const LocalTangentPlane plane(geo.origin);
+  std::map<int, const MapGeoReference*> placed;
+  for (const MapGeoReference& m : geo.maps) {
+    if (m.placement.placed) placed[m.map.component] = &m;
+  }
+  std::map<int, GeoTrack> tracks;
+  for (const PoseRecord& p : poses) {
+    const auto it = placed.find(p.component);
+    if (it == placed.end()) continue;
+    GeoTrack& track = tracks[p.component];
+    const Eigen::Vector3d enu = it->second->placement.enu_from_map * p.world_from_cam.translation;
+    track.points.push_back({p.t_ns, p.frame_index, plane.ToGeodetic(enu)});
+  }
+  std::vector<GeoTrack> ordered;
+  for (const MapGeoReference& m : geo.maps) {
+    if (!m.placement.placed) continue;
+    GeoTrack& track = tracks[m.map.component];
+    track.name = m.map.name;
+    track.submaps = SubmapList(m.map);
+    track.placed_by = m.placement.method;
+    ordered.push_back(std::move(track));
+  }
+  WriteGeoTrajectoryCsv((fs::path(folder) / "trajectory_wgs84.csv").string(), ordered);
+  WriteGeoJson((fs::path(folder) / "trajectory.geojson").string(), ordered);
+  WriteKml((fs::path(folder) / "trajectory.kml").string(), ordered);
+  WriteFileAtomically((fs::path(folder) / "georeference.json").string(), geo.ToJson().dump(1) + "\n");
+}
+
+}  // namespace stitch

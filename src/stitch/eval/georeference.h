@@ -1,0 +1,58 @@
+#pragma once
+// A finished run placed on Earth: each of its maps (merged maps and submaps left on their own)
+// placed in the local ENU frame by the GNSS fixes taken while its frames were flown
+// (PlaceByGnss), its trajectory in WGS84 (geo/: CSV, GeoJSON, KML, georeference.json), and, where
+// the ground truth is in that ENU frame (the synthetic flight), the absolute errors with no
+// alignment to the truth at all.
+
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "stitch/geo/geo_registration.h"
+#include "stitch/geo/gnss_fix.h"
+#include "stitch/io/trajectory.h"
+#include "stitch/records/pose_record.h"
+
+namespace stitch {
+
+// A placed map's cameras against the truth at the same times, in metres, unaligned.
+struct AbsoluteErrors {
+  int frames = 0;
+  double horizontal_rms_m = 0.0;
+  double vertical_rms_m = 0.0;
+  int keyframes = 0;
+  double keyframe_horizontal_rms_m = 0.0;
+  double keyframe_vertical_rms_m = 0.0;
+  // The scale the placed trajectory still needs to match the truth (a Sim3 fit), minus 1.
+  double scale_error = 0.0;
+};
+
+struct MapGeoReference {
+  RunMap map;
+  GeoPlacement placement;
+  std::optional<AbsoluteErrors> absolute;  // placed, and the truth is in the ENU frame
+};
+
+struct RunGeoReference {
+  GeodeticPoint origin;  // of the ENU frame: the truth's ENU origin where known, else the first fix
+  std::string gnss_source;
+  int fixes = 0;                      // usable fixes in the file
+  std::vector<MapGeoReference> maps;  // as MapsOfRun orders them
+
+  nlohmann::json ToJson() const;
+  // One line per map for the terminal: placed where, by how many fixes, how far off.
+  std::vector<std::string> Summary() const;
+};
+
+// Throws stitch::Error when the track has no usable fix.
+RunGeoReference GeoReferenceRun(const std::vector<PoseRecord>& poses, int largest_component, const GnssTrack& gnss,
+                                const Trajectory& ground_truth, const GeoReferenceOptions& options);
+
+// FOLDER/{trajectory_wgs84.csv, trajectory.geojson, trajectory.kml, georeference.json}: the
+// placed maps' camera positions (every frame of each), and how each map was placed or why not.
+void WriteGeoOutputs(const std::string& folder, const RunGeoReference& geo, const std::vector<PoseRecord>& poses);
+
+}  // namespace stitch

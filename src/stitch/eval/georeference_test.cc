@@ -1,0 +1,138 @@
+// A finished run placed on Earth: each of its maps by the fixes of its own frames, the absolute
+// errors where the truth is in the fixes' ENU frame, and the files a surveyor opens.
+
+#include "stitch/eval/georeference.h"
+
+#include <fstream>
+
+#include <gtest/gtest.h>
+
+#include "stitch/testing/temp_dir.h"
+#include "stitch/util/error.h"
+#include "stitch/util/ids.h"
+#include "stitch/util/rng.h"
+
+namespace stitch {
+namespace {
+
+const GeodeticPoint kOrigin{48.0, 11.0, 600.0};
+
+// A nadir camera at 70 m in ENU at time index i: the first 600 frames a lawnmower (merged map
+// 0, two submaps), then 200 frames along a straight line (a submap on its own).
+Rigid3d TrueCamera(int i) {
+  Eigen::Matrix3d world_from_cam;
+  world_from_cam << 1, 0, 0, 0, -1, 0, 0, 0, -1;
+  const int strip = i / 150, along = i % 150;
+  const Eigen::Vector3d centre = i < 600 ? Eigen::Vector3d(strip % 2 ? 149 - along : along, 40.0 * strip, 70.0)
+                                         : Eigen::Vector3d(i - 600, 200.0, 70.0);
+  return Rigid3d(Eigen::Quaterniond(world_from_cam), centre);
+}
+
+struct FlownRun {
+  std::vector<PoseRecord> poses;
+  Trajectory truth;
+  GnssTrack gnss;
+};
+
+// The map's frame: each map of its own, at its own scale.
+FlownRun MakeRun() {
+  FlownRun run;
+  const Sim3d map0_from_enu(0.05, Eigen::Quaterniond(Eigen::AngleAxisd(0.7, Eigen::Vector3d::UnitY())), {1, 2, 3});
+  const Sim3d map1_from_enu(0.2, Eigen::Quaterniond(Eigen::AngleAxisd(-1.2, Eigen::Vector3d::UnitX())), {0, 0, 0});
+  Rng rng(5);
+  const LocalTangentPlane plane(kOrigin);
+  run.gnss.ground_truth_enu_origin = kOrigin;
+  run.gnss.source = "test";
+  for (int i = 0; i < 800; ++i) {
+    const int64_t t_ns = 1'000'000'000LL + i * 50'000'000LL;
+    const Rigid3d truth = TrueCamera(i);
+    run.truth.Add({t_ns, truth});
+    PoseRecord p;
+    p.frame_index = i;
+    p.t_ns = t_ns;
+    p.submap_id = MakeSubmapId(0, i < 300 ? 1 : (i < 600 ? 2 : 3)).value;
+    p.component = i < 600 ? 0 : 1;
+    p.is_keyframe = i % 5 == 0;
+    p.world_from_cam = TransformPose(i < 600 ? map0_from_enu : map1_from_enu, truth);
+    run.poses.push_back(p);
+    if (i % 4 == 0) {
+      GnssFix fix;
+      fix.t_ns = t_ns;
+      fix.position =
+          plane.ToGeodetic(truth.translation + Eigen::Vector3d(rng.Normal(0, 2), rng.Normal(0, 2), rng.Normal(0, 3)));
+      fix.horizontal_accuracy_m = 2;
+      fix.vertical_accuracy_m = 3;
+      run.gnss.fixes.push_back(fix);
+    }
+  }
+  return run;
+}
+
+TEST(GeoReferenceRun, PlacesEachMapByItsOwnFixesAndMeasuresItAgainstTheTruthUnaligned) {
+  const FlownRun run = MakeRun();
+  const RunGeoReference geo = GeoReferenceRun(run.poses, 0, run.gnss, run.truth, GeoReferenceOptions());
+  EXPECT_EQ(geo.fixes, 200);
+  EXPECT_DOUBLE_EQ(geo.origin.latitude_deg, kOrigin.latitude_deg);
+  ASSERT_EQ(geo.maps.size(), 2u);
+  const MapGeoReference& merged = geo.maps[0];
+  EXPECT_EQ(merged.map.name, "map-0");
+  ASSERT_TRUE(merged.placement.placed) << merged.placement.why_not;
+  EXPECT_EQ(merged.placement.fixes_matched, 150);
+  ASSERT_TRUE(merged.absolute);
+  EXPECT_EQ(merged.absolute->frames, 600);
+  EXPECT_EQ(merged.absolute->keyframes, 120);
+  EXPECT_LT(merged.absolute->keyframe_horizontal_rms_m, 1.0);  // the bar for 2 m fixes at 5 Hz
+  EXPECT_LT(merged.absolute->vertical_rms_m, 1.0);
+  EXPECT_LT(std::abs(merged.absolute->scale_error), 0.01);
+  // The straight line: its rotation about itself from the nadir camera's up.
+  const MapGeoReference& line = geo.maps[1];
+  EXPECT_EQ(line.map.name, "submap-0-3");
+  ASSERT_TRUE(line.placement.placed) << line.placement.why_not;
+  EXPECT_EQ(line.placement.method, "gnss+camera-up");
+  ASSERT_TRUE(line.absolute);
+  EXPECT_LT(line.absolute->keyframe_horizontal_rms_m, 1.0);
+  const std::vector<std::string> summary = geo.Summary();
+  ASSERT_EQ(summary.size(), 3u);
+  EXPECT_NE(summary[1].find("map-0 (600 frames) placed by"), std::string::npos) << summary[1];
+  EXPECT_NE(summary[2].find("submap-0-3 (200 frames) placed by"), std::string::npos) << summary[2];
+  EXPECT_NE(summary[2].find("with the cameras' up"), std::string::npos) << summary[2];
+}
+
+TEST(GeoReferenceRun, WritesTheTrajectoryInWgs84AndHowEachMapWasPlaced) {
+  const FlownRun run = MakeRun();
+  const RunGeoReference geo = GeoReferenceRun(run.poses, 0, run.gnss, run.truth, GeoReferenceOptions());
+  testing::TempDir dir;
+  WriteGeoOutputs((dir / "geo"), geo, run.poses);
+  std::ifstream csv(dir.path() / "geo" / "trajectory_wgs84.csv");
+  int lines = 0;
+  for (std::string line; std::getline(csv, line);) ++lines;
+  EXPECT_EQ(lines, 1 + 800);  // every placed map's frames
+  std::ifstream in(dir.path() / "geo" / "georeference.json");
+  const nlohmann::json json = nlohmann::json::parse(in);
+  EXPECT_EQ(json["maps"].size(), 2u);
+  EXPECT_EQ(json["maps"][0]["placed_by"], "gnss");
+  EXPECT_EQ(json["maps"][1]["placed_by"], "gnss+camera-up");
+  EXPECT_TRUE(std::filesystem::exists(dir.path() / "geo" / "trajectory.geojson"));
+  EXPECT_TRUE(std::filesystem::exists(dir.path() / "geo" / "trajectory.kml"));
+}
+
+TEST(GeoReferenceRun, SaysWhyAMapWasNotPlaced) {
+  FlownRun run = MakeRun();
+  GeoReferenceOptions options;
+  options.camera_up_axis = "none";
+  const RunGeoReference geo = GeoReferenceRun(run.poses, 0, run.gnss, run.truth, options);
+  ASSERT_EQ(geo.maps.size(), 2u);
+  EXPECT_FALSE(geo.maps[1].placement.placed);
+  EXPECT_NE(geo.Summary()[2].find("submap-0-3 (200 frames) not placed: its fixes lie along a line"), std::string::npos)
+      << geo.Summary()[2];
+  EXPECT_NE(geo.ToJson()["maps"][1]["why_not"].get<std::string>().find("line"), std::string::npos);
+}
+
+TEST(GeoReferenceRun, RefusesATrackWithoutAUsableFix) {
+  FlownRun run = MakeRun();
+  for (GnssFix& f : run.gnss.fixes) f.type = GnssFixType::kNone;
+  EXPECT_THROW(GeoReferenceRun(run.poses, 0, run.gnss, run.truth, GeoReferenceOptions()), Error);
+}
+
+}  // namespace
+}  // namespace stitch
