@@ -1,7 +1,6 @@
 #include "services/ingest/ingest_service.h"
 
 #include <fstream>
-#include <limits>
 #include <thread>
 
 #include "services/common/convert.h"
@@ -95,9 +94,10 @@ IngestSummary IngestService::Play(ImageSequence& sequence, const FailureSchedule
   IngestSummary summary;
   const std::string gnss_channel = bus::Channel(publisher_->agent(), bus::kGnss);
   size_t next_fix = 0;
-  // The fixes up to `t_ns` not sent yet.
-  const auto publish_fixes_until = [&](int64_t t_ns) {
+  // The fixes up to `t_ns` not sent yet, from a second before the first frame on.
+  const auto publish_fixes_until = [&](int64_t t_ns, int64_t first_t_ns) {
     for (; next_fix < gnss.size() && gnss[next_fix].t_ns <= t_ns; ++next_fix) {
+      if (gnss[next_fix].t_ns < first_t_ns - 1'000'000'000) continue;
       stitch::gnss_fix_t fix = ToMessage(gnss[next_fix]);
       publisher_->Publish(gnss_channel, &fix);
       ++summary.gnss_fixes_published;
@@ -163,7 +163,7 @@ IngestSummary IngestService::Play(ImageSequence& sequence, const FailureSchedule
       std::lock_guard<std::mutex> lock(mutex_);
       highest_sent_ = std::max(highest_sent_, frame.index);
     }
-    publish_fixes_until(frame.t_ns);
+    publish_fixes_until(frame.t_ns, first_t_ns);
     publisher_->Publish(frame_channel, &message);
     ++summary.frames_published;
     ++published_;
@@ -187,7 +187,6 @@ IngestSummary IngestService::Play(ImageSequence& sequence, const FailureSchedule
     }
   }
   summary.stopped = stop.load();
-  if (!summary.stopped) publish_fixes_until(std::numeric_limits<int64_t>::max());
   summary.seconds = clock.ElapsedSeconds();
   summary.frames_dropped_at_source = sequence.dropped_at_source();
   {

@@ -46,8 +46,9 @@ class IngestService {
   // Plays `sequence` to its end or until `stop`. `spoil` names frames to replace by unusable
   // ones (datasets; the synthetic flight renders its gusts itself). Throws stitch::Error when
   // lockstep finds no tracker.
-  // `gnss`: the source's GNSS fixes, each published on <agent>/GNSS just before the first frame
-  // at or after its time (the rest after the last frame).
+  // `gnss`: the source's GNSS fixes (in time order), each published on <agent>/GNSS just before
+  // the first frame at or after its time; those more than a second before the first frame or
+  // after the last are not sent.
   IngestSummary Play(ImageSequence& sequence, const FailureSchedule& spoil, const std::atomic<bool>& stop,
                      const std::vector<GnssFix>& gnss = {});
 

@@ -114,7 +114,7 @@ struct InProcessRun {
     FailureSchedule spoil;
     auto sequence = OpenSource(spec, &spoil);
     std::atomic<bool> stop{false};
-    const IngestSummary summary = ingest.Play(*sequence, spoil, stop, SourceGnss(spec, *sequence).fixes);
+    const IngestSummary summary = ingest.Play(*sequence, spoil, stop, SourceGnss(spec).fixes);
     tracker.Stop();
     dispatcher.Stop();
     return summary;

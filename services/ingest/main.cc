@@ -41,7 +41,7 @@ int main(int argc, char** argv) {
     FailureSchedule spoil;
     auto sequence = OpenSource(source, &spoil);
     heartbeat.SetState(stitch::service_status_t::STATE_RUNNING, sequence->description());
-    const IngestSummary summary = ingest.Play(*sequence, spoil, process.stop, SourceGnss(source, *sequence).fixes);
+    const IngestSummary summary = ingest.Play(*sequence, spoil, process.stop, SourceGnss(source).fixes);
     heartbeat.SetState(stitch::service_status_t::STATE_FINISHED);
     heartbeat.Stop();
     dispatcher.Stop();

@@ -199,11 +199,8 @@ SourceSummary SummarizeSource(const SourceSpec& spec) {
   return summary;
 }
 
-GnssTrack SourceGnss(const SourceSpec& spec, const ImageSequence& sequence) {
-  if (spec.synthetic_source()) {
-    return SimulateGnssReceiver(sequence.ground_truth(), spec.synthetic.gnss,
-                                static_cast<uint64_t>(spec.synthetic.seed));
-  }
+GnssTrack SourceGnss(const SourceSpec& spec) {
+  if (spec.synthetic_source()) return SummarizeSource(spec).gnss;
   if (const std::string gnss = GnssFileBeside(spec.dataset_path);
       !gnss.empty() && std::filesystem::is_regular_file(gnss)) {
     return ReadGnssCsv(gnss);

@@ -78,10 +78,10 @@ struct SourceSummary {
 };
 SourceSummary SummarizeSource(const SourceSpec& spec);
 
-// The GNSS fixes of what `spec` plays, `sequence` being it opened (OpenSource): the synthetic
-// receiver's of its flight, a dataset's gnss.csv; none for a live camera. Throws stitch::Error
-// for a malformed gnss.csv.
-GnssTrack SourceGnss(const SourceSpec& spec, const ImageSequence& sequence);
+// The GNSS fixes of what `spec` plays: the synthetic receiver's over the frames played
+// (SummarizeSource's), a dataset's gnss.csv; none for a live camera. Throws stitch::Error for a
+// malformed gnss.csv.
+GnssTrack SourceGnss(const SourceSpec& spec);
 // Where a dataset's GNSS fixes are: DIR/gnss.csv for a folder, FILE.gnss.csv beside a video
 // FILE.mp4 (what `stitch render` writes).
 std::string GnssFileBeside(const std::string& dataset_path);
