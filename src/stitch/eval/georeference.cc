@@ -8,7 +8,6 @@
 #include "stitch/geo/geo_outputs.h"
 #include "stitch/geometry/similarity.h"
 #include "stitch/util/error.h"
-#include "stitch/util/ids.h"
 #include "stitch/util/text_file.h"
 
 namespace fs = std::filesystem;
@@ -16,12 +15,6 @@ namespace fs = std::filesystem;
 namespace stitch {
 
 namespace {
-
-std::string SubmapList(const RunMap& map) {
-  std::string names;
-  for (int64_t submap : map.submaps) names += (names.empty() ? "" : ",") + SubmapName(SubmapId(submap));
-  return names;
-}
 
 std::optional<AbsoluteErrors> MeasureAbsolute(const std::vector<const PoseRecord*>& poses, const Sim3d& enu_from_map,
                                               const Trajectory& ground_truth) {
@@ -97,7 +90,7 @@ nlohmann::json RunGeoReference::ToJson() const {
   for (const MapGeoReference& m : maps) {
     const GeoPlacement& p = m.placement;
     nlohmann::json map = {{"map", m.map.name},
-                          {"submaps", SubmapList(m.map)},
+                          {"submaps", m.map.SubmapNames()},
                           {"frames", m.map.frames},
                           {"largest", m.map.largest},
                           {"placed", p.placed},
@@ -205,7 +198,7 @@ void WriteGeoOutputs(const std::string& folder, const RunGeoReference& geo, cons
     if (!m.placement.placed) continue;
     GeoTrack& track = tracks[m.map.component];
     track.name = m.map.name;
-    track.submaps = SubmapList(m.map);
+    track.submaps = m.map.SubmapNames();
     track.placed_by = m.placement.method;
     ordered.push_back(std::move(track));
   }

@@ -8,6 +8,7 @@
 #include "stitch/geometry/similarity.h"
 #include "stitch/util/error.h"
 #include "stitch/util/rng.h"
+#include "stitch/util/statistics.h"
 
 namespace stitch {
 
@@ -108,20 +109,12 @@ Sim3d FitAlongLine(const std::vector<FixPair>& pairs, const std::vector<int>& in
     in_map.push_back(pairs[i].centre);
     in_enu.push_back(pairs[i].enu - guess.rotation * (pairs[i].map_from_cam * antenna_in_cam));
   }
-  Eigen::Vector3d direction_map, direction_enu, mean_map = Eigen::Vector3d::Zero(), mean_enu = Eigen::Vector3d::Zero();
-  if (indices.size() == 2) {
-    direction_map = in_map[1] - in_map[0];
-    direction_enu = in_enu[1] - in_enu[0];
-  } else {
-    direction_map = AxesOf(in_map).main;
-    direction_enu = AxesOf(in_enu).main;
-  }
-  for (size_t i = 0; i < in_map.size(); ++i) {
-    mean_map += in_map[i];
-    mean_enu += in_enu[i];
-  }
-  mean_map /= static_cast<double>(in_map.size());
-  mean_enu /= static_cast<double>(in_enu.size());
+  const PrincipalAxes axes_map = AxesOf(in_map), axes_enu = AxesOf(in_enu);
+  const Eigen::Vector3d& mean_map = axes_map.mean;
+  const Eigen::Vector3d& mean_enu = axes_enu.mean;
+  // Two pairs: the line through them; more: their main direction.
+  Eigen::Vector3d direction_map = indices.size() == 2 ? Eigen::Vector3d(in_map[1] - in_map[0]) : axes_map.main;
+  Eigen::Vector3d direction_enu = indices.size() == 2 ? Eigen::Vector3d(in_enu[1] - in_enu[0]) : axes_enu.main;
   double agreement = 0.0;
   for (size_t i = 0; i < in_map.size(); ++i) {
     agreement += (in_map[i] - mean_map).dot(direction_map) * (in_enu[i] - mean_enu).dot(direction_enu);
@@ -186,8 +179,7 @@ GeoPlacement PlaceByGnss(const Trajectory& map_poses, const std::vector<EnuFix>&
     fix_positions.push_back(p.enu);
     sigmas.push_back(p.horizontal_sigma_m);
   }
-  std::nth_element(sigmas.begin(), sigmas.begin() + sigmas.size() / 2, sigmas.end());
-  const double median_sigma = sigmas[sigmas.size() / 2];
+  const double median_sigma = Median(sigmas);
   placement.spread_m = AxesOf(fix_positions).spread_across;
   const double spread_needed = std::max(options.min_spread_m, 5.0 * median_sigma);
   // Along a line: the rotation about it from the cameras' mean up direction, where they agree on one.
@@ -316,8 +308,7 @@ GeoPlacement PlaceByGnss(const Trajectory& map_poses, const std::vector<EnuFix>&
       d.last_ns = pairs[group.back()].t_ns;
       std::vector<double> apart;
       for (int i = 0; i < n; ++i) apart.push_back((other * pairs[i].centre - best * pairs[i].centre).norm());
-      std::nth_element(apart.begin(), apart.begin() + n / 2, apart.end());
-      d.apart_m = apart[n / 2];
+      d.apart_m = Median(apart);
       placement.disagreement = d;
       disagreeing = d.fixes;
     }

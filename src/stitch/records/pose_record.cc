@@ -28,6 +28,12 @@ std::vector<PoseRecord> ReadPoseRecords(const std::string& path) {
   return poses;
 }
 
+std::string RunMap::SubmapNames() const {
+  std::string names;
+  for (int64_t submap : submaps) names += (names.empty() ? "" : ",") + SubmapName(SubmapId(submap));
+  return names;
+}
+
 std::vector<RunMap> MapsOfRun(const std::vector<PoseRecord>& poses, int largest_component) {
   std::map<int, RunMap> by_component;
   std::map<int, std::set<int64_t>> submaps;

@@ -34,6 +34,8 @@ struct RunMap {
   int frames = 0;
   std::vector<int64_t> submaps;  // ascending
   bool largest = false;
+
+  std::string SubmapNames() const;  // "0:1,0:2"
 };
 std::vector<RunMap> MapsOfRun(const std::vector<PoseRecord>& poses, int largest_component);
 

@@ -40,9 +40,8 @@ void WriteEveryTrajectory(const std::string& folder, const std::vector<PoseRecor
   index << "file\tframes\tsubmaps\tlargest\n";
   for (const RunMap& map : MapsOfRun(poses, largest_component)) {
     by_component[map.component].WriteTum((fs::path(folder) / (map.name + ".tum")).string(), output_frames::kOwnMap);
-    std::string names;
-    for (int64_t submap : map.submaps) names += (names.empty() ? "" : ",") + SubmapName(SubmapId(submap));
-    index << map.name << ".tum\t" << map.frames << "\t" << names << "\t" << (map.largest ? "yes" : "no") << "\n";
+    index << map.name << ".tum\t" << map.frames << "\t" << map.SubmapNames() << "\t" << (map.largest ? "yes" : "no")
+          << "\n";
   }
   WriteFileAtomically((fs::path(folder) / "index.tsv").string(), index.str());
 }

@@ -293,11 +293,10 @@ std::map<std::string, double> MeasureRun(const std::string& run_dir, double cpu_
   if (worst >= 0) m["worst_submap_ate_in_map_m"] = worst;
   m["wrong_merges"] = e.wrong_merges;
   // Placed on Earth by the GNSS fixes: the largest map's keyframes against the truth, unaligned.
-  {
-    std::ifstream in(dir / "report.json");
-    const nlohmann::json report = nlohmann::json::parse(in, nullptr, false);
-    if (report.is_object() && report.contains("georeference")) {
-      for (const auto& map : report["georeference"].value("maps", nlohmann::json::array())) {
+  if (std::ifstream in(dir / "geo" / "georeference.json"); in) {
+    const nlohmann::json geo = nlohmann::json::parse(in, nullptr, false);
+    if (geo.is_object()) {
+      for (const auto& map : geo.value("maps", nlohmann::json::array())) {
         if (map.value("largest", false) && map.contains("absolute")) {
           m["on_earth_m"] = map["absolute"].value("keyframe_horizontal_rms_m", 0.0);
         }
