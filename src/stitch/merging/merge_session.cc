@@ -255,13 +255,7 @@ bool MergeSession::AddGnssFix(const std::string& agent, const GnssFix& fix, std:
     }
   }
   fixes[fix.t_ns] = fix;
-  ++gnss_received_;
   return true;
-}
-
-int64_t MergeSession::gnss_fixes_received() const {
-  std::lock_guard<std::mutex> lock(gnss_mutex_);
-  return gnss_received_;
 }
 
 int64_t MergeSession::frame_poses_received() const {

@@ -80,7 +80,6 @@ class MergeSession {
   // several aircraft) with the records. Refuses (false, with why) a fix that is no place on Earth
   // or states no accuracy, and fixes beyond 10 hours at 10 Hz; thread-safe.
   bool AddGnssFix(const std::string& agent, const GnssFix& fix, std::string* why);
-  int64_t gnss_fixes_received() const;
   // trajectory.tum (or one per aircraft): every frame of the pose stream that lies in the
   // largest merged map, with the newest placement and the last refinement's keyframe poses.
   void WriteLiveTrajectory();
@@ -148,7 +147,6 @@ class MergeSession {
   bool trajectory_stale_ = false;
   mutable std::mutex gnss_mutex_;
   std::map<std::string, std::map<int64_t, GnssFix>> gnss_;  // by aircraft, by time
-  int64_t gnss_received_ = 0;
   double trajectory_written_at_ = 0;  // MonotonicSeconds()
   bool cloud_stale_ = false;
   int cloud_revision_ = 0;
