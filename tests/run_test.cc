@@ -3,6 +3,7 @@
 #include <signal.h>
 
 #include <algorithm>
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <set>
@@ -17,6 +18,7 @@
 #include "stitch/io/ply.h"
 #include "stitch/io/trajectory.h"
 #include "stitch/records/frame_record.h"
+#include "stitch/records/merger_records.h"
 #include "stitch/testing/full_disk.h"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/util/child_process.h"
@@ -446,6 +448,39 @@ bool Running(pid_t pid) {
 // The disk fills up during a run (a file size limit of 24 kB stands in for it: the plot, the
 // point clouds and the service logs outgrow it): the run says which file it could not write
 // and fails, and leaves no file cut short: each output is whole or absent.
+// A straight flight parted by two gusts over new ground: no view joins its three submaps, the
+// aircraft's GNSS fixes do (docs/geo.md), in one map, each junction marked.
+TEST(StitchRun, AStraightFlightOverNewGroundEndsInOneMapJoinedByGnss) {
+  testing::TempDir dir;
+  const std::string out = dir / "run";
+  const auto run = RunProgram(
+      {Bin("stitch"), "run", "--set", "synthetic.flight.num_strips=1", "--set", "synthetic.flight.strip_length_m=504",
+       "--set", "synthetic.flight.num_frames=360", "--failures", "110:40,230:40", "--out", out},
+      300);
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  const auto report = ReadJson(out + "/report.json");
+  EXPECT_EQ(report["submaps"], 3) << run.output;
+  EXPECT_EQ(report["submaps_merged"], 3) << run.output;
+  EXPECT_EQ(report["gnss_junctions"], 2) << run.output;
+  EXPECT_GE(report["frames_localized"].get<int>(), 250) << run.output;
+  int junctions = 0;
+  for (const SubmapEdgeRecord& e : ReadSubmapEdgeRecords(out + "/edges.tsv")) {
+    junctions += JoinedByGnss(e);
+    EXPECT_EQ(e.connected_frames, 0) << "a view joins them: " << e.status;
+  }
+  EXPECT_EQ(junctions, 2);
+  EXPECT_NE(run.output.find("2 of its junctions placed by GNSS"), std::string::npos) << run.output;
+  std::ifstream merge_log(out + "/merge_log.tsv");
+  const std::string log((std::istreambuf_iterator<char>(merge_log)), std::istreambuf_iterator<char>());
+  EXPECT_NE(log.find("joined where GNSS places their maps"), std::string::npos) << log;
+  // The one map on Earth: its keyframes within a couple of metres of the truth, unaligned (2 m fixes).
+  const auto geo = ReadJson(out + "/geo/georeference.json");
+  ASSERT_EQ(geo["maps"].size(), 1u) << geo.dump();
+  EXPECT_EQ(geo["maps"][0]["submaps"], "0:1,0:2,0:3");
+  EXPECT_LT(geo["maps"][0]["absolute"]["keyframe_horizontal_rms_m"].get<double>(), 2.0) << geo.dump();
+  EXPECT_LT(std::abs(geo["maps"][0]["absolute"]["scale_error"].get<double>()), 0.01) << geo.dump();
+}
+
 TEST(StitchRun, AFullDiskIsReportedWithTheFileAndLeavesNoFileCut) {
   testing::TempDir dir;
   const std::string out = dir / "run";

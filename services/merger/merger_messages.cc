@@ -1,5 +1,7 @@
 #include "services/merger/merger_messages.h"
 
+#include <algorithm>
+
 #include "services/common/convert.h"
 
 namespace stitch {
@@ -34,6 +36,7 @@ stitch::global_map_t ToGlobalMapMessage(const Merger::Graph& graph, const std::m
     edge.in_spanning_tree = InTree(e, graph.tree);
     edge.b_from_a = ToMessage(e.b_from_a);
     edge.refused = e.refused;
+    edge.gnss_sigma_m = e.kind == EdgeKind::kGnss ? std::max(e.gnss_sigma_m, 1e-3) : 0.0;
     m.edges.push_back(edge);
   }
   m.num_edges = static_cast<int32_t>(m.edges.size());

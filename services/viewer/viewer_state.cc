@@ -61,6 +61,9 @@ bool ViewerState::OnGlobalMap(const stitch::global_map_t& message, std::string* 
   }
   for (const stitch::submap_edge_t& e : message.edges) {
     if (!Finite(e.strength) || !Finite(e.median_angle_deg)) return Refuse(why, "an edge's strength is not finite");
+    if (!(e.gnss_sigma_m >= 0 && e.gnss_sigma_m < 1e6)) {
+      return Refuse(why, "an edge's GNSS standard error is not a distance");
+    }
   }
   if (global_map_ && message.header.sender_session == global_map_->header.sender_session &&
       message.revision <= global_map_->revision) {
@@ -255,7 +258,8 @@ std::string ViewerState::MapJson() const {
                        {"points", e.map_points},
                        {"angle_deg", e.median_angle_deg},
                        {"tree", e.in_spanning_tree != 0},
-                       {"refused", e.refused}});
+                       {"refused", e.refused},
+                       {"gnss_sigma_m", e.gnss_sigma_m}});
     }
     for (const std::string& line : global_map_->merge_log) log.push_back(line);
   }

@@ -160,6 +160,26 @@ TEST(ViewerState, BothSidesLinkBridgesAreShownEachByWhatItSends) {
   EXPECT_FALSE(state.OnLinkStatus(up, &why));
 }
 
+// Submaps no view joins, joined where the aircraft's GNSS places their maps: the edge says so.
+TEST(ViewerState, AGnssJunctionIsShownAsOne) {
+  ViewerState state(1000);
+  std::string why;
+  stitch::global_map_t map = GlobalMap();
+  map.edges[1].refused = "";
+  map.edges[1].strength = 0;
+  map.edges[1].connected_frames = 0;
+  map.edges[1].in_spanning_tree = true;
+  map.edges[1].gnss_sigma_m = 0.72;
+  for (auto& submap : map.submaps) submap.component = 0;
+  ASSERT_TRUE(state.OnGlobalMap(map, &why)) << why;
+  const nlohmann::json shown = nlohmann::json::parse(state.MapJson());
+  EXPECT_EQ(shown["merged_maps"], 1);
+  EXPECT_TRUE(shown["submaps"][2]["merged"]);
+  EXPECT_TRUE(shown["edges"][1]["tree"]);
+  EXPECT_DOUBLE_EQ(shown["edges"][1]["gnss_sigma_m"].get<double>(), 0.72);
+  EXPECT_DOUBLE_EQ(shown["edges"][0]["gnss_sigma_m"].get<double>(), 0.0);
+}
+
 TEST(ViewerState, ContentThatCannotBeDrawnIsRefusedAndCounted) {
   ViewerState state(1000);
   std::string why;
@@ -170,6 +190,10 @@ TEST(ViewerState, ContentThatCannotBeDrawnIsRefusedAndCounted) {
   map = GlobalMap();
   map.edges[0].strength = std::numeric_limits<double>::quiet_NaN();
   EXPECT_FALSE(state.OnGlobalMap(map, &why));
+  map = GlobalMap();
+  map.edges[1].gnss_sigma_m = -std::numeric_limits<double>::infinity();
+  EXPECT_FALSE(state.OnGlobalMap(map, &why));
+  EXPECT_NE(why.find("GNSS"), std::string::npos) << why;
 
   stitch::map_cloud_t cloud{};
   cloud.header.agent = "uav0";
@@ -209,7 +233,7 @@ TEST(ViewerState, ContentThatCannotBeDrawnIsRefusedAndCounted) {
   ASSERT_TRUE(state.OnTrackingStatus(status, 0, &why));
   ASSERT_TRUE(state.OnLinkStatus(link, &why));
   EXPECT_NO_THROW(nlohmann::json::parse(state.LiveJson(0)));
-  EXPECT_EQ(state.refused(), 7);
+  EXPECT_EQ(state.refused(), 8);
   EXPECT_EQ(state.map_revision(), 0);
   EXPECT_EQ(state.cloud_revision(), 0);
 }

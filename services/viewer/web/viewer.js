@@ -329,7 +329,8 @@
       cell(row, e.C.toFixed(1));
       cell(row, String(e.frames));
       cell(row, String(e.points));
-      cell(row, e.tree ? 'merged' : (e.refused ? 'refused: ' + e.refused : 'not used'), e.refused ? 'refused' : '');
+      const joined = e.gnss_sigma_m > 0 ? 'joined by GNSS (\u00b1' + e.gnss_sigma_m.toFixed(2) + ' m)' : 'merged';
+      cell(row, e.tree ? joined : (e.refused ? 'refused: ' + e.refused : 'not used'), e.refused ? 'refused' : '');
       edgeRows.appendChild(row);
     }
     drawGraph();
@@ -363,10 +364,10 @@
     for (const e of map.edges) {
       if (!at[e.a] || !at[e.b]) continue;
       svg('line', { x1: at[e.a][0], y1: at[e.a][1], x2: at[e.b][0], y2: at[e.b][1],
-                    stroke: e.tree ? '#e05050' : (e.refused ? '#704040' : '#556070'),
+                    stroke: e.gnss_sigma_m > 0 ? '#4090e0' : e.tree ? '#e05050' : (e.refused ? '#704040' : '#556070'),
                     'stroke-width': e.tree ? 3 : 1, 'stroke-dasharray': e.refused ? '3 2' : '' }, graph);
       const label = svg('text', { x: (at[e.a][0] + at[e.b][0]) / 2, y: (at[e.a][1] + at[e.b][1]) / 2 - 5 }, graph);
-      label.textContent = 'C=' + e.C.toFixed(0);
+      label.textContent = e.gnss_sigma_m > 0 ? 'GNSS' : 'C=' + e.C.toFixed(0);
     }
     for (const s of map.submaps) {
       svg('circle', { cx: at[s.id][0], cy: at[s.id][1], r: 14, fill: s.colour, stroke: s.closed ? 'none' : '#fff' }, graph);

@@ -39,6 +39,13 @@ TEST(StitchConfig, TyposAndBadValuesAreErrors) {
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("live_wait_for_points_s"), std::string::npos) << e.what();
   }
+  std::ofstream(dir / "geo.yaml") << "merger:\n  georeference:\n    min_fixes: 1\n";
+  try {
+    LoadStitchConfig(dir / "geo.yaml");
+    FAIL() << "a map placed on Earth by one fix";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("merger.georeference.min_fixes"), std::string::npos) << e.what();
+  }
   std::ofstream(dir / "section.yaml") << "mystery:\n  a: 1\n";
   EXPECT_THROW(LoadStitchConfig(dir / "section.yaml"), Error);
 }

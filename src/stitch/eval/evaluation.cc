@@ -188,6 +188,7 @@ nlohmann::json ToJson(const Evaluation& e) {
   j["keyframes"] = e.keyframes;
   j["submaps"] = e.submaps;
   j["submaps_merged"] = e.submaps_merged;
+  j["gnss_junctions"] = e.gnss_junctions;
   j["has_ground_truth"] = e.has_ground_truth;
   j["ate_rmse_m"] = e.errors ? json(e.errors->ate_rmse_m) : json(nullptr);
   j["ate_median_m"] = e.errors ? json(e.errors->ate_median_m) : json(nullptr);
@@ -228,6 +229,7 @@ Evaluation EvaluationFromJson(const nlohmann::json& j) {
     e.keyframes = j.at("keyframes");
     e.submaps = j.at("submaps");
     e.submaps_merged = j.at("submaps_merged");
+    e.gnss_junctions = j.value("gnss_junctions", 0);
     e.has_ground_truth = j.at("has_ground_truth");
     if (!j.at("ate_rmse_m").is_null()) {
       TrajectoryErrors errors;
@@ -330,8 +332,12 @@ std::string Summarize(const Evaluation& e) {
     text +=
         "  dropped           " + std::to_string(e.frames_dropped) + " live frames came while the tracker was busy\n";
   }
-  std::snprintf(line, sizeof(line), "  keyframes         %d\n  submaps           %d (%d in the largest map)\n",
-                e.keyframes, e.submaps, e.submaps_merged);
+  std::snprintf(line, sizeof(line), "  keyframes         %d\n  submaps           %d (%d in the largest map%s)\n",
+                e.keyframes, e.submaps, e.submaps_merged,
+                e.gnss_junctions > 0 ? ("; " + std::to_string(e.gnss_junctions) +
+                                        " of its junctions placed by GNSS, where no view joins the submaps")
+                                           .c_str()
+                                     : "");
   text += line;
   text += ErrorLines(e);
   if (e.submaps_merged > 1) {

@@ -63,6 +63,7 @@ struct Evaluation {
   int keyframes = 0;
   int submaps = 0;
   int submaps_merged = 0;  // submaps in the largest merged map
+  int gnss_junctions = 0;  // of its junctions, those GNSS placed (no view joins their submaps; edges.tsv)
   int largest_component = -1;
   std::optional<TrajectoryErrors> errors;  // largest map vs ground truth
   double ground_truth_extent_m = 0;        // diagonal of the box around the posed frames' true positions

@@ -1,8 +1,10 @@
 #include "stitch/merging/merge_session.h"
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <limits>
 
 #include "stitch/io/colmap_model.h"
 #include "stitch/io/output_frames.h"
@@ -105,7 +107,7 @@ void MergeSession::Refine(const std::string& why) {
                      << again.stale << " could not be (kept as stale: they count where the fresh ones agree)";
     OnGraphChange("connected frames verified again (" + why + ")");
   }
-  Refined refined{merger_.Solve(/*refine=*/true), std::nullopt};
+  Refined refined{merger_.Solve(/*refine=*/true, FixesOfSubmaps()), std::nullopt};
   refined.merged = MergeLargestMap(&refined.graph);
   // Checked after placement: a merge whose junction the adjustment could not hold is rolled back
   // (its edge refused until more connected frames arrive) and the maps are solved again.
@@ -120,7 +122,7 @@ void MergeSession::Refine(const std::string& why) {
       merger_.RefuseAfterPlacement(d.edge, d.reason);
     }
     OnGraphChange("merge rolled back after placement (" + why + ")");
-    refined = Refined{merger_.Solve(/*refine=*/true), std::nullopt};
+    refined = Refined{merger_.Solve(/*refine=*/true, FixesOfSubmaps()), std::nullopt};
     refined.merged = MergeLargestMap(&refined.graph);
   }
   Show(refined.graph);
@@ -164,7 +166,7 @@ bool MergeSession::Finish() {
 }
 
 void MergeSession::OnGraphChange(const std::string& event) {
-  const Merger::Graph graph = merger_.Solve();
+  const Merger::Graph graph = merger_.Solve(/*refine=*/false, FixesOfSubmaps());
   // The current map: the merged map holding the newest submap; the stack: every other submap.
   SubmapId newest;
   for (const auto& [id, replica] : merger_.submaps()) {
@@ -199,6 +201,30 @@ void MergeSession::OnGraphChange(const std::string& event) {
     merge_log_.push_back({what, current_map, stack, maps});
   }
   refused_edges_.swap(refused);
+  // GNSS junctions, each said when made and when undone.
+  std::map<std::pair<SubmapId, SubmapId>, double> junctions;
+  for (const SubmapEdge& e : graph.tree) {
+    if (e.kind == EdgeKind::kGnss) junctions[{e.a, e.b}] = e.gnss_sigma_m;
+  }
+  const auto say = [&](const std::string& what) {
+    STITCH_LOG(INFO) << what;
+    merge_log_.push_back({what, current_map, stack, maps});
+  };
+  for (const auto& [pair, sigma] : junctions) {
+    if (gnss_junctions_.count(pair)) continue;
+    char what[160];
+    std::snprintf(what, sizeof(what),
+                  "submaps %s and %s joined where GNSS places their maps (+-%.2f m): no view joins them",
+                  SubmapName(pair.first).c_str(), SubmapName(pair.second).c_str(), sigma);
+    say(what);
+  }
+  for (const auto& [pair, sigma] : gnss_junctions_) {
+    if (junctions.count(pair)) continue;
+    const bool together = graph.placement.at(pair.first).component == graph.placement.at(pair.second).component;
+    say("GNSS junction " + SubmapName(pair.first) + "-" + SubmapName(pair.second) + " undone: " +
+        (together ? "views or another junction join the two now" : "GNSS no longer places both their maps"));
+  }
+  gnss_junctions_.swap(junctions);
   const std::string row = current_map + "\t" + stack + "\t" + maps;
   if (row == last_stack_) return;
   last_stack_ = row;
@@ -255,7 +281,40 @@ bool MergeSession::AddGnssFix(const std::string& agent, const GnssFix& fix, std:
     }
   }
   fixes[fix.t_ns] = fix;
+  // In the merger's ENU frame (at the first fix) for joining maps, computed once.
+  std::map<int64_t, EnuFix>& enu = gnss_enu_[agent];
+  if (!fix.usable()) {
+    enu.erase(fix.t_ns);
+    return true;
+  }
+  if (!gnss_plane_) gnss_plane_.emplace(fix.position);
+  enu[fix.t_ns] = ToEnu({fix}, *gnss_plane_).front();
   return true;
+}
+
+SubmapFixes MergeSession::FixesOfSubmaps() const {
+  const GeoReferenceOptions& geo = merger_.options().georeference;
+  if (!geo.enabled || !merger_.options().join_by_gnss) return {};
+  const auto margin_ns = static_cast<int64_t>((geo.max_interpolation_gap_s + std::abs(geo.time_offset_s)) * 1e9);
+  SubmapFixes by_submap;
+  std::lock_guard<std::mutex> lock(gnss_mutex_);
+  for (const auto& [id, replica] : merger_.submaps()) {
+    const auto agent = agent_of_.find(id);
+    if (agent == agent_of_.end() || replica.map.num_keyframes() == 0) continue;
+    const auto fixes = gnss_enu_.find(agent->second);
+    if (fixes == gnss_enu_.end()) continue;
+    int64_t first = std::numeric_limits<int64_t>::max(), last = std::numeric_limits<int64_t>::min();
+    for (const auto& [keyframe_id, keyframe] : replica.map.keyframes()) {
+      first = std::min(first, keyframe.t_ns);
+      last = std::max(last, keyframe.t_ns);
+    }
+    std::vector<EnuFix>& own = by_submap[id];
+    for (auto f = fixes->second.lower_bound(first - margin_ns);
+         f != fixes->second.end() && f->first <= last + margin_ns; ++f) {
+      own.push_back(f->second);
+    }
+  }
+  return by_submap;
 }
 
 int64_t MergeSession::frame_poses_received() const {

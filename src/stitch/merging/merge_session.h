@@ -10,15 +10,15 @@
 #include <functional>
 #include <map>
 #include <mutex>
-
 #include <optional>
 #include <set>
 #include <string>
 #include <utility>
 #include <vector>
-#include "stitch/geo/gnss_fix.h"
 
 #include <Eigen/Core>
+
+#include "stitch/geo/gnss_fix.h"
 
 #include "stitch/merging/frame_trajectory.h"
 #include "stitch/merging/merger.h"
@@ -120,6 +120,9 @@ class MergeSession {
   // The largest merged map with its points fused and bundle adjusted; its keyframe poses replace
   // the pose graph's in `graph`. nullopt when it holds no submap with a camera.
   std::optional<MergedMap> MergeLargestMap(Merger::Graph* graph) const;
+  // Each submap's usable fixes over its keyframes' times (and the interpolation gap on each
+  // side), in the plane of the first fix; none where merger.join_by_gnss is off.
+  SubmapFixes FixesOfSubmaps() const;
   // colmap/: the largest map as a COLMAP sparse model (at the end only).
   void WriteColmapRecord(const Merger::Graph& graph, const MergedMap* merged) const;
 
@@ -136,6 +139,7 @@ class MergeSession {
   std::vector<MergeLogRecord> merge_log_;     // merge_log.tsv
   std::string last_stack_;
   std::map<std::pair<SubmapId, SubmapId>, std::string> refused_edges_;  // as last logged
+  std::map<std::pair<SubmapId, SubmapId>, double> gnss_junctions_;      // as last logged, with their sigma
   std::map<SubmapId, SubmapPlacement> latest_placement_;                // as last shown
   std::optional<Refined> refined_;
   int64_t refined_at_ = -1;  // ...after this many updates applied
@@ -146,8 +150,10 @@ class MergeSession {
   std::map<std::string, std::map<int, TrackedFramePose>> frame_poses_;
   bool trajectory_stale_ = false;
   mutable std::mutex gnss_mutex_;
-  std::map<std::string, std::map<int64_t, GnssFix>> gnss_;  // by aircraft, by time
-  double trajectory_written_at_ = 0;  // MonotonicSeconds()
+  std::map<std::string, std::map<int64_t, GnssFix>> gnss_;     // by aircraft, by time
+  std::optional<LocalTangentPlane> gnss_plane_;                // at the first fix received
+  std::map<std::string, std::map<int64_t, EnuFix>> gnss_enu_;  // the usable fixes in that plane
+  double trajectory_written_at_ = 0;                           // MonotonicSeconds()
   bool cloud_stale_ = false;
   int cloud_revision_ = 0;
 };

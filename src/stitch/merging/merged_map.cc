@@ -100,7 +100,9 @@ MergedMap AssembleMergedMap(const std::map<SubmapId, SubmapReplica>& submaps,
   CheckOptions(options, "merged_map");
   MergedMap merged(pyramid);
   merged.component = component;
-  KeyframeId anchor;  // the root submap's first keyframe holds the frame during adjustment
+  // The first keyframe of each anchor submap holds the frame during adjustment: the root's, and
+  // where a GNSS junction joins parts that no view connects, each part's.
+  std::map<SubmapId, KeyframeId> anchors;
   for (const auto& [submap_id, place] : placement) {
     if (place.component != component) continue;
     const auto found = submaps.find(submap_id);
@@ -114,7 +116,9 @@ MergedMap AssembleMergedMap(const std::map<SubmapId, SubmapReplica>& submaps,
           refined != keyframe_poses.end()
               ? refined->second
               : place.world_from_submap * Sim3d(1.0, submap_from_cam.rotation, submap_from_cam.translation);
-      if (submap_id == place.root && (!anchor.valid() || id < anchor)) anchor = id;
+      if (submap_id == place.Anchor() && (!anchors[submap_id].valid() || id < anchors[submap_id])) {
+        anchors[submap_id] = id;
+      }
     }
     // Points move with their reference keyframe (the pose graph moved each keyframe on its own).
     for (const auto& [id, point] : submap.points()) {
@@ -147,10 +151,14 @@ MergedMap AssembleMergedMap(const std::map<SubmapId, SubmapReplica>& submaps,
   RefreshGeometry(&merged.map);
 
   const auto adjust = [&] {
-    if (!options.bundle_adjustment || !anchor.valid()) return;
+    std::vector<KeyframeId> fixed;
+    for (const auto& [submap, first] : anchors) {
+      if (first.valid()) fixed.push_back(first);
+    }
+    if (!options.bundle_adjustment || fixed.empty()) return;
     std::vector<KeyframeId> free;
     for (const auto& [id, keyframe] : merged.map.keyframes()) {
-      if (id != anchor) free.push_back(id);
+      if (std::find(fixed.begin(), fixed.end(), id) == fixed.end()) free.push_back(id);
     }
     const size_t max_free = options.bundle_adjustment_max_free_keyframes;
     if (max_free > 0 && free.size() > max_free) {  // the newest move; older ones hold their points
@@ -164,7 +172,7 @@ MergedMap AssembleMergedMap(const std::map<SubmapId, SubmapReplica>& submaps,
     BundleAdjustmentOptions ba;
     ba.iterations = options.bundle_adjustment_iterations;
     ba.refine_iterations = options.bundle_adjustment_iterations;
-    const BundleAdjustmentReport report = BundleAdjust(&merged.map, free, {anchor}, intrinsics, ba);
+    const BundleAdjustmentReport report = BundleAdjust(&merged.map, free, fixed, intrinsics, ba);
     if (merged.bundle_adjustment.keyframes_free == 0) {
       merged.bundle_adjustment = report;
     } else {  // the second pass: keep the first pass's initial error for the report
@@ -281,7 +289,8 @@ std::vector<DoubtedEdge> CheckJunctions(const MergedMap& merged, const std::vect
   for (const auto& [keyframe, pose] : merged.keyframe_poses) inside.insert(SubmapOf(keyframe));
   std::vector<DoubtedEdge> doubted;
   for (const SubmapEdge& edge : tree) {
-    if (!inside.count(edge.a) || !inside.count(edge.b)) continue;
+    // A GNSS junction joins what shares no view: no points to fuse, nothing to check.
+    if (edge.kind != EdgeKind::kVisual || !inside.count(edge.a) || !inside.count(edge.b)) continue;
     const auto found = merged.junctions.find(SubmapPair(edge.a, edge.b));
     const Junction j = found != merged.junctions.end() ? found->second : Junction();
     char why[200];

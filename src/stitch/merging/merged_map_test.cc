@@ -87,8 +87,8 @@ TwoSubmaps MakeTwoSubmaps() {
 // A in its own frame; B placed by the true similarity made slightly wrong.
 std::map<SubmapId, SubmapPlacement> Placement(const TwoSubmaps& scene, const Sim3d& error) {
   std::map<SubmapId, SubmapPlacement> placement;
-  placement[kA] = {0, kA, Sim3d()};
-  placement[kB] = {0, kA, error * scene.b_from_world.Inverse()};
+  placement[kA] = {0, kA, Sim3d(), kA};
+  placement[kB] = {0, kA, error * scene.b_from_world.Inverse(), kA};
   return placement;
 }
 
@@ -255,7 +255,7 @@ TEST(MergedMap, AMergeOutsideTheAssembledMapIsNotJudgedByIt) {
 TEST(MergedMap, OnlyTheChosenMergedMapIsAssembled) {
   const TwoSubmaps scene = MakeTwoSubmaps();
   std::map<SubmapId, SubmapPlacement> placement = Placement(scene, Sim3d());
-  placement[kB] = {1, kB, Sim3d()};  // B is a merged map of its own
+  placement[kB] = {1, kB, Sim3d(), kB};  // B is a merged map of its own
   const MergedMap merged = AssembleMergedMap(scene.submaps, placement, {}, {}, 0, ScalePyramid::From(OrbOptions()),
                                              kCamera.Intrinsics(), MergedMapOptions());
   EXPECT_EQ(merged.map.num_keyframes(), static_cast<size_t>(kKeyframesPerSubmap));

@@ -506,7 +506,7 @@ SubmapCompleteness CompletenessOf(const SubmapReplica& replica) {
   return c;
 }
 
-Merger::Graph Merger::Solve(bool refine) const {
+Merger::Graph Merger::Solve(bool refine, const SubmapFixes& gnss) const {
   Graph graph;
   graph.edges = SummarizeConnections(connections_, options_.connection_weights);
   std::vector<SubmapId> ids;
@@ -530,6 +530,17 @@ Merger::Graph Merger::Solve(bool refine) const {
   graph.tree = MinimumSpanningForest(ids, graph.edges, options_.min_connection_strength);
   graph.placement = PlaceSubmaps(keyframes, graph.tree);
   CheckCycles(&graph.edges, graph.tree, graph.placement);
+  if (!gnss.empty() && options_.join_by_gnss && options_.georeference.enabled) {
+    GnssJoining joining = JoinByGnss(submaps_, graph.placement, gnss, options_.georeference);
+    graph.gnss_placements = std::move(joining.placements);
+    if (!joining.junctions.empty()) {
+      const std::map<SubmapId, SubmapPlacement> by_views = graph.placement;
+      graph.edges.insert(graph.edges.end(), joining.junctions.begin(), joining.junctions.end());
+      graph.tree.insert(graph.tree.end(), joining.junctions.begin(), joining.junctions.end());
+      graph.placement = PlaceSubmaps(keyframes, graph.tree);
+      for (auto& [id, place] : graph.placement) place.anchor = by_views.at(id).root;
+    }
+  }
   if (refine) graph.keyframe_poses = RefineKeyframePoses(graph.placement, &graph);
   return graph;
 }
@@ -552,7 +563,7 @@ std::map<KeyframeId, Sim3d> Merger::RefineKeyframePoses(const std::map<SubmapId,
       poses[kf_id] = place.world_from_submap * as_sim3(keyframe.cam_from_world.Inverse());
       if (!first.valid() || kf_id < first) first = kf_id;
     }
-    if (id == place.root && first.valid()) fixed.push_back(first);
+    if (id == place.Anchor() && first.valid()) fixed.push_back(first);
     // Within the submap: its strongest covisibility links and consecutive keyframes, as measured
     // by its own poses.
     KeyframeId previous;

@@ -17,6 +17,7 @@
 #include "stitch/features/vocabulary.h"
 #include "stitch/map/frame.h"
 #include "stitch/map/submap_update.h"
+#include "stitch/merging/gnss_junctions.h"
 #include "stitch/merging/merged_map.h"
 #include "stitch/merging/merger_options.h"
 #include "stitch/merging/submap_graph.h"
@@ -52,8 +53,13 @@ class Merger {
     // keyframe was culled that agree with the placement (for fusing around them).
     std::vector<ConnectedFrame> agreeing;
     int loops_used = 0;  // of those, loops (both ends in one submap)
+    // With fixes (and merger.join_by_gnss): each merged map as views join it, by its root, placed
+    // in the fixes' ENU frame or why not. Its GNSS junctions are in `edges` and `tree`.
+    std::map<SubmapId, GeoPlacement> gnss_placements;
   };
-  Graph Solve(bool refine = false) const;
+  // `gnss`: each submap's fixes, in one ENU frame, to join the merged maps that views leave apart
+  // (JoinByGnss).
+  Graph Solve(bool refine = false, const SubmapFixes& gnss = {}) const;
 
   // Verifies again, with the submaps' points as they are now, every connected frame and loop
   // verified on an older revision of either submap. A connection is verified once, when its

@@ -68,6 +68,8 @@ bool MergerOptions::Check(std::string* why) const {
     return fail("merger.live_outputs_interval_s must be within [0, 3600]");
   if (map_cloud_points < 0 || map_cloud_points > 5'000'000)
     return fail("merger.map_cloud_points must be within [0, 5000000]");
+  std::string georeference_why;
+  if (!georeference.Check(&georeference_why)) return fail("merger.georeference." + georeference_why);
   return connection_weights.Check(why) && merged_map.Check(why) && acceptance.Check(why) && map_export.Check(why);
 }
 

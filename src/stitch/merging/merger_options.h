@@ -117,6 +117,7 @@ struct MergerOptions {
   AcceptanceOptions acceptance;           // checks before a connection or an edge may place a submap
   MapExportOptions map_export;            // what of the merged map goes into map.ply
   GeoReferenceOptions georeference;       // each map placed on Earth by the aircraft's GNSS fixes
+  bool join_by_gnss = true;               // merged maps no view connects joined where GNSS places them
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
@@ -153,6 +154,9 @@ struct MergerOptions {
     v("georeference", georeference,
       "each map placed on Earth by the aircraft's GNSS fixes (gnss.csv in the run folder), its trajectory in WGS84 "
       "(geo/)");
+    v("join_by_gnss", join_by_gnss,
+      "during the flight, join the merged maps that no verified view connects where the aircraft's GNSS fixes place "
+      "them (a junction of its own kind; needs georeference.enabled)");
   }
   bool Check(std::string* why) const;
 };

@@ -210,11 +210,17 @@ void CheckCycles(std::vector<SubmapEdge>* edges, const std::vector<SubmapEdge>& 
 }
 
 bool InTree(const SubmapEdge& edge, const std::vector<SubmapEdge>& tree) {
-  return std::any_of(tree.begin(), tree.end(), [&](const SubmapEdge& t) { return t.a == edge.a && t.b == edge.b; });
+  return std::any_of(tree.begin(), tree.end(),
+                     [&](const SubmapEdge& t) { return t.a == edge.a && t.b == edge.b && t.kind == edge.kind; });
 }
 
 std::string EdgeStatus(const SubmapEdge& edge, const std::vector<SubmapEdge>& tree, double min_strength) {
-  if (InTree(edge, tree)) return "merged";
+  if (InTree(edge, tree)) {
+    if (edge.kind == EdgeKind::kVisual) return "merged";
+    char status[64];
+    std::snprintf(status, sizeof(status), "joined by GNSS (+-%.2f m)", edge.gnss_sigma_m);
+    return status;
+  }
   if (!edge.refused.empty()) return "refused: " + edge.refused;
   if (edge.strength < min_strength) return "below min_connection_strength";
   return "agrees";  // its submaps were joined by stronger edges, and it closes their cycle
@@ -298,7 +304,7 @@ std::map<SubmapId, SubmapPlacement> PlaceSubmaps(const std::map<SubmapId, int>& 
     const Component& c = components[ci];
     // Sim3 from the root outwards: world = root frame; world_from_other = world_from_this * this_from_other.
     std::deque<SubmapId> queue{c.root};
-    placement[c.root] = {static_cast<int>(ci), c.root, Sim3d()};
+    placement[c.root] = {static_cast<int>(ci), c.root, Sim3d(), c.root};
     std::map<SubmapId, bool> done{{c.root, true}};
     while (!queue.empty()) {
       const SubmapId s = queue.front();
@@ -306,7 +312,8 @@ std::map<SubmapId, SubmapPlacement> PlaceSubmaps(const std::map<SubmapId, int>& 
       for (const auto& [other, other_from_this] : neighbours[s]) {
         if (done[other]) continue;
         done[other] = true;
-        placement[other] = {static_cast<int>(ci), c.root, placement[s].world_from_submap * other_from_this.Inverse()};
+        placement[other] = {static_cast<int>(ci), c.root, placement[s].world_from_submap * other_from_this.Inverse(),
+                            c.root};
         queue.push_back(other);
       }
     }

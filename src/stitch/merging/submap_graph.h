@@ -75,8 +75,14 @@ inline std::pair<SubmapId, SubmapId> SubmapPair(SubmapId a, SubmapId b) {
   return a < b ? std::make_pair(a, b) : std::make_pair(b, a);
 }
 
+// What joins an edge's two submaps: verified connected frames (shared views), or their maps'
+// placements by the aircraft's GNSS where no view connects them (gnss_junctions.h).
+enum class EdgeKind { kVisual, kGnss };
+
 struct SubmapEdge {
   SubmapId a, b;
+  EdgeKind kind = EdgeKind::kVisual;
+  double gnss_sigma_m = 0;      // kGnss: the two placements' standard error at the junction, metres
   int connected_frames = 0;     // F
   int map_points = 0;           // M
   double median_angle_deg = 0;  // theta_m, over the connected frames
@@ -100,6 +106,11 @@ struct SubmapPlacement {
   int component = -1;  // merged map; 0 is the one with the most keyframes
   SubmapId root;       // the component's largest submap, whose frame is the component's
   Sim3d world_from_submap;
+  // The root of the submaps that views join (the whole component, unless a GNSS junction joins
+  // parts): its first keyframe holds that part in the adjustments, where nothing else connects
+  // it. Invalid: the root.
+  SubmapId anchor;
+  SubmapId Anchor() const { return anchor.valid() ? anchor : root; }
 };
 
 // Refuses (SubmapEdge::refused) the edges strong enough to merge (C >= `min_strength`) that one
@@ -129,11 +140,11 @@ void CheckCompleteness(std::vector<SubmapEdge>* edges, double min_strength,
 void CheckCycles(std::vector<SubmapEdge>* edges, const std::vector<SubmapEdge>& tree,
                  const std::map<SubmapId, SubmapPlacement>& placement);
 
-// Whether `tree` holds the edge between `edge`'s two submaps.
+// Whether `tree` holds the edge between `edge`'s two submaps, of the same kind.
 bool InTree(const SubmapEdge& edge, const std::vector<SubmapEdge>& tree);
 
-// What became of an edge: "merged" (a tree edge), "agrees" (closes a cycle consistently),
-// "below min_connection_strength", or "refused: <reason>".
+// What became of an edge: "merged" (a tree edge), "joined by GNSS (+-S m)" (a GNSS junction),
+// "agrees" (closes a cycle consistently), "below min_connection_strength", or "refused: <reason>".
 std::string EdgeStatus(const SubmapEdge& edge, const std::vector<SubmapEdge>& tree, double min_strength);
 
 // What became of a connected frame: "refused: <reason>" (RefuseConnection), "loop" (both ends
@@ -147,7 +158,7 @@ std::vector<SubmapEdge> MinimumSpanningForest(const std::vector<SubmapId>& subma
                                               double min_strength);
 
 // Components of the forest and each submap's Sim3 in its component (composed along the tree
-// from the root). `keyframes` gives each submap's size.
+// from the root; the anchor is the root). `keyframes` gives each submap's size.
 std::map<SubmapId, SubmapPlacement> PlaceSubmaps(const std::map<SubmapId, int>& keyframes,
                                                  const std::vector<SubmapEdge>& tree);
 

@@ -238,6 +238,10 @@ std::vector<MergeLogRecord> ReadMergeLog(const std::string& path) {
   });
 }
 
+bool JoinedByGnss(const SubmapEdgeRecord& edge) {
+  return edge.status.rfind("joined by GNSS", 0) == 0;
+}
+
 namespace {
 
 const std::string kRefused = "refused: ";
@@ -256,7 +260,8 @@ std::string RefusedReason(const SubmapEdgeRecord& e) {
 void WriteSubmapGraphDot(const std::string& path, const std::vector<SubmapRecord>& submaps,
                          const std::vector<SubmapEdgeRecord>& edges) {
   std::ostringstream out;
-  out << "graph submaps {\n  // edge weight -C; bold: Kruskal's spanning tree\n";
+  out << "graph submaps {\n  // edge weight -C; bold: Kruskal's spanning tree; blue: joined by GNSS, no view joins "
+         "them\n";
   for (const SubmapRecord& s : submaps) {
     out << "  \"" << SubmapName(s.submap) << "\" [label=\"" << SubmapName(s.submap) << "\\n"
         << s.keyframes << " kf, map " << s.component << "\"];\n";
@@ -264,12 +269,18 @@ void WriteSubmapGraphDot(const std::string& path, const std::vector<SubmapRecord
   for (const SubmapEdgeRecord& e : edges) {
     const std::string refused = RefusedReason(e);
     char label[128];
-    std::snprintf(label, sizeof(label), "C=%.1f (F=%d M=%d %.0f deg%s)", e.strength, e.connected_frames, e.map_points,
-                  e.median_angle_deg,
-                  e.disagreeing_frames > 0 ? (", " + std::to_string(e.disagreeing_frames) + " outvoted").c_str() : "");
+    if (JoinedByGnss(e)) {
+      std::snprintf(label, sizeof(label), "%s", e.status.c_str());
+    } else {
+      std::snprintf(
+          label, sizeof(label), "C=%.1f (F=%d M=%d %.0f deg%s)", e.strength, e.connected_frames, e.map_points,
+          e.median_angle_deg,
+          e.disagreeing_frames > 0 ? (", " + std::to_string(e.disagreeing_frames) + " outvoted").c_str() : "");
+    }
     out << "  \"" << SubmapName(e.a) << "\" -- \"" << SubmapName(e.b) << "\" [label=\"" << label
         << (refused.empty() ? "" : "\\nrefused: " + refused) << "\""
         << (Merged(e)         ? ", style=bold"
+            : JoinedByGnss(e) ? ", style=bold, color=blue"
             : refused.empty() ? ", style=dashed"
                               : ", style=dotted, color=red")
         << "];\n";
@@ -291,11 +302,14 @@ void WriteSubmapGraphPng(const std::string& path, const std::vector<SubmapRecord
                                       size / 2 + static_cast<int>(230 * std::sin(angle)));
   }
   for (const SubmapEdgeRecord& e : edges) {
-    const bool in_tree = Merged(e);
-    cv::line(image, at[e.a], at[e.b], in_tree ? cv::Scalar(40, 40, 200) : cv::Scalar(180, 180, 180), in_tree ? 3 : 1,
-             cv::LINE_AA);
-    char label[32];
-    std::snprintf(label, sizeof(label), "%.0f", e.strength);
+    const bool in_tree = Merged(e), by_gnss = JoinedByGnss(e);
+    cv::line(image, at[e.a], at[e.b],
+             in_tree   ? cv::Scalar(40, 40, 200)
+             : by_gnss ? cv::Scalar(200, 90, 30)
+                       : cv::Scalar(180, 180, 180),
+             in_tree || by_gnss ? 3 : 1, cv::LINE_AA);
+    char label[32] = "GNSS";
+    if (!by_gnss) std::snprintf(label, sizeof(label), "%.0f", e.strength);
     cv::putText(image, label, (at[e.a] + at[e.b]) / 2, cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(0, 0, 0), 1,
                 cv::LINE_AA);
   }
@@ -305,7 +319,8 @@ void WriteSubmapGraphPng(const std::string& path, const std::vector<SubmapRecord
     cv::putText(image, SubmapName(s.submap), at[s.submap] + cv::Point(-16, 5), cv::FONT_HERSHEY_SIMPLEX, 0.45,
                 cv::Scalar(255, 255, 255), 1, cv::LINE_AA);
   }
-  cv::putText(image, "submap graph: edges labelled C, spanning tree in red, one colour per merged map",
+  cv::putText(image,
+              "submap graph: edges labelled C, spanning tree in red, GNSS junctions in blue, a colour per merged map",
               cv::Point(10, 20), cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
   WritePng(path, image);
 }

@@ -65,10 +65,12 @@ struct SubmapEdgeRecord {
   int connected_frames = 0, map_points = 0, disagreeing_frames = 0;
   double median_angle_deg = 0;
   double agreement = 0;  // share of the pair's verified points that agree with its Sim3
-  // "merged", "agrees" (closes a cycle of merged submaps), "below min_connection_strength" or
+  // "merged", "joined by GNSS (+-S m)" (no view joins them: their maps' GNSS placements do),
+  // "agrees" (closes a cycle of merged submaps), "below min_connection_strength" or
   // "refused: <reason>".
   std::string status;
 };
+bool JoinedByGnss(const SubmapEdgeRecord& edge);
 void WriteSubmapEdgeRecords(const std::string& path, const std::vector<SubmapEdgeRecord>& records);
 std::vector<SubmapEdgeRecord> ReadSubmapEdgeRecords(const std::string& path);
 

@@ -172,7 +172,10 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
   WritePoseRecords((dir / "poses.tsv").string(), input.poses);
   if (fs::exists(dir / "groundtruth.tum")) input.ground_truth = Trajectory::ReadTum((dir / "groundtruth.tum").string());
 
-  const Evaluation evaluation = Evaluate(input);
+  std::vector<SubmapEdgeRecord> edges;  // the merger's verdict on every pair of submaps it connected
+  if (fs::exists(dir / "edges.tsv")) edges = ReadSubmapEdgeRecords((dir / "edges.tsv").string());
+  Evaluation evaluation = Evaluate(input);
+  for (const SubmapEdgeRecord& e : edges) evaluation.gnss_junctions += JoinedByGnss(e);
 
   // trajectory.tum: the largest merged map, in its own frame.
   Trajectory trajectory;
@@ -202,7 +205,7 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
   nlohmann::json merges = nullptr;
   if (fs::exists(dir / "edges.tsv")) {
     merges = nlohmann::json::array();
-    for (const SubmapEdgeRecord& e : ReadSubmapEdgeRecords((dir / "edges.tsv").string())) {
+    for (const SubmapEdgeRecord& e : edges) {
       merges.push_back({{"submap_a", SubmapName(e.a)},
                         {"submap_b", SubmapName(e.b)},
                         {"strength", e.strength},

@@ -1,0 +1,111 @@
+#include "stitch/merging/gnss_junctions.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <utility>
+
+#include "stitch/io/trajectory.h"
+
+namespace stitch {
+namespace {
+
+// A merged map as views join it: its submaps, its keyframes in its frame, and its fixes.
+struct ViewJoinedMap {
+  SubmapId root;
+  std::vector<SubmapId> members;
+  std::vector<StampedPose> keyframes;
+  std::vector<EnuFix> fixes;
+};
+
+struct TimeSpan {
+  int64_t first = std::numeric_limits<int64_t>::max();
+  int64_t last = std::numeric_limits<int64_t>::min();
+};
+
+// Time between two spans; 0 where they overlap.
+int64_t Gap(const TimeSpan& x, const TimeSpan& y) {
+  return std::max<int64_t>(0, std::max(x.first, y.first) - std::min(x.last, y.last));
+}
+
+}  // namespace
+
+GnssJoining JoinByGnss(const std::map<SubmapId, SubmapReplica>& submaps,
+                       const std::map<SubmapId, SubmapPlacement>& placement, const SubmapFixes& fixes,
+                       const GeoReferenceOptions& options) {
+  GnssJoining joining;
+  std::map<int, ViewJoinedMap> maps;  // by component
+  std::map<SubmapId, TimeSpan> spans;
+  for (const auto& [id, place] : placement) {
+    const auto replica = submaps.find(id);
+    if (replica == submaps.end()) continue;
+    ViewJoinedMap& map = maps[place.component];
+    map.root = place.root;
+    map.members.push_back(id);
+    for (const auto& [keyframe_id, keyframe] : replica->second.map.keyframes()) {
+      const Rigid3d submap_from_cam = keyframe.cam_from_world.Inverse();
+      const Sim3d world_from_cam =
+          place.world_from_submap * Sim3d(1.0, submap_from_cam.rotation, submap_from_cam.translation);
+      map.keyframes.push_back({keyframe.t_ns, Rigid3d(world_from_cam.rotation, world_from_cam.translation)});
+      TimeSpan& span = spans[id];
+      span.first = std::min(span.first, keyframe.t_ns);
+      span.last = std::max(span.last, keyframe.t_ns);
+    }
+    const auto own = fixes.find(id);
+    if (own != fixes.end()) map.fixes.insert(map.fixes.end(), own->second.begin(), own->second.end());
+  }
+  std::map<int, Sim3d> enu_from_map;  // the placed maps, by component (the largest first)
+  for (auto& [component, map] : maps) {
+    if (map.fixes.empty() || map.keyframes.empty()) continue;
+    std::sort(map.fixes.begin(), map.fixes.end(), [](const EnuFix& x, const EnuFix& y) { return x.t_ns < y.t_ns; });
+    map.fixes.erase(std::unique(map.fixes.begin(), map.fixes.end(),
+                                [](const EnuFix& x, const EnuFix& y) { return x.t_ns == y.t_ns; }),
+                    map.fixes.end());
+    GeoPlacement placed = PlaceByGnss(Trajectory(map.keyframes), map.fixes, options);
+    if (placed.placed) enu_from_map[component] = placed.enu_from_map;
+    joining.placements[map.root] = std::move(placed);
+  }
+  if (enu_from_map.size() < 2) return joining;
+
+  const auto enu_from_submap = [&](SubmapId id) {
+    const SubmapPlacement& place = placement.at(id);
+    return enu_from_map.at(place.component) * place.world_from_submap;
+  };
+  const auto standard_error = [&](SubmapId id) {
+    const GeoPlacement& placed = joining.placements.at(placement.at(id).root);
+    return placed.horizontal_rms_m / std::sqrt(static_cast<double>(std::max(1, placed.inliers)));
+  };
+  // The largest placed map first; each other joins what is joined already through the pair of
+  // submaps nearest each other in time (where the gust that parted them was).
+  std::vector<SubmapId> joined = maps.at(enu_from_map.begin()->first).members;
+  for (auto placed = std::next(enu_from_map.begin()); placed != enu_from_map.end(); ++placed) {
+    const ViewJoinedMap& map = maps.at(placed->first);
+    SubmapId nearest_a, nearest_b;
+    int64_t nearest_gap = std::numeric_limits<int64_t>::max();
+    for (SubmapId a : map.members) {
+      if (!spans.count(a)) continue;
+      for (SubmapId b : joined) {
+        if (!spans.count(b)) continue;
+        const int64_t gap = Gap(spans.at(a), spans.at(b));
+        if (gap < nearest_gap) {
+          nearest_gap = gap;
+          nearest_a = a;
+          nearest_b = b;
+        }
+      }
+    }
+    if (!nearest_a.valid()) continue;
+    SubmapEdge junction;
+    junction.kind = EdgeKind::kGnss;
+    junction.a = std::min(nearest_a, nearest_b);
+    junction.b = std::max(nearest_a, nearest_b);
+    junction.b_from_a = enu_from_submap(junction.b).Inverse() * enu_from_submap(junction.a);
+    junction.gnss_sigma_m = std::hypot(standard_error(junction.a), standard_error(junction.b));
+    joining.junctions.push_back(junction);
+    joined.insert(joined.end(), map.members.begin(), map.members.end());
+  }
+  return joining;
+}
+
+}  // namespace stitch
