@@ -22,6 +22,7 @@
 #include "services/common/update_journal.h"
 #include "stitch/config/stitch_config.h"
 #include "stitch/eval/evaluation.h"
+#include "stitch/geo/gnss_fix.h"
 #include "stitch/io/ply.h"
 #include "stitch/io/trajectory.h"
 #include "stitch/pipeline/inline_pipeline.h"
@@ -154,23 +155,39 @@ TEST(MergerRestart, AMergerKilledHalfwayResumesFromItsJournalAndLosesNothing) {
         << merger.process().LogTail(10);
     EXPECT_EQ(merger.process().Terminate(30s), 0) << merger.process().LogTail(10);
   }
-  // One killed halfway, then restarted on the same state folder.
+  // One killed halfway, then restarted on the same state folder. Before the kill it also got
+  // three GNSS fixes (too few to place a map: the merged maps stay as they were).
   const std::string journal = dir / "state/submap_updates.lcmlog";
+  constexpr int kFixes = 3;
   {
     MergerProcess merger(url, dir / "state", dir / "first", dir / "first.log");
     Publish(&publisher, &messages, 0, half);
-    ASSERT_TRUE(WaitForJournal(journal, half, 60s)) << merger.process().LogTail(10);
+    for (int i = 0; i < kFixes; ++i) {
+      stitch::gnss_fix_t fix{};
+      fix.t_ns = 1'000'000'000LL + i * 200'000'000LL;
+      fix.latitude_deg = 48.0;
+      fix.longitude_deg = 11.0 + 1e-5 * i;
+      fix.height_m = 600.0;
+      fix.horizontal_accuracy_m = 2.0;
+      fix.vertical_accuracy_m = 3.0;
+      fix.fix_type = stitch::gnss_fix_t::FIX_3D;
+      publisher.Publish(bus::Channel("uav0", bus::kGnss), &fix);
+    }
+    ASSERT_TRUE(WaitForJournal(journal, static_cast<int64_t>(half) + kFixes, 60s)) << merger.process().LogTail(10);
     EXPECT_EQ(merger.process().Terminate(0ms), 128 + SIGKILL);
   }
   {
     MergerProcess merger(url, dir / "state", dir / "resumed", dir / "resumed.log");
     Publish(&publisher, &messages, half, messages.size());
-    ASSERT_TRUE(WaitForJournal(journal, messages.size(), 60s)) << merger.process().LogTail(10);
+    ASSERT_TRUE(WaitForJournal(journal, static_cast<int64_t>(messages.size()) + kFixes, 60s))
+        << merger.process().LogTail(10);
     EXPECT_EQ(merger.process().Terminate(30s), 0) << merger.process().LogTail(10);
     const std::string text = testing::ReadWholeFile(dir / "resumed.log");
     EXPECT_NE(text.find("resumed from"), std::string::npos) << text;
   }
-  EXPECT_EQ(JournalRecords(journal), static_cast<int64_t>(messages.size()));
+  EXPECT_EQ(JournalRecords(journal), static_cast<int64_t>(messages.size()) + kFixes);
+  // The fixes taken before the kill are still the merger's after it.
+  EXPECT_EQ(ReadGnssCsv(dir / "resumed/gnss_received.csv").fixes.size(), static_cast<size_t>(kFixes));
 
   // The same merged map: every keyframe, at the same refined pose.
   const auto through = MergedKeyframes(dir / "through/keyframes_merged.tsv");
@@ -181,6 +198,7 @@ TEST(MergerRestart, AMergerKilledHalfwayResumesFromItsJournalAndLosesNothing) {
   const testing::CommandResult rebuilt = testing::RunProgram({Bin("stitch"), "map", journal, "--out", dir / "rebuilt"});
   ASSERT_EQ(rebuilt.exit_code, 0) << rebuilt.output;
   EXPECT_EQ(MergedKeyframes(dir / "rebuilt/keyframes_merged.tsv"), through);
+  EXPECT_EQ(ReadGnssCsv(dir / "rebuilt/gnss_received.csv").fixes.size(), static_cast<size_t>(kFixes));
 
   int merged = 0;
   for (const SubmapRecord& r : ReadSubmapRecords(dir / "resumed/submaps.tsv")) merged += r.component == 0;

@@ -4,6 +4,7 @@
 #include <array>
 #include <cstdio>
 #include <filesystem>
+#include <set>
 #include <vector>
 
 #include <sodium.h>
@@ -46,23 +47,41 @@ bool ChecksumMatches(const LcmLogRecord& record, const std::vector<uint8_t>& che
 }  // namespace
 
 SubmapUpdateLogRead ReadSubmapUpdateLog(const std::string& path, const std::set<std::string>& channels,
-                                        const std::function<void(const stitch::submap_update_t&)>& each) {
+                                        const std::function<void(const stitch::submap_update_t&)>& each,
+                                        const std::function<void(const stitch::gnss_fix_t&)>& each_fix) {
   if (sodium_init() < 0) throw Error("libsodium cannot be initialized");
   LcmLogReader reader(path);
   SubmapUpdateLogRead read;
+  std::set<std::string> gnss_channels;  // the same aircraft's fixes
+  if (each_fix) {
+    for (const std::string& channel : channels) {
+      gnss_channels.insert(bus::Channel(channel.substr(0, channel.rfind('/')), bus::kGnss));
+    }
+  }
   std::vector<LcmLogDamage> mismatched;
   // A record is passed on once the next one shows whether a checksum follows it.
   std::optional<LcmLogRecord> waiting;
   const auto settle = [&](const LcmLogRecord& record, bool checked) {
-    if (!channels.count(record.channel)) return;
-    stitch::submap_update_t update;
+    const bool update_record = channels.count(record.channel) > 0;
+    if (!update_record && !gnss_channels.count(record.channel)) return;
     const int length = static_cast<int>(record.data.size());
-    if (update.decode(record.data.data(), 0, length) != length) {
-      ++read.undecodable;
-      return;
+    if (update_record) {
+      stitch::submap_update_t update;
+      if (update.decode(record.data.data(), 0, length) != length) {
+        ++read.undecodable;
+        return;
+      }
+      each(update);
+      ++read.updates;
+    } else {
+      stitch::gnss_fix_t fix;
+      if (fix.decode(record.data.data(), 0, length) != length) {
+        ++read.undecodable;
+        return;
+      }
+      each_fix(fix);
+      ++read.gnss_fixes;
     }
-    each(update);
-    ++read.updates;
     if (!checked) ++read.unchecked;
   };
   while (std::optional<LcmLogRecord> record = reader.Next()) {
@@ -98,7 +117,7 @@ SubmapUpdateLogRead ReadSubmapUpdateLog(const std::string& path, const std::set<
     }
   }
   if (read.undecodable > 0) {
-    STITCH_LOG(WARNING) << path << ": skipped " << read.undecodable << " submap update records that do not decode";
+    STITCH_LOG(WARNING) << path << ": skipped " << read.undecodable << " records that do not decode";
   }
   if (read.checksum_mismatches > 0) {
     STITCH_LOG(WARNING) << path << ": skipped " << read.checksum_mismatches
@@ -107,10 +126,11 @@ SubmapUpdateLogRead ReadSubmapUpdateLog(const std::string& path, const std::set<
   return read;
 }
 
-int64_t UpdateJournal::Recover(const std::function<void(const stitch::submap_update_t&)>& each) {
+int64_t UpdateJournal::Recover(const std::function<void(const stitch::submap_update_t&)>& each,
+                               const std::function<void(const stitch::gnss_fix_t&)>& each_fix) {
   int64_t count = 0;
   if (std::filesystem::exists(path_)) {
-    const SubmapUpdateLogRead read = ReadSubmapUpdateLog(path_, channels_, each);
+    const SubmapUpdateLogRead read = ReadSubmapUpdateLog(path_, channels_, each, each_fix);
     count = read.updates;
     if (!read.damage.empty()) {
       const std::string aside = path_ + ".damaged";
@@ -130,21 +150,38 @@ int64_t UpdateJournal::Recover(const std::function<void(const stitch::submap_upd
       }
     }
   }
+  std::lock_guard<std::mutex> lock(mutex_);
   writer_ = std::make_unique<lcm::LogFile>(path_, "a");
   if (!writer_->good()) throw Error(path_ + ": cannot append to the merger's journal");
   return count;
 }
 
+int64_t UpdateJournal::appended() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return appended_;
+}
+
 void UpdateJournal::Append(const stitch::submap_update_t& update) {
-  if (!writer_) throw Error("UpdateJournal::Append before Recover");
   std::vector<uint8_t> bytes(static_cast<size_t>(update.getEncodedSize()));
   update.encode(bytes.data(), 0, static_cast<int>(bytes.size()));
+  AppendRecord(bus::Channel(update.header.agent, bus::kSubmap), bytes);
+}
+
+void UpdateJournal::AppendGnssFix(const stitch::gnss_fix_t& fix) {
+  std::vector<uint8_t> bytes(static_cast<size_t>(fix.getEncodedSize()));
+  fix.encode(bytes.data(), 0, static_cast<int>(bytes.size()));
+  AppendRecord(bus::Channel(fix.header.agent, bus::kGnss), bytes);
+}
+
+void UpdateJournal::AppendRecord(const std::string& channel, const std::vector<uint8_t>& bytes) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (!writer_) throw Error("UpdateJournal: appending before Recover");
   lcm::LogEvent event;
   event.eventnum = appended_;
   event.timestamp = WallUtime();
-  event.channel = bus::Channel(update.header.agent, bus::kSubmap);
+  event.channel = channel;
   event.datalen = static_cast<int32_t>(bytes.size());
-  event.data = bytes.data();
+  event.data = const_cast<uint8_t*>(bytes.data());
   auto checksum = RecordChecksum(event.channel, bytes.data(), bytes.size());
   lcm::LogEvent checksum_event;
   checksum_event.eventnum = appended_;

@@ -1,5 +1,6 @@
 #pragma once
-// The merger's store on disk: every submap update it has accepted, appended in LCM's log format
+// The merger's store on disk: every submap update it has accepted (and every GNSS fix, on its
+// <agent>/GNSS channel), appended in LCM's log format
 // and flushed one by one, so a merger killed at any moment (SIGKILL included) and restarted with
 // the same folder reads them back and carries on with nothing lost. Being an LCM log, the journal
 // can also be replayed with lcm-logplayer into another merger, or kept as the run's record.
@@ -12,6 +13,7 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <mutex>
 #include <set>
 #include <string>
 #include <vector>
@@ -19,6 +21,7 @@
 #include <lcm/lcm-cpp.hpp>
 
 #include "services/common/lcm_log_reader.h"
+#include "stitch/gnss_fix_t.hpp"
 #include "stitch/submap_update_t.hpp"
 
 namespace stitch {
@@ -29,6 +32,7 @@ inline constexpr char kJournalChecksumChannel[] = "STITCH_JOURNAL_CHECKSUM";
 // What reading a log of submap updates found.
 struct SubmapUpdateLogRead {
   int64_t updates = 0;      // passed on
+  int64_t gnss_fixes = 0;   // passed on (with a `each_fix`)
   int64_t unchecked = 0;    // of those, read without a checksum record after them
   int64_t undecodable = 0;  // records on the channels that do not decode (skipped)
   // Records whose checksum does not match their bytes, or a checksum record with no record
@@ -40,11 +44,13 @@ struct SubmapUpdateLogRead {
 
 // Reads the submap updates on `channels` (<agent>/SUBMAP of each aircraft) from an LCM log (the
 // journal, or an lcm-logger recording of a flight, whose other channels are passed over) and
-// calls `each` with them in order. Damaged stretches are stepped over (LcmLogReader), and so is
+// calls `each` with them in order; with `each_fix`, also the GNSS fixes of those aircraft
+// (<agent>/GNSS), in their place among the updates. Damaged stretches are stepped over (LcmLogReader), and so is
 // a record whose checksum record does not match it: every intact record after them is read.
 // Throws stitch::Error when the file cannot be read.
 SubmapUpdateLogRead ReadSubmapUpdateLog(const std::string& path, const std::set<std::string>& channels,
-                                        const std::function<void(const stitch::submap_update_t&)>& each);
+                                        const std::function<void(const stitch::submap_update_t&)>& each,
+                                        const std::function<void(const stitch::gnss_fix_t&)>& each_fix = {});
 
 class UpdateJournal {
  public:
@@ -58,19 +64,25 @@ class UpdateJournal {
   // bytes are moved to `path()`.damaged (appended, never deleted) and the journal rewritten
   // without them, so appending goes on after its last whole record. A record that does not
   // decode is skipped with a warning.
-  int64_t Recover(const std::function<void(const stitch::submap_update_t&)>& each);
+  int64_t Recover(const std::function<void(const stitch::submap_update_t&)>& each,
+                  const std::function<void(const stitch::gnss_fix_t&)>& each_fix = {});
 
   // Appends one update (on <its header's agent>/SUBMAP) and its checksum record, and flushes them
   // to the operating system. Throws stitch::Error on a write failure (a full disk): the caller
   // must know the store is no longer complete.
   void Append(const stitch::submap_update_t& update);
+  // The same for a GNSS fix (on <its header's agent>/GNSS). Thread-safe with Append.
+  void AppendGnssFix(const stitch::gnss_fix_t& fix);
 
   const std::string& path() const { return path_; }
-  int64_t appended() const { return appended_; }
+  int64_t appended() const;
 
  private:
+  void AppendRecord(const std::string& channel, const std::vector<uint8_t>& bytes);
+
   std::string path_;
   std::set<std::string> channels_;
+  mutable std::mutex mutex_;  // the writer and the count
   std::unique_ptr<lcm::LogFile> writer_;
   int64_t appended_ = 0;
 };

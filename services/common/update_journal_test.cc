@@ -36,6 +36,37 @@ TEST(UpdateJournal, WhatWasAppendedComesBackInOrderAfterARestart) {
   EXPECT_EQ(Revisions(&again), (std::vector<int>{1, 2, 3}));
 }
 
+// The aircraft's GNSS fixes are kept with the updates, in their place among them, and only for
+// a reader that asks for them.
+TEST(UpdateJournal, GnssFixesComeBackInTheirPlaceAmongTheUpdates) {
+  testing::TempDir dir;
+  {
+    UpdateJournal journal(dir.path().string(), {"uav0/SUBMAP"});
+    Revisions(&journal);
+    journal.Append(Update(1));
+    stitch::gnss_fix_t fix{};
+    fix.header.agent = "uav0";
+    fix.t_ns = 5'000'000'000;
+    fix.latitude_deg = 48.1;
+    journal.AppendGnssFix(fix);
+    fix.header.agent = "uav1";  // not an aircraft of this journal
+    journal.AppendGnssFix(fix);
+    journal.Append(Update(2));
+    EXPECT_EQ(journal.appended(), 4);
+  }
+  UpdateJournal again(dir.path().string(), {"uav0/SUBMAP"});
+  std::vector<std::string> order;
+  again.Recover([&](const stitch::submap_update_t& u) { order.push_back("update " + std::to_string(u.revision)); },
+                [&](const stitch::gnss_fix_t& f) {
+                  order.push_back("fix " + f.header.agent + " " + std::to_string(f.t_ns / 1'000'000'000));
+                });
+  EXPECT_EQ(order, (std::vector<std::string>{"update 1", "fix uav0 5", "update 2"}));
+  const SubmapUpdateLogRead without = ReadSubmapUpdateLog(again.path(), {"uav0/SUBMAP"}, [](const auto&) {});
+  EXPECT_EQ(without.updates, 2);
+  EXPECT_EQ(without.gnss_fixes, 0);
+  EXPECT_FALSE(without.lost_anything());
+}
+
 // A journal in `dir` holding revisions 1..last; where each record starts, and the journal's path.
 std::vector<int64_t> JournalOfRevisions(const testing::TempDir& dir, int last, std::string* path) {
   UpdateJournal journal(dir.path().string(), {"uav0/SUBMAP"});

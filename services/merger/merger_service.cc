@@ -1,6 +1,7 @@
 #include "services/merger/merger_service.h"
 
 #include <set>
+#include <type_traits>
 
 #include "services/common/convert.h"
 #include "services/common/map_convert.h"
@@ -63,7 +64,10 @@ MergerService::MergerService(lcm::LCM* lcm, bus::Publisher* publisher, const Mer
         bus::Channel(agent, bus::kGnss), [this](std::unique_ptr<stitch::gnss_fix_t> message, const std::string& on) {
           std::string why;
           try {
-            if (session_.AddGnssFix(message->header.agent, FromMessage(*message), &why)) return;
+            if (session_.AddGnssFix(message->header.agent, FromMessage(*message), &why)) {
+              Journal(*message);
+              return;
+            }
           } catch (const Error& e) {
             why = e.what();
           }
@@ -87,7 +91,17 @@ void MergerService::Start() {
     // one refinement at the end instead of one per closed submap.
     const Stopwatch clock;
     recovering_ = true;
-    const int64_t count = journal_->Recover([this](const stitch::submap_update_t& update) { Process(update, true); });
+    const int64_t count = journal_->Recover([this](const stitch::submap_update_t& update) { Process(update, true); },
+                                            [this](const stitch::gnss_fix_t& fix) {
+                                              std::string why;
+                                              try {
+                                                if (session_.AddGnssFix(fix.header.agent, FromMessage(fix), &why))
+                                                  return;
+                                              } catch (const Error& e) {
+                                                why = e.what();
+                                              }
+                                              STITCH_LOG(WARNING) << "a GNSS fix in the journal refused: " << why;
+                                            });
     recovering_ = false;
     if (count > 0) {
       if (session_.any_closed_whole()) Refine("resumed from the journal");
@@ -120,6 +134,22 @@ void MergerService::Work() {
   }
 }
 
+template <class Message>
+void MergerService::Journal(const Message& message) {
+  if (!journal_ || journal_failed_) return;
+  try {
+    if constexpr (std::is_same_v<Message, stitch::gnss_fix_t>) {
+      journal_->AppendGnssFix(message);
+    } else {
+      journal_->Append(message);
+    }
+  } catch (const Error& e) {
+    if (!journal_failed_.exchange(true)) {  // keep merging; a restart would now lose what follows
+      STITCH_LOG(ERROR) << e.what() << "; the merger goes on without persisting its store";
+    }
+  }
+}
+
 void MergerService::Process(const stitch::submap_update_t& message, bool from_journal) {
   SubmapUpdate update;
   try {
@@ -135,14 +165,7 @@ void MergerService::Process(const stitch::submap_update_t& message, bool from_jo
     subscriber_.Reject(bus::Channel(agent, bus::kSubmap), why);
     return;
   }
-  if (journal_ && !from_journal && !journal_failed_) {
-    try {
-      journal_->Append(message);
-    } catch (const Error& e) {
-      journal_failed_ = true;  // keep merging; a restart would now lose what follows
-      STITCH_LOG(ERROR) << e.what() << "; the merger goes on without persisting its store";
-    }
-  }
+  if (!from_journal) Journal(message);
   const MergeSession::Applied applied = session_.Apply(update, agent, message.part == 0);
   if (!applied.accepted) {
     ++rejected_;

@@ -52,6 +52,9 @@ class MergerService {
  private:
   void Work();
   void Process(const stitch::submap_update_t& message, bool from_journal = false);
+  // Appends a submap update or a GNSS fix to the journal (when there is one and it still works).
+  template <class Message>
+  void Journal(const Message& message);
   // Asks the mappers for what the link lost, and tells them which closed submaps are held whole.
   void RequestWhatWasLost();
   void Refine(const std::string& why);
@@ -67,7 +70,7 @@ class MergerService {
   BoundedQueue<std::unique_ptr<stitch::submap_update_t>> queue_;
   std::unique_ptr<Heartbeat> heartbeat_;
   std::unique_ptr<UpdateJournal> journal_;
-  bool journal_failed_ = false;
+  std::atomic<bool> journal_failed_{false};
   bool recovering_ = false;
   std::thread worker_;
   std::atomic<bool> running_{false};

@@ -5,6 +5,7 @@
 #include <set>
 
 #include "services/common/bus.h"
+#include "services/common/convert.h"
 #include "services/common/map_convert.h"
 #include "services/common/update_journal.h"
 #include "stitch/config/stitch_config.h"
@@ -54,14 +55,25 @@ int MapCommand(int argc, char** argv) {
     for (const std::string& agent : agent_list) channels.insert(bus::Channel(agent, bus::kSubmap));
     const Stopwatch clock;
     int64_t refused = 0;
-    const SubmapUpdateLogRead read =
-        ReadSubmapUpdateLog(logs[0], channels, [&](const stitch::submap_update_t& message) {
+    const SubmapUpdateLogRead read = ReadSubmapUpdateLog(
+        logs[0], channels,
+        [&](const stitch::submap_update_t& message) {
           try {
             const SubmapUpdate update = FromMessage(message, pyramid);
             if (session.Apply(update, message.header.agent, message.part == 0).accepted) return;
           } catch (const Error& e) {
             STITCH_LOG(WARNING) << "rejected a submap update: " << e.what();
           }
+          ++refused;
+        },
+        [&](const stitch::gnss_fix_t& message) {
+          std::string why;
+          try {
+            if (session.AddGnssFix(message.header.agent, FromMessage(message), &why)) return;
+          } catch (const Error& e) {
+            why = e.what();
+          }
+          STITCH_LOG(WARNING) << "refused a GNSS fix: " << why;
           ++refused;
         });
     if (read.updates == 0) throw Error(logs[0] + ": no submap update of " + agents);
