@@ -186,6 +186,32 @@ TEST(Evaluation, AMisplacedSubmapShowsInItsAteInTheMergedMap) {
   EXPECT_DOUBLE_EQ(back.errors->ate_rmse_m, e.errors->ate_rmse_m);
 }
 
+// Joined by a GNSS junction, not by views: the same misplacement is the junction's error, shown
+// in the map, but no wrong merge; each part is judged on its own.
+TEST(Evaluation, ASubmapJoinedByGnssIsJudgedWithinItsPart) {
+  const Trajectory gt = GroundTruth(100);
+  std::vector<PoseRecord> poses = Estimate(gt, kEstFromGt, 0.0, 0);
+  for (auto& p : poses) {
+    if (p.submap_id == 2) p.world_from_cam.translation += Eigen::Vector3d(0.3, 0, 0);
+  }
+  EvaluationInput input;
+  input.frames_total = 100;
+  input.poses = poses;
+  input.ground_truth = gt;
+  input.view_part = {{1, 1}, {2, 2}};
+  const Evaluation e = Evaluate(input);
+  EXPECT_EQ(e.wrong_merges, 0);
+  for (const SubmapEvaluation& s : e.per_submap) {
+    ASSERT_TRUE(s.ate_in_map_m && s.ate_in_part_m);
+    EXPECT_GT(*s.ate_in_map_m, 0.1);
+    EXPECT_LT(*s.ate_in_part_m, 1e-6);
+  }
+  EXPECT_NE(Summarize(e).find("in its part views join"), std::string::npos) << Summarize(e);
+  // One part with both submaps: the merge by views is judged as before.
+  input.view_part = {{1, 1}, {2, 1}};
+  EXPECT_EQ(Evaluate(input).wrong_merges, 2);
+}
+
 TEST(Evaluation, ASubmapPlacedWithinHalfAPercentOfTheExtentIsNoWrongMerge) {
   const Trajectory gt = GroundTruth(100);
   std::vector<PoseRecord> poses = Estimate(gt, kEstFromGt, 0.0, 0);

@@ -11,6 +11,7 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
+#include "stitch/geo/dji_srt.h"
 #include "stitch/geo/geo_outputs.h"
 #include "stitch/geo/geo_registration.h"
 #include "stitch/geo/geodetic.h"
@@ -86,6 +87,82 @@ TEST(GnssCsv, ReadsBackWhatItWrote) {
 }
 
 // Every malformed file is refused naming the file and line, with what was wrong.
+// A DJI SRT of the newer layout (markup, CRLF lines, a byte-order mark, `longtitude` spelt as
+// some firmware does), a block without a lock, and frames closer than the 10 Hz kept.
+TEST(DjiSrt, ReadsTheAircraftsPositionPerSubtitleOnTheVideosClock) {
+  testing::TempDir dir;
+  {
+    std::ofstream out(dir / "DJI_0001.SRT", std::ios::binary);
+    out << "\xEF\xBB\xBF"
+           "1\r\n00:00:00,000 --> 00:00:00,033\r\n<font size=\"28\">FrameCnt: 1, DiffTime: 33ms\r\n"
+           "2023-04-08 16:36:41.395\r\n[iso : 100] [latitude: 0.000000] [longitude: 0.000000] [rel_alt: 0.000 "
+           "abs_alt: 0.000] </font>\r\n\r\n"
+           "2\r\n00:00:00,033 --> 00:00:00,066\r\n<font size=\"28\">FrameCnt: 2\r\n[latitude: 47.368423] "
+           "[longtitude : 8.539054] [rel_alt: 1.200 abs_alt: 459.873] </font>\r\n\r\n"
+           "3\r\n00:00:00,066 --> 00:00:00,100\r\n[latitude: 47.368424] [longitude: 8.539055] [rel_alt: 1.3 "
+           "abs_alt: 459.9]\r\n\r\n"
+           "4\r\n00:00:01,134 --> 00:00:01,167\r\n[latitude: 47.368500] [longitude: 8.539100] [altitude: 461.5]\r\n";
+  }
+  const GnssTrack track = ReadDjiSrt(dir / "DJI_0001.SRT");
+  EXPECT_EQ(track.source, "DJI SRT DJI_0001.SRT");
+  ASSERT_EQ(track.fixes.size(), 2u) << "no lock left out, the third within 0.1 s of the second";
+  EXPECT_EQ(track.fixes[0].t_ns, 33'000'000);
+  EXPECT_DOUBLE_EQ(track.fixes[0].position.latitude_deg, 47.368423);
+  EXPECT_DOUBLE_EQ(track.fixes[0].position.longitude_deg, 8.539054);
+  EXPECT_DOUBLE_EQ(track.fixes[0].position.height_m, 459.873);
+  EXPECT_DOUBLE_EQ(track.fixes[0].horizontal_accuracy_m, kDjiSrtHorizontalAccuracyM);
+  EXPECT_EQ(track.fixes[1].t_ns, 1'134'000'000);
+  EXPECT_DOUBLE_EQ(track.fixes[1].position.height_m, 461.5);
+}
+
+// The older layout: GPS(longitude,latitude,height) with the barometer's height.
+TEST(DjiSrt, ReadsTheOlderGpsLayout) {
+  testing::TempDir dir;
+  {
+    std::ofstream out(dir / "old.srt");
+    out << "1\n00:00:00,000 --> 00:00:01,000\nHOME(8.5390,47.3684) 2017.08.05 14:11:51\n"
+           "GPS(8.5391,47.3685,19) BAROMETER:61.5\nISO:100 Shutter:60 EV: Fnum:F2.8\n\n"
+           "2\n00:00:01,000 --> 00:00:02,000\nGPS(8.5392,47.3686,19)\n";
+  }
+  const GnssTrack track = ReadDjiSrt(dir / "old.srt");
+  ASSERT_EQ(track.fixes.size(), 2u);
+  EXPECT_DOUBLE_EQ(track.fixes[0].position.longitude_deg, 8.5391);
+  EXPECT_DOUBLE_EQ(track.fixes[0].position.latitude_deg, 47.3685);
+  EXPECT_DOUBLE_EQ(track.fixes[0].position.height_m, 61.5);
+  EXPECT_DOUBLE_EQ(track.fixes[1].position.height_m, 19.0);
+  EXPECT_EQ(track.fixes[1].t_ns, 1'000'000'000);
+}
+
+TEST(DjiSrt, RefusesWhatIsNoTrackNamingTheLine) {
+  testing::TempDir dir;
+  const std::string block = "00:00:00,000 --> 00:00:00,033\n";
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {"hello\n", ":1: not a DJI SRT"},
+      {"1\nno time here\n", ":2: a subtitle without its time line"},
+      {"1\n" + block + "[latitude: 47.x] [longitude: 8.5]\n", ":2: the latitude is not a number"},
+      {"1\n" + block + "[latitude: 95.0] [longitude: 8.5]\n", ":2: latitude 95"},
+      {"1\n" + block + "[latitude: 47.0]\n", "without a longitude"},
+      {"1\n00:00:02,000 --> 00:00:02,033\n[latitude: 47] [longitude: 8]\n\n2\n" + block +
+           "[latitude: 47] [longitude: 8]\n",
+       ":6: its time goes back"},
+      {"1\n" + block + "[iso : 100]\n", "no position in any of its 1 subtitles"},
+      {"", "no position"},
+  };
+  for (const auto& [text, expected] : cases) {
+    {
+      std::ofstream out(dir / "bad.SRT", std::ios::trunc);
+      out << text;
+    }
+    try {
+      ReadDjiSrt(dir / "bad.SRT");
+      ADD_FAILURE() << "accepted: " << text;
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find(expected), std::string::npos) << e.what() << " for: " << text;
+    }
+  }
+  EXPECT_THROW(ReadDjiSrt(dir / "missing.SRT"), Error);
+}
+
 TEST(GnssCsv, RefusesWhatIsNoFixNamingTheLine) {
   testing::TempDir dir;
   const std::string header = "t_ns,latitude_deg,longitude_deg,height_m,horizontal_accuracy_m,vertical_accuracy_m,fix\n";

@@ -1,8 +1,10 @@
 #include "stitch/records/merger_records.h"
 
+#include <algorithm>
 #include <cinttypes>
 #include <cmath>
 #include <cstdio>
+#include <functional>
 #include <map>
 #include <sstream>
 
@@ -240,6 +242,20 @@ std::vector<MergeLogRecord> ReadMergeLog(const std::string& path) {
 
 bool JoinedByGnss(const SubmapEdgeRecord& edge) {
   return edge.status.rfind("joined by GNSS", 0) == 0;
+}
+
+std::map<int64_t, int64_t> ViewJoinedParts(const std::vector<SubmapEdgeRecord>& edges) {
+  std::map<int64_t, int64_t> part;
+  const std::function<int64_t(int64_t)> find = [&](int64_t id) {
+    const int64_t up = part.try_emplace(id, id).first->second;
+    return up == id ? id : part[id] = find(up);
+  };
+  for (const SubmapEdgeRecord& e : edges) {
+    const int64_t a = find(e.a.value), b = find(e.b.value);
+    if (e.status == "merged" && a != b) part[std::max(a, b)] = std::min(a, b);
+  }
+  for (auto& [id, up] : part) up = find(id);
+  return part;
 }
 
 namespace {

@@ -14,6 +14,7 @@
 // (WriteFileAtomically). Readers throw stitch::Error naming the file and line.
 
 #include <cstdint>
+#include <map>
 #include <string>
 #include <utility>
 #include <vector>
@@ -71,6 +72,9 @@ struct SubmapEdgeRecord {
   std::string status;
 };
 bool JoinedByGnss(const SubmapEdgeRecord& edge);
+// The parts that views join (edges "merged") of each submap named in `edges`, each part named by
+// its smallest submap id: with GNSS junctions, a merged map's parts.
+std::map<int64_t, int64_t> ViewJoinedParts(const std::vector<SubmapEdgeRecord>& edges);
 void WriteSubmapEdgeRecords(const std::string& path, const std::vector<SubmapEdgeRecord>& records);
 std::vector<SubmapEdgeRecord> ReadSubmapEdgeRecords(const std::string& path);
 

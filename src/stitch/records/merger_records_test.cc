@@ -256,3 +256,27 @@ TEST(Records, RunInfoReadsBackAsWritten) {
 
 }  // namespace
 }  // namespace stitch
+
+namespace stitch {
+namespace {
+
+// The parts that views join, where GNSS junctions join a map's parts: 1-2 by views, 3 and 4 by
+// views, the two parts by GNSS, 5 refused.
+TEST(SubmapEdgeRecords, ThePartsViewsJoinAreFoundAcrossGnssJunctions) {
+  const auto edge = [](int a, int b, const std::string& status) {
+    SubmapEdgeRecord e;
+    e.a = SubmapId(a);
+    e.b = SubmapId(b);
+    e.status = status;
+    return e;
+  };
+  const std::map<int64_t, int64_t> parts =
+      ViewJoinedParts({edge(3, 4, "merged"), edge(1, 2, "merged"), edge(2, 3, "joined by GNSS (+-0.50 m)"),
+                       edge(4, 5, "refused: 1 agreeing connected frame (needs 2)")});
+  EXPECT_EQ(parts, (std::map<int64_t, int64_t>{{1, 1}, {2, 1}, {3, 3}, {4, 3}, {5, 5}}));
+  EXPECT_TRUE(JoinedByGnss(edge(2, 3, "joined by GNSS (+-0.50 m)")));
+  EXPECT_FALSE(JoinedByGnss(edge(1, 2, "merged")));
+}
+
+}  // namespace
+}  // namespace stitch

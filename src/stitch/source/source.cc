@@ -7,6 +7,7 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include "stitch/geo/dji_srt.h"
 #include "stitch/io/calibration.h"
 #include "stitch/io/live_capture.h"
 
@@ -193,17 +194,23 @@ SourceSummary SummarizeSource(const SourceSpec& spec) {
   summary.camera = sequence->camera();
   summary.ground_truth = sequence->ground_truth();
   summary.failures = spoil;
-  if (const std::string gnss = GnssFileBeside(spec.dataset_path); std::filesystem::is_regular_file(gnss)) {
-    summary.gnss = ReadGnssCsv(gnss);
-  }
+  summary.gnss = DatasetGnss(spec.dataset_path);
   return summary;
 }
 
 GnssTrack SourceGnss(const SourceSpec& spec) {
   if (spec.synthetic_source()) return SummarizeSource(spec).gnss;
-  if (const std::string gnss = GnssFileBeside(spec.dataset_path);
-      !gnss.empty() && std::filesystem::is_regular_file(gnss)) {
-    return ReadGnssCsv(gnss);
+  return DatasetGnss(spec.dataset_path);
+}
+
+GnssTrack DatasetGnss(const std::string& dataset_path) {
+  namespace fs = std::filesystem;
+  if (dataset_path.empty()) return {};
+  if (const std::string gnss = GnssFileBeside(dataset_path); fs::is_regular_file(gnss)) return ReadGnssCsv(gnss);
+  if (fs::is_directory(dataset_path)) return {};
+  for (const char* extension : {".SRT", ".srt"}) {
+    const fs::path srt = fs::path(dataset_path).replace_extension(extension);
+    if (fs::is_regular_file(srt)) return ReadDjiSrt(srt.string());
   }
   return {};
 }

@@ -72,19 +72,22 @@ struct SourceSummary {
   Camera camera;
   Trajectory ground_truth;
   FailureSchedule failures;
-  // The aircraft's GNSS fixes: the synthetic receiver's, or a dataset's gnss.csv (GnssFileBeside);
-  // no fixes where there are none.
+  // The aircraft's GNSS fixes: the synthetic receiver's, or a dataset's (DatasetGnss); no fixes
+  // where there are none.
   GnssTrack gnss;
 };
 SourceSummary SummarizeSource(const SourceSpec& spec);
 
 // The GNSS fixes of what `spec` plays: the synthetic receiver's over the frames played
-// (SummarizeSource's), a dataset's gnss.csv; none for a live camera. Throws stitch::Error for a
+// (SummarizeSource's), a dataset's (DatasetGnss); none for a live camera. Throws stitch::Error for a
 // malformed gnss.csv.
 GnssTrack SourceGnss(const SourceSpec& spec);
 // Where a dataset's GNSS fixes are: DIR/gnss.csv for a folder, FILE.gnss.csv beside a video
 // FILE.mp4 (what `stitch render` writes).
 std::string GnssFileBeside(const std::string& dataset_path);
+// A dataset's fixes: its gnss.csv (GnssFileBeside), else the DJI track beside a video
+// (FILE.SRT, ReadDjiSrt); none where it has neither. Throws stitch::Error for a malformed one.
+GnssTrack DatasetGnss(const std::string& dataset_path);
 
 // The rolling shutter's readout delay per row of the frames the tracker sees (`working`: frames
 // reduced to a working size take as long per row as the source's rows they hold) as the source

@@ -3,6 +3,7 @@
 #include "stitch/source/source.h"
 
 #include <filesystem>
+#include <fstream>
 
 #include <gtest/gtest.h>
 
@@ -106,6 +107,36 @@ TEST(SourceLineDelay, IsTheSyntheticCamerasOrTheCalibrationBesideTheData) {
   EXPECT_EQ(SourceLineDelayUs(spec, camera), 0) << "no calibration states one";
   SaveCalibration(camera, spec.dataset_path + "/camera.yaml", 25);
   EXPECT_EQ(SourceLineDelayUs(spec, camera), 25);
+}
+
+}  // namespace
+}  // namespace stitch
+
+namespace stitch {
+namespace {
+
+// A dataset's fixes: its gnss.csv, else a DJI track beside a video (FILE.SRT), else none.
+TEST(DatasetGnss, IsTheGnssCsvElseTheDjiTrackBesideTheVideo) {
+  testing::TempDir dir;
+  const std::string video = dir / "DJI_0007.MP4";
+  EXPECT_TRUE(DatasetGnss(video).fixes.empty());
+  {
+    std::ofstream srt(dir / "DJI_0007.SRT");
+    srt << "1\n00:00:00,500 --> 00:00:00,533\n[latitude: 47.5] [longitude: 8.5] [rel_alt: 1 abs_alt: 420]\n";
+  }
+  GnssTrack track = DatasetGnss(video);
+  ASSERT_EQ(track.fixes.size(), 1u);
+  EXPECT_EQ(track.fixes[0].t_ns, 500'000'000);
+  GnssTrack csv;
+  csv.source = "a receiver";
+  csv.fixes.push_back(track.fixes[0]);
+  csv.fixes[0].t_ns = 7;
+  WriteGnssCsv(GnssFileBeside(video), csv);
+  track = DatasetGnss(video);
+  ASSERT_EQ(track.fixes.size(), 1u);
+  EXPECT_EQ(track.fixes[0].t_ns, 7) << "gnss.csv comes first";
+  EXPECT_TRUE(DatasetGnss(dir.path().string()).fixes.empty()) << "a folder without gnss.csv";
+  EXPECT_TRUE(DatasetGnss("").fixes.empty());
 }
 
 }  // namespace

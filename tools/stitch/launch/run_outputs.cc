@@ -1,5 +1,6 @@
 #include "tools/stitch/launch/run_outputs.h"
 
+#include <algorithm>
 #include <cctype>
 #include <cstdio>
 #include <filesystem>
@@ -174,6 +175,9 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
 
   std::vector<SubmapEdgeRecord> edges;  // the merger's verdict on every pair of submaps it connected
   if (fs::exists(dir / "edges.tsv")) edges = ReadSubmapEdgeRecords((dir / "edges.tsv").string());
+  if (std::any_of(edges.begin(), edges.end(), [](const SubmapEdgeRecord& e) { return JoinedByGnss(e); })) {
+    input.view_part = ViewJoinedParts(edges);  // merges by views are judged within their part
+  }
   Evaluation evaluation = Evaluate(input);
   for (const SubmapEdgeRecord& e : edges) evaluation.gnss_junctions += JoinedByGnss(e);
 
