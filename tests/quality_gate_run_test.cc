@@ -74,16 +74,17 @@ TEST(QualityGate, TheCiSubsetMeetsItsExpectations) {
 
 TEST(QualityGate, ALostMergeFailsTheCheckAndSaysWhy) {
   testing::TempDir dir;
-  // No connection is strong enough: the submaps of the first 300 frames stay apart.
-  const auto result =
-      RunProgram({Bin("stitch"), "bench", "--quality", "--cases", "frames-300", "--check", "--figures",
-                  kMachineIndependentFigures, "--set", "merger.min_connection_strength=100000", "--out", dir / "gate"},
-                 600);
+  // No connection is strong enough, and GNSS does not join them: the submaps of the first 300
+  // frames stay apart.
+  const auto result = RunProgram(
+      {Bin("stitch"), "bench", "--quality", "--cases", "frames-300", "--check", "--figures", kMachineIndependentFigures,
+       "--set", "merger.min_connection_strength=100000", "--set", "merger.join_by_gnss=false", "--out", dir / "gate"},
+      600);
   EXPECT_EQ(result.exit_code, 1) << result.output;
   EXPECT_NE(result.output.find("REGRESSION frames-300"), std::string::npos) << result.output;
   EXPECT_NE(result.output.find("submaps_merged 1, expected"), std::string::npos) << result.output;
   EXPECT_NE(result.output.find("reproduce: build/bin/stitch run --max-frames 300 --set "
-                               "merger.min_connection_strength=100000"),
+                               "merger.min_connection_strength=100000 --set merger.join_by_gnss=false"),
             std::string::npos)
       << result.output;
 }

@@ -308,9 +308,11 @@ SubmapFixes MergeSession::FixesOfSubmaps() const {
       first = std::min(first, keyframe.t_ns);
       last = std::max(last, keyframe.t_ns);
     }
+    constexpr int64_t kMin = std::numeric_limits<int64_t>::min(), kMax = std::numeric_limits<int64_t>::max();
+    const int64_t from = first > kMin + margin_ns ? first - margin_ns : kMin;
+    const int64_t to = last < kMax - margin_ns ? last + margin_ns : kMax;
     std::vector<EnuFix>& own = by_submap[id];
-    for (auto f = fixes->second.lower_bound(first - margin_ns);
-         f != fixes->second.end() && f->first <= last + margin_ns; ++f) {
+    for (auto f = fixes->second.lower_bound(from); f != fixes->second.end() && f->first <= to; ++f) {
       own.push_back(f->second);
     }
   }

@@ -531,8 +531,7 @@ Merger::Graph Merger::Solve(bool refine, const SubmapFixes& gnss) const {
   graph.placement = PlaceSubmaps(keyframes, graph.tree);
   CheckCycles(&graph.edges, graph.tree, graph.placement);
   if (!gnss.empty() && options_.join_by_gnss && options_.georeference.enabled) {
-    GnssJoining joining = JoinByGnss(submaps_, graph.placement, gnss, options_.georeference);
-    graph.gnss_placements = std::move(joining.placements);
+    const GnssJoining joining = JoinByGnss(submaps_, graph.placement, gnss, options_.georeference);
     if (!joining.junctions.empty()) {
       const std::map<SubmapId, SubmapPlacement> by_views = graph.placement;
       graph.edges.insert(graph.edges.end(), joining.junctions.begin(), joining.junctions.end());

@@ -53,12 +53,9 @@ class Merger {
     // keyframe was culled that agree with the placement (for fusing around them).
     std::vector<ConnectedFrame> agreeing;
     int loops_used = 0;  // of those, loops (both ends in one submap)
-    // With fixes (and merger.join_by_gnss): each merged map as views join it, by its root, placed
-    // in the fixes' ENU frame or why not. Its GNSS junctions are in `edges` and `tree`.
-    std::map<SubmapId, GeoPlacement> gnss_placements;
   };
   // `gnss`: each submap's fixes, in one ENU frame, to join the merged maps that views leave apart
-  // (JoinByGnss).
+  // (JoinByGnss); its junctions are then in `edges` and `tree` (EdgeKind::kGnss).
   Graph Solve(bool refine = false, const SubmapFixes& gnss = {}) const;
 
   // Verifies again, with the submaps' points as they are now, every connected frame and loop
