@@ -151,18 +151,22 @@ TEST(Evaluation, ATrajectoryAloneIsSummarizedByWhatItTells) {
   EXPECT_NE(known.find("frames posed      60 of 60 (100.0%)"), std::string::npos) << known;
 }
 
-TEST(Evaluation, AMisplacedSubmapShowsInItsAteInTheMergedMap) {
-  const Trajectory gt = GroundTruth(100);
-  std::vector<PoseRecord> poses = Estimate(gt, kEstFromGt, 0.0, 0);
-  // Submap 2 (frames 30..99) shifted as a whole: alone it is exact, in the map it is not.
-  for (auto& p : poses) {
-    if (p.submap_id == 2) p.world_from_cam.translation += Eigen::Vector3d(0.3, 0, 0);
-  }
+// The ground truth's 100 frames seen exactly in one map, submap 2 (frames 30..99) shifted as a
+// whole by `shift` units along x.
+EvaluationInput ShiftedSecondSubmap(double shift) {
   EvaluationInput input;
   input.frames_total = 100;
-  input.poses = poses;
-  input.ground_truth = gt;
-  const Evaluation e = Evaluate(input);
+  input.ground_truth = GroundTruth(100);
+  input.poses = Estimate(input.ground_truth, kEstFromGt, 0.0, 0);
+  for (auto& p : input.poses) {
+    if (p.submap_id == 2) p.world_from_cam.translation += Eigen::Vector3d(shift, 0, 0);
+  }
+  return input;
+}
+
+TEST(Evaluation, AMisplacedSubmapShowsInItsAteInTheMergedMap) {
+  // Submap 2 shifted as a whole: alone it is exact, in the map it is not.
+  const Evaluation e = Evaluate(ShiftedSecondSubmap(0.3));
   ASSERT_EQ(e.per_submap.size(), 2u);
   for (const SubmapEvaluation& s : e.per_submap) {
     ASSERT_TRUE(s.ate_rmse_m && s.ate_in_map_m);
@@ -189,15 +193,7 @@ TEST(Evaluation, AMisplacedSubmapShowsInItsAteInTheMergedMap) {
 // Joined by a GNSS junction, not by views: the same misplacement is the junction's error, shown
 // in the map, but no wrong merge; each part is judged on its own.
 TEST(Evaluation, ASubmapJoinedByGnssIsJudgedWithinItsPart) {
-  const Trajectory gt = GroundTruth(100);
-  std::vector<PoseRecord> poses = Estimate(gt, kEstFromGt, 0.0, 0);
-  for (auto& p : poses) {
-    if (p.submap_id == 2) p.world_from_cam.translation += Eigen::Vector3d(0.3, 0, 0);
-  }
-  EvaluationInput input;
-  input.frames_total = 100;
-  input.poses = poses;
-  input.ground_truth = gt;
+  EvaluationInput input = ShiftedSecondSubmap(0.3);
   input.view_part = {{1, 1}, {2, 2}};
   const Evaluation e = Evaluate(input);
   EXPECT_EQ(e.wrong_merges, 0);
@@ -213,16 +209,7 @@ TEST(Evaluation, ASubmapJoinedByGnssIsJudgedWithinItsPart) {
 }
 
 TEST(Evaluation, ASubmapPlacedWithinHalfAPercentOfTheExtentIsNoWrongMerge) {
-  const Trajectory gt = GroundTruth(100);
-  std::vector<PoseRecord> poses = Estimate(gt, kEstFromGt, 0.0, 0);
-  for (auto& p : poses) {
-    if (p.submap_id == 2) p.world_from_cam.translation += Eigen::Vector3d(1e-4, 0, 0);
-  }
-  EvaluationInput input;
-  input.frames_total = 100;
-  input.poses = poses;
-  input.ground_truth = gt;
-  const Evaluation e = Evaluate(input);
+  const Evaluation e = Evaluate(ShiftedSecondSubmap(1e-4));
   EXPECT_EQ(e.wrong_merges, 0);
   EXPECT_THROW(EvaluationFromJson(nlohmann::json::object()), Error);
 }
