@@ -2,6 +2,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <thread>
 
 #include <gtest/gtest.h>
 
@@ -65,6 +66,35 @@ TEST(UpdateJournal, GnssFixesComeBackInTheirPlaceAmongTheUpdates) {
   EXPECT_EQ(without.updates, 2);
   EXPECT_EQ(without.gnss_fixes, 0);
   EXPECT_FALSE(without.lost_anything());
+}
+
+// The merger appends fixes from its subscriber's thread while its worker appends updates.
+TEST(UpdateJournal, FixesAndUpdatesAppendedFromTwoThreadsAreAllKeptWhole) {
+  testing::TempDir dir;
+  constexpr int kEach = 200;
+  {
+    UpdateJournal journal(dir.path().string(), {"uav0/SUBMAP"});
+    Revisions(&journal);
+    std::thread fixes([&] {
+      stitch::gnss_fix_t fix{};
+      fix.header.agent = "uav0";
+      for (int i = 0; i < kEach; ++i) {
+        fix.t_ns = i;
+        journal.AppendGnssFix(fix);
+      }
+    });
+    for (int r = 0; r < kEach; ++r) journal.Append(Update(r));
+    fixes.join();
+    EXPECT_EQ(journal.appended(), 2 * kEach);
+  }
+  int updates = 0, fixes = 0;
+  const SubmapUpdateLogRead read = ReadSubmapUpdateLog(
+      dir / "submap_updates.lcmlog", {"uav0/SUBMAP"}, [&](const auto&) { ++updates; },
+      [&](const stitch::gnss_fix_t& fix) { fixes += fix.t_ns == fixes; });
+  EXPECT_EQ(updates, kEach);
+  EXPECT_EQ(fixes, kEach) << "each fix once, in order";
+  EXPECT_EQ(read.unchecked, 0);
+  EXPECT_FALSE(read.lost_anything());
 }
 
 // A journal in `dir` holding revisions 1..last; where each record starts, and the journal's path.
