@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
 #include <limits>
 #include <utility>
 
@@ -65,6 +66,32 @@ GnssJoining JoinByGnss(const std::map<SubmapId, SubmapReplica>& submaps,
     GeoPlacement placed = PlaceByGnss(Trajectory(map.keyframes), map.fixes, options);
     if (placed.placed) enu_from_map[component] = placed.enu_from_map;
     joining.placements[map.root] = std::move(placed);
+  }
+  // A receiver caught jumping for good in one map is not trusted from then on: the maps of that
+  // aircraft whose fixes all come later are not joined (with no view shared, nothing could tell
+  // their offset).
+  std::map<int, std::pair<int64_t, SubmapId>> distrusted;  // by aircraft: from when, found in which map
+  for (const auto& [component, enu] : enu_from_map) {
+    const ViewJoinedMap& map = maps.at(component);
+    const GeoPlacement& placed = joining.placements.at(map.root);
+    if (!placed.disagreement || placed.disagreement->first_ns <= map.fixes.front().t_ns) continue;
+    auto [at, fresh] = distrusted.try_emplace(AgentNumber(map.root), placed.disagreement->first_ns, map.root);
+    if (!fresh && placed.disagreement->first_ns < at->second.first)
+      at->second = {placed.disagreement->first_ns, map.root};
+  }
+  for (auto placed = enu_from_map.begin(); placed != enu_from_map.end();) {
+    const ViewJoinedMap& map = maps.at(placed->first);
+    const auto found = distrusted.find(AgentNumber(map.root));
+    if (found == distrusted.end() || map.fixes.front().t_ns < found->second.first) {
+      ++placed;
+      continue;
+    }
+    char why[200];
+    std::snprintf(why, sizeof(why),
+                  "its fixes come after the receiver jumped for good at %.1f s (found in submap %s's): not joined",
+                  found->second.first * 1e-9, SubmapName(found->second.second).c_str());
+    joining.not_joined[map.root] = why;
+    placed = enu_from_map.erase(placed);
   }
   if (enu_from_map.size() < 2) return joining;
 

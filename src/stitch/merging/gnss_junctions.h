@@ -10,6 +10,7 @@
 // connection that arrives later replaces it.
 
 #include <map>
+#include <string>
 #include <vector>
 
 #include "stitch/geo/geo_registration.h"
@@ -26,6 +27,10 @@ struct GnssJoining {
   std::vector<SubmapEdge> junctions;  // EdgeKind::kGnss, in the order they join
   // Each merged map with fixes (by its root submap): where the fixes place it, or why they do not.
   std::map<SubmapId, GeoPlacement> placements;
+  // Maps the fixes place but that are not joined, by root, and why: a map whose fixes all come
+  // after its aircraft's receiver was caught jumping for good in another map (a later group of
+  // that map's fixes agreeing with each other on another place: PlaceByGnss's disagreement).
+  std::map<SubmapId, std::string> not_joined;
 };
 
 // `placement`: the submaps' places in their merged maps as views join them (PlaceSubmaps).

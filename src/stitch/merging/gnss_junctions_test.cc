@@ -25,7 +25,7 @@ struct Flight {
   SubmapFixes fixes;
 };
 
-Flight MakeFlight(double c_fixes_s = 20.0) {
+Flight MakeFlight(double c_fixes_s = 20.0, double offset_north_from_s = 1e9) {
   Flight flight;
   Rng rng(7);
   const Eigen::Matrix3d enu_from_cam = Eigen::Vector3d(1, -1, -1).asDiagonal();  // x east, z down
@@ -52,6 +52,7 @@ Flight MakeFlight(double c_fixes_s = 20.0) {
       EnuFix fix;
       fix.t_ns = static_cast<int64_t>(t * 1e9);
       fix.enu = TruePosition(t) + Eigen::Vector3d(rng.Normal(0, 2.0), rng.Normal(0, 2.0), rng.Normal(0, 3.0));
+      if (t >= offset_north_from_s) fix.enu.y() += 25.0;  // a receiver that jumped for good
       fix.horizontal_sigma_m = 2.0;
       fix.vertical_sigma_m = 3.0;
       flight.fixes[id].push_back(fix);
@@ -142,6 +143,30 @@ TEST(JoinByGnss, AMapWithTooFewFixesStaysApartAndSaysWhy) {
   const GeoPlacement& c = joining.placements.at(kC);
   EXPECT_FALSE(c.placed);
   EXPECT_NE(c.why_not.find("fixes"), std::string::npos) << c.why_not;
+}
+
+// The receiver jumps 25 m north for good in the middle of B: B's own placement finds the later
+// fixes disagreeing and holds B by the earlier ones; C, flown after the jump and sharing no view,
+// could only be placed by the jumped fixes, so it is not joined, and the joining says why.
+TEST(JoinByGnss, AfterAReceiverJumpedForGoodItsLaterMapsAreNotJoined) {
+  const Flight flight = MakeFlight(/*c_fixes_s=*/20.0, /*offset_north_from_s=*/34.0);
+  const std::map<SubmapId, SubmapPlacement> apart = PlaceSubmaps(Sizes(flight), {});
+  const GnssJoining joining = JoinByGnss(flight.submaps, apart, flight.fixes, GeoReferenceOptions());
+  ASSERT_TRUE(joining.placements.at(kB).disagreement);
+  ASSERT_EQ(joining.junctions.size(), 1u);
+  EXPECT_EQ(joining.junctions[0].a, kA);
+  EXPECT_EQ(joining.junctions[0].b, kB);
+  ASSERT_EQ(joining.not_joined.count(kC), 1u);
+  EXPECT_NE(joining.not_joined.at(kC).find("receiver jumped for good at"), std::string::npos)
+      << joining.not_joined.at(kC);
+  EXPECT_NE(joining.not_joined.at(kC).find("submap 0:2"), std::string::npos) << joining.not_joined.at(kC);
+  // The group's first fix: the jump's, or one before it that the noise put near the jumped place.
+  const double jumped_s = joining.placements.at(kB).disagreement->first_ns * 1e-9;
+  EXPECT_GT(jumped_s, 24.0);
+  EXPECT_LE(jumped_s, 34.0);
+  const std::map<SubmapId, SubmapPlacement> joined = PlaceSubmaps(Sizes(flight), joining.junctions);
+  EXPECT_EQ(joined.at(kA).component, joined.at(kB).component);
+  EXPECT_NE(joined.at(kC).component, joined.at(kA).component);
 }
 
 TEST(JoinByGnss, WithoutFixesNothingIsJoined) {

@@ -225,6 +225,14 @@ void MergeSession::OnGraphChange(const std::string& event) {
         (together ? "views or another junction join the two now" : "GNSS no longer places both their maps"));
   }
   gnss_junctions_.swap(junctions);
+  for (const auto& [root, why] : graph.not_joined_by_gnss) {
+    const auto before = not_joined_by_gnss_.find(root);
+    if (before != not_joined_by_gnss_.end() && before->second == why) continue;
+    const std::string what = "the map of submap " + SubmapName(root) + " is not joined by GNSS: " + why;
+    STITCH_LOG(WARNING) << what;
+    merge_log_.push_back({what, current_map, stack, maps});
+  }
+  not_joined_by_gnss_ = graph.not_joined_by_gnss;
   const std::string row = current_map + "\t" + stack + "\t" + maps;
   if (row == last_stack_) return;
   last_stack_ = row;

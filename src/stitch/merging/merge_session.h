@@ -140,6 +140,7 @@ class MergeSession {
   std::string last_stack_;
   std::map<std::pair<SubmapId, SubmapId>, std::string> refused_edges_;  // as last logged
   std::map<std::pair<SubmapId, SubmapId>, double> gnss_junctions_;      // as last logged, with their sigma
+  std::map<SubmapId, std::string> not_joined_by_gnss_;                  // as last logged
   std::map<SubmapId, SubmapPlacement> latest_placement_;                // as last shown
   std::optional<Refined> refined_;
   int64_t refined_at_ = -1;  // ...after this many updates applied

@@ -531,7 +531,8 @@ Merger::Graph Merger::Solve(bool refine, const SubmapFixes& gnss) const {
   graph.placement = PlaceSubmaps(keyframes, graph.tree);
   CheckCycles(&graph.edges, graph.tree, graph.placement);
   if (!gnss.empty() && options_.join_by_gnss && options_.georeference.enabled) {
-    const GnssJoining joining = JoinByGnss(submaps_, graph.placement, gnss, options_.georeference);
+    GnssJoining joining = JoinByGnss(submaps_, graph.placement, gnss, options_.georeference);
+    graph.not_joined_by_gnss = std::move(joining.not_joined);
     if (!joining.junctions.empty()) {
       const std::map<SubmapId, SubmapPlacement> by_views = graph.placement;
       graph.edges.insert(graph.edges.end(), joining.junctions.begin(), joining.junctions.end());
