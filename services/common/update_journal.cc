@@ -64,25 +64,22 @@ SubmapUpdateLogRead ReadSubmapUpdateLog(const std::string& path, const std::set<
   const auto settle = [&](const LcmLogRecord& record, bool checked) {
     const bool update_record = channels.count(record.channel) > 0;
     if (!update_record && !gnss_channels.count(record.channel)) return;
-    const int length = static_cast<int>(record.data.size());
+    // Decodes the record as `message` and passes it to `to`, counting it in `count`.
+    const auto pass_on = [&](auto message, const auto& to, int64_t* count) {
+      const int length = static_cast<int>(record.data.size());
+      if (message.decode(record.data.data(), 0, length) != length) {
+        ++read.undecodable;
+        return;
+      }
+      to(message);
+      ++*count;
+      if (!checked) ++read.unchecked;
+    };
     if (update_record) {
-      stitch::submap_update_t update;
-      if (update.decode(record.data.data(), 0, length) != length) {
-        ++read.undecodable;
-        return;
-      }
-      each(update);
-      ++read.updates;
+      pass_on(stitch::submap_update_t(), each, &read.updates);
     } else {
-      stitch::gnss_fix_t fix;
-      if (fix.decode(record.data.data(), 0, length) != length) {
-        ++read.undecodable;
-        return;
-      }
-      each_fix(fix);
-      ++read.gnss_fixes;
+      pass_on(stitch::gnss_fix_t(), each_fix, &read.gnss_fixes);
     }
-    if (!checked) ++read.unchecked;
   };
   while (std::optional<LcmLogRecord> record = reader.Next()) {
     if (record->channel != kJournalChecksumChannel) {

@@ -279,7 +279,7 @@ bool MergeSession::AddGnssFix(const std::string& agent, const GnssFix& fix, std:
     return false;
   }
   std::lock_guard<std::mutex> lock(gnss_mutex_);
-  std::map<int64_t, GnssFix>& fixes = gnss_[agent];
+  std::map<int64_t, HeldFix>& fixes = gnss_[agent];
   if (!fixes.count(fix.t_ns)) {
     size_t held = 0;
     for (const auto& item : gnss_) held += item.second.size();
@@ -288,15 +288,13 @@ bool MergeSession::AddGnssFix(const std::string& agent, const GnssFix& fix, std:
       return false;
     }
   }
-  fixes[fix.t_ns] = fix;
-  // In the merger's ENU frame (at the first fix) for joining maps, computed once.
-  std::map<int64_t, EnuFix>& enu = gnss_enu_[agent];
-  if (!fix.usable()) {
-    enu.erase(fix.t_ns);
-    return true;
+  HeldFix& held = fixes[fix.t_ns];
+  held.fix = fix;
+  held.enu.reset();
+  if (fix.usable()) {
+    if (!gnss_plane_) gnss_plane_.emplace(fix.position);
+    held.enu = ToEnu({fix}, *gnss_plane_).front();
   }
-  if (!gnss_plane_) gnss_plane_.emplace(fix.position);
-  enu[fix.t_ns] = ToEnu({fix}, *gnss_plane_).front();
   return true;
 }
 
@@ -309,8 +307,8 @@ SubmapFixes MergeSession::FixesOfSubmaps() const {
   for (const auto& [id, replica] : merger_.submaps()) {
     const auto agent = agent_of_.find(id);
     if (agent == agent_of_.end() || replica.map.num_keyframes() == 0) continue;
-    const auto fixes = gnss_enu_.find(agent->second);
-    if (fixes == gnss_enu_.end()) continue;
+    const auto fixes = gnss_.find(agent->second);
+    if (fixes == gnss_.end()) continue;
     int64_t first = std::numeric_limits<int64_t>::max(), last = std::numeric_limits<int64_t>::min();
     for (const auto& [keyframe_id, keyframe] : replica.map.keyframes()) {
       first = std::min(first, keyframe.t_ns);
@@ -321,7 +319,7 @@ SubmapFixes MergeSession::FixesOfSubmaps() const {
     const int64_t to = last < kMax - margin_ns ? last + margin_ns : kMax;
     std::vector<EnuFix>& own = by_submap[id];
     for (auto f = fixes->second.lower_bound(from); f != fixes->second.end() && f->first <= to; ++f) {
-      own.push_back(f->second);
+      if (f->second.enu) own.push_back(*f->second.enu);
     }
   }
   return by_submap;
@@ -501,7 +499,7 @@ void MergeSession::WriteRecords(const Merger::Graph& graph, const MergedMap* mer
     for (const auto& [agent, fixes] : gnss_) {
       GnssTrack track;
       track.source = "received by the merger from " + agent;
-      for (const auto& item : fixes) track.fixes.push_back(item.second);
+      for (const auto& item : fixes) track.fixes.push_back(item.second.fix);
       WriteGnssCsv((dir / (agents_.size() <= 1 ? "gnss_received.csv" : "gnss_received-" + agent + ".csv")).string(),
                    track);
     }

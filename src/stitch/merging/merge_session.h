@@ -151,10 +151,13 @@ class MergeSession {
   std::map<std::string, std::map<int, TrackedFramePose>> frame_poses_;
   bool trajectory_stale_ = false;
   mutable std::mutex gnss_mutex_;
-  std::map<std::string, std::map<int64_t, GnssFix>> gnss_;     // by aircraft, by time
-  std::optional<LocalTangentPlane> gnss_plane_;                // at the first fix received
-  std::map<std::string, std::map<int64_t, EnuFix>> gnss_enu_;  // the usable fixes in that plane
-  double trajectory_written_at_ = 0;                           // MonotonicSeconds()
+  struct HeldFix {
+    GnssFix fix;
+    std::optional<EnuFix> enu;  // a usable fix in gnss_plane_, for joining maps
+  };
+  std::map<std::string, std::map<int64_t, HeldFix>> gnss_;  // by aircraft, by time
+  std::optional<LocalTangentPlane> gnss_plane_;             // at the first usable fix received
+  double trajectory_written_at_ = 0;                        // MonotonicSeconds()
   bool cloud_stale_ = false;
   int cloud_revision_ = 0;
 };
