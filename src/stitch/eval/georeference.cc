@@ -1,5 +1,6 @@
 #include "stitch/eval/georeference.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -206,6 +207,25 @@ void WriteGeoOutputs(const std::string& folder, const RunGeoReference& geo, cons
   WriteGeoJson((fs::path(folder) / "trajectory.geojson").string(), ordered);
   WriteKml((fs::path(folder) / "trajectory.kml").string(), ordered);
   WriteFileAtomically((fs::path(folder) / "georeference.json").string(), geo.ToJson().dump(1) + "\n");
+}
+
+bool WriteMapInEnu(const std::string& path, const RunGeoReference& geo, int component,
+                   std::vector<ColouredPoint> points) {
+  const auto placed = std::find_if(geo.maps.begin(), geo.maps.end(), [&](const MapGeoReference& m) {
+    return m.map.component == component && m.placement.placed;
+  });
+  if (placed == geo.maps.end()) return false;
+  const Sim3d& enu_from_map = placed->placement.enu_from_map;
+  for (ColouredPoint& point : points) {
+    point.position = (enu_from_map * point.position.cast<double>()).cast<float>();
+  }
+  char frame[400];
+  std::snprintf(frame, sizeof(frame),
+                "east-north-up, metres (x east, y north, z up), origin at latitude %.9f, longitude %.9f (WGS84), "
+                "height %.3f m as the GNSS fixes state it; %s placed by GNSS (georeference.json)",
+                geo.origin.latitude_deg, geo.origin.longitude_deg, geo.origin.height_m, placed->map.name.c_str());
+  WritePly(path, points, frame);
+  return true;
 }
 
 }  // namespace stitch

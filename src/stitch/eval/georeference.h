@@ -13,6 +13,7 @@
 
 #include "stitch/geo/geo_registration.h"
 #include "stitch/geo/gnss_fix.h"
+#include "stitch/io/ply.h"
 #include "stitch/io/trajectory.h"
 #include "stitch/records/pose_record.h"
 
@@ -54,5 +55,11 @@ RunGeoReference GeoReferenceRun(const std::vector<PoseRecord>& poses, int larges
 // FOLDER/{trajectory_wgs84.csv, trajectory.geojson, trajectory.kml, georeference.json}: the
 // placed maps' camera positions (every frame of each), and how each map was placed or why not.
 void WriteGeoOutputs(const std::string& folder, const RunGeoReference& geo, const std::vector<PoseRecord>& poses);
+
+// `points` (in the frame of the map `component`) moved into the run's ENU frame in metres and
+// written to `path` as PLY, its header naming the frame and the origin; false (nothing written)
+// when that map was not placed on Earth.
+bool WriteMapInEnu(const std::string& path, const RunGeoReference& geo, int component,
+                   std::vector<ColouredPoint> points);
 
 }  // namespace stitch

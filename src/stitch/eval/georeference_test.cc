@@ -34,10 +34,13 @@ struct FlownRun {
   GnssTrack gnss;
 };
 
+// The largest map's frame in the truth's ENU frame (MakeRun).
+const Sim3d kMap0FromEnu(0.05, Eigen::Quaterniond(Eigen::AngleAxisd(0.7, Eigen::Vector3d::UnitY())), {1, 2, 3});
+
 // The map's frame: each map of its own, at its own scale.
 FlownRun MakeRun() {
   FlownRun run;
-  const Sim3d map0_from_enu(0.05, Eigen::Quaterniond(Eigen::AngleAxisd(0.7, Eigen::Vector3d::UnitY())), {1, 2, 3});
+  const Sim3d& map0_from_enu = kMap0FromEnu;
   const Sim3d map1_from_enu(0.2, Eigen::Quaterniond(Eigen::AngleAxisd(-1.2, Eigen::Vector3d::UnitX())), {0, 0, 0});
   Rng rng(5);
   const LocalTangentPlane plane(kOrigin);
@@ -114,6 +117,44 @@ TEST(GeoReferenceRun, WritesTheTrajectoryInWgs84AndHowEachMapWasPlaced) {
   EXPECT_EQ(json["maps"][1]["placed_by"], "gnss+camera-up");
   EXPECT_TRUE(std::filesystem::exists(dir.path() / "geo" / "trajectory.geojson"));
   EXPECT_TRUE(std::filesystem::exists(dir.path() / "geo" / "trajectory.kml"));
+}
+
+TEST(GeoReferenceRun, WritesAPlacedMapsPointsInEnuMetres) {
+  const FlownRun run = MakeRun();
+  const RunGeoReference geo = GeoReferenceRun(run.poses, 0, run.gnss, run.truth, GeoReferenceOptions());
+  ASSERT_TRUE(geo.maps[0].map.component == 0 && geo.maps[0].placement.placed);
+  // Two points of the largest map's frame (two of its cameras' centres), where its placement puts them.
+  const Sim3d& enu_from_map = geo.maps[0].placement.enu_from_map;
+  std::vector<ColouredPoint> points(2);
+  ASSERT_EQ(run.poses[0].component, 0);
+  ASSERT_EQ(run.poses[300].component, 0);
+  points[0].position = run.poses[0].world_from_cam.translation.cast<float>();
+  points[1].position = run.poses[300].world_from_cam.translation.cast<float>();
+  points[1].red = 7;
+  testing::TempDir dir;
+  const std::string path = (dir.path() / "map_enu.ply").string();
+  ASSERT_TRUE(WriteMapInEnu(path, geo, 0, points));
+  const std::vector<ColouredPoint> written = ReadPly(path);
+  ASSERT_EQ(written.size(), 2u);
+  for (size_t i = 0; i < 2; ++i) {
+    const Eigen::Vector3d expected = enu_from_map * points[i].position.cast<double>();
+    EXPECT_LT((written[i].position.cast<double>() - expected).norm(), 1e-3) << i;
+    // ...which is where the truth has them, within a fix's noise (2 m horizontal, 3 m vertical),
+    // not in the map's units (a twentieth of a metre) nor tens of metres off.
+    const Eigen::Vector3d truth = kMap0FromEnu.Inverse() * points[i].position.cast<double>();
+    EXPECT_LT((written[i].position.cast<double>() - truth).norm(), 3.0) << i;
+  }
+  EXPECT_EQ(written[1].red, 7);
+  // Metres, not the map's units: the placement's scale is not 1 (the map is in median depths).
+  EXPECT_GT(std::abs(enu_from_map.scale - 1.0), 0.01);
+  std::ifstream in(path);
+  std::string header((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  EXPECT_NE(header.find("comment frame: east-north-up, metres"), std::string::npos);
+  // No map placed: nothing written.
+  RunGeoReference unplaced = geo;
+  for (MapGeoReference& m : unplaced.maps) m.placement.placed = false;
+  EXPECT_FALSE(WriteMapInEnu((dir.path() / "none.ply").string(), unplaced, 0, points));
+  EXPECT_FALSE(std::filesystem::exists(dir.path() / "none.ply"));
 }
 
 TEST(GeoReferenceRun, SaysWhyAMapWasNotPlaced) {

@@ -10,6 +10,7 @@
 #include <gtest/gtest.h>
 
 #include "stitch/geo/gnss_fix.h"
+#include "stitch/io/ply.h"
 #include "stitch/records/frame_record.h"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/tracking/tracking_result.h"
@@ -99,6 +100,10 @@ TEST(RunOutputs, PlacesTheRunOnEarthWhereItHasFixes) {
   WriteFrames(dir, records);
   WriteGnssCsv(dir / "gnss.csv", gnss);
   truth.WriteTum(dir / "groundtruth.tum");
+  // The map's points: one where its first camera is (the truth's (0, 0, 70) m).
+  ColouredPoint camera_point;
+  camera_point.position = records.front().world_from_cam.translation.cast<float>();
+  WritePly(dir / "map.ply", {camera_point});
   RunInfo info;
   info.frames_total = 400;
   FinishRunOutputs(dir.path().string(), &info);
@@ -107,6 +112,10 @@ TEST(RunOutputs, PlacesTheRunOnEarthWhereItHasFixes) {
   for (const char* file : {"trajectory_wgs84.csv", "trajectory.geojson", "trajectory.kml", "georeference.json"}) {
     EXPECT_TRUE(std::filesystem::exists(dir.path() / "geo" / file)) << file;
   }
+  // map.ply in metres east, north and up of the origin.
+  const std::vector<ColouredPoint> enu = ReadPly((dir.path() / "geo" / "map_enu.ply").string());
+  ASSERT_EQ(enu.size(), 1u);
+  EXPECT_LT((enu[0].position - Eigen::Vector3f(0, 0, 70)).norm(), 0.05f) << enu[0].position.transpose();
   std::ifstream in(dir / "report.json");
   const nlohmann::json report = nlohmann::json::parse(in);
   EXPECT_LT(report["georeference"]["maps"][0]["absolute"]["horizontal_rms_m"].get<double>(), 0.01);
@@ -116,6 +125,7 @@ TEST(RunOutputs, PlacesTheRunOnEarthWhereItHasFixes) {
   again.frames_total = 400;
   FinishRunOutputs(dir.path().string(), &again);
   EXPECT_TRUE(again.geo_figures.empty());
+  EXPECT_FALSE(std::filesystem::exists(dir.path() / "geo" / "map_enu.ply"));  // not placed this time
   EXPECT_TRUE(SomeNoteSays(again, "not placed on Earth: " + (dir / "gnss.csv") + ":"));
 }
 
