@@ -232,7 +232,8 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
   // says where the truth's frame is on Earth).
   nlohmann::json georeference = nullptr;
   info->geo_figures.clear();
-  fs::remove(dir / "geo" / "map_enu.ply");  // an earlier evaluation's: this one may not place the map
+  std::error_code ignored;
+  fs::remove(dir / "geo" / "map_enu.ply", ignored);  // an earlier evaluation's: this one may not place the map
   const bool received = fs::exists(dir / "gnss_received.csv");
   if (received || fs::exists(dir / "gnss.csv")) {
     try {
@@ -255,8 +256,12 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
             GeoReferenceRun(input.poses, evaluation.largest_component, gnss, input.ground_truth, options);
         WriteGeoOutputs((dir / "geo").string(), geo, input.poses);
         if (fs::exists(dir / "map.ply")) {
-          // map.ply is the merger's largest map: its component 0 (submaps.tsv).
-          WriteMapInEnu((dir / "geo" / "map_enu.ply").string(), geo, 0, ReadPly((dir / "map.ply").string()));
+          try {
+            // map.ply is the merger's largest map: its component 0 (submaps.tsv).
+            WriteMapInEnu((dir / "geo" / "map_enu.ply").string(), geo, 0, ReadPly((dir / "map.ply").string()));
+          } catch (const std::exception& e) {  // the trajectory on Earth stands without it
+            info->notes.push_back(std::string("geo/map_enu.ply not written: ") + e.what());
+          }
         }
         georeference = geo.ToJson();
         info->geo_figures = geo.Summary();

@@ -120,6 +120,15 @@ TEST(RunOutputs, PlacesTheRunOnEarthWhereItHasFixes) {
   const nlohmann::json report = nlohmann::json::parse(in);
   EXPECT_LT(report["georeference"]["maps"][0]["absolute"]["horizontal_rms_m"].get<double>(), 0.01);
 
+  // A damaged map.ply: the trajectory is still placed, and a note says why the map is not.
+  std::ofstream(dir / "map.ply", std::ios::trunc) << "ply\nformat ascii 1.0\n";
+  RunInfo damaged;
+  damaged.frames_total = 400;
+  FinishRunOutputs(dir.path().string(), &damaged);
+  EXPECT_EQ(damaged.geo_figures.size(), 2u);
+  EXPECT_TRUE(SomeNoteSays(damaged, "geo/map_enu.ply not written: "));
+  EXPECT_FALSE(std::filesystem::exists(dir.path() / "geo" / "map_enu.ply"));
+
   std::ofstream(dir / "gnss.csv", std::ios::app) << "1,2,3\n";
   RunInfo again;
   again.frames_total = 400;
