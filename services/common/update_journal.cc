@@ -164,7 +164,7 @@ void UpdateJournal::Append(const stitch::submap_update_t& update) {
   AppendRecord(bus::Channel(update.header.agent, bus::kSubmap), bytes);
 }
 
-void UpdateJournal::AppendGnssFix(const stitch::gnss_fix_t& fix) {
+void UpdateJournal::Append(const stitch::gnss_fix_t& fix) {
   std::vector<uint8_t> bytes(static_cast<size_t>(fix.getEncodedSize()));
   fix.encode(bytes.data(), 0, static_cast<int>(bytes.size()));
   AppendRecord(bus::Channel(fix.header.agent, bus::kGnss), bytes);

@@ -71,8 +71,8 @@ class UpdateJournal {
   // to the operating system. Throws stitch::Error on a write failure (a full disk): the caller
   // must know the store is no longer complete.
   void Append(const stitch::submap_update_t& update);
-  // The same for a GNSS fix (on <its header's agent>/GNSS). Thread-safe with Append.
-  void AppendGnssFix(const stitch::gnss_fix_t& fix);
+  // The same for a GNSS fix (on <its header's agent>/GNSS). Either may be called from any thread.
+  void Append(const stitch::gnss_fix_t& fix);
 
   const std::string& path() const { return path_; }
   int64_t appended() const;

@@ -49,9 +49,9 @@ TEST(UpdateJournal, GnssFixesComeBackInTheirPlaceAmongTheUpdates) {
     fix.header.agent = "uav0";
     fix.t_ns = 5'000'000'000;
     fix.latitude_deg = 48.1;
-    journal.AppendGnssFix(fix);
+    journal.Append(fix);
     fix.header.agent = "uav1";  // not an aircraft of this journal
-    journal.AppendGnssFix(fix);
+    journal.Append(fix);
     journal.Append(Update(2));
     EXPECT_EQ(journal.appended(), 4);
   }
@@ -80,7 +80,7 @@ TEST(UpdateJournal, FixesAndUpdatesAppendedFromTwoThreadsAreAllKeptWhole) {
       fix.header.agent = "uav0";
       for (int i = 0; i < kEach; ++i) {
         fix.t_ns = i;
-        journal.AppendGnssFix(fix);
+        journal.Append(fix);
       }
     });
     for (int r = 0; r < kEach; ++r) journal.Append(Update(r));

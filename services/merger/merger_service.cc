@@ -1,7 +1,6 @@
 #include "services/merger/merger_service.h"
 
 #include <set>
-#include <type_traits>
 
 #include "services/common/convert.h"
 #include "services/common/map_convert.h"
@@ -63,15 +62,11 @@ MergerService::MergerService(lcm::LCM* lcm, bus::Publisher* publisher, const Mer
     subscriber_.Subscribe<stitch::gnss_fix_t>(
         bus::Channel(agent, bus::kGnss), [this](std::unique_ptr<stitch::gnss_fix_t> message, const std::string& on) {
           std::string why;
-          try {
-            if (session_.AddGnssFix(message->header.agent, FromMessage(*message), &why)) {
-              Journal(*message);
-              return;
-            }
-          } catch (const Error& e) {
-            why = e.what();
+          if (AddGnssFix(*message, &why)) {
+            Journal(*message);
+          } else {
+            subscriber_.Reject(on, why);
           }
-          subscriber_.Reject(on, why);
         });
   }
   heartbeat_ = std::make_unique<Heartbeat>(publisher_, "merger", [this] {
@@ -94,13 +89,8 @@ void MergerService::Start() {
     const int64_t count = journal_->Recover([this](const stitch::submap_update_t& update) { Process(update, true); },
                                             [this](const stitch::gnss_fix_t& fix) {
                                               std::string why;
-                                              try {
-                                                if (session_.AddGnssFix(fix.header.agent, FromMessage(fix), &why))
-                                                  return;
-                                              } catch (const Error& e) {
-                                                why = e.what();
-                                              }
-                                              STITCH_LOG(WARNING) << "a GNSS fix in the journal refused: " << why;
+                                              if (!AddGnssFix(fix, &why))
+                                                STITCH_LOG(WARNING) << "a GNSS fix in the journal refused: " << why;
                                             });
     recovering_ = false;
     if (count > 0) {
@@ -134,15 +124,20 @@ void MergerService::Work() {
   }
 }
 
+bool MergerService::AddGnssFix(const stitch::gnss_fix_t& message, std::string* why) {
+  try {
+    return session_.AddGnssFix(message.header.agent, FromMessage(message), why);
+  } catch (const Error& e) {
+    *why = e.what();
+    return false;
+  }
+}
+
 template <class Message>
 void MergerService::Journal(const Message& message) {
   if (!journal_ || journal_failed_) return;
   try {
-    if constexpr (std::is_same_v<Message, stitch::gnss_fix_t>) {
-      journal_->AppendGnssFix(message);
-    } else {
-      journal_->Append(message);
-    }
+    journal_->Append(message);
   } catch (const Error& e) {
     if (!journal_failed_.exchange(true)) {  // keep merging; a restart would now lose what follows
       STITCH_LOG(ERROR) << e.what() << "; the merger goes on without persisting its store";

@@ -52,6 +52,8 @@ class MergerService {
  private:
   void Work();
   void Process(const stitch::submap_update_t& message, bool from_journal = false);
+  // The fix `message` holds, kept by the session; false with `why` where it is none or refused.
+  bool AddGnssFix(const stitch::gnss_fix_t& message, std::string* why);
   // Appends a submap update or a GNSS fix to the journal (when there is one and it still works).
   template <class Message>
   void Journal(const Message& message);
