@@ -1,4 +1,5 @@
-// Speed of feature extraction and bag-of-words operations (one core).
+// Speed of feature extraction, of the reduction of a large camera's frames before it, and of
+// bag-of-words operations (one core).
 //   build/bin/features_benchmark [--benchmark_filter=...]
 // Vocabulary benchmarks use vocabulary/default.stitchvoc when it exists.
 
@@ -6,6 +7,7 @@
 
 #include <benchmark/benchmark.h>
 #include <opencv2/features2d.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "stitch/features/keyframe_database.h"
 #include "stitch/features/orb_extractor.h"
@@ -53,6 +55,46 @@ void BM_OpenCvOrb(benchmark::State& state) {
   state.counters["features"] = static_cast<double>(keypoints.size());
 }
 BENCHMARK(BM_OpenCvOrb)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
+
+// A 1080p (range 0: 1080) or 4K (2160) frame reduced to its working size within range 1 pixels
+// (ingest.max_working_pixels): 500,000 (the default) gives 942x530, halvings then a fractional
+// step; 518,400 gives 960x540, halvings alone. BM_ReduceInOneStep: one fractional area
+// reduction from the full frame, for comparison.
+template <bool kInOneStep>
+void Reduce(benchmark::State& state) {
+  const int height = static_cast<int>(state.range(0)), width = height * 16 / 9;
+  cv::Mat frame;
+  cv::resize(Frame(false), frame, cv::Size(width, height), 0, 0, cv::INTER_LINEAR);
+  const auto [w, h] = WorkingSize(width, height, static_cast<int>(state.range(1)));
+  // On one thread: OpenCV would spread a reduction over its own threads, whose CPU time the
+  // benchmark's does not count.
+  const int threads = cv::getNumThreads();
+  cv::setNumThreads(0);
+  cv::Mat reduced;
+  for (auto _ : state) {
+    if (kInOneStep) {
+      cv::resize(frame, reduced, cv::Size(w, h), 0, 0, cv::INTER_AREA);
+    } else {
+      reduced = ReduceToWorkingSize(frame, cv::Size(w, h));
+    }
+    benchmark::DoNotOptimize(reduced.data);
+  }
+  cv::setNumThreads(threads);
+  state.counters["width"] = w;
+}
+void BM_ReduceToWorkingSize(benchmark::State& state) {
+  Reduce<false>(state);
+}
+void BM_ReduceInOneStep(benchmark::State& state) {
+  Reduce<true>(state);
+}
+BENCHMARK(BM_ReduceToWorkingSize)
+    ->Args({1080, 500000})
+    ->Args({1080, 518400})
+    ->Args({2160, 500000})
+    ->Args({2160, 518400})
+    ->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_ReduceInOneStep)->Args({1080, 500000})->Args({2160, 500000})->Unit(benchmark::kMillisecond);
 
 const Vocabulary* DefaultVocabulary() {
   static const Vocabulary* vocabulary = [] {

@@ -2,10 +2,12 @@
 
 #include "stitch/source/source.h"
 
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 
 #include <gtest/gtest.h>
+#include <opencv2/imgproc.hpp>
 
 #include "stitch/io/calibration.h"
 #include "stitch/testing/temp_dir.h"
@@ -33,6 +35,32 @@ TEST(WorkingSize, LargeFramesAreReducedWithinTheBudgetAndKeepTheirAspect) {
 
 // A 1080p synthetic flight played at its working size: frames and camera agree, the ground truth
 // is the camera's, and a point projects where the full-size camera puts it, scaled.
+// The reduction by halvings then area averaging: exact block averages where the size halves the
+// frame, and within a grey level of one area reduction from the full frame elsewhere.
+TEST(WorkingSize, ReductionHalvesExactlyThenAveragesByArea) {
+  cv::Mat frame(1080, 1920, CV_8UC1);
+  for (int y = 0; y < frame.rows; ++y) {
+    for (int x = 0; x < frame.cols; ++x) {
+      frame.at<uint8_t>(y, x) = static_cast<uint8_t>(128 + 60 * std::sin(x * 0.05) * std::cos(y * 0.07) + (x + y) % 3);
+    }
+  }
+  const cv::Mat half = ReduceToWorkingSize(frame, cv::Size(960, 540));
+  ASSERT_EQ(half.size(), cv::Size(960, 540));
+  for (const auto& [x, y] : std::vector<std::pair<int, int>>{{0, 0}, {311, 97}, {959, 539}}) {
+    const int sum = frame.at<uint8_t>(2 * y, 2 * x) + frame.at<uint8_t>(2 * y, 2 * x + 1) +
+                    frame.at<uint8_t>(2 * y + 1, 2 * x) + frame.at<uint8_t>(2 * y + 1, 2 * x + 1);
+    EXPECT_NEAR(half.at<uint8_t>(y, x), sum / 4.0, 0.5) << x << "," << y;
+  }
+  const cv::Mat reduced = ReduceToWorkingSize(frame, cv::Size(942, 530));
+  ASSERT_EQ(reduced.size(), cv::Size(942, 530));
+  cv::Mat in_one_step, difference;
+  cv::resize(frame, in_one_step, cv::Size(942, 530), 0, 0, cv::INTER_AREA);
+  cv::absdiff(reduced, in_one_step, difference);
+  EXPECT_LT(cv::mean(difference)[0], 1.0);
+  // A frame of the size already: as it is.
+  EXPECT_EQ(ReduceToWorkingSize(half, half.size()).data, half.data);
+}
+
 TEST(WorkingSize, ALargeCamerasFramesArePlayedReducedWithTheirCamera) {
   SourceSpec spec;
   spec.synthetic.width = 1920;
