@@ -1,5 +1,6 @@
 #include "services/ingest/ingest_service.h"
 
+#include <algorithm>
 #include <fstream>
 #include <thread>
 
@@ -123,22 +124,31 @@ IngestSummary IngestService::Play(ImageSequence& sequence, const FailureSchedule
   const Stopwatch clock;
   double last_info = -1;
   int64_t first_t_ns = 0;
+  double first_ready_s = 0;
   bool first = true;
   SequenceFrame frame;
   stitch::frame_t message{};
   message.camera = ToMessage(sequence.camera());
   message.camera_id = 0;
   message.pacing = lockstep ? stitch::frame_t::PACING_LOCKSTEP : stitch::frame_t::PACING_LIVE;
+  // Real-time playback: a frame the source has ready later than this after its time is late.
+  const double frame_period_s = 1.0 / ((sequence.nominal_fps() > 0 ? sequence.nominal_fps() : 30.0) * options_.speed);
   while (!stop.load() && sequence.Next(&frame)) {
     if (first) {
       first_t_ns = frame.t_ns;
+      first_ready_s = clock.ElapsedSeconds();  // the camera starts when its first frame is there
       first = false;
     }
     if (!lockstep && !live) {
       // The camera does not wait: each frame goes out at its time, whatever the consumers do.
-      const double due = (frame.t_ns - first_t_ns) * 1e-9 / options_.speed;
+      const double due = first_ready_s + (frame.t_ns - first_t_ns) * 1e-9 / options_.speed;
       const double wait = due - clock.ElapsedSeconds();
-      if (wait > 0) std::this_thread::sleep_for(std::chrono::duration<double>(wait));
+      if (wait > 0) {
+        std::this_thread::sleep_for(std::chrono::duration<double>(wait));
+      } else if (-wait > frame_period_s) {
+        ++summary.frames_late;  // the source cannot keep the pace: the run plays slower than the camera
+        summary.most_late_s = std::max(summary.most_late_s, -wait);
+      }
     }
     message.t_ns = frame.t_ns;
     message.frame_index = frame.index;
@@ -211,6 +221,11 @@ IngestSummary IngestService::Play(ImageSequence& sequence, const FailureSchedule
                                   " captured but replaced by a newer one before they could be sent"
                             : std::string())
                    << ")";
+  if (summary.frames_late > 0) {
+    STITCH_LOG(WARNING) << summary.frames_late << " frames went out more than a frame late (up to "
+                        << summary.most_late_s << " s): the source could not keep the camera's pace, so "
+                        << "the run played slower than the camera";
+  }
   return summary;
 }
 

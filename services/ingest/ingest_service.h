@@ -27,6 +27,11 @@ struct IngestSummary {
   int gnss_fixes_published = 0;
   int64_t frames_dropped_at_source = 0;  // live: captured, but a newer frame came before it could be sent
   int64_t acks_refused = 0;              // acks for frames not sent yet (forged)
+  // Real-time playback of a recorded sequence: frames the source had ready more than one frame
+  // period (at the playback speed) after their time, and how late the latest went out. Where
+  // there are any, the run played slower than the camera (source_record.h).
+  int frames_late = 0;
+  double most_late_s = 0;
   double seconds = 0;
   bool stopped = false;  // ended by the stop flag, not by the end of the sequence
 };

@@ -236,6 +236,48 @@ TEST(Ingest, RealtimeOverUdpMulticastPublishesAtTheCameraRate) {
   EXPECT_GE(recorder.frames.size(), 18u) << "frames lost on loopback multicast";
 }
 
+// A source slower than its camera: each frame takes `delay` to come out.
+class SlowSequence : public ImageSequence {
+ public:
+  SlowSequence(std::unique_ptr<ImageSequence> inner, std::chrono::milliseconds delay)
+      : inner_(std::move(inner)), delay_(delay) {}
+  std::string description() const override { return "slow " + inner_->description(); }
+  int size() const override { return inner_->size(); }
+  const Camera& camera() const override { return inner_->camera(); }
+  double nominal_fps() const override { return inner_->nominal_fps(); }
+  const Trajectory& ground_truth() const override { return inner_->ground_truth(); }
+  bool Next(SequenceFrame* frame) override {
+    std::this_thread::sleep_for(delay_);
+    return inner_->Next(frame);
+  }
+
+ private:
+  std::unique_ptr<ImageSequence> inner_;
+  std::chrono::milliseconds delay_;
+};
+
+// Real-time playback of a source that cannot keep its camera's pace: the frames it sends late are
+// counted (the run played slower than the camera); a lockstep run has no pace to keep.
+TEST(Ingest, FramesASlowSourceSendsLateAreCounted) {
+  const std::string url = bus::UnusedLocalUdpUrl();
+  auto lcm = bus::OpenLcm(url);
+  bus::Publisher publisher(lcm.get(), "uav1");
+  IngestOptions options;
+  options.pacing = "realtime";
+  options.speed = 4.0;  // 20 Hz played at 80 Hz: a frame every 12.5 ms
+  options.encoding = "jpeg";
+  IngestService ingest(lcm.get(), url, &publisher, options);
+  FailureSchedule spoil;
+  SlowSequence slow(OpenSource(ShortFlight(10), &spoil), 60ms);
+  std::atomic<bool> stop{false};
+  const IngestSummary summary = ingest.Play(slow, spoil, stop);
+  EXPECT_EQ(summary.frames_published, 10);
+  // Each frame 60 ms after the one before against 12.5 ms: from the second on, more than a frame
+  // late (the first sets the camera's start).
+  EXPECT_GE(summary.frames_late, 8);
+  EXPECT_GT(summary.most_late_s, 0.3);
+}
+
 TEST(Ingest, FailureScheduleSpoilsExactlyTheScheduledDatasetFrames) {
   testing::TempDir dir;
   SourceSpec spec;

@@ -5,6 +5,7 @@
 
 #include "services/common/service_main.h"
 #include "services/ingest/ingest_service.h"
+#include "stitch/records/source_record.h"
 #include "stitch/source/source.h"
 #include "stitch/util/options.h"
 
@@ -12,7 +13,7 @@ int main(int argc, char** argv) {
   using namespace stitch;
   ServiceCommandLine common;
   SourceSpec source;
-  std::string pacing, encoding;
+  std::string pacing, encoding, record;
   ArgParser args("stitch-ingest",
                  "Publishes camera frames on <agent>/FRAME: from a live camera (--live), a dataset (TUM RGB-D, "
                  "EuRoC, KITTI, an image folder, a video) or, without either, the synthetic UAV survey flight.");
@@ -20,6 +21,8 @@ int main(int argc, char** argv) {
   AddSourceOptions(&args, &source);
   args.AddOption("--pacing", &pacing, "MODE", "lockstep or realtime (overrides the config)");
   args.AddOption("--encoding", &encoding, "ENC", "gray8, jpeg or auto (overrides the config)");
+  args.AddOption("--record", &record, "FILE",
+                 "write how the source kept the camera's pace (frames sent, frames late) to FILE (JSON) when it ends");
   if (!args.Parse(argc, argv)) return args.exit_code();
   std::vector<std::string> settings = common.settings;
   if (args.Given("--pacing")) settings.push_back(TextSetting("ingest.pacing", pacing));
@@ -42,6 +45,14 @@ int main(int argc, char** argv) {
     auto sequence = OpenSource(source, &spoil);
     heartbeat.SetState(stitch::service_status_t::STATE_RUNNING, sequence->description());
     const IngestSummary summary = ingest.Play(*sequence, spoil, process.stop, SourceGnss(source).fixes);
+    if (!record.empty()) {
+      SourceRecord written;
+      written.frames_published = summary.frames_published;
+      written.frames_late = summary.frames_late;
+      written.most_late_s = summary.most_late_s;
+      written.seconds = summary.seconds;
+      WriteSourceRecord(record, written);
+    }
     heartbeat.SetState(stitch::service_status_t::STATE_FINISHED);
     heartbeat.Stop();
     dispatcher.Stop();

@@ -93,6 +93,7 @@ Evaluation Evaluate(const EvaluationInput& input) {
   e.frames_unusable = input.frames_unusable;
   e.frames_unreadable = input.frames_unreadable;
   e.frames_dropped = input.frames_dropped;
+  e.frames_late_at_source = input.frames_late_at_source;
   e.keyframes = input.keyframes;
   e.submaps = input.submaps;
   e.has_ground_truth = !input.ground_truth.empty();
@@ -207,6 +208,7 @@ nlohmann::json ToJson(const Evaluation& e) {
   j["frames_unusable"] = e.frames_unusable;
   j["frames_unreadable"] = e.frames_unreadable;
   j["frames_dropped"] = e.frames_dropped;
+  j["frames_late_at_source"] = e.frames_late_at_source;
   j["frames_localized"] = e.frames_localized;
   j["completeness"] = e.completeness;
   j["keyframes"] = e.keyframes;
@@ -249,6 +251,7 @@ Evaluation EvaluationFromJson(const nlohmann::json& j) {
     e.frames_unusable = j.at("frames_unusable");
     e.frames_unreadable = j.value("frames_unreadable", 0);  // reports before they were counted
     e.frames_dropped = j.value("frames_dropped", 0);
+    e.frames_late_at_source = j.value("frames_late_at_source", 0);
     e.frames_localized = j.at("frames_localized");
     e.completeness = j.at("completeness");
     e.keyframes = j.at("keyframes");
@@ -357,6 +360,11 @@ std::string Summarize(const Evaluation& e) {
   if (e.frames_dropped > 0) {
     text +=
         "  dropped           " + std::to_string(e.frames_dropped) + " live frames came while the tracker was busy\n";
+  }
+  if (e.frames_late_at_source > 0) {
+    text += "  late              " + std::to_string(e.frames_late_at_source) +
+            " frames left the source more than a frame late: it could not keep the camera's pace, and the run "
+            "played slower than the camera (ingest.json)\n";
   }
   std::snprintf(line, sizeof(line), "  keyframes         %d\n  submaps           %d (%d in the largest map%s)\n",
                 e.keyframes, e.submaps, e.submaps_merged,

@@ -24,6 +24,7 @@ struct EvaluationInput {
   int frames_unusable = 0;          // of those, replaced by the failure schedule
   int frames_unreadable = 0;        // of those, the source could not read (an empty frame reached the tracker)
   int frames_dropped = 0;           // of those, live frames the tracker had no time for
+  int frames_late_at_source = 0;    // real-time playback: frames the source sent late (source_record.h)
   std::vector<PoseRecord> poses;    // the run's final poses
   Trajectory ground_truth;          // may be empty
   std::vector<double> tracking_ms;  // per processed frame
@@ -66,6 +67,7 @@ struct Evaluation {
   int frames_unusable = 0;
   int frames_unreadable = 0;
   int frames_dropped = 0;
+  int frames_late_at_source = 0;
   int frames_localized = 0;  // with a pose in the largest merged map
   double completeness = 0;   // frames_localized / frames_total
   int keyframes = 0;

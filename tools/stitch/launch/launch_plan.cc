@@ -165,7 +165,10 @@ LaunchPlan PlanRun(const RunArgs& a, const std::string& out) {
                            With(aircraft, {"--record", (fs::path(out) / "frames.tsv").string(), "--state",
                                            (fs::path(out) / "logs" / "tracker.state").string()}),
                            false});
-  plan.services.push_back({"ingest", "stitch-ingest", With(aircraft, SourceArguments(plan.spec)), false});
+  plan.services.push_back(
+      {"ingest", "stitch-ingest",
+       With(With(aircraft, SourceArguments(plan.spec)), {"--record", (fs::path(out) / "ingest.json").string()}),
+       false});
   return plan;
 }
 

@@ -51,6 +51,7 @@ TEST(LaunchPlan, TheDefaultRunStartsTheGroundFirstAndIngestLastOnOneBus) {
   }
   EXPECT_EQ(Argument(Service(plan, "merger"), "--record"), "/tmp/planned");
   EXPECT_EQ(Argument(Service(plan, "tracker"), "--record"), "/tmp/planned/frames.tsv");
+  EXPECT_EQ(Argument(Service(plan, "ingest"), "--record"), "/tmp/planned/ingest.json");
   EXPECT_EQ(Argument(Service(plan, "ingest"), "--max-frames"), "20");
   EXPECT_EQ(Argument(Service(plan, "ingest"), "--failures"), "");  // the default: the ingest's own
   EXPECT_EQ(plan.info.frames_total, 20);

@@ -18,6 +18,7 @@
 #include "stitch/records/frame_record.h"
 #include "stitch/records/keyframe_record.h"
 #include "stitch/records/merger_records.h"
+#include "stitch/records/source_record.h"
 #include "stitch/tracking/tracking_result.h"
 #include "stitch/util/error.h"
 #include "stitch/util/ids.h"
@@ -137,6 +138,13 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
     if (r.state == "OK") submaps.insert(r.submap_id);
   }
   input.keyframes = fs::exists(dir / "keyframes.tsv") ? keyframes_retained : keyframes_made;
+  if (fs::exists(dir / "ingest.json")) {
+    try {
+      input.frames_late_at_source = ReadSourceRecord((dir / "ingest.json").string()).frames_late;
+    } catch (const Error& e) {
+      info->notes.push_back(e.what());
+    }
+  }
   input.submaps = static_cast<int>(submaps.size());
 
   // The tracker's poses, each re-composed with the mapper's final pose of the keyframe it was

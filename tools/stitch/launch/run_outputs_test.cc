@@ -12,6 +12,7 @@
 #include "stitch/geo/gnss_fix.h"
 #include "stitch/io/ply.h"
 #include "stitch/records/frame_record.h"
+#include "stitch/records/source_record.h"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/tracking/tracking_result.h"
 
@@ -65,6 +66,31 @@ TEST(RunOutputs, SaysNothingOfTheKindWhereAFrameWasLocalized) {
   info.frames_total = 2;
   FinishRunOutputs(dir.path().string(), &info);
   EXPECT_FALSE(SomeNoteSays(info, "no frame was localized"));
+}
+
+// A source that could not keep its camera's pace (ingest.json): its late frames are in the
+// evaluation, report.json and the summary; a damaged record is a note.
+TEST(RunOutputs, CountsTheFramesTheSourceSentLate) {
+  testing::TempDir dir;
+  WriteFrames(dir, {Frame(0, "OK", TrackingReason::kNone), Frame(1, "OK", TrackingReason::kNone)});
+  SourceRecord source;
+  source.frames_published = 2;
+  source.frames_late = 1;
+  WriteSourceRecord(dir / "ingest.json", source);
+  RunInfo info;
+  info.frames_total = 2;
+  const Evaluation evaluation = FinishRunOutputs(dir.path().string(), &info);
+  EXPECT_EQ(evaluation.frames_late_at_source, 1);
+  EXPECT_NE(Summarize(evaluation).find("1 frames left the source more than a frame late"), std::string::npos)
+      << Summarize(evaluation);
+  std::ifstream in(dir / "report.json");
+  EXPECT_EQ(nlohmann::json::parse(in)["frames_late_at_source"], 1);
+
+  std::ofstream(dir / "ingest.json", std::ios::trunc) << "{";
+  RunInfo again;
+  again.frames_total = 2;
+  EXPECT_EQ(FinishRunOutputs(dir.path().string(), &again).frames_late_at_source, 0);
+  EXPECT_TRUE(SomeNoteSays(again, "ingest.json: not a source record"));
 }
 
 // A run folder with the aircraft's GNSS fixes: the largest map placed on Earth (geo/), the

@@ -327,6 +327,7 @@ std::map<std::string, double> MeasureRun(const std::string& run_dir, double cpu_
   m["cpu_s_per_frame"] = e.frames_total > 0 ? cpu_seconds / e.frames_total : 0;
   m["wall_s"] = wall_seconds;
   m["dropped_frames"] = dropped;
+  m["source_late_frames"] = e.frames_late_at_source;
   m["frames_total"] = e.frames_total;
   return m;
 }
