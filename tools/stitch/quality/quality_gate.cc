@@ -55,6 +55,7 @@ const Figure kFigures[] = {
     {"cpu_s_per_frame", "CPU s/frame", "%.4f"},
     {"wall_s", "wall [s]", "%.1f"},
     {"dropped_frames", "dropped", "%.0f"},
+    {"source_late_frames", "sent late", "%.0f"},  // by the source itself (real time: ingest.json)
 };
 
 bool KnownFigure(const std::string& key) {
