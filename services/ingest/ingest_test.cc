@@ -207,15 +207,20 @@ TEST(Ingest, EveryAcknowledgedFrameIsAlreadyInTheTrackersRecord) {
   EXPECT_EQ(acked, (std::set<int>{0, 1, 2, 3, 4, 5, 6, 7}));
 }
 
+// Real-time pacing, the 20 Hz flight played at 80 Hz, JPEG frames.
+IngestOptions RealtimeAt4x() {
+  IngestOptions options;
+  options.pacing = "realtime";
+  options.speed = 4.0;
+  options.encoding = "jpeg";
+  return options;
+}
+
 TEST(Ingest, RealtimeOverUdpMulticastPublishesAtTheCameraRate) {
   const std::string url = bus::UnusedLocalUdpUrl();
   auto lcm = bus::OpenLcm(url);
   bus::Publisher publisher(lcm.get(), "uav1");
-  IngestOptions options;
-  options.pacing = "realtime";
-  options.speed = 4.0;  // 20 Hz flight played at 80 Hz
-  options.encoding = "jpeg";
-  IngestService ingest(lcm.get(), url, &publisher, options);
+  IngestService ingest(lcm.get(), url, &publisher, RealtimeAt4x());
   Recorder recorder;
   bus::Subscriber subscriber(lcm.get());
   recorder.Subscribe(&subscriber, "uav1");
@@ -257,16 +262,12 @@ class SlowSequence : public ImageSequence {
 };
 
 // Real-time playback of a source that cannot keep its camera's pace: the frames it sends late are
-// counted (the run played slower than the camera); a lockstep run has no pace to keep.
+// counted (the run played slower than the camera).
 TEST(Ingest, FramesASlowSourceSendsLateAreCounted) {
   const std::string url = bus::UnusedLocalUdpUrl();
   auto lcm = bus::OpenLcm(url);
   bus::Publisher publisher(lcm.get(), "uav1");
-  IngestOptions options;
-  options.pacing = "realtime";
-  options.speed = 4.0;  // 20 Hz played at 80 Hz: a frame every 12.5 ms
-  options.encoding = "jpeg";
-  IngestService ingest(lcm.get(), url, &publisher, options);
+  IngestService ingest(lcm.get(), url, &publisher, RealtimeAt4x());  // a frame every 12.5 ms
   FailureSchedule spoil;
   SlowSequence slow(OpenSource(ShortFlight(10), &spoil), 60ms);
   std::atomic<bool> stop{false};
