@@ -1,6 +1,9 @@
 // `stitch run` end to end: the real service processes over UDP multicast.
 
+#include <arpa/inet.h>
 #include <signal.h>
+#include <sys/socket.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <cmath>
@@ -14,6 +17,10 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/videoio.hpp>
 
+#include "services/common/bus.h"
+#include "stitch/geo/mavlink_gnss.h"
+#include "stitch/gnss_fix_t.hpp"
+#include "stitch/io/calibration.h"
 #include "stitch/io/colmap_model.h"
 #include "stitch/io/ply.h"
 #include "stitch/io/trajectory.h"
@@ -22,6 +29,7 @@
 #include "stitch/testing/full_disk.h"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/util/child_process.h"
+#include "stitch/util/time.h"
 #include "tests/test_process.h"
 
 namespace fs = std::filesystem;
@@ -523,6 +531,89 @@ TEST(StitchRun, ItsServicesEndWhenTheLauncherIsKilled) {
     EXPECT_FALSE(Running(service)) << "service " << service << " still runs 15 s after the launcher was killed";
     if (Running(service)) kill(service, SIGKILL);
   }
+}
+
+// A live camera with its flight controller beside it: stitch-ingest listens for the controller's
+// MAVLink telemetry on UDP (ingest.gnss_mavlink) and puts its GPS fixes on <agent>/GNSS, stamped
+// with the wall clock the live frames carry; garbage and damaged datagrams give none.
+TEST(StitchIngest, PublishesAFlightControllersMavlinkFixesBesideALiveCamera) {
+  testing::TempDir dir;
+  const std::string calibration = dir / "camera.yaml";
+  SaveCalibration(Camera(CameraModel::kPinholeRadTan, 320, 240, {300, 300, 160, 120, 0, 0, 0, 0, 0}), calibration);
+  const std::string url = "udpm://239.255.76.67:" + std::to_string(bus::UnusedUdpPort()) + "?ttl=0";
+  const int mavlink_port = bus::UnusedUdpPort(32000, 1000);
+  lcm::LCM listener(url);
+  ASSERT_TRUE(listener.good());
+  std::vector<std::pair<double, int64_t>> heard;  // latitude, t_ns
+  struct Handler {
+    std::vector<std::pair<double, int64_t>>* heard;
+    void On(const lcm::ReceiveBuffer*, const std::string&, const stitch::gnss_fix_t* fix) {
+      heard->emplace_back(fix->latitude_deg, fix->t_ns);
+    }
+  } handler{&heard};
+  listener.subscribe("uav0/GNSS", &Handler::On, &handler);
+  std::atomic<bool> done{false};
+  std::thread listening([&] {
+    while (!done.load()) listener.handleTimeout(50);
+  });
+  const int64_t started_ns = WallClockNs();
+  testing::CommandResult ingest;
+  std::thread running([&] {
+    ingest = RunProgram(
+        {Bin("stitch-ingest"), "--live",
+         "videotestsrc is-live=true num-buffers=90 ! video/x-raw,width=320,height=240,framerate=30/1 ! "
+         "videoconvert ! appsink",
+         "--live-clock", "wall", "--calib", calibration, "--lcm-url", url, "--set", "ingest.wait_for_tracker_s=0",
+         "--set", "ingest.gnss_mavlink=127.0.0.1:" + std::to_string(mavlink_port)},
+        60);
+  });
+  // The controller: a fix every 100 ms, each a little further north, among garbage and damage.
+  const int sender = socket(AF_INET, SOCK_DGRAM, 0);
+  sockaddr_in to{};
+  to.sin_family = AF_INET;
+  to.sin_port = htons(static_cast<uint16_t>(mavlink_port));
+  inet_pton(AF_INET, "127.0.0.1", &to.sin_addr);
+  MavlinkGpsRawInt raw;
+  raw.lat_e7 = 473684230;
+  raw.lon_e7 = 85390540;
+  raw.alt_mm = 460'000;
+  raw.fix_type = 3;
+  raw.h_acc_mm = 1500;
+  raw.v_acc_mm = 3000;
+  for (int i = 0; i < 40; ++i) {
+    raw.lat_e7 += 10;
+    std::vector<uint8_t> frame = EncodeMavlinkFrame(kMavlinkGpsRawInt, MavlinkPayload(raw));
+    if (i % 4 == 3) frame[14] ^= 0x10;  // damaged: refused by its CRC
+    const std::vector<uint8_t> garbage = {0xFD, 0x30, 0x00, 0x00, 0x01, 0x01, 0x18};
+    sendto(sender, garbage.data(), garbage.size(), 0, reinterpret_cast<const sockaddr*>(&to), sizeof(to));
+    sendto(sender, frame.data(), frame.size(), 0, reinterpret_cast<const sockaddr*>(&to), sizeof(to));
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  close(sender);
+  running.join();
+  std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  done = true;
+  listening.join();
+  const int64_t ended_ns = WallClockNs();
+  ASSERT_EQ(ingest.exit_code, 0) << ingest.output;
+  // While the camera ran (3 s) the controller sent about 30 fixes, a quarter of them damaged.
+  EXPECT_GE(heard.size(), 12u) << ingest.output;
+  EXPECT_LE(heard.size(), 30u) << ingest.output;
+  for (size_t i = 0; i < heard.size(); ++i) {
+    EXPECT_GT(heard[i].second, started_ns);
+    EXPECT_LT(heard[i].second, ended_ns);
+    if (i > 0) EXPECT_GT(heard[i].first, heard[i - 1].first) << "in order";
+    const int sent = static_cast<int>(std::lround((heard[i].first - 47.368423) * 1e6));  // lat_e7 steps of 10
+    EXPECT_NE(sent % 4, 0) << "fix " << sent << " was sent damaged";
+  }
+  EXPECT_NE(ingest.output.find("GNSS fixes from MAVLink"), std::string::npos) << ingest.output;
+
+  // A recorded sequence keeps its own clock: MAVLink fixes stamped on arrival would not fit it.
+  const auto refused = RunProgram({Bin("stitch-ingest"), "--config", testing::ShortFlightConfig(), "--lcm-url",
+                                   "memq://", "--set", "ingest.gnss_mavlink=127.0.0.1:0"},
+                                  60);
+  EXPECT_NE(refused.exit_code, 0);
+  EXPECT_NE(refused.output.find("ingest.gnss_mavlink needs a live camera"), std::string::npos) << refused.output;
 }
 
 }  // namespace

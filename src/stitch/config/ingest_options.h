@@ -23,6 +23,11 @@ struct IngestOptions {
   double wait_for_tracker_s = 30.0;    // lockstep and live sources: how long to wait for a tracker at start
   std::string failure_style = "blur";  // datasets: black, or blur (heavy blur and a jump)
   int failure_seed = 1;
+  // A live camera's GNSS: the flight controller's MAVLink telemetry on UDP, ADDRESS:PORT to listen
+  // on (e.g. ":14550"); its fixes go on <agent>/GNSS stamped with the frames' wall clock, less
+  // gnss_latency_s (services/ingest/mavlink_receiver.h). Empty: none.
+  std::string gnss_mavlink;
+  double gnss_latency_s = 0.0;
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
@@ -44,6 +49,10 @@ struct IngestOptions {
       "lockstep and live sources: how long to wait for a tracker at start, seconds (live ones then go on anyway)");
     v("failure_style", failure_style, "how induced failures spoil dataset frames: black or blur");
     v("failure_seed", failure_seed, "seed of the spoiled frames");
+    v("gnss_mavlink", gnss_mavlink,
+      "live cameras: the flight controller's MAVLink telemetry, ADDRESS:PORT to listen on for UDP (e.g. ':14550'); "
+      "its GPS_RAW_INT (or GLOBAL_POSITION_INT) fixes go on <agent>/GNSS (empty: none)");
+    v("gnss_latency_s", gnss_latency_s, "how much older a MAVLink fix is than its arrival, seconds");
   }
 
   bool Check(std::string* why) const {
@@ -64,6 +73,9 @@ struct IngestOptions {
     if (max_resends < 0) return fail("ingest.max_resends must be >= 0");
     if (!(wait_for_tracker_s >= 0)) return fail("ingest.wait_for_tracker_s must be >= 0");
     if (failure_style != "black" && failure_style != "blur") return fail("ingest.failure_style must be black or blur");
+    if (!gnss_mavlink.empty() && gnss_mavlink.find(':') == std::string::npos)
+      return fail("ingest.gnss_mavlink must be ADDRESS:PORT (an empty address: every interface), e.g. ':14550'");
+    if (!(gnss_latency_s >= 0 && gnss_latency_s <= 10)) return fail("ingest.gnss_latency_s must be in [0, 10]");
     return true;
   }
 };

@@ -9,17 +9,13 @@
 #include "stitch/io/calibration.h"
 #include "stitch/util/error.h"
 #include "stitch/util/log.h"
+#include "stitch/util/time.h"
 
 namespace stitch {
 namespace {
 
 bool StartsWith(const std::string& text, const std::string& prefix) {
   return text.rfind(prefix, 0) == 0;
-}
-
-int64_t WallClockNs() {
-  return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::system_clock::now().time_since_epoch())
-      .count();
 }
 
 // The frame as 8-bit gray (what the tracker takes).

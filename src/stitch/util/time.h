@@ -13,6 +13,12 @@ inline int64_t WallUtime() {
       .count();
 }
 
+// Wall clock, nanoseconds since the Unix epoch (a live camera's frames, and the fixes that go with them).
+inline int64_t WallClockNs() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::system_clock::now().time_since_epoch())
+      .count();
+}
+
 // Monotonic seconds, for measuring durations.
 inline double MonotonicSeconds() {
   return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();

@@ -1,0 +1,113 @@
+#pragma once
+// GNSS fixes from a flight controller's MAVLink stream (ArduPilot, PX4): a small decoder of just
+// the two messages that carry a position, not a MAVLink library.
+//
+// Frames of MAVLink 1 (0xFE) and 2 (0xFD) are found in a byte stream (a serial line, or UDP
+// datagrams, fed in any pieces); each is checked by its CRC-16/MCRF4XX, seeded with the message's
+// CRC_EXTRA as MAVLink defines it, before any field is read. Read:
+//
+// - GPS_RAW_INT (24): the receiver's own fix. Height above the ellipsoid from alt_ellipsoid
+//   where the sender fills it (MAVLink 2 extension), else its altitude above mean sea level
+//   (the map then sits the geoid's height off vertically, as with a DJI track). Accuracy from
+//   h_acc / v_acc where given, else HDOP / VDOP times kMavlinkUserRangeErrorM. The fix type as
+//   the receiver states it (no fix: not used).
+// - GLOBAL_POSITION_INT (33): the controller's fused estimate, used only from a system that sends
+//   no GPS_RAW_INT; it states no accuracy (stated_*_accuracy_m) and its altitude is above mean sea
+//   level.
+//
+// Everything else (other messages, frames of unknown ids, damaged frames, garbage between frames)
+// is stepped over and counted. MAVLink 2 signed frames are read; their signature is not checked.
+// A fix's time is when its frame arrived (the caller's clock: the live camera's, so fixes and
+// frames share it), less MavlinkGnssOptions::latency_s.
+
+#include <cstddef>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "stitch/geo/gnss_fix.h"
+
+namespace stitch {
+
+// Metres of position error per unit of dilution of precision, where a receiver gives DOPs only.
+inline constexpr double kMavlinkUserRangeErrorM = 2.5;
+
+struct MavlinkGnssOptions {
+  double latency_s = 0.0;  // a fix is this much older than its arrival
+  // 1-sigma accuracy given to a fix whose message states none (GLOBAL_POSITION_INT; a GPS_RAW_INT
+  // without h_acc / v_acc or DOPs).
+  double stated_horizontal_accuracy_m = 3.0;
+  double stated_vertical_accuracy_m = 6.0;
+  int system_id = 0;  // only frames from this MAVLink system (0: any)
+};
+
+struct MavlinkGnssCounts {
+  int64_t frames = 0;         // frames whose CRC checked out (any message)
+  int64_t damaged = 0;        // frames of a known message whose CRC or length did not
+  int64_t bytes_skipped = 0;  // bytes outside any good frame
+  int64_t fixes = 0;          // fixes returned
+  int64_t refused = 0;        // position messages without a usable fix (no lock, impossible values)
+};
+
+class MavlinkGnssDecoder {
+ public:
+  explicit MavlinkGnssDecoder(MavlinkGnssOptions options = {});
+
+  // Feeds the next bytes of the stream, received at `arrived_t_ns`; returns the fixes they
+  // completed, in order. Never throws for any input; holds at most one frame's bytes between calls.
+  std::vector<GnssFix> Feed(const uint8_t* data, size_t size, int64_t arrived_t_ns);
+  // The same for one UDP datagram, which holds whole frames: none continues past its end (a
+  // damaged length never holds back the frames after it), and nothing is kept for the next one.
+  std::vector<GnssFix> FeedDatagram(const uint8_t* data, size_t size, int64_t arrived_t_ns);
+
+  const MavlinkGnssCounts& counts() const { return counts_; }
+
+ private:
+  // Reads the frames in pending_; `whole`: pending_ is all there is (a datagram).
+  std::vector<GnssFix> Parse(int64_t arrived_t_ns, bool whole);
+  // A checked frame's payload (zero-filled to the longest the message has): a fix or nothing.
+  void Decode(uint32_t id, int system, const uint8_t* payload, int64_t arrived_t_ns, std::vector<GnssFix>* fixes);
+
+  MavlinkGnssOptions options_;
+  MavlinkGnssCounts counts_;
+  std::vector<uint8_t> pending_;
+  std::vector<int> systems_with_raw_fixes_;
+  int64_t last_t_ns_ = INT64_MIN / 2;
+};
+
+// X.25 CRC (CRC-16/MCRF4XX) as MAVLink accumulates it, from `crc` on.
+uint16_t MavlinkCrc(const uint8_t* data, size_t size, uint16_t crc = 0xFFFF);
+
+// A MAVLink 2 frame of message `message_id` with `payload` (for tests and simulators: its trailing
+// zero bytes are trimmed, as senders do), or MAVLink 1 where `version` is 1.
+struct MavlinkFrameHeader {
+  int version = 2;
+  uint8_t sequence = 0, system_id = 1, component_id = 1;
+};
+std::vector<uint8_t> EncodeMavlinkFrame(uint32_t message_id, std::vector<uint8_t> payload,
+                                        const MavlinkFrameHeader& header = {});
+
+// GPS_RAW_INT and GLOBAL_POSITION_INT payloads as MAVLink lays them out (little-endian, fields
+// ordered by size), for tests and simulators.
+struct MavlinkGpsRawInt {
+  uint64_t time_usec = 0;
+  int32_t lat_e7 = 0, lon_e7 = 0, alt_mm = 0;
+  uint16_t eph = UINT16_MAX, epv = UINT16_MAX, vel = UINT16_MAX, cog = UINT16_MAX;
+  uint8_t fix_type = 0, satellites_visible = 255;
+  int32_t alt_ellipsoid_mm = 0;
+  uint32_t h_acc_mm = 0, v_acc_mm = 0, vel_acc = 0, hdg_acc = 0;
+  uint16_t yaw = 0;
+};
+std::vector<uint8_t> MavlinkPayload(const MavlinkGpsRawInt& message);
+struct MavlinkGlobalPositionInt {
+  uint32_t time_boot_ms = 0;
+  int32_t lat_e7 = 0, lon_e7 = 0, alt_mm = 0, relative_alt_mm = 0;
+  int16_t vx = 0, vy = 0, vz = 0;
+  uint16_t hdg = UINT16_MAX;
+};
+std::vector<uint8_t> MavlinkPayload(const MavlinkGlobalPositionInt& message);
+
+inline constexpr uint32_t kMavlinkGpsRawInt = 24;
+inline constexpr uint32_t kMavlinkGlobalPositionInt = 33;
+
+}  // namespace stitch

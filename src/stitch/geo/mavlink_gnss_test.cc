@@ -1,0 +1,192 @@
+#include "stitch/geo/mavlink_gnss.h"
+
+#include <random>
+
+#include <gtest/gtest.h>
+
+namespace stitch {
+namespace {
+
+MavlinkGpsRawInt ZurichFix() {
+  MavlinkGpsRawInt m;
+  m.time_usec = 1'700'000'000'000'000;
+  m.lat_e7 = 473684230;  // 47.368423
+  m.lon_e7 = 85390540;   // 8.539054
+  m.alt_mm = 459'873;    // above mean sea level
+  m.alt_ellipsoid_mm = 507'120;
+  m.eph = 80;  // HDOP 0.8
+  m.epv = 120;
+  m.fix_type = 3;
+  m.satellites_visible = 14;
+  m.h_acc_mm = 1'200;
+  m.v_acc_mm = 2'500;
+  return m;
+}
+
+MavlinkGnssOptions WithLatency(double s) {
+  MavlinkGnssOptions options;
+  options.latency_s = s;
+  return options;
+}
+
+MavlinkGnssOptions OnlySystem(int id) {
+  MavlinkGnssOptions options;
+  options.system_id = id;
+  return options;
+}
+
+std::vector<GnssFix> FeedAll(MavlinkGnssDecoder* decoder, const std::vector<uint8_t>& bytes, int64_t t_ns = 5) {
+  return decoder->Feed(bytes.data(), bytes.size(), t_ns);
+}
+
+TEST(MavlinkGnss, TheCrcIsMcrf4xx) {
+  // CRC-16/MCRF4XX's published check value: the CRC of the nine ASCII digits "123456789".
+  const std::string digits = "123456789";
+  EXPECT_EQ(MavlinkCrc(reinterpret_cast<const uint8_t*>(digits.data()), digits.size()), 0x6F91);
+}
+
+TEST(MavlinkGnss, ReadsTheReceiversFixFromMavlink1And2) {
+  for (int version : {1, 2}) {
+    MavlinkGnssDecoder decoder(WithLatency(0.1));
+    MavlinkFrameHeader header;
+    header.version = version;
+    std::vector<uint8_t> payload = MavlinkPayload(ZurichFix());
+    if (version == 1) payload.resize(30);  // MAVLink 1 carries no extensions
+    const std::vector<GnssFix> fixes =
+        FeedAll(&decoder, EncodeMavlinkFrame(kMavlinkGpsRawInt, payload, header), 2'000'000'000);
+    ASSERT_EQ(fixes.size(), 1u) << "version " << version;
+    const GnssFix& fix = fixes[0];
+    EXPECT_EQ(fix.t_ns, 1'900'000'000) << "its arrival less the latency";
+    EXPECT_NEAR(fix.position.latitude_deg, 47.368423, 1e-9);
+    EXPECT_NEAR(fix.position.longitude_deg, 8.539054, 1e-9);
+    EXPECT_EQ(fix.type, GnssFixType::k3d);
+    if (version == 2) {
+      EXPECT_NEAR(fix.position.height_m, 507.120, 1e-9) << "above the ellipsoid where the sender says";
+      EXPECT_NEAR(fix.horizontal_accuracy_m, 1.2, 1e-9);
+      EXPECT_NEAR(fix.vertical_accuracy_m, 2.5, 1e-9);
+    } else {
+      EXPECT_NEAR(fix.position.height_m, 459.873, 1e-9) << "above mean sea level: all MAVLink 1 has";
+      EXPECT_NEAR(fix.horizontal_accuracy_m, 0.8 * kMavlinkUserRangeErrorM, 1e-9) << "from the HDOP";
+      EXPECT_NEAR(fix.vertical_accuracy_m, 1.2 * kMavlinkUserRangeErrorM, 1e-9);
+    }
+    EXPECT_EQ(decoder.counts().frames, 1);
+    EXPECT_EQ(decoder.counts().bytes_skipped, 0);
+  }
+}
+
+TEST(MavlinkGnss, FindsFramesAmongOtherMessagesAndGarbageFedInAnyPieces) {
+  std::vector<uint8_t> stream = {0x00, 0xFD, 0x13, 0xFE};  // garbage, two false markers among it
+  std::vector<uint8_t> heartbeat = EncodeMavlinkFrame(0, {6, 0, 0, 0, 8, 0, 0, 4, 3});
+  MavlinkGpsRawInt moved = ZurichFix();
+  int expected = 0;
+  for (int i = 0; i < 20; ++i) {
+    stream.insert(stream.end(), heartbeat.begin(), heartbeat.end());
+    moved.lat_e7 += 100;
+    MavlinkFrameHeader header;
+    header.sequence = static_cast<uint8_t>(i);
+    const std::vector<uint8_t> frame = EncodeMavlinkFrame(kMavlinkGpsRawInt, MavlinkPayload(moved), header);
+    stream.insert(stream.end(), frame.begin(), frame.end());
+    ++expected;
+    // A frame of an id this decoder does not know (it cannot be checked), with markers inside.
+    const std::vector<uint8_t> other = EncodeMavlinkFrame(253, {0xFD, 0xFE, 0x18, 0x00, 0x21});
+    stream.insert(stream.end(), other.begin(), other.end());
+  }
+  std::mt19937 random(7);
+  for (int trial = 0; trial < 20; ++trial) {
+    MavlinkGnssDecoder decoder;
+    std::vector<GnssFix> fixes;
+    for (size_t at = 0; at < stream.size();) {
+      const size_t piece = std::min<size_t>(stream.size() - at, 1 + random() % 40);
+      for (const GnssFix& fix : decoder.Feed(stream.data() + at, piece, static_cast<int64_t>(at))) fixes.push_back(fix);
+      at += piece;
+    }
+    ASSERT_EQ(static_cast<int>(fixes.size()), expected) << "trial " << trial;
+    for (size_t i = 1; i < fixes.size(); ++i) {
+      EXPECT_GT(fixes[i].position.latitude_deg, fixes[i - 1].position.latitude_deg) << "in order, none twice";
+      EXPECT_GT(fixes[i].t_ns, fixes[i - 1].t_ns);
+    }
+    EXPECT_GT(decoder.counts().bytes_skipped, 0) << "the garbage and the unknown messages";
+  }
+}
+
+TEST(MavlinkGnss, UsesTheFusedEstimateOnlyFromASystemWithoutReceiverFixes) {
+  MavlinkGnssDecoder decoder;
+  MavlinkGlobalPositionInt estimate;
+  estimate.lat_e7 = 473684230;
+  estimate.lon_e7 = 85390540;
+  estimate.alt_mm = 460'000;
+  const std::vector<GnssFix> fused =
+      FeedAll(&decoder, EncodeMavlinkFrame(kMavlinkGlobalPositionInt, MavlinkPayload(estimate)));
+  ASSERT_EQ(fused.size(), 1u);
+  EXPECT_NEAR(fused[0].position.height_m, 460.0, 1e-9);
+  EXPECT_EQ(fused[0].horizontal_accuracy_m, MavlinkGnssOptions().stated_horizontal_accuracy_m);
+  EXPECT_EQ(FeedAll(&decoder, EncodeMavlinkFrame(kMavlinkGpsRawInt, MavlinkPayload(ZurichFix()))).size(), 1u);
+  EXPECT_TRUE(FeedAll(&decoder, EncodeMavlinkFrame(kMavlinkGlobalPositionInt, MavlinkPayload(estimate))).empty())
+      << "the receiver's own fixes come from this system now";
+  MavlinkFrameHeader other;
+  other.system_id = 2;
+  EXPECT_EQ(FeedAll(&decoder, EncodeMavlinkFrame(kMavlinkGlobalPositionInt, MavlinkPayload(estimate), other)).size(),
+            1u);
+  MavlinkGnssDecoder only_first(OnlySystem(1));
+  EXPECT_TRUE(
+      FeedAll(&only_first, EncodeMavlinkFrame(kMavlinkGlobalPositionInt, MavlinkPayload(estimate), other)).empty());
+}
+
+TEST(MavlinkGnss, RefusesWhatIsNoFix) {
+  MavlinkGnssDecoder decoder;
+  MavlinkGpsRawInt no_lock = ZurichFix();
+  no_lock.fix_type = 1;
+  MavlinkGpsRawInt at_zero = ZurichFix();
+  at_zero.lat_e7 = at_zero.lon_e7 = 0;
+  MavlinkGpsRawInt off_earth = ZurichFix();
+  off_earth.lat_e7 = 950000000;  // 95 degrees
+  for (const MavlinkGpsRawInt& m : {no_lock, at_zero, off_earth}) {
+    EXPECT_TRUE(FeedAll(&decoder, EncodeMavlinkFrame(kMavlinkGpsRawInt, MavlinkPayload(m))).empty());
+  }
+  EXPECT_EQ(decoder.counts().refused, 3);
+  EXPECT_EQ(decoder.counts().fixes, 0);
+}
+
+TEST(MavlinkGnss, ADamagedFrameIsCountedAndTheNextOneStillRead) {
+  const std::vector<uint8_t> good = EncodeMavlinkFrame(kMavlinkGpsRawInt, MavlinkPayload(ZurichFix()));
+  for (size_t at = 1; at < good.size(); ++at) {
+    std::vector<uint8_t> bytes = good;
+    bytes[at] ^= 0x40;
+    bytes.insert(bytes.end(), good.begin(), good.end());
+    MavlinkGnssDecoder datagrams;
+    EXPECT_EQ(datagrams.FeedDatagram(bytes.data(), bytes.size(), 1).size(), 1u)
+        << "byte " << at << " altered: only the intact frame gives a fix, at once";
+    // In a stream a damaged length may hold the next frame back until the bytes it claims came.
+    MavlinkGnssDecoder stream;
+    std::vector<GnssFix> fixes = FeedAll(&stream, bytes);
+    const std::vector<uint8_t> more(300, 0);
+    for (const GnssFix& fix : FeedAll(&stream, more)) fixes.push_back(fix);
+    EXPECT_EQ(fixes.size(), 1u) << "byte " << at << " altered, in a stream";
+  }
+}
+
+TEST(MavlinkGnss, ArbitraryBytesNeverCrashOrGiveAFix) {
+  std::mt19937 random(11);
+  MavlinkGnssDecoder decoder;
+  const std::vector<uint8_t> good = EncodeMavlinkFrame(kMavlinkGpsRawInt, MavlinkPayload(ZurichFix()));
+  int64_t fixes = 0;
+  for (int round = 0; round < 3000; ++round) {
+    std::vector<uint8_t> bytes(random() % 300);
+    for (auto& b : bytes) b = static_cast<uint8_t>(random());
+    // Often a marker and a known id, so the length, flag and CRC paths are taken.
+    if (!bytes.empty() && round % 2 == 0) {
+      const std::vector<uint8_t> head(good.begin(), good.begin() + std::min(good.size(), bytes.size()));
+      std::copy(head.begin(), head.begin() + static_cast<std::ptrdiff_t>(std::min(head.size(), size_t{10})),
+                bytes.begin());
+    }
+    fixes += static_cast<int64_t>(decoder.Feed(bytes.data(), bytes.size(), round).size());
+  }
+  EXPECT_EQ(fixes, 0) << "a random frame passes the CRC about once in 65536";
+  // A frame the garbage began is settled within 280 bytes; then a good frame is read.
+  const std::vector<uint8_t> zeros(300, 0);
+  EXPECT_TRUE(FeedAll(&decoder, zeros, 1'000'000).empty());
+  EXPECT_EQ(FeedAll(&decoder, good, 1'000'001).size(), 1u) << "and the decoder still reads a good frame after";
+}
+
+}  // namespace
+}  // namespace stitch
