@@ -160,7 +160,15 @@ std::string ViewerServer::url() const {
 
 int ViewerServer::open_pages() const {
   std::lock_guard<std::mutex> lock(sockets_mutex_);
-  return static_cast<int>(sockets_.size());
+  return static_cast<int>(
+      std::count_if(sockets_.begin(), sockets_.end(), [](const auto& s) { return !s.second->failed(); }));
+}
+
+int64_t ViewerServer::pages_given_up() const {
+  std::lock_guard<std::mutex> lock(sockets_mutex_);
+  int64_t failed = given_up_;
+  for (const auto& s : sockets_) failed += s.second->failed();
+  return failed;
 }
 
 int64_t ViewerServer::requests_refused() const {
@@ -244,7 +252,11 @@ int ViewerServer::OnSocketConnect(const mg_connection* connection, void* self) {
     STITCH_LOG(WARNING) << "refused a WebSocket without the page's access token";
     return 1;
   }
-  if (static_cast<int>(server->sockets_.size()) + server->pending_sockets_ >= server->options_.max_pages) {
+  // A page whose writes failed (it stopped reading) holds a socket until its client lets go, but
+  // not a place: the operator's page still opens.
+  const auto live_pages = std::count_if(server->sockets_.begin(), server->sockets_.end(),
+                                        [](const auto& s) { return !s.second->failed(); });
+  if (static_cast<int>(live_pages) + server->pending_sockets_ >= server->options_.max_pages) {
     ++server->refused_;
     STITCH_LOG(WARNING) << "refused a page: " << server->options_.max_pages << " are open (viewer.max_pages)";
     return 1;
@@ -260,8 +272,8 @@ void ViewerServer::OnSocketReady(mg_connection* connection, void* self) {
   const Updates updates = server->Latest();
   std::lock_guard<std::mutex> lock(server->sockets_mutex_);
   --server->pending_sockets_;
-  Socket& socket = server->sockets_[connection] = Socket{};
-  SendTo(connection, updates, socket);
+  auto& sender = server->sockets_[connection] = std::make_unique<PageSender>(connection);
+  sender->Offer(updates);
 }
 
 int ViewerServer::OnSocketData(mg_connection*, int bits, char*, size_t, void*) {
@@ -271,8 +283,19 @@ int ViewerServer::OnSocketData(mg_connection*, int bits, char*, size_t, void*) {
 
 void ViewerServer::OnSocketClose(const mg_connection* connection, void* self) {
   auto* server = static_cast<ViewerServer*>(self);
-  std::lock_guard<std::mutex> lock(server->sockets_mutex_);
-  if (server->sockets_.erase(connection) == 0 && server->pending_sockets_ > 0) --server->pending_sockets_;
+  std::unique_ptr<PageSender> sender;
+  {
+    std::lock_guard<std::mutex> lock(server->sockets_mutex_);
+    const auto found = server->sockets_.find(connection);
+    if (found == server->sockets_.end()) {
+      if (server->pending_sockets_ > 0) --server->pending_sockets_;
+      return;
+    }
+    sender = std::move(found->second);
+    server->sockets_.erase(found);
+    server->given_up_ += sender->failed();
+  }
+  sender.reset();  // outside the lock: a write under way ends first
 }
 
 void ViewerServer::Refresh(double now_s) {
@@ -305,18 +328,63 @@ ViewerServer::Updates ViewerServer::Latest() const {
   return {live_, map_, cloud_, map_revision_, cloud_revision_};
 }
 
-bool ViewerServer::SendTo(mg_connection* connection, const Updates& updates, Socket& socket) {
-  mg_lock_connection(connection);
-  bool ok = mg_websocket_write(connection, MG_WEBSOCKET_OPCODE_TEXT, updates.live->data(), updates.live->size()) > 0;
-  if (ok && socket.map_revision != updates.map_revision) {
-    ok = mg_websocket_write(connection, MG_WEBSOCKET_OPCODE_TEXT, updates.map->data(), updates.map->size()) > 0;
-    if (ok) socket.map_revision = updates.map_revision;
+ViewerServer::PageSender::PageSender(mg_connection* connection) : connection_(connection), thread_([this] { Run(); }) {}
+
+ViewerServer::PageSender::~PageSender() {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    stopping_ = true;
   }
-  if (ok && socket.cloud_revision != updates.cloud_revision) {
-    ok = mg_websocket_write(connection, MG_WEBSOCKET_OPCODE_BINARY, updates.cloud->data(), updates.cloud->size()) > 0;
-    if (ok) socket.cloud_revision = updates.cloud_revision;
+  offered_.notify_all();
+  thread_.join();
+}
+
+void ViewerServer::PageSender::Offer(const Updates& updates) {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    pending_ = updates;
   }
-  mg_unlock_connection(connection);
+  offered_.notify_all();
+}
+
+bool ViewerServer::PageSender::failed() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return failed_;
+}
+
+void ViewerServer::PageSender::Run() {
+  while (true) {
+    Updates updates;
+    {
+      std::unique_lock<std::mutex> lock(mutex_);
+      offered_.wait(lock, [this] { return stopping_ || pending_.has_value(); });
+      if (stopping_) return;
+      updates = std::move(*pending_);
+      pending_.reset();
+    }
+    if (SendTo(updates)) continue;
+    const mg_request_info* request = mg_get_request_info(connection_);
+    STITCH_LOG(WARNING) << "a page at " << (request ? request->remote_addr : "?")
+                        << " stopped taking updates (a write failed or timed out): it gets no more";
+    std::unique_lock<std::mutex> lock(mutex_);
+    failed_ = true;
+    offered_.wait(lock, [this] { return stopping_; });
+    return;
+  }
+}
+
+bool ViewerServer::PageSender::SendTo(const Updates& updates) {
+  mg_lock_connection(connection_);
+  bool ok = mg_websocket_write(connection_, MG_WEBSOCKET_OPCODE_TEXT, updates.live->data(), updates.live->size()) > 0;
+  if (ok && map_revision_ != updates.map_revision) {
+    ok = mg_websocket_write(connection_, MG_WEBSOCKET_OPCODE_TEXT, updates.map->data(), updates.map->size()) > 0;
+    if (ok) map_revision_ = updates.map_revision;
+  }
+  if (ok && cloud_revision_ != updates.cloud_revision) {
+    ok = mg_websocket_write(connection_, MG_WEBSOCKET_OPCODE_BINARY, updates.cloud->data(), updates.cloud->size()) > 0;
+    if (ok) cloud_revision_ = updates.cloud_revision;
+  }
+  mg_unlock_connection(connection_);
   return ok;
 }
 
@@ -325,7 +393,11 @@ int ViewerServer::Push(double now_s) {
   const Updates updates = Latest();
   std::lock_guard<std::mutex> lock(sockets_mutex_);
   int pushed = 0;
-  for (auto& [key, socket] : sockets_) pushed += SendTo(const_cast<mg_connection*>(key), updates, socket);
+  for (auto& [connection, sender] : sockets_) {
+    if (sender->failed()) continue;
+    sender->Offer(updates);
+    ++pushed;
+  }
   return pushed;
 }
 

@@ -10,12 +10,15 @@
 // address's query (?token=..., answered with a cookie holding it) or that cookie, or it is refused
 // (401) and counted.
 
+#include <condition_variable>
 #include <cstdint>
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <set>
 #include <string>
+#include <thread>
 
 #include "services/viewer/viewer_state.h"
 #include "stitch/config/viewer_options.h"
@@ -38,29 +41,49 @@ class ViewerServer {
   ViewerServer(const ViewerServer&) = delete;
   ViewerServer& operator=(const ViewerServer&) = delete;
 
-  // Makes the state into what pages are sent (the live and map updates, the points) and sends
-  // each open page what changed since its last push: the live state always, the map and the
-  // points when newer. Returns the pages pushed to. Call it from a thread of the caller's: the
-  // server's own threads only copy out what the last push made (their stacks are small).
+  // Makes the state into what pages are sent (the live and map updates, the points) and hands
+  // it to each open page's sender, which sends what changed since that page's last update: the
+  // live state always, the map and the points when newer. Never waits for a page: one that reads
+  // slowly (or not at all) gets the newest state when it has taken the last, and one whose
+  // writes failed (civetweb's request_timeout_ms) gets nothing more and no longer counts against
+  // max_pages. Returns the pages handed the update.
   int Push(double now_s);
   // The page's address, with its access token when it has one.
   std::string url() const;
-  int open_pages() const;
+  int open_pages() const;  // pages whose sockets are open and whose writes have not failed
   int64_t requests_refused() const;
+  int64_t pages_given_up() const;  // pages whose writes failed
 
  private:
-  struct Socket {
-    int64_t map_revision = -1, cloud_revision = -1;
-  };
   struct Updates {
     std::shared_ptr<const std::string> live, map, cloud;
     int64_t map_revision, cloud_revision;
   };
+  // One open page: a thread of its own writes the newest updates offered to it, so a page that
+  // does not read holds up only itself.
+  class PageSender {
+   public:
+    explicit PageSender(mg_connection* connection);
+    ~PageSender();                       // waits for a write under way (it ends within civetweb's request timeout)
+    void Offer(const Updates& updates);  // replaces what was offered and not sent yet
+    bool failed() const;
+
+   private:
+    void Run();
+    // Sends the live state and what the page has not had of the map and the points; false when
+    // the socket failed.
+    bool SendTo(const Updates& updates);
+
+    mg_connection* connection_;
+    int64_t map_revision_ = -1, cloud_revision_ = -1;  // the sender thread's
+    mutable std::mutex mutex_;
+    std::condition_variable offered_;
+    std::optional<Updates> pending_;
+    bool stopping_ = false, failed_ = false;
+    std::thread thread_;
+  };
   // What the last Refresh made.
   Updates Latest() const;
-  // Sends one page the live state and what it has not had of the map and the points; false when
-  // the socket failed.
-  static bool SendTo(mg_connection* connection, const Updates& updates, Socket& socket);
   static int HandleRequest(mg_connection* connection, void* self);
   static int OnSocketConnect(const mg_connection* connection, void* self);
   static void OnSocketReady(mg_connection* connection, void* self);
@@ -83,9 +106,10 @@ class ViewerServer {
   std::map<std::string, Asset> assets_;
   mg_context* context_ = nullptr;
   mutable std::mutex sockets_mutex_;
-  std::map<const mg_connection*, Socket> sockets_;
+  std::map<const mg_connection*, std::unique_ptr<PageSender>> sockets_;
   int pending_sockets_ = 0;  // accepted, not ready yet
   int64_t refused_ = 0;
+  int64_t given_up_ = 0;
   // What the last Refresh made: shared, never copied, by the pushes and the requests.
   mutable std::mutex updates_mutex_;
   std::shared_ptr<const std::string> live_, map_, cloud_;

@@ -2,15 +2,19 @@
 // against hostile requests: only GET and HEAD of its own paths, WebSockets only from its own
 // origin and only as many as max_pages.
 
+#include <arpa/inet.h>
+#include <netinet/in.h>
 #include <poll.h>
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
 #include <limits>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -24,6 +28,7 @@
 #include "stitch/testing/temp_dir.h"
 #include "stitch/util/error.h"
 #include "stitch/util/ids.h"
+#include "stitch/util/time.h"
 #include "tests/test_process.h"
 
 namespace stitch {
@@ -433,6 +438,89 @@ TEST(ViewerServer, AWebSocketOnlyFromThePagesOwnOriginAndOnlyAsManyAsAllowed) {
   for (int fd : {first, second, third}) close(fd);
   for (int i = 0; i < 100 && server.open_pages() > 0; ++i) usleep(20000);
   EXPECT_EQ(server.open_pages(), 0);
+}
+
+// #45: a page that stops reading its WebSocket (or an attacker's socket that never reads) held
+// every push, the other pages' too, until civetweb's write timed out, and kept its place among
+// viewer.max_pages. Each page now has a sender of its own: the pushes go on, the reading page gets
+// every cloud, and a page whose write failed gives its place up.
+TEST(ViewerServer, APageThatDoesNotReadHoldsUpOnlyItself) {
+  ViewerState state(/*max_page_points=*/200000);
+  std::string why;
+  ASSERT_TRUE(state.OnGlobalMap(GlobalMap(), &why));
+  ViewerOptions options;
+  options.port = bus::UnusedTcpPort();
+  options.max_pages = 3;
+  ViewerServer server(options, &state);
+  const int port = options.port;
+  const auto open_page = [&](bool small_buffer) {
+    const int fd = socket(AF_INET, SOCK_STREAM, 0);
+    if (small_buffer) {
+      const int bytes = 4096;
+      setsockopt(fd, SOL_SOCKET, SO_RCVBUF, &bytes, sizeof(bytes));
+    }
+    sockaddr_in to{};
+    to.sin_family = AF_INET;
+    to.sin_port = htons(static_cast<uint16_t>(port));
+    to.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    EXPECT_EQ(connect(fd, reinterpret_cast<const sockaddr*>(&to), sizeof(to)), 0);
+    const std::string request = WebSocketRequest(port, "http://127.0.0.1:" + std::to_string(port));
+    EXPECT_EQ(send(fd, request.data(), request.size(), MSG_NOSIGNAL), static_cast<ssize_t>(request.size()));
+    return fd;
+  };
+  const int idle_first = open_page(true), idle_second = open_page(true);
+  const int reader = open_page(false);
+  for (int i = 0; i < 100 && server.open_pages() < 3; ++i) usleep(20000);
+  ASSERT_EQ(server.open_pages(), 3);
+  // The reading page takes everything it is sent and counts the binary frames' bytes (the clouds).
+  std::atomic<bool> reading{true};
+  std::atomic<int64_t> received{0};
+  std::thread read([&] {
+    char buffer[1 << 16];
+    while (reading.load()) {
+      pollfd readable{reader, POLLIN, 0};
+      if (poll(&readable, 1, 50) != 1) continue;
+      const ssize_t n = recv(reader, buffer, sizeof(buffer), 0);
+      if (n <= 0) break;
+      received += n;
+    }
+  });
+  // Twenty clouds of 100,000 points (1.6 MB each on the socket): more than the idle pages' buffers.
+  constexpr int kPushes = 20, kPoints = 100000;
+  const Stopwatch clock;
+  for (int revision = 1; revision <= kPushes; ++revision) {
+    stitch::map_cloud_t cloud{};
+    cloud.header.agent = "uav0";
+    cloud.revision = revision;
+    cloud.num_submaps = 1;
+    cloud.submap_ids = {kFirst.value};
+    cloud.components = {0};
+    cloud.point_counts = {kPoints};
+    for (int i = 0; i < kPoints; ++i) cloud.positions.insert(cloud.positions.end(), {float(i), float(revision), 1.f});
+    cloud.num_coordinates = static_cast<int32_t>(cloud.positions.size());
+    cloud.points_in_maps = kPoints;
+    ASSERT_TRUE(state.OnMapCloud(cloud, &why)) << why;
+    server.Push(revision);
+    usleep(50000);
+  }
+  const double pushing_s = clock.ElapsedSeconds();
+  // Blocked behind the idle pages, each push waited out civetweb's write timeout (10 s).
+  EXPECT_LT(pushing_s, 8.0) << "the pushes waited for pages that do not read";
+  // The reading page got the last cloud: every push replaced what it had not taken yet, and the
+  // last is sent once it has taken the one before.
+  for (int i = 0; i < 200 && received.load() < int64_t{16} * kPoints; ++i) usleep(20000);
+  EXPECT_GE(received.load(), int64_t{16} * kPoints);
+  // The idle pages' writes time out (civetweb's request_timeout_ms, 10 s): they give their places
+  // up, and a page opens where all three were held.
+  for (int i = 0; i < 300 && server.pages_given_up() < 2; ++i) usleep(100000);
+  EXPECT_EQ(server.pages_given_up(), 2);
+  EXPECT_EQ(server.open_pages(), 1);
+  const int operator_page = open_page(false);
+  for (int i = 0; i < 100 && server.open_pages() < 2; ++i) usleep(20000);
+  EXPECT_EQ(server.open_pages(), 2) << "the operator's page is let in";
+  reading = false;
+  read.join();
+  for (int fd : {idle_first, idle_second, reader, operator_page}) close(fd);
 }
 
 // #45: a viewer that others can reach needs its access token on every request: in the page's
