@@ -9,6 +9,13 @@
 namespace stitch {
 namespace {
 
+// Bounds of what a map can hold, in its units (the first camera's median scene depth): a point or
+// a camera a million of them away, or a point index past 2^28 (the tracker numbers its points from
+// 0, the mapper from 2^24, one at a time), is no map's: a forged or damaged update. Finite values
+// beyond them passed every check (a point at 1e30, an index of 2^30) and went into the merged map.
+constexpr double kMaxMapCoordinate = 1e6;
+constexpr int32_t kMaxPointIndex = 1 << 28;
+
 bool Finite(const float* values, int n) {
   for (int i = 0; i < n; ++i) {
     if (!std::isfinite(values[i])) return false;
@@ -16,12 +23,36 @@ bool Finite(const float* values, int n) {
   return true;
 }
 
+bool WithinMap(const float* values, int n) {
+  for (int i = 0; i < n; ++i) {
+    if (std::abs(values[i]) > kMaxMapCoordinate) return false;
+  }
+  return true;
+}
+
+int32_t CheckedPointIndex(int32_t index, const std::string& what) {
+  if (index >= kMaxPointIndex) {
+    throw Error(what + ": point index " + std::to_string(index) + " is past any map's (" +
+                std::to_string(kMaxPointIndex) + ")");
+  }
+  return index;
+}
+
+// A keyframe's pose, refused where its camera is outside any map.
+Rigid3d PlausiblePose(const stitch::rigid3_t& message, const std::string& what) {
+  const Rigid3d pose = FromMessage(message);
+  if (!(pose.CentreInWorld().cwiseAbs().maxCoeff() <= kMaxMapCoordinate))
+    throw Error(what + ": a keyframe's camera lies outside any map");
+  return pose;
+}
+
 int32_t PointIndexOrNone(MapPointId id) {
   return id.valid() ? static_cast<int32_t>(IndexOf(id)) : -1;
 }
 
 MapPointId PointIdOrNone(SubmapId submap, int32_t index) {
-  return index >= 0 ? MakeMapPointId(submap, static_cast<uint32_t>(index)) : MapPointId();
+  return index >= 0 ? MakeMapPointId(submap, static_cast<uint32_t>(CheckedPointIndex(index, "association")))
+                    : MapPointId();
 }
 
 }  // namespace
@@ -45,6 +76,10 @@ MapPoint FromMessage(const stitch::map_point_t& m, SubmapId submap) {
   if (!Finite(m.position, 3) || !Finite(m.viewing_direction, 3) || !std::isfinite(m.min_distance) ||
       !std::isfinite(m.max_distance)) {
     throw Error("map point " + std::to_string(m.point_index) + " has non-finite values");
+  }
+  CheckedPointIndex(m.point_index, "map point");
+  if (!WithinMap(m.position, 3) || !(m.min_distance >= 0) || !(m.max_distance <= kMaxMapCoordinate)) {
+    throw Error("map point " + std::to_string(m.point_index) + " lies outside any map");
   }
   MapPoint point;
   point.id = MakeMapPointId(submap, static_cast<uint32_t>(m.point_index));
@@ -103,7 +138,7 @@ ReceivedKeyframe FromMessage(const stitch::keyframe_t& m, const ScalePyramid& py
   k.id = id;
   k.frame_index = m.frame_index;
   k.t_ns = m.t_ns;
-  k.cam_from_world = FromMessage(m.cam_from_submap);
+  k.cam_from_world = PlausiblePose(m.cam_from_submap, what);
   k.keypoints.resize(n);
   k.points.resize(n);
   const SubmapId submap(m.submap_id);
@@ -167,7 +202,7 @@ void DecodeChanges(const Message& m, const std::vector<int64_t>& pose_ids, const
     return KeyframeId(id);
   };
   for (size_t i = 0; i < pose_ids.size(); ++i) {
-    changes->keyframe_poses.push_back({own(pose_ids[i]), FromMessage(m.cam_from_submap[i])});
+    changes->keyframe_poses.push_back({own(pose_ids[i]), PlausiblePose(m.cam_from_submap[i], what)});
   }
   for (const auto& a : m.associations) {
     if (a.num_features != static_cast<int>(a.point_index.size())) throw Error(what + ": inconsistent association");

@@ -119,6 +119,26 @@ TEST(MapConvert, InconsistentSubmapUpdatesAreRejectedWithAReason) {
   stitch::submap_update_t not_finite = message;
   not_finite.points[0].position[1] = std::nanf("");
   expect_rejected(not_finite, "non-finite");
+  // Finite but no map's (#45: these passed uncounted): a point at 1e30, a point index of 2^30 in
+  // a point or an association, a keyframe's camera 1e30 away.
+  stitch::submap_update_t far_point = message;
+  far_point.points[0].position[0] = 1e30f;
+  expect_rejected(far_point, "outside any map");
+  stitch::submap_update_t huge_index = message;
+  huge_index.points[0].point_index = 1 << 30;
+  expect_rejected(huge_index, "past any map's");
+  stitch::submap_update_t huge_association = message;
+  ASSERT_FALSE(huge_association.associations.empty());
+  ASSERT_FALSE(huge_association.associations[0].point_index.empty());
+  huge_association.associations[0].point_index[0] = 1 << 30;
+  expect_rejected(huge_association, "past any map's");
+  stitch::submap_update_t far_camera = message;
+  ASSERT_FALSE(far_camera.cam_from_submap.empty());
+  far_camera.cam_from_submap[0].translation[2] = 1e30;
+  expect_rejected(far_camera, "outside any map");
+  stitch::submap_update_t far_keyframe = message;
+  far_keyframe.keyframes[0].cam_from_submap.translation[0] = -1e30;
+  expect_rejected(far_keyframe, "outside any map");
   stitch::submap_update_t bad_id = message;
   bad_id.submap_id = MakeKeyframeId(kSubmap, 3).value;
   expect_rejected(bad_id, "invalid submap id");
