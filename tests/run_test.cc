@@ -534,7 +534,7 @@ TEST(StitchRun, ItsServicesEndWhenTheLauncherIsKilled) {
 }
 
 // A live camera with its flight controller beside it: stitch-ingest listens for the controller's
-// MAVLink telemetry on UDP (ingest.gnss_mavlink) and puts its GPS fixes on <agent>/GNSS, stamped
+// MAVLink telemetry on UDP (ingest.gnss_receiver) and puts its GPS fixes on <agent>/GNSS, stamped
 // with the wall clock the live frames carry; garbage and damaged datagrams give none.
 TEST(StitchIngest, PublishesAFlightControllersMavlinkFixesBesideALiveCamera) {
   testing::TempDir dir;
@@ -564,7 +564,7 @@ TEST(StitchIngest, PublishesAFlightControllersMavlinkFixesBesideALiveCamera) {
          "videotestsrc is-live=true num-buffers=90 ! video/x-raw,width=320,height=240,framerate=30/1 ! "
          "videoconvert ! appsink",
          "--live-clock", "wall", "--calib", calibration, "--lcm-url", url, "--set", "ingest.wait_for_tracker_s=0",
-         "--set", "ingest.gnss_mavlink=127.0.0.1:" + std::to_string(mavlink_port)},
+         "--set", "ingest.gnss_receiver=mavlink:127.0.0.1:" + std::to_string(mavlink_port)},
         60);
   });
   // The controller: a fix every 100 ms, each a little further north, among garbage and damage.
@@ -610,10 +610,10 @@ TEST(StitchIngest, PublishesAFlightControllersMavlinkFixesBesideALiveCamera) {
 
   // A recorded sequence keeps its own clock: MAVLink fixes stamped on arrival would not fit it.
   const auto refused = RunProgram({Bin("stitch-ingest"), "--config", testing::ShortFlightConfig(), "--lcm-url",
-                                   "memq://", "--set", "ingest.gnss_mavlink=127.0.0.1:0"},
+                                   "memq://", "--set", "ingest.gnss_receiver=gpsd"},
                                   60);
   EXPECT_NE(refused.exit_code, 0);
-  EXPECT_NE(refused.output.find("ingest.gnss_mavlink needs a live camera"), std::string::npos) << refused.output;
+  EXPECT_NE(refused.output.find("ingest.gnss_receiver needs a live camera"), std::string::npos) << refused.output;
 }
 
 }  // namespace

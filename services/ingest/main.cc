@@ -6,7 +6,7 @@
 #include "services/common/convert.h"
 #include "services/common/service_main.h"
 #include "services/ingest/ingest_service.h"
-#include "services/ingest/mavlink_receiver.h"
+#include "services/ingest/live_gnss.h"
 #include "stitch/io/live_capture.h"
 #include "stitch/records/source_record.h"
 #include "stitch/source/source.h"
@@ -44,18 +44,16 @@ int main(int argc, char** argv) {
     heartbeat.Start();
     // A live camera's frames do not wait: open it once a tracker listens (or the wait is over).
     if (!source.live_uri.empty()) ingest.WaitForTracker(process.stop);
-    // The flight controller's fixes carry the wall clock at their arrival: only live frames share it.
-    std::unique_ptr<MavlinkReceiver> mavlink;
-    if (const IngestOptions& o = process.config.ingest; !o.gnss_mavlink.empty()) {
+    // A live receiver's fixes carry the wall clock at their arrival: only live frames share it.
+    std::unique_ptr<LiveGnssReceiver> gnss;
+    if (const IngestOptions& o = process.config.ingest; !o.gnss_receiver.empty()) {
       if (source.live_uri.empty() || LiveClock(source.live_uri, source.live_clock) != "wall") {
         throw Error(
-            "ingest.gnss_mavlink needs a live camera whose frames carry the wall clock (--live, --live-clock "
+            "ingest.gnss_receiver needs a live camera whose frames carry the wall clock (--live, --live-clock "
             "wall): a recorded sequence's GNSS comes from its gnss.csv or .SRT");
       }
-      MavlinkGnssOptions options;
-      options.latency_s = o.gnss_latency_s;
       const std::string channel = bus::Channel(process.publisher->agent(), bus::kGnss);
-      mavlink = std::make_unique<MavlinkReceiver>(o.gnss_mavlink, options, [&process, channel](const GnssFix& fix) {
+      gnss = OpenLiveGnssReceiver(o.gnss_receiver, o.gnss_latency_s, [&process, channel](const GnssFix& fix) {
         stitch::gnss_fix_t message = ToMessage(fix);
         process.publisher->Publish(channel, &message);
       });
@@ -64,10 +62,10 @@ int main(int argc, char** argv) {
     auto sequence = OpenSource(source, &spoil);
     heartbeat.SetState(stitch::service_status_t::STATE_RUNNING, sequence->description());
     const IngestSummary summary = ingest.Play(*sequence, spoil, process.stop, SourceGnss(source).fixes);
-    if (mavlink) {
-      STITCH_LOG(INFO) << "published " << mavlink->Describe();
+    if (gnss) {
+      STITCH_LOG(INFO) << "published " << gnss->Describe();
     }
-    mavlink.reset();
+    gnss.reset();
     if (!record.empty()) {
       SourceRecord written;
       written.frames_published = summary.frames_published;

@@ -13,16 +13,15 @@
 #include "stitch/util/time.h"
 
 namespace stitch {
-MavlinkReceiver::MavlinkReceiver(const std::string& listen, const MavlinkGnssOptions& options,
-                                 std::function<void(const GnssFix&)> on_fix)
+MavlinkReceiver::MavlinkReceiver(const std::string& listen, const MavlinkGnssOptions& options, GnssFixCallback on_fix)
     : on_fix_(std::move(on_fix)), decoder_(options) {
-  const sockaddr_in address = ResolveIpv4(listen, "ingest.gnss_mavlink");
+  const sockaddr_in address = ResolveIpv4(listen, "ingest.gnss_receiver mavlink:");
   socket_ = socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0);
-  if (socket_ < 0) throw Error(std::string("ingest.gnss_mavlink: cannot open a UDP socket: ") + std::strerror(errno));
+  if (socket_ < 0) throw Error(std::string("ingest.gnss_receiver: cannot open a UDP socket: ") + std::strerror(errno));
   if (bind(socket_, reinterpret_cast<const sockaddr*>(&address), sizeof(address)) != 0) {
     const std::string why = std::strerror(errno);
     close(socket_);
-    throw Error("ingest.gnss_mavlink: cannot listen on " + listen + ": " + why);
+    throw Error("ingest.gnss_receiver: cannot listen on " + listen + ": " + why);
   }
   sockaddr_in bound{};
   socklen_t length = sizeof(bound);

@@ -10,16 +10,16 @@
 #include <string>
 #include <thread>
 
+#include "services/ingest/live_gnss.h"
 #include "stitch/geo/mavlink_gnss.h"
 
 namespace stitch {
 
-class MavlinkReceiver {
+class MavlinkReceiver : public LiveGnssReceiver {
  public:
   // Binds at once; throws stitch::Error for an address that is not ADDRESS:PORT or cannot be bound.
-  MavlinkReceiver(const std::string& listen, const MavlinkGnssOptions& options,
-                  std::function<void(const GnssFix&)> on_fix);
-  ~MavlinkReceiver();  // stops the thread
+  MavlinkReceiver(const std::string& listen, const MavlinkGnssOptions& options, GnssFixCallback on_fix);
+  ~MavlinkReceiver() override;
   MavlinkReceiver(const MavlinkReceiver&) = delete;
   MavlinkReceiver& operator=(const MavlinkReceiver&) = delete;
 
@@ -32,7 +32,7 @@ class MavlinkReceiver {
 
   int socket_ = -1;
   int port_ = 0;
-  std::function<void(const GnssFix&)> on_fix_;
+  GnssFixCallback on_fix_;
   mutable std::mutex mutex_;
   MavlinkGnssDecoder decoder_;  // guarded by mutex_ (the thread decodes, counts() reads)
   int64_t datagrams_ = 0;

@@ -5,6 +5,18 @@
 
 namespace stitch {
 
+// Why `receiver` is not an ingest.gnss_receiver setting (empty when it is, or is empty).
+inline std::string WhyNotAGnssReceiver(const std::string& receiver) {
+  if (receiver.empty() || receiver == "gpsd") return "";
+  const auto address_after = [&](const std::string& scheme) {
+    return receiver.rfind(scheme, 0) == 0 && receiver.find(':', scheme.size()) != std::string::npos;
+  };
+  if (address_after("gpsd:") || address_after("mavlink:")) return "";
+  return "ingest.gnss_receiver must be gpsd, gpsd:HOST:PORT or mavlink:ADDRESS:PORT (an empty address: every "
+         "interface, e.g. mavlink::14550), not '" +
+         receiver + "'";
+}
+
 struct IngestOptions {
   // A live camera (stitch-ingest --live takes precedence): a V4L2 device, a GStreamer pipeline or
   // a stream URL. Here rather than on the command line where a pipeline's spaces would not survive
@@ -23,10 +35,11 @@ struct IngestOptions {
   double wait_for_tracker_s = 30.0;    // lockstep and live sources: how long to wait for a tracker at start
   std::string failure_style = "blur";  // datasets: black, or blur (heavy blur and a jump)
   int failure_seed = 1;
-  // A live camera's GNSS: the flight controller's MAVLink telemetry on UDP, ADDRESS:PORT to listen
-  // on (e.g. ":14550"); its fixes go on <agent>/GNSS stamped with the frames' wall clock, less
-  // gnss_latency_s (services/ingest/mavlink_receiver.h). Empty: none.
-  std::string gnss_mavlink;
+  // A live camera's GNSS receiver (services/ingest/live_gnss.h): "gpsd" or "gpsd:HOST:PORT" (a
+  // receiver gpsd serves), "mavlink:ADDRESS:PORT" (a flight controller's MAVLink telemetry on
+  // UDP, e.g. "mavlink::14550"). Its fixes go on <agent>/GNSS stamped with the frames' wall
+  // clock at their arrival, less gnss_latency_s. Empty: none.
+  std::string gnss_receiver;
   double gnss_latency_s = 0.0;
 
   template <class Visitor>
@@ -49,10 +62,11 @@ struct IngestOptions {
       "lockstep and live sources: how long to wait for a tracker at start, seconds (live ones then go on anyway)");
     v("failure_style", failure_style, "how induced failures spoil dataset frames: black or blur");
     v("failure_seed", failure_seed, "seed of the spoiled frames");
-    v("gnss_mavlink", gnss_mavlink,
-      "live cameras: the flight controller's MAVLink telemetry, ADDRESS:PORT to listen on for UDP (e.g. ':14550'); "
-      "its GPS_RAW_INT (or GLOBAL_POSITION_INT) fixes go on <agent>/GNSS (empty: none)");
-    v("gnss_latency_s", gnss_latency_s, "how much older a MAVLink fix is than its arrival, seconds");
+    v("gnss_receiver", gnss_receiver,
+      "live cameras: the GNSS receiver whose fixes go on <agent>/GNSS, on the frames' clock: gpsd[:HOST:PORT] "
+      "(localhost:2947), or mavlink:ADDRESS:PORT (a flight controller's telemetry on UDP, e.g. mavlink::14550) "
+      "(empty: none)");
+    v("gnss_latency_s", gnss_latency_s, "how much older a live receiver's fix is than its arrival, seconds");
   }
 
   bool Check(std::string* why) const {
@@ -73,8 +87,7 @@ struct IngestOptions {
     if (max_resends < 0) return fail("ingest.max_resends must be >= 0");
     if (!(wait_for_tracker_s >= 0)) return fail("ingest.wait_for_tracker_s must be >= 0");
     if (failure_style != "black" && failure_style != "blur") return fail("ingest.failure_style must be black or blur");
-    if (!gnss_mavlink.empty() && gnss_mavlink.find(':') == std::string::npos)
-      return fail("ingest.gnss_mavlink must be ADDRESS:PORT (an empty address: every interface), e.g. ':14550'");
+    if (const std::string why_not = WhyNotAGnssReceiver(gnss_receiver); !why_not.empty()) return fail(why_not);
     if (!(gnss_latency_s >= 0 && gnss_latency_s <= 10)) return fail("ingest.gnss_latency_s must be in [0, 10]");
     return true;
   }

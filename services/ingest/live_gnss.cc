@@ -1,0 +1,31 @@
+#include "services/ingest/live_gnss.h"
+
+#include "services/ingest/gpsd_receiver.h"
+#include "services/ingest/mavlink_receiver.h"
+#include "stitch/config/ingest_options.h"
+#include "stitch/util/error.h"
+
+namespace stitch {
+
+std::unique_ptr<LiveGnssReceiver> OpenLiveGnssReceiver(const std::string& setting, double latency_s,
+                                                       GnssFixCallback on_fix) {
+  if (const std::string why = WhyNotAGnssReceiver(setting); !why.empty() || setting.empty()) {
+    throw Error(why.empty() ? "no GNSS receiver named" : why);
+  }
+  if (setting.rfind("mavlink:", 0) == 0) {
+    MavlinkGnssOptions options;
+    options.latency_s = latency_s;
+    return std::make_unique<MavlinkReceiver>(setting.substr(8), options, std::move(on_fix));
+  }
+  std::string host = "localhost", port = "2947";
+  if (setting != "gpsd") {
+    const std::string address = setting.substr(5);
+    const size_t colon = address.rfind(':');
+    host = address.substr(0, colon);
+    port = address.substr(colon + 1);
+    if (host.empty()) host = "localhost";
+  }
+  return std::make_unique<GpsdReceiver>(host, port, latency_s, std::move(on_fix));
+}
+
+}  // namespace stitch

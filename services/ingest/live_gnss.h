@@ -1,0 +1,28 @@
+#pragma once
+// A live camera's GNSS receiver (ingest.gnss_receiver): a thread of its own that hands each fix,
+// stamped with the wall clock at its arrival (the clock live frames carry) less a latency, to a
+// callback. Two kinds: a receiver gpsd serves (gpsd_receiver.h), and a flight controller's MAVLink
+// telemetry on UDP (mavlink_receiver.h).
+
+#include <functional>
+#include <memory>
+#include <string>
+
+#include "stitch/geo/gnss_fix.h"
+
+namespace stitch {
+
+using GnssFixCallback = std::function<void(const GnssFix&)>;
+
+class LiveGnssReceiver {
+ public:
+  virtual ~LiveGnssReceiver() = default;     // stops its thread
+  virtual std::string Describe() const = 0;  // what it received, in words, for the log
+};
+
+// The receiver `setting` names (gpsd, gpsd:HOST:PORT, mavlink:ADDRESS:PORT: WhyNotAGnssReceiver);
+// throws stitch::Error for a setting that names none, or an address it cannot listen on.
+std::unique_ptr<LiveGnssReceiver> OpenLiveGnssReceiver(const std::string& setting, double latency_s,
+                                                       GnssFixCallback on_fix);
+
+}  // namespace stitch
