@@ -14,14 +14,21 @@
 #include <thread>
 
 #include <gtest/gtest.h>
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wdeprecated-declarations"
+#include <exiv2/exiv2.hpp>
+#pragma GCC diagnostic pop
 #include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
 #include <opencv2/videoio.hpp>
 
 #include "services/common/bus.h"
+#include "stitch/geo/gnss_fix.h"
 #include "stitch/geo/mavlink_gnss.h"
 #include "stitch/gnss_fix_t.hpp"
 #include "stitch/io/calibration.h"
 #include "stitch/io/colmap_model.h"
+#include "stitch/io/image_sequence.h"
 #include "stitch/io/ply.h"
 #include "stitch/io/trajectory.h"
 #include "stitch/records/frame_record.h"
@@ -42,6 +49,33 @@ using testing::RunProgram;
 
 using testing::ReadJson;
 const std::string kShortFlight = testing::ShortFlightConfig();
+
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wdeprecated-declarations"
+// Writes `position` into `jpeg`'s EXIF GPS tags as a survey camera does (degrees, minutes and
+// seconds as rationals; the altitude in millimetres).
+void WriteExifGps(const std::string& jpeg, const GeodeticPoint& position) {
+  const auto dms = [](double degrees) {
+    degrees = std::abs(degrees);
+    const int whole = static_cast<int>(degrees);
+    const double minutes = (degrees - whole) * 60;
+    const int whole_minutes = static_cast<int>(minutes);
+    const long centiseconds = std::lround((minutes - whole_minutes) * 60 * 10000);
+    return std::to_string(whole) + "/1 " + std::to_string(whole_minutes) + "/1 " + std::to_string(centiseconds) +
+           "/10000";
+  };
+  Exiv2::Image::AutoPtr image = Exiv2::ImageFactory::open(jpeg);
+  image->readMetadata();
+  Exiv2::ExifData& exif = image->exifData();
+  exif["Exif.GPSInfo.GPSLatitudeRef"] = position.latitude_deg >= 0 ? "N" : "S";
+  exif["Exif.GPSInfo.GPSLatitude"] = dms(position.latitude_deg);
+  exif["Exif.GPSInfo.GPSLongitudeRef"] = position.longitude_deg >= 0 ? "E" : "W";
+  exif["Exif.GPSInfo.GPSLongitude"] = dms(position.longitude_deg);
+  exif["Exif.GPSInfo.GPSAltitudeRef"] = position.height_m >= 0 ? "0" : "1";
+  exif["Exif.GPSInfo.GPSAltitude"] = std::to_string(std::lround(std::abs(position.height_m) * 1000)) + "/1000";
+  image->writeMetadata();
+}
+#pragma GCC diagnostic pop
 
 // `stitch render` of the short flight's first `frames` frames into the folder `images`, with its
 // gusts unless `failures` says otherwise.
@@ -602,7 +636,9 @@ TEST(StitchIngest, PublishesAFlightControllersMavlinkFixesBesideALiveCamera) {
   for (size_t i = 0; i < heard.size(); ++i) {
     EXPECT_GT(heard[i].second, started_ns);
     EXPECT_LT(heard[i].second, ended_ns);
-    if (i > 0) EXPECT_GT(heard[i].first, heard[i - 1].first) << "in order";
+    if (i > 0) {
+      EXPECT_GT(heard[i].first, heard[i - 1].first) << "in order";
+    }
     const int sent = static_cast<int>(std::lround((heard[i].first - 47.368423) * 1e6));  // lat_e7 steps of 10
     EXPECT_NE(sent % 4, 0) << "fix " << sent << " was sent damaged";
   }
@@ -614,6 +650,47 @@ TEST(StitchIngest, PublishesAFlightControllersMavlinkFixesBesideALiveCamera) {
                                   60);
   EXPECT_NE(refused.exit_code, 0);
   EXPECT_NE(refused.output.find("ingest.gnss_receiver needs a live camera"), std::string::npos) << refused.output;
+}
+
+// A survey flown as photos: each JPEG carries the aircraft's position in its EXIF GPS tags (as a
+// survey camera or a drone writes them), and there is no gnss.csv. The run reads the tags, each at
+// its photo's time, and places the map on Earth by them.
+TEST(StitchRun, PlacesAFolderOfPhotosOnEarthByTheirExifGpsTags) {
+  testing::TempDir dir;
+  const std::string rendered = dir / "rendered";
+  const auto render =
+      RunProgram({Bin("stitch"), "render", "--config", kShortFlight, "--failures", "none", "--out", rendered}, 120);
+  ASSERT_EQ(render.exit_code, 0) << render.output;
+  const GnssTrack truth_fixes = ReadGnssCsv(rendered + "/gnss.csv");
+  ASSERT_GT(truth_fixes.fixes.size(), 10u);
+  const std::string photos = dir / "photos";
+  std::filesystem::create_directories(photos);
+  for (const char* file : {"camera.yaml", "groundtruth.txt"}) {
+    std::filesystem::copy_file(std::filesystem::path(rendered) / file, std::filesystem::path(photos) / file);
+  }
+  int written = 0;
+  for (const auto& [t_ns, png] : FolderImageTimes(rendered)) {
+    // The fix nearest the photo's time, as a camera triggered by the autopilot tags it.
+    const GnssFix* nearest = &truth_fixes.fixes.front();
+    for (const GnssFix& fix : truth_fixes.fixes) {
+      if (std::llabs(fix.t_ns - t_ns) < std::llabs(nearest->t_ns - t_ns)) nearest = &fix;
+    }
+    const std::string jpeg = photos + "/" + std::filesystem::path(png).stem().string() + ".jpg";
+    ASSERT_TRUE(cv::imwrite(jpeg, cv::imread(png, cv::IMREAD_UNCHANGED), {cv::IMWRITE_JPEG_QUALITY, 95}));
+    WriteExifGps(jpeg, nearest->position);
+    ++written;
+  }
+  ASSERT_GE(written, 50);
+  const std::string out = dir / "run";
+  const auto run = RunProgram({Bin("stitch"), "run", "--dataset", photos, "--failures", "none", "--out", out}, 300);
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  const auto geo = ReadJson(out + "/geo/georeference.json");
+  ASSERT_GE(geo["maps"].size(), 1u) << geo.dump() << run.output;
+  EXPECT_NE(geo["gnss_source"].get<std::string>().find("EXIF GPS tags of"), std::string::npos) << geo.dump();
+  EXPECT_EQ(geo["maps"][0]["placed"], true) << geo.dump();
+  EXPECT_GE(geo["maps"][0]["inliers"].get<int>(), 10) << geo.dump();
+  // The synthetic receiver's fixes have 2 m of noise; the photos' tags carry them to the metre.
+  EXPECT_LT(geo["maps"][0]["horizontal_rms_m"].get<double>(), 5.0) << geo.dump();
 }
 
 }  // namespace

@@ -405,15 +405,19 @@ std::vector<ImageEntry> TimestampFolder(const std::vector<fs::path>& files, doub
   return images;
 }
 
-std::unique_ptr<ImageSequence> OpenImageFolder(const fs::path& root, const SequenceOptions& options) {
+std::vector<ImageEntry> FolderImages(const fs::path& root, double fps) {
   std::vector<fs::path> files;
   for (const auto& entry : fs::directory_iterator(root)) {
     if (entry.is_regular_file() && IsImageFile(entry.path())) files.push_back(entry.path());
   }
   if (files.empty()) throw Error(root.string() + ": no images (.png, .jpg, .pgm, ...) in this folder");
   std::sort(files.begin(), files.end());
+  return TimestampFolder(files, fps > 0 ? fps : 30.0);
+}
+
+std::unique_ptr<ImageSequence> OpenImageFolder(const fs::path& root, const SequenceOptions& options) {
   const double fps = options.fps > 0 ? options.fps : 30.0;
-  std::vector<ImageEntry> images = Slice(TimestampFolder(files, fps), options);
+  std::vector<ImageEntry> images = Slice(FolderImages(root, fps), options);
   std::string calibration = options.calibration_path;
   if (calibration.empty()) {
     calibration = FirstExisting({root / "camera.yaml", root / "calibration.yaml", root.parent_path() / "camera.yaml"});
@@ -611,6 +615,12 @@ Trajectory ReadGroundTruth(const std::string& path, const std::string& kitti_tim
   throw Error(path +
               ": not a ground truth stitch reads (TUM: 'timestamp tx ty tz qx qy qz qw'; KITTI: 12 numbers a "
               "line; EuRoC: state_groundtruth_estimate0/data.csv)");
+}
+
+std::vector<std::pair<int64_t, std::string>> FolderImageTimes(const std::string& folder, double fps) {
+  std::vector<std::pair<int64_t, std::string>> times;
+  for (const ImageEntry& image : FolderImages(folder, fps)) times.emplace_back(image.t_ns, image.path);
+  return times;
 }
 
 }  // namespace stitch

@@ -8,6 +8,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "stitch/geo/dji_srt.h"
+#include "stitch/geo/exif_gps.h"
 #include "stitch/io/calibration.h"
 #include "stitch/io/live_capture.h"
 
@@ -222,7 +223,16 @@ GnssTrack DatasetGnss(const std::string& dataset_path) {
   namespace fs = std::filesystem;
   if (dataset_path.empty()) return {};
   if (const std::string gnss = GnssFileBeside(dataset_path); fs::is_regular_file(gnss)) return ReadGnssCsv(gnss);
-  if (fs::is_directory(dataset_path)) return {};
+  if (fs::is_directory(dataset_path)) {
+    // A folder of photos: the EXIF GPS tags a survey camera wrote into each.
+    std::string kind;
+    try {
+      kind = DetectDatasetKind(dataset_path);
+    } catch (const Error&) {
+      return {};
+    }
+    return kind == "folder" ? ExifGnssTrack(FolderImageTimes(dataset_path)) : GnssTrack();
+  }
   for (const char* extension : {".SRT", ".srt"}) {
     const fs::path srt = fs::path(dataset_path).replace_extension(extension);
     if (fs::is_regular_file(srt)) return ReadDjiSrt(srt.string());

@@ -91,7 +91,9 @@ GnssTrack SourceGnss(const SourceSpec& spec);
 // FILE.mp4 (what `stitch render` writes).
 std::string GnssFileBeside(const std::string& dataset_path);
 // A dataset's fixes: its gnss.csv (GnssFileBeside), else the DJI track beside a video
-// (FILE.SRT, ReadDjiSrt); none where it has neither. Throws stitch::Error for a malformed one.
+// (FILE.SRT, ReadDjiSrt), else, for an image folder, its photos' EXIF GPS tags (ExifGnssTrack,
+// each at its photo's time); none where it has none of them. Throws stitch::Error for a malformed
+// gnss.csv or .SRT.
 GnssTrack DatasetGnss(const std::string& dataset_path);
 
 // The rolling shutter's readout delay per row of the frames the tracker sees (`working`: frames

@@ -1,0 +1,31 @@
+#pragma once
+// GNSS fixes from the photos of an image folder: the EXIF GPS tags a survey camera or a drone
+// writes into each photo (GPSLatitude/Ref, GPSLongitude/Ref, GPSAltitude/Ref), read with exiv2.
+// Each photo's fix is at that photo's frame time, so no clock needs aligning. EXIF's altitude is
+// above mean sea level (as DJI's): a map placed by it sits the geoid's height off vertically. The
+// accuracy: GPSHPositioningError where the camera writes it (EXIF 2.31), DJI's RTK standard
+// deviations (Xmp.drone-dji.RtkStdLat/Lon/Hgt, with an RTK fix type) where it writes them, else
+// kExifHorizontalAccuracyM / kExifVerticalAccuracyM. Photos without GPS tags give no fix.
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "stitch/geo/gnss_fix.h"
+
+namespace stitch {
+
+inline constexpr double kExifHorizontalAccuracyM = 5.0;
+inline constexpr double kExifVerticalAccuracyM = 10.0;
+
+// The fix `image_path`'s tags state (t_ns 0), or none with `why` (no GPS tags, tags that are no
+// place on Earth, a file exiv2 cannot read). Never throws.
+std::optional<GnssFix> ReadExifGps(const std::string& image_path, std::string* why);
+
+// The fixes of `images` (time, path: FolderImageTimes), each at its image's time; its `source`
+// says how many photos gave none, and why for the first. No photo with a fix: an empty track.
+GnssTrack ExifGnssTrack(const std::vector<std::pair<int64_t, std::string>>& images);
+
+}  // namespace stitch
