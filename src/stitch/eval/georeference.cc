@@ -7,6 +7,7 @@
 #include <map>
 
 #include "stitch/geo/geo_outputs.h"
+#include "stitch/geo/las.h"
 #include "stitch/geometry/similarity.h"
 #include "stitch/util/error.h"
 #include "stitch/util/text_file.h"
@@ -209,12 +210,22 @@ void WriteGeoOutputs(const std::string& folder, const RunGeoReference& geo, cons
   WriteFileAtomically((fs::path(folder) / "georeference.json").string(), geo.ToJson().dump(1) + "\n");
 }
 
-bool WriteMapInEnu(const std::string& path, const RunGeoReference& geo, int component,
-                   std::vector<ColouredPoint> points) {
+namespace {
+
+// The placement of the map `component`, where it was placed on Earth.
+const MapGeoReference* PlacedMap(const RunGeoReference& geo, int component) {
   const auto placed = std::find_if(geo.maps.begin(), geo.maps.end(), [&](const MapGeoReference& m) {
     return m.map.component == component && m.placement.placed;
   });
-  if (placed == geo.maps.end()) return false;
+  return placed == geo.maps.end() ? nullptr : &*placed;
+}
+
+}  // namespace
+
+bool WriteMapInEnu(const std::string& path, const RunGeoReference& geo, int component,
+                   std::vector<ColouredPoint> points) {
+  const MapGeoReference* placed = PlacedMap(geo, component);
+  if (!placed) return false;
   const Sim3d& enu_from_map = placed->placement.enu_from_map;
   for (ColouredPoint& point : points) {
     point.position = (enu_from_map * point.position.cast<double>()).cast<float>();
@@ -225,6 +236,28 @@ bool WriteMapInEnu(const std::string& path, const RunGeoReference& geo, int comp
                 "height %.3f m as the GNSS fixes state it; %s placed by GNSS (georeference.json)",
                 geo.origin.latitude_deg, geo.origin.longitude_deg, geo.origin.height_m, placed->map.name.c_str());
   WritePly(path, points, frame);
+  return true;
+}
+
+bool WriteMapLas(const std::string& path, const RunGeoReference& geo, int component,
+                 const std::vector<ColouredPoint>& points) {
+  const MapGeoReference* placed = PlacedMap(geo, component);
+  if (!placed) return false;
+  const LocalTangentPlane plane(geo.origin);
+  const UtmZone zone = UtmZoneOf(geo.origin);
+  LasCloud cloud;
+  cloud.epsg = zone.epsg();
+  cloud.points.reserve(points.size());
+  for (const ColouredPoint& point : points) {
+    const GeodeticPoint on_earth = plane.ToGeodetic(placed->placement.enu_from_map * point.position.cast<double>());
+    LasPoint las;
+    las.position << ToUtm(on_earth, zone), on_earth.height_m;
+    las.red = point.red;
+    las.green = point.green;
+    las.blue = point.blue;
+    cloud.points.push_back(las);
+  }
+  WriteLas(path, cloud);
   return true;
 }
 

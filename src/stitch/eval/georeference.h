@@ -61,5 +61,11 @@ void WriteGeoOutputs(const std::string& folder, const RunGeoReference& geo, cons
 // when that map was not placed on Earth.
 bool WriteMapInEnu(const std::string& path, const RunGeoReference& geo, int component,
                    std::vector<ColouredPoint> points);
+// The same points in WGS 84 / UTM (the zone of the run's origin: EPSG 326zz or 327zz; eastings
+// and northings in metres, heights above the ellipsoid) as LAS 1.2 (las.h), what a surveyor's
+// point-cloud tools open; false (nothing written) when that map was not placed on Earth. Throws
+// stitch::Error naming the file when it cannot be written, or for an origin UTM does not cover.
+bool WriteMapLas(const std::string& path, const RunGeoReference& geo, int component,
+                 const std::vector<ColouredPoint>& points);
 
 }  // namespace stitch

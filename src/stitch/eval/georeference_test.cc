@@ -3,6 +3,8 @@
 
 #include "stitch/eval/georeference.h"
 
+#include "stitch/geo/las.h"
+
 #include <fstream>
 
 #include <gtest/gtest.h>
@@ -155,6 +157,39 @@ TEST(GeoReferenceRun, WritesAPlacedMapsPointsInEnuMetres) {
   for (MapGeoReference& m : unplaced.maps) m.placement.placed = false;
   EXPECT_FALSE(WriteMapInEnu((dir.path() / "none.ply").string(), unplaced, 0, points));
   EXPECT_FALSE(std::filesystem::exists(dir.path() / "none.ply"));
+}
+
+// The same points as LAS in WGS 84 / UTM: each where its ENU position lies on Earth, in the
+// origin's zone (48 N, 11 E: zone 32 north, EPSG 32632), to the millimetre.
+TEST(GeoReferenceRun, WritesAPlacedMapsPointsAsLasInUtm) {
+  const FlownRun run = MakeRun();
+  const RunGeoReference geo = GeoReferenceRun(run.poses, 0, run.gnss, run.truth, GeoReferenceOptions());
+  ASSERT_TRUE(geo.maps[0].placement.placed);
+  std::vector<ColouredPoint> points(2);
+  points[0].position = run.poses[0].world_from_cam.translation.cast<float>();
+  points[1].position = run.poses[300].world_from_cam.translation.cast<float>();
+  points[1].green = 9;
+  testing::TempDir dir;
+  const std::string path = (dir.path() / "map_utm.las").string();
+  ASSERT_TRUE(WriteMapLas(path, geo, 0, points));
+  const LasCloud cloud = ReadLas(path);
+  EXPECT_EQ(cloud.epsg, 32632);
+  ASSERT_EQ(cloud.points.size(), 2u);
+  const LocalTangentPlane plane(geo.origin);
+  for (size_t i = 0; i < 2; ++i) {
+    const GeodeticPoint expected =
+        plane.ToGeodetic(geo.maps[0].placement.enu_from_map * points[i].position.cast<double>());
+    const Eigen::Vector2d utm = ToUtm(expected, UtmZoneOf(geo.origin));
+    EXPECT_LT((cloud.points[i].position.head<2>() - utm).norm(), 0.002) << i;
+    EXPECT_NEAR(cloud.points[i].position.z(), expected.height_m, 0.002);
+  }
+  EXPECT_EQ(cloud.points[1].green, 9);
+  // 11 E is 2 degrees east of zone 32's central meridian (9 E): about 149 km east of its 500 km.
+  EXPECT_NEAR(cloud.points[0].position.x(), 649'000, 2'000);
+  EXPECT_NEAR(cloud.points[0].position.y(), 5'318'000, 5'000);
+  RunGeoReference unplaced = geo;
+  for (MapGeoReference& m : unplaced.maps) m.placement.placed = false;
+  EXPECT_FALSE(WriteMapLas((dir.path() / "none.las").string(), unplaced, 0, points));
 }
 
 TEST(GeoReferenceRun, SaysWhyAMapWasNotPlaced) {

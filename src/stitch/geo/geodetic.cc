@@ -3,6 +3,7 @@
 #include <cmath>
 
 #include <GeographicLib/LocalCartesian.hpp>
+#include <GeographicLib/UTMUPS.hpp>
 
 #include "stitch/util/error.h"
 
@@ -20,6 +21,28 @@ std::string WhyNotOnEarth(const GeodeticPoint& point) {
     return Str() << "height " << point.height_m << " m is outside [-12 km, 100 km]";
   }
   return "";
+}
+
+UtmZone UtmZoneOf(const GeodeticPoint& point) {
+  if (const std::string why = WhyNotOnEarth(point); !why.empty()) throw Error("no UTM zone: " + why);
+  if (std::abs(point.latitude_deg) > 84.0)
+    throw Error("no UTM zone beyond 84 degrees of latitude (UPS is not written)");
+  UtmZone zone;
+  zone.zone = GeographicLib::UTMUPS::StandardZone(point.latitude_deg, point.longitude_deg);
+  zone.north = point.latitude_deg >= 0;
+  return zone;
+}
+
+Eigen::Vector2d ToUtm(const GeodeticPoint& point, const UtmZone& zone) {
+  int used_zone = 0;
+  bool north = true;
+  Eigen::Vector2d utm;
+  GeographicLib::UTMUPS::Forward(point.latitude_deg, point.longitude_deg, used_zone, north, utm.x(), utm.y(),
+                                 zone.zone);
+  // Forward gives the northing of the point's own hemisphere: held to the zone's (a map across
+  // the equator stays in one frame).
+  if (north != zone.north) utm.y() += zone.north ? -10'000'000.0 : 10'000'000.0;
+  return utm;
 }
 
 LocalTangentPlane::LocalTangentPlane(const GeodeticPoint& origin) : origin_(origin) {

@@ -28,6 +28,19 @@ std::string WhyNotOnEarth(const GeodeticPoint& point);
 // The local tangent plane at `origin`: x east, y north, z up, in metres; the origin at 0.
 // Accurate to the millimetre within tens of kilometres of the origin (the frame is Cartesian,
 // not a projection: far from the origin "up" tilts away from the local vertical).
+// A UTM zone (1-60) and hemisphere, and its EPSG code (WGS 84 / UTM: 326zz north, 327zz south).
+struct UtmZone {
+  int zone = 0;
+  bool north = true;
+  int epsg() const { return (north ? 32600 : 32700) + zone; }
+};
+// The zone `point` lies in (the standard one; UPS near the poles, |latitude| > 84, is not
+// handled: throws stitch::Error).
+UtmZone UtmZoneOf(const GeodeticPoint& point);
+// `point`'s easting and northing in metres, in `zone` (a neighbouring zone's point is extended
+// into it, as a map crossing a zone border is kept in one).
+Eigen::Vector2d ToUtm(const GeodeticPoint& point, const UtmZone& zone);
+
 class LocalTangentPlane {
  public:
   // Throws stitch::Error when the origin is no place on Earth.

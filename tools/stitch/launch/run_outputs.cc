@@ -241,7 +241,8 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
   nlohmann::json georeference = nullptr;
   info->geo_figures.clear();
   std::error_code ignored;
-  fs::remove(dir / "geo" / "map_enu.ply", ignored);  // an earlier evaluation's: this one may not place the map
+  // An earlier evaluation's: this one may not place the map.
+  for (const char* placed_map : {"map_enu.ply", "map_utm.las"}) fs::remove(dir / "geo" / placed_map, ignored);
   const bool received = fs::exists(dir / "gnss_received.csv");
   if (received || fs::exists(dir / "gnss.csv")) {
     try {
@@ -266,9 +267,11 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
         if (fs::exists(dir / "map.ply")) {
           try {
             // map.ply is the merger's largest map: its component 0 (submaps.tsv).
-            WriteMapInEnu((dir / "geo" / "map_enu.ply").string(), geo, 0, ReadPly((dir / "map.ply").string()));
+            const std::vector<ColouredPoint> map = ReadPly((dir / "map.ply").string());
+            WriteMapInEnu((dir / "geo" / "map_enu.ply").string(), geo, 0, map);
+            WriteMapLas((dir / "geo" / "map_utm.las").string(), geo, 0, map);
           } catch (const std::exception& e) {  // the trajectory on Earth stands without it
-            info->notes.push_back(std::string("geo/map_enu.ply not written: ") + e.what());
+            info->notes.push_back(std::string("geo/map_enu.ply, map_utm.las not written: ") + e.what());
           }
         }
         georeference = geo.ToJson();

@@ -9,6 +9,8 @@
 
 #include <gtest/gtest.h>
 
+#include "stitch/geo/las.h"
+
 #include "stitch/geo/gnss_fix.h"
 #include "stitch/io/ply.h"
 #include "stitch/records/frame_record.h"
@@ -142,6 +144,10 @@ TEST(RunOutputs, PlacesTheRunOnEarthWhereItHasFixes) {
   const std::vector<ColouredPoint> enu = ReadPly((dir.path() / "geo" / "map_enu.ply").string());
   ASSERT_EQ(enu.size(), 1u);
   EXPECT_LT((enu[0].position - Eigen::Vector3f(0, 0, 70)).norm(), 0.05f) << enu[0].position.transpose();
+  // ...and in WGS 84 / UTM as LAS.
+  const LasCloud las = ReadLas((dir.path() / "geo" / "map_utm.las").string());
+  ASSERT_EQ(las.points.size(), 1u);
+  EXPECT_GT(las.epsg, 32600);
   std::ifstream in(dir / "report.json");
   const nlohmann::json report = nlohmann::json::parse(in);
   EXPECT_LT(report["georeference"]["maps"][0]["absolute"]["horizontal_rms_m"].get<double>(), 0.01);
@@ -152,8 +158,9 @@ TEST(RunOutputs, PlacesTheRunOnEarthWhereItHasFixes) {
   damaged.frames_total = 400;
   FinishRunOutputs(dir.path().string(), &damaged);
   EXPECT_EQ(damaged.geo_figures.size(), 2u);
-  EXPECT_TRUE(SomeNoteSays(damaged, "geo/map_enu.ply not written: "));
+  EXPECT_TRUE(SomeNoteSays(damaged, "geo/map_enu.ply, map_utm.las not written: "));
   EXPECT_FALSE(std::filesystem::exists(dir.path() / "geo" / "map_enu.ply"));
+  EXPECT_FALSE(std::filesystem::exists(dir.path() / "geo" / "map_utm.las"));
 
   std::ofstream(dir / "gnss.csv", std::ios::app) << "1,2,3\n";
   RunInfo again;
@@ -161,6 +168,7 @@ TEST(RunOutputs, PlacesTheRunOnEarthWhereItHasFixes) {
   FinishRunOutputs(dir.path().string(), &again);
   EXPECT_TRUE(again.geo_figures.empty());
   EXPECT_FALSE(std::filesystem::exists(dir.path() / "geo" / "map_enu.ply"));  // not placed this time
+  EXPECT_FALSE(std::filesystem::exists(dir.path() / "geo" / "map_utm.las"));
   EXPECT_TRUE(SomeNoteSays(again, "not placed on Earth: " + (dir / "gnss.csv") + ":"));
 }
 
