@@ -14,15 +14,12 @@
 #include <thread>
 
 #include <gtest/gtest.h>
-#pragma GCC diagnostic push
-#pragma GCC diagnostic ignored "-Wdeprecated-declarations"
-#include <exiv2/exiv2.hpp>
-#pragma GCC diagnostic pop
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/videoio.hpp>
 
 #include "services/common/bus.h"
+#include "stitch/geo/exiv2.h"
 #include "stitch/geo/gnss_fix.h"
 #include "stitch/geo/mavlink_gnss.h"
 #include "stitch/gnss_fix_t.hpp"
@@ -50,8 +47,7 @@ using testing::RunProgram;
 using testing::ReadJson;
 const std::string kShortFlight = testing::ShortFlightConfig();
 
-#pragma GCC diagnostic push
-#pragma GCC diagnostic ignored "-Wdeprecated-declarations"
+STITCH_EXIV2_BEGIN
 // Writes `position` into `jpeg`'s EXIF GPS tags as a survey camera does (degrees, minutes and
 // seconds as rationals; the altitude in millimetres).
 void WriteExifGps(const std::string& jpeg, const GeodeticPoint& position) {
@@ -75,7 +71,7 @@ void WriteExifGps(const std::string& jpeg, const GeodeticPoint& position) {
   exif["Exif.GPSInfo.GPSAltitude"] = std::to_string(std::lround(std::abs(position.height_m) * 1000)) + "/1000";
   image->writeMetadata();
 }
-#pragma GCC diagnostic pop
+STITCH_EXIV2_END
 
 // `stitch render` of the short flight's first `frames` frames into the folder `images`, with its
 // gusts unless `failures` says otherwise.

@@ -2,17 +2,12 @@
 
 #include <cmath>
 
-// exiv2 0.27 declares its pointers as std::auto_ptr, deprecated since C++11.
-#pragma GCC diagnostic push
-#pragma GCC diagnostic ignored "-Wdeprecated-declarations"
-#include <exiv2/exiv2.hpp>
-#pragma GCC diagnostic pop
+#include "stitch/geo/exiv2.h"
 
 namespace stitch {
 namespace {
 
-#pragma GCC diagnostic push
-#pragma GCC diagnostic ignored "-Wdeprecated-declarations"
+STITCH_EXIV2_BEGIN
 
 // Degrees from EXIF's three rationals (degrees, minutes, seconds); NaN when they are not three
 // finite rationals.
@@ -100,7 +95,7 @@ std::optional<GnssFix> ReadTags(const std::string& path, std::string* why) {
   return fix;
 }
 
-#pragma GCC diagnostic pop
+STITCH_EXIV2_END
 
 }  // namespace
 

@@ -6,18 +6,13 @@
 #include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
 
-#pragma GCC diagnostic push
-#pragma GCC diagnostic ignored "-Wdeprecated-declarations"
-#include <exiv2/exiv2.hpp>
-#pragma GCC diagnostic pop
-
+#include "stitch/geo/exiv2.h"
 #include "stitch/testing/temp_dir.h"
 
 namespace stitch {
 namespace {
 
-#pragma GCC diagnostic push
-#pragma GCC diagnostic ignored "-Wdeprecated-declarations"
+STITCH_EXIV2_BEGIN
 
 // A photo as a survey camera writes it: a JPEG whose EXIF holds `tags` (key, value as exiv2 reads
 // it from text, e.g. "47/1 22/1 632/100").
@@ -36,7 +31,7 @@ std::string Photo(const std::filesystem::path& path, const std::vector<std::pair
   return path.string();
 }
 
-#pragma GCC diagnostic pop
+STITCH_EXIV2_END
 
 std::vector<std::pair<std::string, std::string>> ZurichTags() {
   return {{"Exif.GPSInfo.GPSLatitudeRef", "N"},  {"Exif.GPSInfo.GPSLatitude", "47/1 22/1 632/100"},
