@@ -4,6 +4,7 @@
 
 #include <chrono>
 #include <cmath>
+#include <mutex>
 
 #include "stitch/util/log.h"
 #include "stitch/util/time.h"
@@ -26,6 +27,13 @@ GnssFixType FixTypeOf(const gps_fix_t& fix) {
     default:
       return fix.mode == MODE_3D ? GnssFixType::k3d : GnssFixType::k2d;
   }
+}
+
+// libgps connects through getprotobyname, which is not thread-safe: receivers in one process (a
+// test's) connect one at a time.
+std::mutex& ConnectMutex() {
+  static std::mutex connecting;
+  return connecting;
 }
 
 // gpsd's 95% figure as one sigma, or `stated` where it gives none.
@@ -64,7 +72,12 @@ void GpsdReceiver::Receive() {
   };
   while (running_.load()) {
     if (!open) {
-      if (gps_open(host_.c_str(), port_.c_str(), &data) != 0) {
+      int opened;
+      {
+        std::lock_guard<std::mutex> lock(ConnectMutex());
+        opened = gps_open(host_.c_str(), port_.c_str(), &data);
+      }
+      if (opened != 0) {
         say(std::string("cannot connect (") + gps_errstr(errno) + ")");
         for (int i = 0; i < 10 && running_.load(); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(100));
         continue;

@@ -189,7 +189,7 @@ TEST(GpsdReceiver, ReadsTheFixesGpsdMakesOfARealReceiversNmea) {
     }
   }
   const int port = bus::UnusedTcpPort();
-  ChildProcess gpsfake("gpsfake", "/usr/bin/gpsfake", {"-q", "-1", "-c", "0.05", "-P", std::to_string(port), log},
+  ChildProcess gpsfake("gpsfake", "/usr/bin/gpsfake", {"-q", "-c", "0.05", "-P", std::to_string(port), log},
                        dir / "gpsfake.log");
   Received received;
   GpsdReceiver receiver("127.0.0.1", std::to_string(port), 0, received.Callback());
@@ -198,11 +198,16 @@ TEST(GpsdReceiver, ReadsTheFixesGpsdMakesOfARealReceiversNmea) {
     FAIL() << receiver.Describe() << "\ngpsfake: " << std::string(std::istreambuf_iterator<char>(said), {});
   }
   std::lock_guard<std::mutex> lock(received.mutex);
+  int with_height = 0;
   for (const GnssFix& fix : received.fixes) {
     EXPECT_NEAR(fix.position.latitude_deg, 47.0 + 22.1054 / 60, 0.0001);
     EXPECT_NEAR(fix.position.longitude_deg, 8.0 + 32.3432 / 60, 1e-6);
+    // gpsd reports a 2D fix where an epoch's RMC came before its GGA (the log's start): no height.
+    if (fix.type == GnssFixType::k2d) continue;
+    ++with_height;
     EXPECT_NEAR(fix.position.height_m, 459.87 + 47.25, 0.01) << "the height above the ellipsoid: MSL plus the geoid";
   }
+  EXPECT_GE(with_height, 3);
 }
 
 }  // namespace
