@@ -155,6 +155,8 @@ TEST(LiveGnss, OpensTheReceiverItsSettingNames) {
   Received received;
   EXPECT_THROW(OpenLiveGnssReceiver("serial:/dev/ttyACM0", 0, received.Callback()), Error);
   EXPECT_THROW(OpenLiveGnssReceiver("mavlink:14550", 0, received.Callback()), Error) << "no port";
+  EXPECT_THROW(OpenLiveGnssReceiver("mavlink-serial:/dev/no-such-controller:57600", 0, received.Callback()), Error);
+  EXPECT_THROW(OpenLiveGnssReceiver("mavlink-serial:/dev/ttyACM0:fast", 0, received.Callback()), Error);
   const auto mavlink = OpenLiveGnssReceiver("mavlink:127.0.0.1:0", 0, received.Callback());
   EXPECT_NE(mavlink->Describe().find("from MAVLink"), std::string::npos);
   const auto gpsd =

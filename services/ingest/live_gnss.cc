@@ -12,6 +12,22 @@ std::unique_ptr<LiveGnssReceiver> OpenLiveGnssReceiver(const std::string& settin
   if (const std::string why = WhyNotAGnssReceiver(setting); !why.empty() || setting.empty()) {
     throw Error(why.empty() ? "no GNSS receiver named" : why);
   }
+  if (setting.rfind("mavlink-serial:", 0) == 0) {
+    MavlinkGnssOptions options;
+    options.latency_s = latency_s;
+    MavlinkSerialPort port;
+    const std::string rest = setting.substr(15);
+    const size_t colon = rest.rfind(':');
+    port.device = rest.substr(0, colon);
+    if (colon != std::string::npos) {
+      try {
+        port.baud = std::stoi(rest.substr(colon + 1));
+      } catch (const std::exception&) {
+        throw Error("ingest.gnss_receiver: '" + rest.substr(colon + 1) + "' is not a serial rate in baud");
+      }
+    }
+    return std::make_unique<MavlinkReceiver>(port, options, std::move(on_fix));
+  }
   if (setting.rfind("mavlink:", 0) == 0) {
     MavlinkGnssOptions options;
     options.latency_s = latency_s;

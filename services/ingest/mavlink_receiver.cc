@@ -1,11 +1,15 @@
 #include "services/ingest/mavlink_receiver.h"
 
+#include <fcntl.h>
 #include <poll.h>
 #include <sys/socket.h>
+#include <termios.h>
 #include <unistd.h>
 
 #include <cerrno>
+#include <chrono>
 #include <cstring>
+#include <thread>
 
 #include "services/common/udp_address.h"
 #include "stitch/util/error.h"
@@ -16,25 +20,83 @@ namespace stitch {
 MavlinkReceiver::MavlinkReceiver(const std::string& listen, const MavlinkGnssOptions& options, GnssFixCallback on_fix)
     : on_fix_(std::move(on_fix)), decoder_(options) {
   const sockaddr_in address = ResolveIpv4(listen, "ingest.gnss_receiver mavlink:");
-  socket_ = socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0);
-  if (socket_ < 0) throw Error(std::string("ingest.gnss_receiver: cannot open a UDP socket: ") + std::strerror(errno));
-  if (bind(socket_, reinterpret_cast<const sockaddr*>(&address), sizeof(address)) != 0) {
+  fd_ = socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0);
+  if (fd_ < 0) throw Error(std::string("ingest.gnss_receiver: cannot open a UDP socket: ") + std::strerror(errno));
+  if (bind(fd_, reinterpret_cast<const sockaddr*>(&address), sizeof(address)) != 0) {
     const std::string why = std::strerror(errno);
-    close(socket_);
+    close(fd_);
     throw Error("ingest.gnss_receiver: cannot listen on " + listen + ": " + why);
   }
   sockaddr_in bound{};
   socklen_t length = sizeof(bound);
-  getsockname(socket_, reinterpret_cast<sockaddr*>(&bound), &length);
+  getsockname(fd_, reinterpret_cast<sockaddr*>(&bound), &length);
   port_ = ntohs(bound.sin_port);
   STITCH_LOG(INFO) << "listening for the flight controller's MAVLink GNSS fixes on " << FormatAddress(bound);
   thread_ = std::thread([this] { Receive(); });
 }
 
+namespace {
+
+speed_t BaudRate(int baud) {
+  switch (baud) {
+    case 9600:
+      return B9600;
+    case 19200:
+      return B19200;
+    case 38400:
+      return B38400;
+    case 57600:
+      return B57600;
+    case 115200:
+      return B115200;
+    case 230400:
+      return B230400;
+    case 460800:
+      return B460800;
+    case 500000:
+      return B500000;
+    case 921600:
+      return B921600;
+    case 1000000:
+      return B1000000;
+    case 1500000:
+      return B1500000;
+    default:
+      throw Error("ingest.gnss_receiver: a serial rate of " + std::to_string(baud) + " baud is not one it knows");
+  }
+}
+
+}  // namespace
+
+MavlinkReceiver::MavlinkReceiver(const MavlinkSerialPort& port, const MavlinkGnssOptions& options,
+                                 GnssFixCallback on_fix)
+    : serial_(port), on_fix_(std::move(on_fix)), decoder_(options) {
+  BaudRate(serial_.baud);
+  OpenSerial();
+  STITCH_LOG(INFO) << "reading the flight controller's MAVLink GNSS fixes from " << serial_.device << " at "
+                   << serial_.baud << " baud";
+  thread_ = std::thread([this] { Receive(); });
+}
+
+void MavlinkReceiver::OpenSerial() {
+  const int fd = open(serial_.device.c_str(), O_RDWR | O_NOCTTY | O_NONBLOCK | O_CLOEXEC);
+  if (fd < 0) throw Error("ingest.gnss_receiver: cannot open " + serial_.device + ": " + std::strerror(errno));
+  termios settings{};
+  if (tcgetattr(fd, &settings) == 0) {  // a pseudo-terminal or a USB port takes these too
+    cfmakeraw(&settings);
+    settings.c_cflag |= CLOCAL | CREAD;
+    settings.c_cflag &= ~(CSTOPB | PARENB | CRTSCTS);
+    cfsetispeed(&settings, BaudRate(serial_.baud));
+    cfsetospeed(&settings, BaudRate(serial_.baud));
+    tcsetattr(fd, TCSANOW, &settings);
+  }
+  fd_ = fd;
+}
+
 MavlinkReceiver::~MavlinkReceiver() {
   running_ = false;
   if (thread_.joinable()) thread_.join();
-  close(socket_);
+  if (fd_ >= 0) close(fd_);
 }
 
 MavlinkGnssCounts MavlinkReceiver::counts() const {
@@ -45,24 +107,47 @@ MavlinkGnssCounts MavlinkReceiver::counts() const {
 std::string MavlinkReceiver::Describe() const {
   std::lock_guard<std::mutex> lock(mutex_);
   const MavlinkGnssCounts& c = decoder_.counts();
-  return std::to_string(c.fixes) + " GNSS fixes from MAVLink (" + std::to_string(datagrams_) + " datagrams, " +
-         std::to_string(c.frames) + " frames read, " + std::to_string(c.damaged) + " damaged, " +
-         std::to_string(c.refused) + " position messages without a usable fix, " + std::to_string(c.bytes_skipped) +
+  return std::to_string(c.fixes) + " GNSS fixes from MAVLink (" + std::to_string(reads_) +
+         (serial_.device.empty() ? " datagrams, " : " reads of " + serial_.device + ", ") + std::to_string(c.frames) +
+         " frames read, " + std::to_string(c.damaged) + " damaged, " + std::to_string(c.refused) +
+         " position messages without a usable fix, " + std::to_string(c.bytes_skipped) +
          " bytes of other messages or garbage)";
 }
 
 void MavlinkReceiver::Receive() {
   uint8_t buffer[65536];
+  const bool serial = !serial_.device.empty();
   while (running_.load()) {
-    pollfd ready{socket_, POLLIN, 0};
+    if (fd_ < 0) {  // the serial port went away: try it again every second
+      for (int i = 0; i < 10 && running_.load(); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(100));
+      if (!running_.load()) break;
+      try {
+        OpenSerial();
+        STITCH_LOG(INFO) << serial_.device << " is back";
+      } catch (const Error&) {
+      }
+      continue;
+    }
+    pollfd ready{fd_, POLLIN, 0};
     if (poll(&ready, 1, 100) <= 0) continue;
-    const ssize_t size = recv(socket_, buffer, sizeof(buffer), 0);
-    if (size <= 0) continue;
+    const ssize_t size = read(fd_, buffer, sizeof(buffer));
+    if (size < 0 && (errno == EAGAIN || errno == EINTR)) continue;
+    if (size <= 0) {
+      if (serial) {  // unplugged, or the other end closed: read again once it is back
+        STITCH_LOG(WARNING) << serial_.device << ": " << (size == 0 ? "closed" : std::strerror(errno))
+                            << "; opening it again every second";
+        close(fd_);
+        fd_ = -1;
+      }
+      continue;
+    }
     std::vector<GnssFix> fixes;
     {
       std::lock_guard<std::mutex> lock(mutex_);
-      ++datagrams_;
-      fixes = decoder_.FeedDatagram(buffer, static_cast<size_t>(size), WallClockNs());
+      ++reads_;
+      // A datagram holds whole frames; a serial port's bytes come in any pieces.
+      fixes = serial ? decoder_.Feed(buffer, static_cast<size_t>(size), WallClockNs())
+                     : decoder_.FeedDatagram(buffer, static_cast<size_t>(size), WallClockNs());
     }
     for (const GnssFix& fix : fixes) on_fix_(fix);
   }

@@ -1,9 +1,11 @@
 #include "services/ingest/mavlink_receiver.h"
 
 #include <arpa/inet.h>
+#include <pty.h>
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <condition_variable>
 #include <mutex>
@@ -65,6 +67,57 @@ TEST(MavlinkReceiver, PublishesTheFixesOfTheDatagramsItGetsStampedWithTheWallClo
   EXPECT_EQ(counts.damaged, 1);
   EXPECT_NE(receiver.Describe().find("1 GNSS fixes from MAVLink (3 datagrams"), std::string::npos)
       << receiver.Describe();
+}
+
+// A controller wired to a serial port: the frames come as a byte stream, cut anywhere. A
+// pseudo-terminal stands in for the port.
+TEST(MavlinkReceiver, ReadsTheFixesOfAControllerOnASerialPort) {
+  int controller = -1, port_side = -1;
+  ASSERT_EQ(openpty(&controller, &port_side, nullptr, nullptr, nullptr), 0);
+  const std::string device = ttyname(port_side);
+  std::mutex mutex;
+  std::condition_variable arrived;
+  std::vector<GnssFix> fixes;
+  MavlinkSerialPort port;
+  port.device = device;
+  port.baud = 115200;
+  MavlinkReceiver receiver(port, {}, [&](const GnssFix& fix) {
+    std::lock_guard<std::mutex> lock(mutex);
+    fixes.push_back(fix);
+    arrived.notify_all();
+  });
+  close(port_side);  // the receiver holds its own descriptor
+  MavlinkGpsRawInt raw;
+  raw.lat_e7 = 473684230;
+  raw.lon_e7 = 85390540;
+  raw.alt_mm = 460'000;
+  raw.fix_type = 3;
+  std::vector<uint8_t> stream = {0x55, 0xFE, 0x01};  // line noise first
+  for (int i = 0; i < 5; ++i) {
+    raw.lat_e7 += 10;
+    const std::vector<uint8_t> frame = EncodeMavlinkFrame(kMavlinkGpsRawInt, MavlinkPayload(raw));
+    stream.insert(stream.end(), frame.begin(), frame.end());
+  }
+  // Written in pieces of 7 bytes, each a little after the last: no frame arrives whole.
+  for (size_t at = 0; at < stream.size(); at += 7) {
+    ASSERT_GT(write(controller, stream.data() + at, std::min<size_t>(7, stream.size() - at)), 0);
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  }
+  std::unique_lock<std::mutex> lock(mutex);
+  ASSERT_TRUE(arrived.wait_for(lock, std::chrono::seconds(10), [&] { return fixes.size() >= 5; }))
+      << receiver.Describe();
+  for (size_t i = 1; i < fixes.size(); ++i)
+    EXPECT_GT(fixes[i].position.latitude_deg, fixes[i - 1].position.latitude_deg);
+  lock.unlock();
+  EXPECT_NE(receiver.Describe().find("reads of " + device), std::string::npos) << receiver.Describe();
+  close(controller);
+
+  MavlinkSerialPort unknown_rate = port;
+  unknown_rate.baud = 12345;
+  EXPECT_THROW(MavlinkReceiver(unknown_rate, {}, [](const GnssFix&) {}), Error);
+  MavlinkSerialPort missing;
+  missing.device = "/dev/no-such-controller";
+  EXPECT_THROW(MavlinkReceiver(missing, {}, [](const GnssFix&) {}), Error);
 }
 
 TEST(MavlinkReceiver, RefusesAnAddressItCannotListenOn) {

@@ -12,8 +12,10 @@ inline std::string WhyNotAGnssReceiver(const std::string& receiver) {
     return receiver.rfind(scheme, 0) == 0 && receiver.find(':', scheme.size()) != std::string::npos;
   };
   if (address_after("gpsd:") || address_after("mavlink:")) return "";
-  return "ingest.gnss_receiver must be gpsd, gpsd:HOST:PORT or mavlink:ADDRESS:PORT (an empty address: every "
-         "interface, e.g. mavlink::14550), not '" +
+  if (receiver.rfind("mavlink-serial:/", 0) == 0) return "";
+  return "ingest.gnss_receiver must be gpsd, gpsd:HOST:PORT, mavlink:ADDRESS:PORT (an empty address: every "
+         "interface, e.g. mavlink::14550) or mavlink-serial:DEVICE[:BAUD] (e.g. mavlink-serial:/dev/ttyACM0:57600), "
+         "not '" +
          receiver + "'";
 }
 
@@ -37,8 +39,8 @@ struct IngestOptions {
   int failure_seed = 1;
   // A live camera's GNSS receiver (services/ingest/live_gnss.h): "gpsd" or "gpsd:HOST:PORT" (a
   // receiver gpsd serves), "mavlink:ADDRESS:PORT" (a flight controller's MAVLink telemetry on
-  // UDP, e.g. "mavlink::14550"). Its fixes go on <agent>/GNSS stamped with the frames' wall
-  // clock at their arrival, less gnss_latency_s. Empty: none.
+  // UDP, e.g. "mavlink::14550") or "mavlink-serial:DEVICE[:BAUD]" (from its serial port). Its fixes go on <agent>/GNSS
+  // stamped with the frames' wall clock at their arrival, less gnss_latency_s. Empty: none.
   std::string gnss_receiver;
   double gnss_latency_s = 0.0;
 
@@ -64,8 +66,8 @@ struct IngestOptions {
     v("failure_seed", failure_seed, "seed of the spoiled frames");
     v("gnss_receiver", gnss_receiver,
       "live cameras: the GNSS receiver whose fixes go on <agent>/GNSS, on the frames' clock: gpsd[:HOST:PORT] "
-      "(localhost:2947), or mavlink:ADDRESS:PORT (a flight controller's telemetry on UDP, e.g. mavlink::14550) "
-      "(empty: none)");
+      "(localhost:2947), mavlink:ADDRESS:PORT (a flight controller's telemetry on UDP, e.g. mavlink::14550) or "
+      "mavlink-serial:DEVICE[:BAUD] (from its serial port, e.g. mavlink-serial:/dev/ttyACM0:57600) (empty: none)");
     v("gnss_latency_s", gnss_latency_s, "how much older a live receiver's fix is than its arrival, seconds");
   }
 
