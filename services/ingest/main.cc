@@ -50,7 +50,7 @@ int main(int argc, char** argv) {
       if (source.live_uri.empty() || LiveClock(source.live_uri, source.live_clock) != "wall") {
         throw Error(
             "ingest.gnss_receiver needs a live camera whose frames carry the wall clock (--live, --live-clock "
-            "wall): a recorded sequence's GNSS comes from its gnss.csv or .SRT");
+            "wall): a recorded sequence's GNSS comes from its gnss.csv, .SRT or photos' EXIF tags");
       }
       const std::string channel = bus::Channel(process.publisher->agent(), bus::kGnss);
       gnss = OpenLiveGnssReceiver(o.gnss_receiver, o.gnss_latency_s, [&process, channel](const GnssFix& fix) {
