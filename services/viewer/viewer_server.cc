@@ -160,6 +160,10 @@ std::string ViewerServer::url() const {
 
 int ViewerServer::open_pages() const {
   std::lock_guard<std::mutex> lock(sockets_mutex_);
+  return LivePages();
+}
+
+int ViewerServer::LivePages() const {
   return static_cast<int>(
       std::count_if(sockets_.begin(), sockets_.end(), [](const auto& s) { return !s.second->failed(); }));
 }
@@ -254,9 +258,7 @@ int ViewerServer::OnSocketConnect(const mg_connection* connection, void* self) {
   }
   // A page whose writes failed (it stopped reading) holds a socket until its client lets go, but
   // not a place: the operator's page still opens.
-  const auto live_pages = std::count_if(server->sockets_.begin(), server->sockets_.end(),
-                                        [](const auto& s) { return !s.second->failed(); });
-  if (static_cast<int>(live_pages) + server->pending_sockets_ >= server->options_.max_pages) {
+  if (server->LivePages() + server->pending_sockets_ >= server->options_.max_pages) {
     ++server->refused_;
     STITCH_LOG(WARNING) << "refused a page: " << server->options_.max_pages << " are open (viewer.max_pages)";
     return 1;

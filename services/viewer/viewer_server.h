@@ -84,6 +84,8 @@ class ViewerServer {
   };
   // What the last Refresh made.
   Updates Latest() const;
+  // Open pages whose writes have not failed; sockets_mutex_ held.
+  int LivePages() const;
   static int HandleRequest(mg_connection* connection, void* self);
   static int OnSocketConnect(const mg_connection* connection, void* self);
   static void OnSocketReady(mg_connection* connection, void* self);

@@ -110,7 +110,7 @@ std::optional<GnssFix> ReadExifGps(const std::string& image_path, std::string* w
   }
 }
 
-GnssTrack ExifGnssTrack(const std::vector<std::pair<int64_t, std::string>>& images) {
+GnssTrack ExifGnssTrack(const std::vector<ImageEntry>& images) {
   GnssTrack track;
   int without = 0;
   std::string first_why, first_without;

@@ -10,10 +10,10 @@
 #include <cstdint>
 #include <optional>
 #include <string>
-#include <utility>
 #include <vector>
 
 #include "stitch/geo/gnss_fix.h"
+#include "stitch/io/image_sequence.h"
 
 namespace stitch {
 
@@ -24,8 +24,8 @@ inline constexpr double kExifVerticalAccuracyM = 10.0;
 // place on Earth, a file exiv2 cannot read). Never throws.
 std::optional<GnssFix> ReadExifGps(const std::string& image_path, std::string* why);
 
-// The fixes of `images` (time, path: FolderImageTimes), each at its image's time; its `source`
+// The fixes of `images` (FolderImageTimes), each at its image's time; its `source`
 // says how many photos gave none, and why for the first. No photo with a fix: an empty track.
-GnssTrack ExifGnssTrack(const std::vector<std::pair<int64_t, std::string>>& images);
+GnssTrack ExifGnssTrack(const std::vector<ImageEntry>& images);
 
 }  // namespace stitch

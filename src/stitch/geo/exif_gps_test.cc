@@ -103,12 +103,12 @@ TEST(ExifGps, APhotoWithoutAUsablePositionGivesNoneAndSaysWhy) {
 
 TEST(ExifGps, AFoldersTrackHasEachPhotosFixAtItsTime) {
   testing::TempDir dir;
-  std::vector<std::pair<int64_t, std::string>> images;
+  std::vector<ImageEntry> images;
   for (int i = 0; i < 5; ++i) {
     auto tags = ZurichTags();
     tags[1].second = "47/1 22/1 " + std::to_string(632 + 100 * i) + "/100";  // a second of arc further north each
     const std::string name = dir / ("img" + std::to_string(i) + ".jpg");
-    images.emplace_back(int64_t{2'000'000'000} * i, i == 2 ? Photo(name, {}) : Photo(name, tags));
+    images.push_back({int64_t{2'000'000'000} * i, i == 2 ? Photo(name, {}) : Photo(name, tags)});
   }
   const GnssTrack track = ExifGnssTrack(images);
   ASSERT_EQ(track.fixes.size(), 4u) << track.source;

@@ -24,11 +24,6 @@ namespace fs = std::filesystem;
 namespace stitch {
 namespace {
 
-struct ImageEntry {
-  int64_t t_ns;
-  std::string path;
-};
-
 bool IsImageFile(const fs::path& path) {
   std::string ext = path.extension().string();
   std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
@@ -617,10 +612,8 @@ Trajectory ReadGroundTruth(const std::string& path, const std::string& kitti_tim
               "line; EuRoC: state_groundtruth_estimate0/data.csv)");
 }
 
-std::vector<std::pair<int64_t, std::string>> FolderImageTimes(const std::string& folder, double fps) {
-  std::vector<std::pair<int64_t, std::string>> times;
-  for (const ImageEntry& image : FolderImages(folder, fps)) times.emplace_back(image.t_ns, image.path);
-  return times;
+std::vector<ImageEntry> FolderImageTimes(const std::string& folder, double fps) {
+  return FolderImages(folder, fps);
 }
 
 }  // namespace stitch

@@ -5,7 +5,6 @@
 #include <cstdint>
 #include <memory>
 #include <string>
-#include <utility>
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -57,10 +56,16 @@ struct SequenceOptions {
 // Throws stitch::Error with what was expected when the path is none of them.
 std::string DetectDatasetKind(const std::string& path);
 
+// One image file of a sequence and its time.
+struct ImageEntry {
+  int64_t t_ns = 0;
+  std::string path;
+};
+
 // An image folder's images as OpenDataset plays them: each image's time (from its file name, or
 // 1/fps apart; fps 0: 30 Hz) and path, in time order. Throws stitch::Error for a folder without
 // images.
-std::vector<std::pair<int64_t, std::string>> FolderImageTimes(const std::string& folder, double fps = 0.0);
+std::vector<ImageEntry> FolderImageTimes(const std::string& folder, double fps = 0.0);
 
 // Opens a dataset of the detected kind. Throws stitch::Error for a missing folder, a missing or
 // wrong calibration, or a first image that cannot be read.
