@@ -163,6 +163,11 @@ TEST(LiveGnss, OpensTheReceiverItsSettingNames) {
       OpenLiveGnssReceiver("gpsd:127.0.0.1:" + std::to_string(bus::UnusedTcpPort()), 0, received.Callback());
   EXPECT_NE(gpsd->Describe().find("from gpsd at 127.0.0.1:"), std::string::npos);
   EXPECT_NE(OpenLiveGnssReceiver("gpsd", 0, received.Callback())->Describe().find("localhost:2947"), std::string::npos);
+  // A MAVLink signing key: a MAVLink receiver checks signatures; gpsd's fixes carry none.
+  const Secret key = RandomSecret();
+  EXPECT_NE(OpenLiveGnssReceiver("mavlink:127.0.0.1:0", 0, received.Callback(), key)->Describe().find("0 unsigned"),
+            std::string::npos);
+  EXPECT_THROW(OpenLiveGnssReceiver("gpsd", 0, received.Callback(), key), Error);
 }
 
 // The real gpsd, fed an NMEA log by gpsfake (Debian's gpsd-clients) as a receiver on a serial port

@@ -8,13 +8,15 @@
 namespace stitch {
 
 std::unique_ptr<LiveGnssReceiver> OpenLiveGnssReceiver(const std::string& setting, double latency_s,
-                                                       GnssFixCallback on_fix) {
+                                                       GnssFixCallback on_fix,
+                                                       const std::optional<Secret>& mavlink_signing_key) {
   if (const std::string why = WhyNotAGnssReceiver(setting); !why.empty() || setting.empty()) {
     throw Error(why.empty() ? "no GNSS receiver named" : why);
   }
+  MavlinkGnssOptions options;
+  options.latency_s = latency_s;
+  options.signing_key = mavlink_signing_key;
   if (setting.rfind("mavlink-serial:", 0) == 0) {
-    MavlinkGnssOptions options;
-    options.latency_s = latency_s;
     MavlinkSerialPort port;
     const std::string rest = setting.substr(15);
     const size_t colon = rest.rfind(':');
@@ -29,9 +31,10 @@ std::unique_ptr<LiveGnssReceiver> OpenLiveGnssReceiver(const std::string& settin
     return std::make_unique<MavlinkReceiver>(port, options, std::move(on_fix));
   }
   if (setting.rfind("mavlink:", 0) == 0) {
-    MavlinkGnssOptions options;
-    options.latency_s = latency_s;
     return std::make_unique<MavlinkReceiver>(setting.substr(8), options, std::move(on_fix));
+  }
+  if (mavlink_signing_key) {
+    throw Error("ingest.gnss_signing_key_file is a MAVLink signing key: gpsd's fixes carry no signature");
   }
   std::string host = "localhost", port = "2947";
   if (setting != "gpsd") {

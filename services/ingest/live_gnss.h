@@ -6,8 +6,10 @@
 
 #include <functional>
 #include <memory>
+#include <optional>
 #include <string>
 
+#include "services/common/secret_file.h"
 #include "stitch/geo/gnss_fix.h"
 
 namespace stitch {
@@ -22,7 +24,10 @@ class LiveGnssReceiver {
 
 // The receiver `setting` names (gpsd, gpsd:HOST:PORT, mavlink:ADDRESS:PORT: WhyNotAGnssReceiver);
 // throws stitch::Error for a setting that names none, or an address it cannot listen on.
+// `mavlink_signing_key`: a MAVLink receiver takes only frames signed with it (mavlink_gnss.h);
+// with gpsd, an error.
 std::unique_ptr<LiveGnssReceiver> OpenLiveGnssReceiver(const std::string& setting, double latency_s,
-                                                       GnssFixCallback on_fix);
+                                                       GnssFixCallback on_fix,
+                                                       const std::optional<Secret>& mavlink_signing_key = {});
 
 }  // namespace stitch

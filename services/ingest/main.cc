@@ -53,10 +53,18 @@ int main(int argc, char** argv) {
             "wall): a recorded sequence's GNSS comes from its gnss.csv, .SRT or photos' EXIF tags");
       }
       const std::string channel = bus::Channel(process.publisher->agent(), bus::kGnss);
-      gnss = OpenLiveGnssReceiver(o.gnss_receiver, o.gnss_latency_s, [&process, channel](const GnssFix& fix) {
-        stitch::gnss_fix_t message = ToMessage(fix);
-        process.publisher->Publish(channel, &message);
-      });
+      std::optional<Secret> signing_key;
+      if (!o.gnss_signing_key_file.empty()) {
+        signing_key = LoadSecretFile(o.gnss_signing_key_file, "MAVLink signing key",
+                                     "write the flight controller's key there as 64 hex digits");
+      }
+      gnss = OpenLiveGnssReceiver(
+          o.gnss_receiver, o.gnss_latency_s,
+          [&process, channel](const GnssFix& fix) {
+            stitch::gnss_fix_t message = ToMessage(fix);
+            process.publisher->Publish(channel, &message);
+          },
+          signing_key);
     }
     FailureSchedule spoil;
     auto sequence = OpenSource(source, &spoil);

@@ -111,7 +111,12 @@ std::string MavlinkReceiver::Describe() const {
          (serial_.device.empty() ? " datagrams, " : " reads of " + serial_.device + ", ") + std::to_string(c.frames) +
          " frames read, " + std::to_string(c.damaged) + " damaged, " + std::to_string(c.refused) +
          " position messages without a usable fix, " + std::to_string(c.bytes_skipped) +
-         " bytes of other messages or garbage)";
+         " bytes of other messages or garbage" +
+         (decoder_.checks_signatures()
+              ? ", " + std::to_string(c.unsigned_frames) + " unsigned, " + std::to_string(c.bad_signatures) +
+                    " with a wrong signature, " + std::to_string(c.replayed) + " replayed"
+              : std::string()) +
+         ")";
 }
 
 void MavlinkReceiver::Receive() {

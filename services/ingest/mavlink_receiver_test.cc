@@ -6,9 +6,11 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <condition_variable>
 #include <mutex>
+#include <optional>
 #include <thread>
 
 #include <gtest/gtest.h>
@@ -66,6 +68,59 @@ TEST(MavlinkReceiver, PublishesTheFixesOfTheDatagramsItGetsStampedWithTheWallClo
   EXPECT_EQ(counts.fixes, 1);
   EXPECT_EQ(counts.damaged, 1);
   EXPECT_NE(receiver.Describe().find("1 GNSS fixes from MAVLink (3 datagrams"), std::string::npos)
+      << receiver.Describe();
+}
+
+// With the controller's signing key, a forged fix (unsigned, or signed with another key) and a
+// signed one sent again are refused and counted; the signed one is published.
+TEST(MavlinkReceiver, WithASigningKeyPublishesOnlyTheControllersSignedFixes) {
+  std::mutex mutex;
+  std::condition_variable arrived;
+  std::vector<GnssFix> fixes;
+  std::array<uint8_t, 32> key{}, forged{};
+  key.fill(0x5A);
+  forged.fill(0xA5);
+  MavlinkGnssOptions options;
+  options.signing_key = key;
+  MavlinkReceiver receiver("127.0.0.1:0", options, [&](const GnssFix& fix) {
+    std::lock_guard<std::mutex> lock(mutex);
+    fixes.push_back(fix);
+    arrived.notify_all();
+  });
+  MavlinkGpsRawInt raw;
+  raw.lat_e7 = 473684230;
+  raw.lon_e7 = 85390540;
+  raw.alt_mm = 460'000;
+  raw.fix_type = 3;
+  raw.eph = 90;
+  MavlinkFrameHeader header;
+  header.signing_timestamp = 370'000'000'000'000;
+  const auto frame = [&](const std::optional<std::array<uint8_t, 32>>& signing, int32_t lat_e7) {
+    MavlinkGpsRawInt m = raw;
+    m.lat_e7 = lat_e7;
+    header.signing_key = signing;
+    ++header.signing_timestamp;
+    return EncodeMavlinkFrame(kMavlinkGpsRawInt, MavlinkPayload(m), header);
+  };
+  const std::vector<uint8_t> real = frame(key, raw.lat_e7);
+  SendTo(receiver.port(), frame(std::nullopt, 480000000));
+  SendTo(receiver.port(), frame(forged, 480000000));
+  SendTo(receiver.port(), real);
+  SendTo(receiver.port(), real);  // sent again
+  SendTo(receiver.port(), frame(key, raw.lat_e7 + 10));
+  std::unique_lock<std::mutex> lock(mutex);
+  ASSERT_TRUE(arrived.wait_for(lock, std::chrono::seconds(10), [&] { return fixes.size() >= 2; }));
+  lock.unlock();
+  std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  lock.lock();
+  ASSERT_EQ(fixes.size(), 2u);
+  for (const GnssFix& fix : fixes) EXPECT_NEAR(fix.position.latitude_deg, 47.368423, 1e-5) << "never the forged 48.0";
+  lock.unlock();
+  const MavlinkGnssCounts counts = receiver.counts();
+  EXPECT_EQ(counts.unsigned_frames, 1);
+  EXPECT_EQ(counts.bad_signatures, 1);
+  EXPECT_EQ(counts.replayed, 1);
+  EXPECT_NE(receiver.Describe().find("1 unsigned, 1 with a wrong signature, 1 replayed"), std::string::npos)
       << receiver.Describe();
 }
 

@@ -43,6 +43,9 @@ struct IngestOptions {
   // stamped with the frames' wall clock at their arrival, less gnss_latency_s. Empty: none.
   std::string gnss_receiver;
   double gnss_latency_s = 0.0;
+  // MAVLink receivers: the flight controller's MAVLink 2 signing key, as 64 hex digits in a file
+  // only its owner may read; with it only fixes signed with that key are taken. Empty: none.
+  std::string gnss_signing_key_file;
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
@@ -69,6 +72,10 @@ struct IngestOptions {
       "(localhost:2947), mavlink:ADDRESS:PORT (a flight controller's telemetry on UDP, e.g. mavlink::14550) or "
       "mavlink-serial:DEVICE[:BAUD] (from its serial port, e.g. mavlink-serial:/dev/ttyACM0:57600) (empty: none)");
     v("gnss_latency_s", gnss_latency_s, "how much older a live receiver's fix is than its arrival, seconds");
+    v("gnss_signing_key_file", gnss_signing_key_file,
+      "mavlink receivers: a file (mode 0600) holding the flight controller's MAVLink 2 signing key as 64 hex digits "
+      "(MAVProxy's `signing setup PASSPHRASE` key: `printf %s PASSPHRASE | sha256sum`); only fixes signed with it "
+      "are taken (empty: signatures are not checked)");
   }
 
   bool Check(std::string* why) const {

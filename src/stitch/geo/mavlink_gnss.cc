@@ -3,12 +3,18 @@
 #include <algorithm>
 #include <cstring>
 
+#include <sodium.h>
+
+#include "stitch/util/error.h"
+
 namespace stitch {
 namespace {
 
 constexpr uint8_t kMagicV1 = 0xFE, kMagicV2 = 0xFD;
 constexpr size_t kHeaderV1 = 6, kHeaderV2 = 10, kChecksum = 2, kSignature = 13;
 constexpr uint8_t kIncompatSigned = 0x01;
+constexpr size_t kSignatureBytes = 6, kTimestampBytes = 6;
+constexpr uint64_t kNewStreamSlack = 60 * 100'000;  // a minute, in the timestamp's 10 us units
 constexpr size_t kGpsRawIntMinLength = 30, kGpsRawIntMaxLength = 52;
 constexpr size_t kGlobalPositionIntLength = 28;
 
@@ -66,6 +72,22 @@ GnssFixType FixTypeOf(uint8_t gps_fix_type) {
   }
 }
 
+// The 48-bit signature of a MAVLink 2 frame: SHA-256 over the key, the frame from its marker
+// through its CRC, then the link id and the 6-byte timestamp (`signed_part`: all of those bytes
+// of the frame, `size` of them).
+std::array<uint8_t, kSignatureBytes> MavlinkSignature(const std::array<uint8_t, 32>& key, const uint8_t* signed_part,
+                                                      size_t size) {
+  crypto_hash_sha256_state state;
+  crypto_hash_sha256_init(&state);
+  crypto_hash_sha256_update(&state, key.data(), key.size());
+  crypto_hash_sha256_update(&state, signed_part, size);
+  uint8_t digest[crypto_hash_sha256_BYTES];
+  crypto_hash_sha256_final(&state, digest);
+  std::array<uint8_t, kSignatureBytes> signature;
+  std::memcpy(signature.data(), digest, kSignatureBytes);
+  return signature;
+}
+
 }  // namespace
 
 uint16_t MavlinkCrc(const uint8_t* data, size_t size, uint16_t crc) {
@@ -77,7 +99,9 @@ uint16_t MavlinkCrc(const uint8_t* data, size_t size, uint16_t crc) {
   return crc;
 }
 
-MavlinkGnssDecoder::MavlinkGnssDecoder(MavlinkGnssOptions options) : options_(options) {}
+MavlinkGnssDecoder::MavlinkGnssDecoder(MavlinkGnssOptions options) : options_(options) {
+  if (options_.signing_key && sodium_init() < 0) throw Error("libsodium could not be initialized");
+}
 
 std::vector<GnssFix> MavlinkGnssDecoder::Feed(const uint8_t* data, size_t size, int64_t arrived_t_ns) {
   pending_.insert(pending_.end(), data, data + size);
@@ -143,6 +167,17 @@ std::vector<GnssFix> MavlinkGnssDecoder::Parse(int64_t arrived_t_ns, bool whole)
       skip(1);
       continue;
     }
+    if (options_.signing_key) {
+      if (!v2 || !(frame[2] & kIncompatSigned)) {
+        ++counts_.unsigned_frames;
+        start += frame_size;
+        continue;
+      }
+      if (!SignatureAccepted(frame, frame_size)) {
+        start += frame_size;
+        continue;
+      }
+    }
     ++counts_.frames;
     const int system = frame[v2 ? 5 : 3];
     const bool position = id == kMavlinkGpsRawInt || id == kMavlinkGlobalPositionInt;
@@ -156,6 +191,31 @@ std::vector<GnssFix> MavlinkGnssDecoder::Parse(int64_t arrived_t_ns, bool whole)
   }
   pending_.erase(pending_.begin(), pending_.begin() + static_cast<std::ptrdiff_t>(start));
   return fixes;
+}
+
+bool MavlinkGnssDecoder::SignatureAccepted(const uint8_t* frame, size_t frame_size) {
+  const uint8_t* signature = frame + frame_size - kSignatureBytes;
+  const auto expected = MavlinkSignature(*options_.signing_key, frame, frame_size - kSignatureBytes);
+  if (sodium_memcmp(expected.data(), signature, kSignatureBytes) != 0) {
+    ++counts_.bad_signatures;
+    return false;
+  }
+  const uint8_t* link = frame + frame_size - kSignature;
+  uint64_t timestamp = 0;
+  for (size_t i = 0; i < kTimestampBytes; ++i) timestamp |= static_cast<uint64_t>(link[1 + i]) << (8 * i);
+  const auto stream = std::make_tuple(int{frame[5]}, int{frame[6]}, int{link[0]});
+  // As MAVLink's signing rules: within a stream each timestamp newer than the last; a stream not
+  // seen before at most a minute older than the newest timestamp of any stream.
+  const auto last = last_signed_.find(stream);
+  const bool stale =
+      last != last_signed_.end() ? timestamp <= last->second : timestamp + kNewStreamSlack < newest_signed_;
+  if (stale) {
+    ++counts_.replayed;
+    return false;
+  }
+  last_signed_[stream] = timestamp;
+  newest_signed_ = std::max(newest_signed_, timestamp);
+  return true;
 }
 
 void MavlinkGnssDecoder::Decode(uint32_t id, int system, const uint8_t* payload, int64_t arrived_t_ns,
@@ -222,7 +282,7 @@ std::vector<uint8_t> EncodeMavlinkFrame(uint32_t message_id, std::vector<uint8_t
     while (payload.size() > 1 && payload.back() == 0) payload.pop_back();  // MAVLink 2 trims trailing zeros
     frame = {kMagicV2,
              static_cast<uint8_t>(payload.size()),
-             0,
+             header.signing_key ? kIncompatSigned : uint8_t{0},
              0,
              header.sequence,
              header.system_id,
@@ -237,6 +297,15 @@ std::vector<uint8_t> EncodeMavlinkFrame(uint32_t message_id, std::vector<uint8_t
   crc = MavlinkCrc(&extra, 1, crc);
   frame.push_back(static_cast<uint8_t>(crc & 0xFF));
   frame.push_back(static_cast<uint8_t>(crc >> 8));
+  if (header.version != 1 && header.signing_key) {
+    if (sodium_init() < 0) throw Error("libsodium could not be initialized");
+    frame.push_back(header.link_id);
+    for (size_t i = 0; i < kTimestampBytes; ++i) {
+      frame.push_back(static_cast<uint8_t>(header.signing_timestamp >> (8 * i)));
+    }
+    const auto signature = MavlinkSignature(*header.signing_key, frame.data(), frame.size());
+    frame.insert(frame.end(), signature.begin(), signature.end());
+  }
   return frame;
 }
 

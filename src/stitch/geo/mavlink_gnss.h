@@ -16,13 +16,25 @@
 //   level.
 //
 // Everything else (other messages, frames of unknown ids, damaged frames, garbage between frames)
-// is stepped over and counted. MAVLink 2 signed frames are read; their signature is not checked.
-// A fix's time is when its frame arrived (the caller's clock: the live camera's, so fixes and
-// frames share it), less MavlinkGnssOptions::latency_s.
+// is stepped over and counted. Without a signing key, MAVLink 2 signed frames are read and their
+// signature is not checked. With one (MavlinkGnssOptions::signing_key, the 32-byte secret the
+// flight controller signs with), only MAVLink 2 frames signed with it are read: the signature
+// (the first 48 bits of SHA-256 over the key, the frame from its marker to its CRC, the link id
+// and the timestamp, as MAVLink 2 message signing defines it) must check out, and the timestamp
+// must be newer than the last one accepted from the same system, component and link, and for a
+// stream not seen before at most a minute older than the newest of any (a frame replayed, or one
+// recorded earlier, is refused); unsigned frames and MAVLink 1 are refused. The stream's state
+// is the decoder's: a new decoder (the ingest started again) takes a stream's first frame.
+// Each refusal is counted. A fix's time is when its frame arrived (the caller's clock: the live
+// camera's, so fixes and frames share it), less MavlinkGnssOptions::latency_s.
 
+#include <array>
 #include <cstddef>
 #include <cstdint>
+#include <map>
+#include <optional>
 #include <string>
+#include <tuple>
 #include <vector>
 
 #include "stitch/geo/gnss_fix.h"
@@ -39,6 +51,9 @@ struct MavlinkGnssOptions {
   double stated_horizontal_accuracy_m = 3.0;
   double stated_vertical_accuracy_m = 6.0;
   int system_id = 0;  // only frames from this MAVLink system (0: any)
+  // MAVLink 2 message signing: only frames signed with this key are read (none: signatures are
+  // not checked).
+  std::optional<std::array<uint8_t, 32>> signing_key;
 };
 
 struct MavlinkGnssCounts {
@@ -47,6 +62,11 @@ struct MavlinkGnssCounts {
   int64_t bytes_skipped = 0;  // bytes outside any good frame
   int64_t fixes = 0;          // fixes returned
   int64_t refused = 0;        // position messages without a usable fix (no lock, impossible values)
+  // With a signing key: frames refused for want of a signature (unsigned, or MAVLink 1), for a
+  // signature that does not check out, and for a timestamp no newer than its stream's last.
+  int64_t unsigned_frames = 0;
+  int64_t bad_signatures = 0;
+  int64_t replayed = 0;
 };
 
 class MavlinkGnssDecoder {
@@ -61,6 +81,7 @@ class MavlinkGnssDecoder {
   std::vector<GnssFix> FeedDatagram(const uint8_t* data, size_t size, int64_t arrived_t_ns);
 
   const MavlinkGnssCounts& counts() const { return counts_; }
+  bool checks_signatures() const { return options_.signing_key.has_value(); }
 
  private:
   // Reads the frames in pending_; `whole`: pending_ is all there is (a datagram).
@@ -71,7 +92,14 @@ class MavlinkGnssDecoder {
   MavlinkGnssOptions options_;
   MavlinkGnssCounts counts_;
   std::vector<uint8_t> pending_;
+  // Checks a signed frame's signature and timestamp (`frame_size` bytes from its marker, the
+  // signature's 13 at the end); counts a refusal. Never throws.
+  bool SignatureAccepted(const uint8_t* frame, size_t frame_size);
+
   std::vector<int> systems_with_raw_fixes_;
+  // The newest signature timestamp accepted per (system, component, link).
+  std::map<std::tuple<int, int, int>, uint64_t> last_signed_;
+  uint64_t newest_signed_ = 0;
   int64_t last_t_ns_ = INT64_MIN / 2;
 };
 
@@ -83,6 +111,11 @@ uint16_t MavlinkCrc(const uint8_t* data, size_t size, uint16_t crc = 0xFFFF);
 struct MavlinkFrameHeader {
   int version = 2;
   uint8_t sequence = 0, system_id = 1, component_id = 1;
+  // MAVLink 2 only: signed with this key, on this link, at this timestamp (10 us units since
+  // 2015-01-01, as MAVLink counts them).
+  std::optional<std::array<uint8_t, 32>> signing_key;
+  uint8_t link_id = 0;
+  uint64_t signing_timestamp = 0;
 };
 std::vector<uint8_t> EncodeMavlinkFrame(uint32_t message_id, std::vector<uint8_t> payload,
                                         const MavlinkFrameHeader& header = {});

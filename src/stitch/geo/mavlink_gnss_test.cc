@@ -1,5 +1,7 @@
 #include "stitch/geo/mavlink_gnss.h"
 
+#include <array>
+#include <optional>
 #include <random>
 
 #include <gtest/gtest.h>
@@ -182,10 +184,110 @@ TEST(MavlinkGnss, ArbitraryBytesNeverCrashOrGiveAFix) {
     fixes += static_cast<int64_t>(decoder.Feed(bytes.data(), bytes.size(), round).size());
   }
   EXPECT_EQ(fixes, 0) << "a random frame passes the CRC about once in 65536";
+  // The same bytes through a decoder that checks signatures.
+  MavlinkGnssOptions signing;
+  signing.signing_key = std::array<uint8_t, 32>{};
+  MavlinkGnssDecoder checking(signing);
+  std::mt19937 again(11);
+  for (int round = 0; round < 3000; ++round) {
+    std::vector<uint8_t> bytes(again() % 300);
+    for (auto& b : bytes) b = static_cast<uint8_t>(again());
+    bytes.insert(bytes.begin(), good.begin(), good.begin() + 3);
+    bytes[2] |= 0x01;  // flagged signed
+    EXPECT_TRUE(checking.Feed(bytes.data(), bytes.size(), round).empty());
+  }
   // A frame the garbage began is settled within 280 bytes; then a good frame is read.
   const std::vector<uint8_t> zeros(300, 0);
   EXPECT_TRUE(FeedAll(&decoder, zeros, 1'000'000).empty());
   EXPECT_EQ(FeedAll(&decoder, good, 1'000'001).size(), 1u) << "and the decoder still reads a good frame after";
+}
+
+// MAVLink 2 message signing, against another implementation's frame: a HEARTBEAT signed with a
+// published test key (the signed-heartbeat test vector of the Rust `mavlink` crate's tests).
+TEST(MavlinkGnss, ChecksASignatureAsMavlinkDefinesIt) {
+  const std::array<uint8_t, 32> key = {0x00, 0x01, 0xf2, 0xe3, 0xd4, 0xc5, 0xb6, 0xa7, 0x98, 0x00, 0x70,
+                                       0x76, 0x34, 0x32, 0x00, 0x16, 0x22, 0x42, 0x00, 0xcc, 0xff, 0x7a,
+                                       0x00, 0x52, 0x75, 0x73, 0x74, 0x00, 0x4d, 0x41, 0x56, 0xb3};
+  const std::vector<uint8_t> heartbeat = {0xfd, 0x09, 0x01, 0x00, 0xef, 0x01, 0x02, 0x00, 0x00, 0x00, 0x05, 0x00,
+                                          0x00, 0x00, 0x02, 0x03, 0x59, 0x03, 0x03, 0xc9, 0x8b, 0x00, 0xff, 0xff,
+                                          0xff, 0xff, 0xff, 0xff, 0x27, 0x18, 0xb1, 0x68, 0xcc, 0xf5};
+  MavlinkGnssOptions options;
+  options.signing_key = key;
+  MavlinkGnssDecoder decoder(options);
+  FeedAll(&decoder, heartbeat);
+  EXPECT_EQ(decoder.counts().frames, 1);
+  EXPECT_EQ(decoder.counts().bad_signatures, 0);
+  // Our encoder signs it the same way.
+  MavlinkFrameHeader header;
+  header.sequence = 0xef;
+  header.system_id = 1;
+  header.component_id = 2;
+  header.signing_key = key;
+  header.signing_timestamp = 0xffffffffffff;
+  EXPECT_EQ(EncodeMavlinkFrame(0, {0x05, 0x00, 0x00, 0x00, 0x02, 0x03, 0x59, 0x03, 0x03}, header), heartbeat);
+  // One bit of the signature, or of the timestamp it covers, changed: refused.
+  for (size_t at : {heartbeat.size() - 1, heartbeat.size() - 8}) {
+    std::vector<uint8_t> altered = heartbeat;
+    altered[at] ^= 0x01;
+    MavlinkGnssDecoder fresh(options);
+    FeedAll(&fresh, altered);
+    EXPECT_EQ(fresh.counts().frames, 0) << "byte " << at;
+    EXPECT_EQ(fresh.counts().bad_signatures, 1) << "byte " << at;
+  }
+}
+
+// With a signing key, a fix is taken only from a frame signed with it, once: an unsigned frame, a
+// MAVLink 1 frame, one signed with another key, one sent again (its timestamp no newer than its
+// stream's last) and a new stream's frame from long before the newest are refused and counted;
+// without a key, signed frames are read as any other.
+TEST(MavlinkGnss, WithASigningKeyTakesOnlyFixesSignedWithIt) {
+  std::array<uint8_t, 32> key{}, other{};
+  for (size_t i = 0; i < key.size(); ++i) {
+    key[i] = static_cast<uint8_t>(3 * i + 1);
+    other[i] = static_cast<uint8_t>(5 * i + 2);
+  }
+  const auto frame = [&](const std::optional<std::array<uint8_t, 32>>& signing, uint64_t timestamp, int version = 2,
+                         uint8_t link = 0) {
+    MavlinkFrameHeader header;
+    header.version = version;
+    header.signing_key = signing;
+    header.signing_timestamp = timestamp;
+    header.link_id = link;
+    std::vector<uint8_t> payload = MavlinkPayload(ZurichFix());
+    if (version == 1) payload.resize(30);
+    return EncodeMavlinkFrame(kMavlinkGpsRawInt, payload, header);
+  };
+  MavlinkGnssOptions options;
+  options.signing_key = key;
+  MavlinkGnssDecoder decoder(options);
+  constexpr uint64_t kNow = 370'000'000'000'000;  // 10 us units since 2015: late 2026
+  EXPECT_EQ(FeedAll(&decoder, frame(key, kNow)).size(), 1u);
+  EXPECT_EQ(FeedAll(&decoder, frame(key, kNow + 10)).size(), 1u);
+  EXPECT_TRUE(FeedAll(&decoder, frame(std::nullopt, 0)).empty());
+  EXPECT_TRUE(FeedAll(&decoder, frame(std::nullopt, 0, /*version=*/1)).empty());
+  EXPECT_TRUE(FeedAll(&decoder, frame(other, kNow + 20)).empty());
+  EXPECT_TRUE(FeedAll(&decoder, frame(key, kNow + 10)).empty()) << "sent again";
+  EXPECT_TRUE(FeedAll(&decoder, frame(key, kNow + 5)).empty()) << "older than its stream's last";
+  EXPECT_EQ(FeedAll(&decoder, frame(key, kNow - 100, 2, /*link=*/1)).size(), 1u) << "another link, within a minute";
+  EXPECT_TRUE(FeedAll(&decoder, frame(key, kNow - 7'000'000, 2, /*link=*/2)).empty())
+      << "a new link's frame 70 s older than the newest";
+  EXPECT_EQ(decoder.counts().fixes, 3);
+  EXPECT_EQ(decoder.counts().unsigned_frames, 2);
+  EXPECT_EQ(decoder.counts().bad_signatures, 1);
+  EXPECT_EQ(decoder.counts().replayed, 3);
+  // In a stream cut anywhere, and as datagrams, the same.
+  const std::vector<uint8_t> signed_frame = frame(key, kNow + 100);
+  MavlinkGnssDecoder pieces(options);
+  size_t fixes = 0;
+  for (size_t at = 0; at < signed_frame.size(); at += 5) {
+    fixes += pieces.Feed(signed_frame.data() + at, std::min<size_t>(5, signed_frame.size() - at), 1).size();
+  }
+  EXPECT_EQ(fixes, 1u);
+  MavlinkGnssDecoder datagrams(options);
+  EXPECT_EQ(datagrams.FeedDatagram(signed_frame.data(), signed_frame.size(), 1).size(), 1u);
+  // Without a key, signatures are not checked.
+  MavlinkGnssDecoder unchecked;
+  EXPECT_EQ(FeedAll(&unchecked, frame(other, 1)).size(), 1u);
 }
 
 }  // namespace
