@@ -73,14 +73,20 @@ RunGeoReference GeoReferenceRun(const std::vector<PoseRecord>& poses, int larges
   const std::vector<EnuFix> fixes = ToEnu(gnss.fixes, plane);
   std::map<int, std::vector<const PoseRecord*>> by_component;
   for (const PoseRecord& p : poses) by_component[p.component].push_back(&p);
-  for (const RunMap& map : MapsOfRun(poses, largest_component)) {
+  const std::vector<RunMap> maps = MapsOfRun(poses, largest_component);
+  std::vector<Trajectory> trajectories(maps.size());
+  std::vector<MapToPlace> to_place;
+  for (size_t i = 0; i < maps.size(); ++i) {
+    for (const PoseRecord* p : by_component[maps[i].component]) trajectories[i].Add({p->t_ns, p->world_from_cam});
+    to_place.push_back({&trajectories[i], &fixes});
+  }
+  std::vector<GeoPlacement> placements = PlaceMapsByGnss(to_place, options);
+  for (size_t i = 0; i < maps.size(); ++i) {
     MapGeoReference m;
-    m.map = map;
-    Trajectory trajectory;
-    for (const PoseRecord* p : by_component[map.component]) trajectory.Add({p->t_ns, p->world_from_cam});
-    m.placement = PlaceByGnss(trajectory, fixes, options);
+    m.map = maps[i];
+    m.placement = std::move(placements[i]);
     if (m.placement.placed && gnss.ground_truth_enu_origin && !ground_truth.empty()) {
-      m.absolute = MeasureAbsolute(by_component[map.component], m.placement.enu_from_map, ground_truth);
+      m.absolute = MeasureAbsolute(by_component[maps[i].component], m.placement.enu_from_map, ground_truth);
     }
     geo.maps.push_back(std::move(m));
   }
@@ -158,8 +164,11 @@ std::vector<std::string> RunGeoReference::Summary() const {
                                   "    %s (%d frames) placed by %d of %d fixes%s: %.2f m horizontal, %.2f m vertical "
                                   "RMS from them",
                                   m.map.name.c_str(), m.map.frames, p.inliers, p.fixes_matched,
-                                  p.method == "gnss" ? "" : " (along a line: with the cameras' up)", p.horizontal_rms_m,
-                                  p.vertical_rms_m);
+                                  p.method == "gnss" ? ""
+                                  : p.method == "gnss+camera-up"
+                                      ? " (along a line: with the cameras' up)"
+                                      : " (along a line: with the cameras' up as the run's other maps show it)",
+                                  p.horizontal_rms_m, p.vertical_rms_m);
       if (p.disagreement && written > 0 && written < static_cast<int>(sizeof(line))) {
         written += std::snprintf(line + written, sizeof(line) - written,
                                  "; %d fixes from %.1f s to %.1f s agree with each other but put it %.1f m off: a "

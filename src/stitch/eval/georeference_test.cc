@@ -89,11 +89,12 @@ TEST(GeoReferenceRun, PlacesEachMapByItsOwnFixesAndMeasuresItAgainstTheTruthUnal
   EXPECT_LT(merged.absolute->keyframe_horizontal_rms_m, 1.0);  // the bar for 2 m fixes at 5 Hz
   EXPECT_LT(merged.absolute->vertical_rms_m, 1.0);
   EXPECT_LT(std::abs(merged.absolute->scale_error), 0.01);
-  // The straight line: its rotation about itself from the nadir camera's up.
+  // The straight line: its rotation about itself from the camera's up, as the merged map (placed
+  // by its fixes alone) shows it in the camera's frame.
   const MapGeoReference& line = geo.maps[1];
   EXPECT_EQ(line.map.name, "submap-0-3");
   ASSERT_TRUE(line.placement.placed) << line.placement.why_not;
-  EXPECT_EQ(line.placement.method, "gnss+camera-up");
+  EXPECT_EQ(line.placement.method, "gnss+learned-camera-up");
   ASSERT_TRUE(line.absolute);
   EXPECT_LT(line.absolute->keyframe_horizontal_rms_m, 1.0);
   const std::vector<std::string> summary = geo.Summary();
@@ -116,7 +117,7 @@ TEST(GeoReferenceRun, WritesTheTrajectoryInWgs84AndHowEachMapWasPlaced) {
   const nlohmann::json json = nlohmann::json::parse(in);
   EXPECT_EQ(json["maps"].size(), 2u);
   EXPECT_EQ(json["maps"][0]["placed_by"], "gnss");
-  EXPECT_EQ(json["maps"][1]["placed_by"], "gnss+camera-up");
+  EXPECT_EQ(json["maps"][1]["placed_by"], "gnss+learned-camera-up");
   EXPECT_TRUE(std::filesystem::exists(dir.path() / "geo" / "trajectory.geojson"));
   EXPECT_TRUE(std::filesystem::exists(dir.path() / "geo" / "trajectory.kml"));
 }

@@ -16,6 +16,9 @@ namespace {
 
 constexpr int kRansacSamples = 500;
 constexpr int kRefinements = 10;
+// A map's cameras agree on which way is up when the mean of the up direction in their frames is
+// at least this long (1: all alike; a camera tilted 25 degrees back and forth about it: 0.9).
+constexpr double kLevelAgreement = 0.9;
 
 // A fix and the camera where the map has it at the fix's time.
 struct FixPair {
@@ -139,8 +142,8 @@ Sim3d FitAlongLine(const std::vector<FixPair>& pairs, const std::vector<int>& in
 bool GeoReferenceOptions::Check(std::string* why) const {
   if (min_fixes < 3) return *why = "min_fixes must be at least 3", false;
   if (!(min_spread_m >= 0)) return *why = "min_spread_m must not be negative", false;
-  if (camera_up_axis != "-z" && camera_up_axis != "-y" && camera_up_axis != "none") {
-    return *why = "camera_up_axis must be -z, -y or none", false;
+  if (camera_up_axis != "auto" && camera_up_axis != "-z" && camera_up_axis != "-y" && camera_up_axis != "none") {
+    return *why = "camera_up_axis must be auto, -z, -y or none", false;
   }
   if (!(max_interpolation_gap_s > 0)) return *why = "max_interpolation_gap_s must be positive", false;
   if (!(outlier_chi2 > 0)) return *why = "outlier_chi2 must be positive", false;
@@ -155,7 +158,8 @@ bool GeoReferenceOptions::Check(std::string* why) const {
 }
 
 GeoPlacement PlaceByGnss(const Trajectory& map_poses, const std::vector<EnuFix>& fixes,
-                         const GeoReferenceOptions& options) {
+                         const GeoReferenceOptions& options,
+                         const std::optional<Eigen::Vector3d>& learned_up_in_camera) {
   GeoPlacement placement;
   const Eigen::Vector3d antenna(options.antenna_x_m, options.antenna_y_m, options.antenna_z_m);
   const auto max_gap_ns = static_cast<int64_t>(options.max_interpolation_gap_s * 1e9);
@@ -195,8 +199,11 @@ GeoPlacement PlaceByGnss(const Trajectory& map_poses, const std::vector<EnuFix>&
       placement.why_not = text;
       return placement;
     }
-    const Eigen::Vector3d up_in_cam =
-        options.camera_up_axis == "-y" ? -Eigen::Vector3d::UnitY() : -Eigen::Vector3d::UnitZ();
+    const bool learned = options.camera_up_axis == "auto" && learned_up_in_camera;
+    const Eigen::Vector3d up_in_cam = learned                          ? learned_up_in_camera->normalized()
+                                      : options.camera_up_axis == "-y" ? -Eigen::Vector3d::UnitY()
+                                                                       : -Eigen::Vector3d::UnitZ();
+    const std::string axis = learned ? "learned up" : options.camera_up_axis == "-y" ? "-y" : "-z";
     for (const FixPair& p : pairs) up_in_map += p.map_from_cam * up_in_cam;
     up_in_map /= static_cast<double>(pairs.size());
     std::vector<Eigen::Vector3d> centres;
@@ -206,13 +213,15 @@ GeoPlacement PlaceByGnss(const Trajectory& map_poses, const std::vector<EnuFix>&
       std::snprintf(text, sizeof(text),
                     "its fixes lie along a line (%.1f m across it, needs %.1f m) and its cameras do not say which way "
                     "is up about it (their %s axes agree to %.2f, %.2f along the line)",
-                    placement.spread_m, spread_needed, options.camera_up_axis.c_str(), up_in_map.norm(), along_up);
+                    placement.spread_m, spread_needed, axis.c_str(), up_in_map.norm(), along_up);
       placement.why_not = text;
       return placement;
     }
     up_in_map.normalize();
   }
-  placement.method = along_line ? "gnss+camera-up" : "gnss";
+  placement.method = along_line ? (options.camera_up_axis == "auto" && learned_up_in_camera ? "gnss+learned-camera-up"
+                                                                                            : "gnss+camera-up")
+                                : "gnss";
   const auto fit = [&](const std::vector<int>& indices, const Sim3d& guess, const Eigen::Vector3d& antenna_in_cam) {
     return along_line ? FitAlongLine(pairs, indices, guess, antenna_in_cam, up_in_map)
                       : Fit(pairs, indices, guess, antenna_in_cam);
@@ -342,7 +351,35 @@ GeoPlacement PlaceByGnss(const Trajectory& map_poses, const std::vector<EnuFix>&
     return placement;
   }
   placement.placed = true;
+  if (!along_line) {
+    // ENU's up in each inlier's camera frame; kept where they agree (a camera that flew level).
+    Eigen::Vector3d up = Eigen::Vector3d::Zero();
+    for (int i : best_inliers) {
+      up += (best.rotation * pairs[i].map_from_cam).inverse() * Eigen::Vector3d::UnitZ();
+    }
+    up /= static_cast<double>(best_inliers.size());
+    if (up.norm() > kLevelAgreement) placement.up_in_camera = up.normalized();
+  }
   return placement;
+}
+
+std::vector<GeoPlacement> PlaceMapsByGnss(const std::vector<MapToPlace>& maps, const GeoReferenceOptions& options) {
+  std::vector<GeoPlacement> placements;
+  for (const MapToPlace& map : maps) placements.push_back(PlaceByGnss(*map.poses, *map.fixes, options));
+  if (options.camera_up_axis != "auto") return placements;
+  const GeoPlacement* teacher = nullptr;
+  for (const GeoPlacement& p : placements) {
+    if (p.up_in_camera && (!teacher || p.inliers > teacher->inliers)) teacher = &p;
+  }
+  if (!teacher) return placements;
+  const Eigen::Vector3d up = *teacher->up_in_camera;
+  for (size_t i = 0; i < maps.size(); ++i) {
+    // A map placed by its fixes alone keeps its placement; one along a line takes the learned up.
+    if (placements[i].placed && placements[i].method == "gnss") continue;
+    GeoPlacement again = PlaceByGnss(*maps[i].poses, *maps[i].fixes, options, up);
+    if (again.placed || !placements[i].placed) placements[i] = std::move(again);
+  }
+  return placements;
 }
 
 }  // namespace stitch

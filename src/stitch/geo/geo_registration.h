@@ -15,10 +15,12 @@
 namespace stitch {
 
 struct GeoReferenceOptions {
-  bool enabled = true;                   // place each map by the fixes where the run has them
-  int min_fixes = 10;                    // fixes within a map's frames needed to place it
-  double min_spread_m = 10.0;            // the fixes' spread across their main direction for a free rotation
-  std::string camera_up_axis = "-z";     // the camera's axis that points up in level flight: -z, -y or none
+  bool enabled = true;         // place each map by the fixes where the run has them
+  int min_fixes = 10;          // fixes within a map's frames needed to place it
+  double min_spread_m = 10.0;  // the fixes' spread across their main direction for a free rotation
+  // The camera's axis that points up in level flight, for maps whose fixes lie along a line: auto
+  // (learned from the run's maps placed by their fixes alone, else -z), -z, -y or none.
+  std::string camera_up_axis = "auto";
   double max_interpolation_gap_s = 1.0;  // a fix between two of the map's frames further apart is not used
   double outlier_chi2 = 14.16;           // a fix whose squared residual in its sigmas exceeds this is an outlier
   double min_inlier_fraction = 0.5;      // fixes that must agree with the placement
@@ -35,8 +37,9 @@ struct GeoReferenceOptions {
       "metres (and at least 5 of their horizontal sigmas) the fixes must spread across their main direction for "
       "the rotation to be taken from them alone; along a line the rotation about it is taken from camera_up_axis");
     v("camera_up_axis", camera_up_axis,
-      "the camera's axis that points up in level flight, for maps whose fixes lie along a line: -z (a nadir "
-      "camera), -y (a forward-looking one) or none (such a map is not placed)");
+      "the camera's axis that points up in level flight, for maps whose fixes lie along a line: auto (as the run's "
+      "maps placed by their fixes alone show it, the camera being mounted rigidly; else -z), -z (a nadir camera), "
+      "-y (a forward-looking one) or none (such a map is not placed)");
     v("max_interpolation_gap_s", max_interpolation_gap_s,
       "a fix is matched to the camera's position interpolated between two of the map's frames at most this far apart");
     v("outlier_chi2", outlier_chi2,
@@ -53,8 +56,9 @@ struct GeoReferenceOptions {
 
 struct GeoPlacement {
   bool placed = false;
-  // How the rotation was found: "gnss" (from the fixes alone) or "gnss+camera-up" (the fixes lie
-  // along a line; the rotation about it from the cameras' mean up direction).
+  // How the rotation was found: "gnss" (from the fixes alone), "gnss+camera-up" (the fixes lie
+  // along a line; the rotation about it from the cameras' mean camera_up_axis) or
+  // "gnss+learned-camera-up" (from the up direction the run's other maps showed).
   std::string method;
   std::string why_not;  // when not placed: what was missing, with the figures
   Sim3d enu_from_map;
@@ -63,6 +67,10 @@ struct GeoPlacement {
   double horizontal_rms_m = 0.0;  // of the inliers' residuals
   double vertical_rms_m = 0.0;
   double spread_m = 0.0;  // the matched fixes' spread across their main direction
+  // Placed by the fixes alone: ENU's up in the camera's frame, the mean over the matched fixes'
+  // cameras, where they agree on it (a rigidly mounted camera that flew level). What the maps
+  // along a line take with camera_up_axis auto.
+  std::optional<Eigen::Vector3d> up_in_camera;
   // The outliers, grouped into spans of consecutive fixes: (first, last) time.
   std::vector<std::pair<int64_t, int64_t>> outlier_spans;
   // Fixes that agree with each other on another placement (at least a fifth of the fixes and
@@ -79,7 +87,19 @@ struct GeoPlacement {
 // Places a map whose frames are `map_poses` (world_from_cam in the map's frame, any scale) by the
 // fixes `fixes` (in one ENU frame). RANSAC over triples of fixes (pairs along a line), then least
 // squares on the inliers (the antenna's offset applied once the rotation is known); deterministic.
+// `learned_up_in_camera`: with camera_up_axis auto, the up direction in the camera's frame that
+// other maps showed (else -z).
 GeoPlacement PlaceByGnss(const Trajectory& map_poses, const std::vector<EnuFix>& fixes,
-                         const GeoReferenceOptions& options);
+                         const GeoReferenceOptions& options,
+                         const std::optional<Eigen::Vector3d>& learned_up_in_camera = std::nullopt);
+
+// Places several maps of one run (each its poses and the fixes to place it by): with
+// camera_up_axis auto, the maps along a line take the up direction that the run's maps placed by
+// their fixes alone show, from the one with the most inliers.
+struct MapToPlace {
+  const Trajectory* poses = nullptr;
+  const std::vector<EnuFix>* fixes = nullptr;
+};
+std::vector<GeoPlacement> PlaceMapsByGnss(const std::vector<MapToPlace>& maps, const GeoReferenceOptions& options);
 
 }  // namespace stitch

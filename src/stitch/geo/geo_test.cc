@@ -378,6 +378,64 @@ TEST(PlaceByGnss, PlacesAStraightStripByItsCamerasUp) {
   EXPECT_LT(Eigen::AngleAxisd(error).angle(), 3.0 * M_PI / 180.0);
 }
 
+// A car's forward camera (z along the heading, y down) 1.5 m up, at 1 m a frame (10 Hz): 120 m
+// east, a quarter turn of 12 m radius to the north, then 160 m north.
+std::vector<StampedPose> CarInEnu() {
+  std::vector<StampedPose> poses;
+  const auto add = [&poses](const Eigen::Vector3d& at, double heading) {  // heading from east, counterclockwise
+    const Eigen::Vector3d forward(std::cos(heading), std::sin(heading), 0), down(0, 0, -1);
+    Eigen::Matrix3d world_from_cam;
+    world_from_cam.col(0) = down.cross(forward);  // right: x = y cross z
+    world_from_cam.col(1) = down;
+    world_from_cam.col(2) = forward;
+    StampedPose p;
+    p.t_ns = static_cast<int64_t>(poses.size()) * 100'000'000LL;
+    p.world_from_cam = Rigid3d(Eigen::Quaterniond(world_from_cam), at);
+    poses.push_back(p);
+  };
+  for (int i = 0; i < 120; ++i) add(Eigen::Vector3d(i, 0, 1.5), 0.0);
+  for (int i = 0; i < 19; ++i) {
+    const double a = i * (M_PI / 2) / 19;
+    add(Eigen::Vector3d(120 + 12 * std::sin(a), 12 * (1 - std::cos(a)), 1.5), a);
+  }
+  for (int i = 0; i < 160; ++i) add(Eigen::Vector3d(132, 12 + i, 1.5), M_PI / 2);
+  return poses;
+}
+
+// The car lost track on the street north after its turn and its camera began a new map there: that map's fixes lie
+// along a line, and its camera's -z axis (the default of a nadir camera) points along it. The first map, which took the
+// turn, is placed by its fixes alone and shows which way is up in the camera; the second takes that up and is placed
+// within its fixes' noise, the rotation within a few degrees. Without the learned up (camera_up_axis -z) it is not.
+TEST(PlaceMapsByGnss, AStraightStreetTakesTheUpItsTurnShowed) {
+  const std::vector<StampedPose> car = CarInEnu();
+  const std::vector<StampedPose> turn(car.begin(), car.begin() + 200), street(car.begin() + 210, car.end());
+  const Sim3d street_from_enu(0.05,
+                              Eigen::Quaterniond(Eigen::AngleAxisd(-1.1, Eigen::Vector3d(0.2, 0.9, -0.4).normalized())),
+                              Eigen::Vector3d(-2.0, 0.3, 1.0));
+  const Trajectory turn_map = InMapFrame(turn, kMapFromEnu), street_map = InMapFrame(street, street_from_enu);
+  const std::vector<EnuFix> fixes = NoisyFixes(car, Eigen::Vector3d::Zero(), 2.0, 3.0);
+  const std::vector<GeoPlacement> placed =
+      PlaceMapsByGnss({{&turn_map, &fixes}, {&street_map, &fixes}}, GeoReferenceOptions());
+  ASSERT_EQ(placed.size(), 2u);
+  ASSERT_TRUE(placed[0].placed) << placed[0].why_not;
+  EXPECT_EQ(placed[0].method, "gnss");
+  ASSERT_TRUE(placed[0].up_in_camera);
+  EXPECT_LT(placed[0].up_in_camera->cross(-Eigen::Vector3d::UnitY()).norm(), 0.05)
+      << placed[0].up_in_camera->transpose();
+  ASSERT_TRUE(placed[1].placed) << placed[1].why_not;
+  EXPECT_EQ(placed[1].method, "gnss+learned-camera-up");
+  EXPECT_LT(PlacedRms(placed[1], street_map, street), 1.5);
+  const Eigen::Quaterniond error = placed[1].enu_from_map.rotation * street_from_enu.rotation;
+  EXPECT_LT(Eigen::AngleAxisd(error).angle(), 3.0 * M_PI / 180.0);
+
+  GeoReferenceOptions nadir;
+  nadir.camera_up_axis = "-z";
+  const std::vector<GeoPlacement> unlearned = PlaceMapsByGnss({{&turn_map, &fixes}, {&street_map, &fixes}}, nadir);
+  EXPECT_TRUE(unlearned[0].placed);
+  EXPECT_FALSE(unlearned[1].placed);
+  EXPECT_NE(unlearned[1].why_not.find("do not say which way is up"), std::string::npos) << unlearned[1].why_not;
+}
+
 TEST(GeoOutputs, WriteGeoJsonCoordinatesAsLongitudeLatitudeHeight) {
   testing::TempDir dir;
   GeoTrack track;

@@ -57,15 +57,23 @@ GnssJoining JoinByGnss(const std::map<SubmapId, SubmapReplica>& submaps,
     if (own != fixes.end()) map.fixes.insert(map.fixes.end(), own->second.begin(), own->second.end());
   }
   std::map<int, Sim3d> enu_from_map;  // the placed maps, by component (the largest first)
+  std::vector<int> components;
+  std::vector<Trajectory> trajectories;
   for (auto& [component, map] : maps) {
     if (map.fixes.empty() || map.keyframes.empty()) continue;
     std::sort(map.fixes.begin(), map.fixes.end(), [](const EnuFix& x, const EnuFix& y) { return x.t_ns < y.t_ns; });
     map.fixes.erase(std::unique(map.fixes.begin(), map.fixes.end(),
                                 [](const EnuFix& x, const EnuFix& y) { return x.t_ns == y.t_ns; }),
                     map.fixes.end());
-    GeoPlacement placed = PlaceByGnss(Trajectory(map.keyframes), map.fixes, options);
-    if (placed.placed) enu_from_map[component] = placed.enu_from_map;
-    joining.placements[map.root] = std::move(placed);
+    components.push_back(component);
+    trajectories.emplace_back(map.keyframes);
+  }
+  std::vector<MapToPlace> to_place;
+  for (size_t i = 0; i < components.size(); ++i) to_place.push_back({&trajectories[i], &maps.at(components[i]).fixes});
+  std::vector<GeoPlacement> placements = PlaceMapsByGnss(to_place, options);
+  for (size_t i = 0; i < components.size(); ++i) {
+    if (placements[i].placed) enu_from_map[components[i]] = placements[i].enu_from_map;
+    joining.placements[maps.at(components[i]).root] = std::move(placements[i]);
   }
   // A receiver caught jumping for good in one map is not trusted from then on: the maps of that
   // aircraft whose fixes all come later are not joined (with no view shared, nothing could tell
