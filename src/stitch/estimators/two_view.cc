@@ -182,7 +182,7 @@ bool TwoViewOptions::Check(std::string* why) const {
 
 std::optional<TwoViewResult> InitializeTwoView(const std::vector<Eigen::Vector2d>& p1,
                                                const std::vector<Eigen::Vector2d>& p2, const PinholeIntrinsics& k,
-                                               const TwoViewOptions& options, std::string* why) {
+                                               const TwoViewOptions& options, std::string* why, bool essential_only) {
   auto fail = [&](const std::string& m) {
     if (why) *why = m;
     return std::nullopt;
@@ -217,7 +217,9 @@ std::optional<TwoViewResult> InitializeTwoView(const std::vector<Eigen::Vector2d
   }
   if (score_h + score_f <= 0) return fail("neither a homography nor an essential matrix explains the matches");
   const double homography_share = score_h / (score_h + score_f);
-  const bool use_h = homography_share > options.homography_ratio;
+  // A camera moving toward the scene: the homography of a street or a wall ahead is no
+  // reconstruction of the scene around it; the essential matrix, once its parallax allows.
+  const bool use_h = !essential_only && homography_share > options.homography_ratio;
 
   std::vector<Candidate> candidates;
   int model_inliers = 0;
@@ -236,8 +238,9 @@ std::optional<TwoViewResult> InitializeTwoView(const std::vector<Eigen::Vector2d
       for (double sign : {1.0, -1.0}) candidates.push_back(Check(ToRigid(r, sign * t), p1, p2, inliers_f, k, sigma));
     }
   }
-  char share[48];
-  std::snprintf(share, sizeof(share), " (homography's share of the score %.2f)", homography_share);
+  char share[64];
+  std::snprintf(share, sizeof(share), " (homography's share of the score %.2f%s)", homography_share,
+                essential_only ? ", forward" : "");
   const std::string model = (use_h ? "homography" : "essential matrix") + std::string(share);
   if (candidates.empty()) return fail(model + ": the model has no decomposition");
   // Only motions with parallax compete: a decomposition that explains the matches as an almost

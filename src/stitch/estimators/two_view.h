@@ -49,9 +49,11 @@ struct TwoViewResult {
 // `pixels1[i]` and `pixels2[i]` are matched undistorted pixels. Empty with `why` set when the
 // views do not allow a reliable initialization (too few matches, too little parallax, ambiguous);
 // past the scoring, `why` names the model chosen and the homography's share of the score.
+// `essential_only` (a camera moving toward the scene) takes the essential matrix whatever the
+// homography's share: a refusal then waits for the parallax it needs.
 std::optional<TwoViewResult> InitializeTwoView(const std::vector<Eigen::Vector2d>& pixels1,
                                                const std::vector<Eigen::Vector2d>& pixels2,
                                                const PinholeIntrinsics& intrinsics, const TwoViewOptions& options,
-                                               std::string* why);
+                                               std::string* why, bool essential_only = false);
 
 }  // namespace stitch

@@ -58,17 +58,18 @@ class RotationHistogram {
 }  // namespace
 
 int SearchForInitialization(const Frame& reference, const Frame& current, std::vector<Eigen::Vector2d>* previous,
-                            std::vector<int>* matches, int window, double ratio) {
+                            std::vector<int>* matches, int window, double ratio, int max_level, int level_slack) {
   const size_t n = reference.size();
   matches->assign(n, -1);
   std::vector<int> distance_of_current(current.size(), 1 << 20);
   std::vector<int> reference_of_current(current.size(), -1);
   RotationHistogram histogram;
   for (size_t i = 0; i < n; ++i) {
-    if (reference.keypoints[i].octave > 0) continue;
+    const int level = reference.keypoints[i].octave;
+    if (level > max_level) continue;
     const Eigen::Vector2d& p = (*previous)[i];
-    const std::vector<int> nearby =
-        current.grid.InArea(p.x(), p.y(), window, current.keypoints, current.undistorted, 0, 0);
+    const std::vector<int> nearby = current.grid.InArea(p.x(), p.y(), window, current.keypoints, current.undistorted,
+                                                        std::max(0, level - level_slack), level + level_slack);
     int best = 1 << 20, second = 1 << 20, best_index = -1;
     for (int j : nearby) {
       const int d =

@@ -17,11 +17,14 @@
 
 namespace stitch {
 
-// Initialization: each level-0 feature of `reference` is searched in `current` within `window`
-// px of `previous[i]` (its last matched position; initially its own). Returns matches[i] = index
-// in `current` or -1, and updates `previous` for the matched features.
+// Initialization: each feature of `reference` up to pyramid level `max_level` (level 0 alone by
+// default, as ORB-SLAM) is searched in `current` within `window` px of `previous[i]` (its last
+// matched position; initially its own), among the features within `level_slack` levels of its
+// own. Returns matches[i] = index in `current` or -1, and updates `previous` for the matched
+// features.
 int SearchForInitialization(const Frame& reference, const Frame& current, std::vector<Eigen::Vector2d>* previous,
-                            std::vector<int>* matches, int window = 100, double ratio = 0.9);
+                            std::vector<int>* matches, int window = 100, double ratio = 0.9, int max_level = 0,
+                            int level_slack = 0);
 
 // Motion model: the points tracked in `last` are projected into `current` (whose pose must be
 // set) and matched within `radius` x scale px, at levels around the one they were seen at.

@@ -15,6 +15,7 @@ Initializer::Initializer(const TrackingOptions& options, const ViewGeometry* geo
 
 void Initializer::Reset() {
   reference_.reset();
+  across_levels_ = false;
   previous_.clear();
   between_.clear();
   refused_ = 0;
@@ -37,12 +38,13 @@ Initializer::Result Initializer::Add(Frame frame, SubmapId submap) {
     return result;
   }
   std::vector<int> matches;
-  const int count = SearchForInitialization(*reference_, frame, &previous_, &matches, options_.init_window_px);
+  const int count = MatchReference(frame, &matches);
   if (count < options_.init_min_matches) {
     result.reason = TrackingReason::kTooFewMatches;
     result.detail = std::to_string(count) + " matches with the reference frame; it is replaced by this frame";
     previous_ = frame.undistorted;
     reference_ = std::move(frame);
+    across_levels_ = false;
     between_.clear();
     refused_ = 0;
     last_refusal_.clear();
@@ -57,7 +59,7 @@ Initializer::Result Initializer::Add(Frame frame, SubmapId submap) {
     index_of.push_back(static_cast<int>(i));
   }
   std::string why;
-  const auto two_view = InitializeTwoView(p1, p2, geometry_->intrinsics, options_.initialization, &why);
+  const auto two_view = InitializeTwoView(p1, p2, geometry_->intrinsics, options_.initialization, &why, across_levels_);
   if (!two_view) {
     result.detail = why;
     ++refused_;
@@ -102,15 +104,53 @@ Initializer::Result Initializer::Add(Frame frame, SubmapId submap) {
   return result;
 }
 
+int Initializer::MatchReference(const Frame& frame, std::vector<int>* matches) {
+  if (across_levels_) {
+    return SearchForInitialization(*reference_, frame, &previous_, matches, options_.init_window_px, kMatchRatio,
+                                   kMaxLevel, 1);
+  }
+  std::vector<Eigen::Vector2d> previous = previous_;
+  const int count = SearchForInitialization(*reference_, frame, &previous, matches, options_.init_window_px);
+  if (count >= options_.init_min_matches || !options_.init_across_levels) {
+    previous_ = std::move(previous);
+    return count;
+  }
+  // Too few level-0 matches: a camera that turned away, or one that moved toward the scene, whose
+  // features grew out of level 0. Across levels, the second shows as most matches a level larger.
+  std::vector<Eigen::Vector2d> previous_across = previous_;
+  std::vector<int> matches_across;
+  const int count_across = SearchForInitialization(*reference_, frame, &previous_across, &matches_across,
+                                                   options_.init_window_px, kMatchRatio, kMaxLevel, 1);
+  int grown = 0;
+  for (size_t i = 0; i < matches_across.size(); ++i) {
+    if (matches_across[i] >= 0) grown += frame.keypoints[matches_across[i]].octave > reference_->keypoints[i].octave;
+  }
+  if (count_across < options_.init_min_matches || grown < kGrownFraction * count_across) {
+    previous_ = std::move(previous);
+    return count;
+  }
+  across_levels_ = true;
+  previous_ = std::move(previous_across);
+  *matches = std::move(matches_across);
+  return count_across;
+}
+
 std::string Initializer::DescribeInitialization(const TwoViewResult& two_view, int frames_since_reference) const {
-  char figures[160];
+  char rule[80];
+  if (across_levels_) {
+    std::snprintf(rule, sizeof(rule), "the essential matrix alone, the camera moving toward the scene");
+  } else {
+    std::snprintf(rule, sizeof(rule), "choosing it above %.2f", options_.initialization.homography_ratio);
+  }
+  char figures[240];
   std::snprintf(figures, sizeof(figures),
-                " (homography's share of the score %.2f, choosing it above %.2f) with %d points, parallax %.1f deg, "
-                "%d frames after its reference",
-                two_view.homography_share, options_.initialization.homography_ratio, two_view.num_triangulated,
-                two_view.parallax_deg, frames_since_reference);
+                " (homography's share of the score %.2f, %s) with %d points, parallax %.1f deg, %d frames after its "
+                "reference",
+                two_view.homography_share, rule, two_view.num_triangulated, two_view.parallax_deg,
+                frames_since_reference);
   std::string detail =
       std::string("initialized from ") + (two_view.used_homography ? "a homography" : "an essential matrix") + figures;
+  if (across_levels_) detail += ", matched across pyramid levels";
   if (refused_ > 0) {
     detail += "; " + std::to_string(refused_) + (refused_ == 1 ? " attempt" : " attempts") +
               " refused before it, the last: " + last_refusal_;

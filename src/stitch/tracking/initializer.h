@@ -4,8 +4,10 @@
 // enough matches agree with a homography or an essential matrix (scored side by side,
 // two_view.h) the two frames become keyframes 0 and 1 of a new submap, with the triangulated
 // points, bundle adjusted and scaled to unit median depth. A reference without enough matches
-// is replaced by the current frame; a camera that does not move never initializes (no
-// parallax). One owner thread; not thread-safe.
+// is replaced by the current frame, unless the camera moves toward the scene (its features grew
+// out of level 0: then they are matched across levels and the essential matrix is waited for);
+// a camera that does not move never initializes (no parallax). One owner thread; not
+// thread-safe.
 
 #include <memory>
 #include <string>
@@ -72,6 +74,14 @@ class Initializer {
 
   std::optional<Frame> reference_;
   std::vector<Eigen::Vector2d> previous_;  // where each reference feature was last matched
+  // Matches `frame` with the reference: level 0 alone, or across levels once the camera is found
+  // to move toward the scene (TrackingOptions::init_across_levels). Returns the count.
+  int MatchReference(const Frame& frame, std::vector<int>* matches);
+  static constexpr double kMatchRatio = 0.9;
+  static constexpr int kMaxLevel = 7;
+  // Of the matches across levels, the share that must have grown a level to keep the reference.
+  static constexpr double kGrownFraction = 0.4;
+  bool across_levels_ = false;  // the reference is matched across levels (the camera moves toward the scene)
   // Attempts with this reference that two-view geometry or the initial map refused, and why the
   // last one was: an initialization says what it waited through.
   int refused_ = 0;

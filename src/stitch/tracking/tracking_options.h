@@ -48,9 +48,15 @@ struct TrackingOptions {
   OrbOptions orb;
   FeatureFlowOptions flow;  // frames between keyframes followed by optical flow (feature_flow.h)
   TwoViewOptions initialization;
-  int init_min_features = 100;         // a frame needs this many features to take part in initialization
-  int init_min_matches = 50;           // matches with the reference frame to keep it and attempt initialization
-  int init_window_px = 100;            // search window around each feature's last match
+  int init_min_features = 100;  // a frame needs this many features to take part in initialization
+  int init_min_matches = 50;    // matches with the reference frame to keep it and attempt initialization
+  int init_window_px = 100;     // search window around each feature's last match
+  // Where too few level-0 features match the reference and most of those matched across pyramid
+  // levels grew (the camera moves toward the scene: a car, a forward-looking aircraft), the
+  // reference is kept and matched across levels, and the map waits for an essential matrix. Off
+  // by default: the car's maps begin sooner and again after a loss, but less accurate
+  // (docs/architecture.md).
+  bool init_across_levels = false;
   int min_inliers = 30;                // tracked points for a frame to count as tracked
   int min_inliers_after_failure = 30;  // ...right after an untracked frame (as ORB-SLAM after relocalization)
   int lost_after_frames = 3;           // consecutive untracked frames that make tracking lost
@@ -154,6 +160,9 @@ struct TrackingOptions {
     v("init_min_features", init_min_features, "features a frame needs to take part in initialization");
     v("init_min_matches", init_min_matches, "matches with the reference frame needed to attempt initialization");
     v("init_window_px", init_window_px, "initialization search window, pixels");
+    v("init_across_levels", init_across_levels,
+      "where too few level-0 features match the reference and most matches across pyramid levels grew (the camera "
+      "moves toward the scene), keep the reference, match it across levels and wait for an essential matrix");
     v("min_inliers", min_inliers, "tracked points for a frame to count as tracked");
     v("min_inliers_after_failure", min_inliers_after_failure, "tracked points needed right after an untracked frame");
     v("lost_after_frames", lost_after_frames,
