@@ -9,6 +9,13 @@
 #include "stitch/map/matcher.h"
 
 namespace stitch {
+namespace {
+constexpr double kChi2TwoDof = 5.991;  // 95%, two degrees of freedom (a reprojection error)
+// A point is culled when at least this many of the frames it waited through, and this fraction
+// of those that saw it, see it farther from where it projects than kChi2TwoDof allows.
+constexpr int kMinDisagreeing = 2;
+constexpr double kDisagreeingFraction = 0.3;
+}  // namespace
 
 Initializer::Initializer(const TrackingOptions& options, const ViewGeometry* geometry, const Vocabulary* vocabulary)
     : options_(options), geometry_(geometry), vocabulary_(vocabulary) {}
@@ -151,6 +158,9 @@ std::string Initializer::DescribeInitialization(const TwoViewResult& two_view, i
   std::string detail =
       std::string("initialized from ") + (two_view.used_homography ? "a homography" : "an essential matrix") + figures;
   if (across_levels_) detail += ", matched across pyramid levels";
+  if (culled_ > 0) {
+    detail += "; " + std::to_string(culled_) + " points the frames it waited through saw elsewhere were dropped";
+  }
   if (refused_ > 0) {
     detail += "; " + std::to_string(refused_) + (refused_ == 1 ? " attempt" : " attempts") +
               " refused before it, the last: " + last_refusal_;
@@ -190,6 +200,14 @@ std::unique_ptr<Map> Initializer::BuildMap(Frame* frame, const std::vector<int>&
   ba.iterations = 20;
   ba.refine_iterations = 0;
   BundleAdjust(map.get(), {id1}, {id0}, geometry_->intrinsics, ba);
+  // The frames it waited through see each point too: one they see elsewhere than it projects was
+  // matched to a look-alike along its epipolar line (a facade's repeated windows ahead of a car),
+  // which two views cannot tell, and its depth would set a wrong scale for the frames to come.
+  culled_ = 0;
+  if (options_.place_initialization_frames && !between_.empty()) {
+    culled_ = CullPointsTheEarlierFramesDisagreeWith(map.get(), PlaceEarlierFrames(*map, reference, *frame));
+    if (culled_ > 0) BundleAdjust(map.get(), {id1}, {id0}, geometry_->intrinsics, ba);
+  }
   const double median_depth = map->MedianDepth(id0);
   const int tracked = map->FindKeyframe(id1)->CountPoints();
   if (median_depth <= 0 || tracked < options_.init_min_matches) {
@@ -211,6 +229,38 @@ std::unique_ptr<Map> Initializer::BuildMap(Frame* frame, const std::vector<int>&
   frame->points = kf1->points;
   frame->outlier.assign(frame->size(), 0);
   return map;
+}
+
+int Initializer::CullPointsTheEarlierFramesDisagreeWith(Map* map,
+                                                        const std::vector<Result::PlacedFrame>& placed) const {
+  const Keyframe* kf0 = map->FindKeyframe(MakeKeyframeId(map->id(), 0));
+  if (!kf0) return 0;
+  std::vector<int> seen(kf0->points.size(), 0), disagree(kf0->points.size(), 0);
+  for (const Result::PlacedFrame& p : placed) {
+    if (p.is_reference) continue;
+    const auto b = std::find_if(between_.begin(), between_.end(),
+                                [&](const Between& x) { return x.frame_index == p.frame_index; });
+    if (b == between_.end()) continue;
+    for (size_t m = 0; m < b->reference_features.size(); ++m) {
+      const size_t i = static_cast<size_t>(b->reference_features[m]);
+      if (i >= kf0->points.size() || !kf0->points[i].valid()) continue;
+      const MapPoint* point = map->FindPoint(kf0->points[i]);
+      if (!point) continue;
+      ++seen[i];
+      const Eigen::Vector3d in_cam = p.cam_from_world * point->position;
+      const double e2 =
+          in_cam.z() > 0 ? (geometry_->intrinsics.Project(in_cam) - b->pixels[m]).squaredNorm() * b->inverse_sigma2[m]
+                         : 1e18;
+      disagree[i] += e2 > kChi2TwoDof;
+    }
+  }
+  std::vector<MapPointId> culled;
+  for (size_t i = 0; i < seen.size(); ++i) {
+    if (disagree[i] >= kMinDisagreeing && disagree[i] >= kDisagreeingFraction * seen[i])
+      culled.push_back(kf0->points[i]);
+  }
+  for (MapPointId id : culled) map->RemovePoint(id);
+  return static_cast<int>(culled.size());
 }
 
 std::vector<Initializer::Result::PlacedFrame> Initializer::PlaceEarlierFrames(const Map& map, const Frame& reference,

@@ -3,7 +3,8 @@
 // later one is matched to it (each feature searched near where it was last seen), and when
 // enough matches agree with a homography or an essential matrix (scored side by side,
 // two_view.h) the two frames become keyframes 0 and 1 of a new submap, with the triangulated
-// points, bundle adjusted and scaled to unit median depth. A reference without enough matches
+// points (less those the frames in between see elsewhere: look-alikes matched along their
+// epipolar lines), bundle adjusted and scaled to unit median depth. A reference without enough matches
 // is replaced by the current frame, unless the camera moves toward the scene (its features grew
 // out of level 0: then they are matched across levels and the essential matrix is waited for);
 // a camera that does not move never initializes (no parallax). One owner thread; not
@@ -71,6 +72,9 @@ class Initializer {
   // Places the reference and the frames in between_ in the initial map (reference keyframe 0,
   // `frame` keyframe 1).
   std::vector<Result::PlacedFrame> PlaceEarlierFrames(const Map& map, const Frame& reference, const Frame& frame) const;
+  // Removes the points that the frames it waited through (`placed`) see elsewhere than they
+  // project: a feature matched to the wrong one along its epipolar line; returns how many.
+  int CullPointsTheEarlierFramesDisagreeWith(Map* map, const std::vector<Result::PlacedFrame>& placed) const;
 
   std::optional<Frame> reference_;
   std::vector<Eigen::Vector2d> previous_;  // where each reference feature was last matched
@@ -81,6 +85,7 @@ class Initializer {
   static constexpr int kMaxLevel = 7;
   // Of the matches across levels, the share that must have grown a level to keep the reference.
   static constexpr double kGrownFraction = 0.4;
+  int culled_ = 0;              // points of the last initial map that the frames it waited through disagreed with
   bool across_levels_ = false;  // the reference is matched across levels (the camera moves toward the scene)
   // Attempts with this reference that two-view geometry or the initial map refused, and why the
   // last one was: an initialization says what it waited through.
