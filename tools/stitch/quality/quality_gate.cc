@@ -116,10 +116,14 @@ std::string DefaultDatasetsDir() {
 }
 
 std::vector<std::string> CaseRunArguments(const QualityCase& c, const std::string& datasets_dir,
-                                          const std::string& rendered) {
+                                          const std::string& rendered, int repeat) {
   std::vector<std::string> args;
   for (const std::string& a : c.run) {
     args.push_back(Substitute(Substitute(a, "${datasets}", datasets_dir), "${rendered}", rendered));
+  }
+  if (repeat >= 0 && repeat < static_cast<int>(c.start_frames.size())) {
+    args.push_back("--start-frame");
+    args.push_back(std::to_string(c.start_frames[static_cast<size_t>(repeat)]));
   }
   return args;
 }
@@ -182,6 +186,8 @@ QualityMatrix LoadQualityMatrix(const std::string& path) {
           c.ci = item.second.as<bool>();
         } else if (key == "repeats") {
           c.repeats = item.second.as<int>();
+        } else if (key == "start_frames") {
+          c.start_frames = item.second.as<std::vector<int>>();
         } else if (key == "expect") {
           for (const auto& e : item.second) c.expect[e.first.as<std::string>()] = e.second.as<double>();
         } else if (key == "tolerance") {
@@ -192,6 +198,15 @@ QualityMatrix LoadQualityMatrix(const std::string& path) {
       }
       if (c.name.empty()) throw Error("a case without a name");
       if (!names.insert(c.name).second) throw Error("two cases named '" + c.name + "'");
+      if (!c.start_frames.empty()) {
+        if (node["repeats"] && c.repeats != static_cast<int>(c.start_frames.size())) {
+          throw Error("case '" + c.name + "': start_frames runs once per start frame; leave repeats out");
+        }
+        if (std::any_of(c.start_frames.begin(), c.start_frames.end(), [](int f) { return f < 0; })) {
+          throw Error("case '" + c.name + "': start_frames must be frame numbers (>= 0)");
+        }
+        c.repeats = static_cast<int>(c.start_frames.size());
+      }
       if (c.repeats < 1 || c.repeats > 20) throw Error("case '" + c.name + "': repeats must be in [1, 20]");
       const bool plays_rendered = std::any_of(
           c.run.begin(), c.run.end(), [](const std::string& a) { return a.find("${rendered}") != std::string::npos; });
@@ -241,7 +256,8 @@ void SaveQualityMatrix(const QualityMatrix& matrix, const std::string& path) {
          "# case plays (skipped where it is absent); `render`: `stitch render` arguments of the clip a\n"
          "# case plays as ${rendered} (rendered first); `alone`: nothing runs beside it (CPU, real\n"
          "# time, link timing); `ci`: in the subset ctest runs; `repeats`: runs of a case that varies\n"
-         "# run to run (real time), checked on their median and on their worst.\n";
+         "# run to run (real time), checked on their median and on their worst; `start_frames`: one\n"
+         "# run from each of these frames (--start-frame), checked the same way.\n";
   out << "tolerance:\n";
   for (const auto& [figure, t] : matrix.tolerance) out << "  " << figure << ": " << tolerance_text(t) << "\n";
   out << "cases:\n";
@@ -258,7 +274,13 @@ void SaveQualityMatrix(const QualityMatrix& matrix, const std::string& path) {
     if (!c.needs.empty()) out << "    needs: " << quoted(c.needs) << "\n";
     if (c.alone) out << "    alone: true\n";
     if (c.ci) out << "    ci: true\n";
-    if (c.repeats != 1) out << "    repeats: " << c.repeats << "\n";
+    if (!c.start_frames.empty()) {
+      out << "    start_frames: [";
+      for (size_t i = 0; i < c.start_frames.size(); ++i) out << (i ? ", " : "") << c.start_frames[i];
+      out << "]\n";
+    } else if (c.repeats != 1) {
+      out << "    repeats: " << c.repeats << "\n";
+    }
     if (!c.tolerance.empty()) {
       out << "    tolerance:\n";
       for (const auto& [figure, t] : c.tolerance) out << "      " << figure << ": " << tolerance_text(t) << "\n";
@@ -443,6 +465,11 @@ std::string ReproduceCommand(const QualityCase& c, const std::string& datasets_d
   }
   command += "build/bin/stitch run";
   for (const std::string& a : args) command += " " + quoted(a);
+  if (c.start_frames.size() > 1) {
+    command += "  # and with --start-frame";
+    for (size_t i = 1; i < c.start_frames.size(); ++i)
+      command += (i > 1 ? ", " : " ") + std::to_string(c.start_frames[i]);
+  }
   return command;
 }
 
@@ -501,7 +528,11 @@ void PrintTable(const std::vector<Result>& results, bool markdown, std::FILE* ou
   const auto print_row = [&](const Result& r, bool worst_row) {
     const std::map<std::string, double>& figures = worst_row ? r.worst : r.figures;
     std::string row = (markdown ? "| " : "") + r.c->name;
-    if (r.runs.size() > 1) row += worst_row ? " (worst)" : " (median of " + std::to_string(r.runs.size()) + ")";
+    if (r.runs.size() > 1) {
+      row += worst_row ? " (worst)"
+                       : " (median of " + std::to_string(r.runs.size()) +
+                             (r.c->start_frames.empty() ? std::string(")") : std::string(" start frames)"));
+    }
     const auto was = before.find(r.c->name);
     for (const Figure& f : kFigures) {
       const auto it = figures.find(f.key);
@@ -615,7 +646,7 @@ std::vector<CaseResult> RunCases(const QualityMatrix& matrix, const std::vector<
       Running r{&c, next, nullptr, Stopwatch(), (fs::path(out_dir) / name).string()};
       std::vector<std::string> run_args{"run", "--quiet", "--out", r.run_dir};
       const std::vector<std::string> case_args =
-          CaseRunArguments(c, options.datasets_dir, results[planned[next].index].rendered);
+          CaseRunArguments(c, options.datasets_dir, results[planned[next].index].rendered, repeat);
       run_args.insert(run_args.end(), case_args.begin(), case_args.end());
       for (const std::string& setting : options.settings) {
         run_args.push_back("--set");
@@ -649,9 +680,12 @@ std::vector<CaseResult> RunCases(const QualityMatrix& matrix, const std::vector<
       }
       const bool case_done = --runs_left[p.index] == 0;
       if (case_done) finish_case(result);
-      const std::string run_name = result.c->repeats == 1 ? result.c->name
-                                                          : result.c->name + " (run " + std::to_string(p.repeat + 1) +
-                                                                " of " + std::to_string(result.c->repeats) + ")";
+      const std::string run_name =
+          result.c->repeats == 1 ? result.c->name
+          : !result.c->start_frames.empty()
+              ? result.c->name + " (from frame " + std::to_string(result.c->start_frames[p.repeat]) + ")"
+              : result.c->name + " (run " + std::to_string(p.repeat + 1) + " of " + std::to_string(result.c->repeats) +
+                    ")";
       const std::string outcome = *status != 0    ? "FAILED"
                                   : !case_done    ? "ran"
                                   : result.failed ? "FAILED"

@@ -31,10 +31,13 @@ struct QualityCase {
   // rendered at its rate while it runs: 1080p, 4K), rendered before its runs; ${rendered} in
   // `run` is that clip.
   std::vector<std::string> render;
-  std::string needs;                           // a folder under the datasets folder the case plays ("" = none)
-  bool alone = false;                          // runs with nothing beside it (CPU, real time, link timing)
-  bool ci = false;                             // part of the subset ctest runs
-  int repeats = 1;                             // runs (real time varies run to run): checked on median and worst
+  std::string needs;   // a folder under the datasets folder the case plays ("" = none)
+  bool alone = false;  // runs with nothing beside it (CPU, real time, link timing)
+  bool ci = false;     // part of the subset ctest runs
+  int repeats = 1;     // runs (real time varies run to run): checked on median and worst
+  // Each run from one of these frames (`--start-frame`; repeats is their number): how much where
+  // the map starts decides, checked on the median and the worst start.
+  std::vector<int> start_frames;
   std::map<std::string, double> expect;        // figure -> expected value
   std::map<std::string, Tolerance> tolerance;  // this case's own slack (over the defaults)
 };
@@ -81,15 +84,17 @@ RepeatedFigures CombineRuns(const QualityMatrix& matrix, const QualityCase& c,
 
 // The folder ${datasets} stands for: $STITCH_DATASETS, else ../shared/datasets beside the source.
 std::string DefaultDatasetsDir();
-// A case's `stitch run` arguments with ${datasets} and ${rendered} (its rendered clip) replaced.
+// A case's `stitch run` arguments with ${datasets} and ${rendered} (its rendered clip) replaced;
+// for a case with start_frames, run `repeat`'s `--start-frame`.
 std::vector<std::string> CaseRunArguments(const QualityCase& c, const std::string& datasets_dir,
-                                          const std::string& rendered = "");
+                                          const std::string& rendered = "", int repeat = 0);
 // Renders the clip a case with `render` plays into `dir` (stitch render as a child process, its
 // log beside the clip) and returns its path. Throws stitch::Error, with the log's end, when
 // rendering fails.
 std::string RenderCaseClip(const QualityCase& c, const std::string& dir);
 
-// The `stitch run` command line that reproduces a case (with `settings` added to it).
+// The `stitch run` command line that reproduces a case (with `settings` added to it); for a case
+// with start_frames, its first start (the others are named after it).
 std::string ReproduceCommand(const QualityCase& c, const std::string& datasets_dir,
                              const std::vector<std::string>& settings = {});
 

@@ -105,6 +105,36 @@ TEST(QualityGate, ACaseThatRendersItsClipPlaysItAndSaysHowToMakeIt) {
   EXPECT_EQ(LoadQualityMatrix(dir / "again.yaml").cases[0].render, hd.render);
 }
 
+// A case run from several start frames (where a rotating camera's map starts decides much):
+// one run from each, `--start-frame` added, checked on the median and the worst like repeats.
+TEST(QualityGate, ACaseFromSeveralStartFramesRunsOnceFromEach) {
+  testing::TempDir dir;
+  const QualityMatrix matrix =
+      WriteAndLoad(dir,
+                   "tolerance: {}\ncases:\n  - name: starts\n    run: [\"--failures\", \"none\"]\n"
+                   "    start_frames: [0, 8, 16]\n");
+  const QualityCase& starts = matrix.cases[0];
+  EXPECT_EQ(starts.repeats, 3);
+  EXPECT_EQ(CaseRunArguments(starts, "/data", "", 1),
+            (std::vector<std::string>{"--failures", "none", "--start-frame", "8"}));
+  EXPECT_EQ(ReproduceCommand(starts, "/data"),
+            "build/bin/stitch run --failures none --start-frame 0  # and with --start-frame 8, 16");
+  SaveQualityMatrix(matrix, dir / "again.yaml");
+  EXPECT_EQ(LoadQualityMatrix(dir / "again.yaml").cases[0].start_frames, starts.start_frames);
+  try {
+    WriteAndLoad(dir, "tolerance: {}\ncases:\n  - name: a\n    start_frames: [0, 8]\n    repeats: 3\n");
+    ADD_FAILURE() << "repeats beside start_frames accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("leave repeats out"), std::string::npos) << e.what();
+  }
+  try {
+    WriteAndLoad(dir, "tolerance: {}\ncases:\n  - name: a\n    start_frames: [0, -8]\n");
+    ADD_FAILURE() << "a negative start frame accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("frame numbers"), std::string::npos) << e.what();
+  }
+}
+
 TEST(QualityGate, ARegressionIsAFigureWorseThanItsToleranceAllows) {
   testing::TempDir dir;
   const QualityMatrix matrix = WriteAndLoad(dir, kMatrix);
