@@ -21,6 +21,17 @@
 namespace stitch {
 namespace {
 
+// A receiver's 3D fix over Zurich (HDOP 0.9).
+MavlinkGpsRawInt ZurichFix() {
+  MavlinkGpsRawInt raw;
+  raw.lat_e7 = 473684230;
+  raw.lon_e7 = 85390540;
+  raw.alt_mm = 460'000;
+  raw.fix_type = 3;
+  raw.eph = 90;
+  return raw;
+}
+
 void SendTo(int port, const std::vector<uint8_t>& bytes) {
   const int s = socket(AF_INET, SOCK_DGRAM, 0);
   sockaddr_in to{};
@@ -43,12 +54,7 @@ TEST(MavlinkReceiver, PublishesTheFixesOfTheDatagramsItGetsStampedWithTheWallClo
     arrived.notify_all();
   });
   ASSERT_GT(receiver.port(), 0);
-  MavlinkGpsRawInt raw;
-  raw.lat_e7 = 473684230;
-  raw.lon_e7 = 85390540;
-  raw.alt_mm = 460'000;
-  raw.fix_type = 3;
-  raw.eph = 90;
+  const MavlinkGpsRawInt raw = ZurichFix();
   const std::vector<uint8_t> frame = EncodeMavlinkFrame(kMavlinkGpsRawInt, MavlinkPayload(raw));
   std::vector<uint8_t> damaged = frame;
   damaged[12] ^= 1;
@@ -87,12 +93,7 @@ TEST(MavlinkReceiver, WithASigningKeyPublishesOnlyTheControllersSignedFixes) {
     fixes.push_back(fix);
     arrived.notify_all();
   });
-  MavlinkGpsRawInt raw;
-  raw.lat_e7 = 473684230;
-  raw.lon_e7 = 85390540;
-  raw.alt_mm = 460'000;
-  raw.fix_type = 3;
-  raw.eph = 90;
+  const MavlinkGpsRawInt raw = ZurichFix();
   MavlinkFrameHeader header;
   header.signing_timestamp = 370'000'000'000'000;
   const auto frame = [&](const std::optional<std::array<uint8_t, 32>>& signing, int32_t lat_e7) {
@@ -142,11 +143,7 @@ TEST(MavlinkReceiver, ReadsTheFixesOfAControllerOnASerialPort) {
     arrived.notify_all();
   });
   close(port_side);  // the receiver holds its own descriptor
-  MavlinkGpsRawInt raw;
-  raw.lat_e7 = 473684230;
-  raw.lon_e7 = 85390540;
-  raw.alt_mm = 460'000;
-  raw.fix_type = 3;
+  MavlinkGpsRawInt raw = ZurichFix();
   std::vector<uint8_t> stream = {0x55, 0xFE, 0x01};  // line noise first
   for (int i = 0; i < 5; ++i) {
     raw.lat_e7 += 10;
