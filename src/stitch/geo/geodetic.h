@@ -25,9 +25,6 @@ struct GeodeticPoint {
 // a height outside [-12 km, 100 km], or a value that is not finite); empty when it is one.
 std::string WhyNotOnEarth(const GeodeticPoint& point);
 
-// The local tangent plane at `origin`: x east, y north, z up, in metres; the origin at 0.
-// Accurate to the millimetre within tens of kilometres of the origin (the frame is Cartesian,
-// not a projection: far from the origin "up" tilts away from the local vertical).
 // A UTM zone (1-60) and hemisphere, and its EPSG code (WGS 84 / UTM: 326zz north, 327zz south).
 struct UtmZone {
   int zone = 0;
@@ -41,6 +38,9 @@ UtmZone UtmZoneOf(const GeodeticPoint& point);
 // into it, as a map crossing a zone border is kept in one).
 Eigen::Vector2d ToUtm(const GeodeticPoint& point, const UtmZone& zone);
 
+// The local tangent plane at `origin`: x east, y north, z up, in metres; the origin at 0.
+// Accurate to the millimetre within tens of kilometres of the origin (the frame is Cartesian,
+// not a projection: far from the origin "up" tilts away from the local vertical).
 class LocalTangentPlane {
  public:
   // Throws stitch::Error when the origin is no place on Earth.

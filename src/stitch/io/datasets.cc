@@ -400,7 +400,10 @@ std::vector<ImageEntry> TimestampFolder(const std::vector<fs::path>& files, doub
   return images;
 }
 
-std::vector<ImageEntry> FolderImages(const fs::path& root, double fps) {
+}  // namespace
+
+std::vector<ImageEntry> FolderImageTimes(const std::string& folder, double fps) {
+  const fs::path root(folder);
   std::vector<fs::path> files;
   for (const auto& entry : fs::directory_iterator(root)) {
     if (entry.is_regular_file() && IsImageFile(entry.path())) files.push_back(entry.path());
@@ -410,9 +413,11 @@ std::vector<ImageEntry> FolderImages(const fs::path& root, double fps) {
   return TimestampFolder(files, fps > 0 ? fps : 30.0);
 }
 
+namespace {
+
 std::unique_ptr<ImageSequence> OpenImageFolder(const fs::path& root, const SequenceOptions& options) {
   const double fps = options.fps > 0 ? options.fps : 30.0;
-  std::vector<ImageEntry> images = Slice(FolderImages(root, fps), options);
+  std::vector<ImageEntry> images = Slice(FolderImageTimes(root.string(), fps), options);
   std::string calibration = options.calibration_path;
   if (calibration.empty()) {
     calibration = FirstExisting({root / "camera.yaml", root / "calibration.yaml", root.parent_path() / "camera.yaml"});
@@ -610,10 +615,6 @@ Trajectory ReadGroundTruth(const std::string& path, const std::string& kitti_tim
   throw Error(path +
               ": not a ground truth stitch reads (TUM: 'timestamp tx ty tz qx qy qz qw'; KITTI: 12 numbers a "
               "line; EuRoC: state_groundtruth_estimate0/data.csv)");
-}
-
-std::vector<ImageEntry> FolderImageTimes(const std::string& folder, double fps) {
-  return FolderImages(folder, fps);
 }
 
 }  // namespace stitch

@@ -116,9 +116,12 @@ int Initializer::MatchReference(const Frame& frame, std::vector<int>* matches) {
     return SearchForInitialization(*reference_, frame, &previous_, matches, options_.init_window_px, kMatchRatio,
                                    kMaxLevel, 1);
   }
+  if (!options_.init_across_levels) {
+    return SearchForInitialization(*reference_, frame, &previous_, matches, options_.init_window_px);
+  }
   std::vector<Eigen::Vector2d> previous = previous_;
   const int count = SearchForInitialization(*reference_, frame, &previous, matches, options_.init_window_px);
-  if (count >= options_.init_min_matches || !options_.init_across_levels) {
+  if (count >= options_.init_min_matches) {
     previous_ = std::move(previous);
     return count;
   }
