@@ -329,7 +329,8 @@ TEST(StitchRun, AKittiSequenceGivesItsTrajectoryInKittiFormatAndEveryMapItsOwnFi
 }
 
 // A survey densified elsewhere: the run's map as a COLMAP sparse model on the flight's image
-// files, which reads back with a reprojection error under 2 px and which COLMAP accepts.
+// files, which reads back with a reprojection error under 2 px and which COLMAP accepts; and as a
+// COLMAP project database from which COLMAP's mapper rebuilds the model.
 TEST(StitchExport, AColmapModelOfARunReadsBackOnItsImagesAndColmapAcceptsIt) {
   testing::TempDir dir;
   const std::string images = dir / "flight";
@@ -345,7 +346,8 @@ TEST(StitchExport, AColmapModelOfARunReadsBackOnItsImagesAndColmapAcceptsIt) {
   EXPECT_GT(model.images.size(), 10u);
   EXPECT_GT(model.points.size(), 500u);
   EXPECT_LT(ReprojectionRms(model), 2.0);
-  EXPECT_EQ(model.camera.width(), 640);
+  ASSERT_EQ(model.cameras.size(), 1u);
+  EXPECT_EQ(model.cameras.begin()->second.width(), 640);
   for (const ColmapImage& image : model.images) {
     EXPECT_TRUE(fs::exists(fs::path(images) / image.name)) << image.name;
   }
@@ -365,6 +367,21 @@ TEST(StitchExport, AColmapModelOfARunReadsBackOnItsImagesAndColmapAcceptsIt) {
   EXPECT_EQ(analyzer.exit_code, 0) << analyzer.output;
   EXPECT_NE(analyzer.output.find("Registered images: " + std::to_string(model.images.size())), std::string::npos)
       << analyzer.output;
+  // COLMAP goes on from the database: its own mapper, on the map's matches alone, registers the
+  // keyframes again.
+  const std::string sparse = dir / "sparse";
+  fs::create_directories(sparse);
+  const auto mapper = RunProgram(
+      {"/usr/bin/env", "QT_QPA_PLATFORM=offscreen", "colmap", "mapper", "--database_path", model_dir + "/database.db",
+       "--image_path", images, "--output_path", sparse, "--Mapper.num_threads", "2"},
+      300);
+  ASSERT_EQ(mapper.exit_code, 0) << mapper.output;
+  const auto mapped = RunProgram(
+      {"/usr/bin/env", "QT_QPA_PLATFORM=offscreen", "colmap", "model_analyzer", "--path", sparse + "/0"}, 120);
+  ASSERT_EQ(mapped.exit_code, 0) << mapped.output;
+  const size_t at = mapped.output.find("Registered images: ");
+  ASSERT_NE(at, std::string::npos) << mapped.output;
+  EXPECT_GE(std::stoi(mapped.output.substr(at + 19)), static_cast<int>(0.9 * model.images.size())) << mapped.output;
 }
 
 // The aircraft's camera as it records: the short flight rendered at 1920x1080 and 30 fps into an

@@ -8,6 +8,7 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "stitch/io/calibration.h"
+#include "stitch/io/colmap_database.h"
 #include "stitch/io/colmap_model.h"
 #include "stitch/io/image_sequence.h"
 #include "stitch/records/run_info.h"
@@ -26,7 +27,13 @@ namespace {
 ColmapModel OnTheImages(ColmapModel model, const std::string& images, int start_frame, const std::string& scratch) {
   // The dataset's own reader lists its images in play order; the model's camera stands in for a
   // calibration (the run's; its size is checked against the images below), which an image folder may not have.
-  SaveCalibration(model.camera, scratch);
+  if (model.cameras.size() != 1) {
+    throw Error("the map holds the images of " + std::to_string(model.cameras.size()) +
+                " cameras; --images names one aircraft's images (export a single aircraft's run)");
+  }
+  const int camera_id = model.cameras.begin()->first;
+  const Camera camera = model.cameras.begin()->second;
+  SaveCalibration(camera, scratch);
   SequenceOptions options;
   options.calibration_path = scratch;
   options.start_frame = start_frame;
@@ -63,10 +70,10 @@ ColmapModel OnTheImages(ColmapModel model, const std::string& images, int start_
   for (const std::string& path : paths) {
     const cv::Mat first = cv::imread(path, cv::IMREAD_GRAYSCALE);
     if (first.empty()) continue;
-    if (first.cols != model.camera.width() || first.rows != model.camera.height()) {
-      STITCH_LOG(INFO) << "the run worked at " << model.camera.width() << "x" << model.camera.height()
+    if (first.cols != camera.width() || first.rows != camera.height()) {
+      STITCH_LOG(INFO) << "the run worked at " << camera.width() << "x" << camera.height()
                        << "; the model is scaled to the images' " << first.cols << "x" << first.rows;
-      model = ResizeColmapModel(std::move(model), first.cols, first.rows);
+      model = ResizeColmapModel(std::move(model), camera_id, first.cols, first.rows);
     }
     break;
   }
@@ -97,7 +104,12 @@ int ExportCommand(int argc, char** argv) {
                  "merged map as a COLMAP sparse model (cameras.txt, images.txt, points3D.txt in COLMAP's text format: "
                  "keyframes as images with their features, points with their tracks, coloured from the images), "
                  "each image named by its file under --images, so that COLMAP or OpenMVS can densify the survey: "
-                 "colmap image_undistorter --image_path IMAGES --input_path DIR --output_path DENSE.");
+                 "colmap image_undistorter --image_path IMAGES --input_path DIR --output_path DENSE. Beside it, "
+                 "database.db: the same cameras, images and features as a COLMAP project, with the map's matches "
+                 "between every two keyframes that see points in common, so that COLMAP goes on from them without "
+                 "extracting or matching again: colmap mapper --database_path DIR/database.db --image_path IMAGES "
+                 "--output_path SPARSE (no descriptors: stitch's ORB ones are not the SIFT ones COLMAP's matchers "
+                 "read).");
   args.AddPositional(&positional, "colmap RUN_DIR", "what to export (colmap) and the run folder", 2);
   args.AddOption("--images", &images, "PATH",
                  "the flight's images: the dataset the run played (default: the run's --dataset)");
@@ -122,14 +134,19 @@ int ExportCommand(int argc, char** argv) {
           "the run played the synthetic flight, which has no image files: write them with `stitch render "
           "--out DIR` (the same settings) and give --images DIR");
     }
-    if (fs::exists(fs::path(out) / "images.txt")) throw Error(out + " already holds a model; give a new --out");
+    if (fs::exists(fs::path(out) / "images.txt") || fs::exists(fs::path(out) / "database.db")) {
+      throw Error(out + " already holds a model; give a new --out");
+    }
     fs::create_directories(out);
     ColmapModel model = ReadColmapModel(model_dir.string());
     model = OnTheImages(std::move(model), images, info.start_frame, (fs::path(out) / ".camera.yaml").string());
     fs::remove(fs::path(out) / ".camera.yaml");
     WriteColmapModel(model, out);
+    const ColmapDatabaseSummary database = WriteColmapDatabase(model, (fs::path(out) / "database.db").string());
     std::printf("wrote %zu images and %zu points (reprojection %.2f px rms) to %s, on the images of %s\n",
                 model.images.size(), model.points.size(), ReprojectionRms(model), out.c_str(), images.c_str());
+    std::printf("and database.db: %d keypoints, %d matches between %d pairs of images\n", database.keypoints,
+                database.matches, database.image_pairs);
     return 0;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "stitch export: %s\n", e.what());

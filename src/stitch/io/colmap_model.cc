@@ -14,8 +14,6 @@ namespace fs = std::filesystem;
 namespace stitch {
 namespace {
 
-constexpr double kHalfPixel = 0.5;  // COLMAP's first pixel centre
-
 // The lines that are not comments; empty ones too when `keep_empty` (images.txt gives an image
 // without features an empty second line).
 std::vector<std::string> DataLines(const std::string& path, bool keep_empty = false) {
@@ -32,12 +30,12 @@ std::vector<std::string> DataLines(const std::string& path, bool keep_empty = fa
 
 }  // namespace
 
-std::string ColmapCameraLine(const Camera& camera) {
+std::string ColmapCameraLine(const Camera& camera, int id) {
   const std::vector<double> p = camera.params();
   std::ostringstream line;
   line.precision(17);
-  const double cx = p[2] + kHalfPixel, cy = p[3] + kHalfPixel;
-  line << "1 ";
+  const double cx = p[2] + kColmapHalfPixel, cy = p[3] + kColmapHalfPixel;
+  line << id << " ";
   if (camera.model() == CameraModel::kFisheye) {
     line << "OPENCV_FISHEYE " << camera.width() << " " << camera.height() << " " << p[0] << " " << p[1] << " " << cx
          << " " << cy << " " << p[4] << " " << p[5] << " " << p[6] << " " << p[7];
@@ -59,8 +57,9 @@ void WriteColmapModel(const ColmapModel& model, const std::string& dir) {
   {
     std::ostringstream out;
     out << "# Camera list with one line of data per camera:\n"
-           "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n# Number of cameras: 1\n"
-        << ColmapCameraLine(model.camera) << "\n";
+           "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n# Number of cameras: "
+        << model.cameras.size() << "\n";
+    for (const auto& [id, camera] : model.cameras) out << ColmapCameraLine(camera, id) << "\n";
     WriteFileAtomically((fs::path(dir) / "cameras.txt").string(), out.str());
   }
   {
@@ -83,13 +82,16 @@ void WriteColmapModel(const ColmapModel& model, const std::string& dir) {
       if (image.features.size() != image.point_ids.size()) {
         throw Error("COLMAP image " + std::to_string(image.id) + ": one point id per feature");
       }
+      if (!model.cameras.count(image.camera_id)) {
+        throw Error("COLMAP image " + std::to_string(image.id) + ": no camera " + std::to_string(image.camera_id));
+      }
       const Eigen::Quaterniond& q = image.cam_from_world.rotation;
       const Eigen::Vector3d& t = image.cam_from_world.translation;
       out << image.id << " " << q.w() << " " << q.x() << " " << q.y() << " " << q.z() << " " << t.x() << " " << t.y()
-          << " " << t.z() << " 1 " << image.name << "\n";
+          << " " << t.z() << " " << image.camera_id << " " << image.name << "\n";
       for (size_t i = 0; i < image.features.size(); ++i) {
-        out << (i ? " " : "") << image.features[i].x() + kHalfPixel << " " << image.features[i].y() + kHalfPixel << " "
-            << image.point_ids[i];
+        out << (i ? " " : "") << image.features[i].x() + kColmapHalfPixel << " "
+            << image.features[i].y() + kColmapHalfPixel << " " << image.point_ids[i];
       }
       out << "\n";
     }
@@ -115,12 +117,14 @@ ColmapModel ReadColmapModel(const std::string& dir) {
   ColmapModel model;
   const std::string cameras = (fs::path(dir) / "cameras.txt").string();
   const std::vector<std::string> camera_lines = DataLines(cameras);
-  if (camera_lines.size() != 1) throw Error(cameras + ": expected one camera");
-  {
-    std::istringstream fields(camera_lines[0]);
+  if (camera_lines.empty()) throw Error(cameras + ": no camera");
+  for (const std::string& camera_line : camera_lines) {
+    std::istringstream fields(camera_line);
     int id = 0, width = 0, height = 0;
     std::string name;
-    fields >> id >> name >> width >> height;
+    if (!(fields >> id >> name >> width >> height)) {
+      throw Error(cameras + ": '" + camera_line.substr(0, 60) + "' is not 'CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]'");
+    }
     std::vector<double> p;
     for (double v; fields >> v;) p.push_back(v);
     const auto need = [&](size_t n) {
@@ -141,11 +145,12 @@ ColmapModel ReadColmapModel(const std::string& dir) {
     } else {
       throw Error(cameras + ": camera model '" + name + "' is not one stitch reads");
     }
-    p[2] -= kHalfPixel;
-    p[3] -= kHalfPixel;
+    p[2] -= kColmapHalfPixel;
+    p[3] -= kColmapHalfPixel;
     try {
-      model.camera =
-          Camera(name == "OPENCV_FISHEYE" ? CameraModel::kFisheye : CameraModel::kPinholeRadTan, width, height, p);
+      const Camera camera(name == "OPENCV_FISHEYE" ? CameraModel::kFisheye : CameraModel::kPinholeRadTan, width, height,
+                          p);
+      if (!model.cameras.emplace(id, camera).second) throw Error("camera " + std::to_string(id) + " twice");
     } catch (const Error& e) {
       throw Error(cameras + ": " + e.what());
     }
@@ -160,11 +165,14 @@ ColmapModel ReadColmapModel(const std::string& dir) {
     std::istringstream fields(image_lines[i]);
     ColmapImage image;
     double q[4], t[3];
-    int camera = 0;
     std::string extra;
-    if (!(fields >> image.id >> q[0] >> q[1] >> q[2] >> q[3] >> t[0] >> t[1] >> t[2] >> camera >> image.name) ||
-        (fields >> extra) || camera != 1) {
-      throw Error(where + " is not 'IMAGE_ID QW QX QY QZ TX TY TZ 1 NAME'");
+    if (!(fields >> image.id >> q[0] >> q[1] >> q[2] >> q[3] >> t[0] >> t[1] >> t[2] >> image.camera_id >>
+          image.name) ||
+        (fields >> extra)) {
+      throw Error(where + " is not 'IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME'");
+    }
+    if (!model.cameras.count(image.camera_id)) {
+      throw Error(where + " names camera " + std::to_string(image.camera_id) + ", which " + cameras + " does not hold");
     }
     image.cam_from_world =
         Rigid3d(Eigen::Quaterniond(q[0], q[1], q[2], q[3]).normalized(), Eigen::Vector3d(t[0], t[1], t[2]));
@@ -174,7 +182,7 @@ ColmapModel ReadColmapModel(const std::string& dir) {
     if (words.size() % 3 != 0) throw Error(where + ": its features are not triples 'X Y POINT3D_ID'");
     for (size_t k = 0; k < words.size(); k += 3) {
       try {
-        image.features.emplace_back(std::stod(words[k]) - kHalfPixel, std::stod(words[k + 1]) - kHalfPixel);
+        image.features.emplace_back(std::stod(words[k]) - kColmapHalfPixel, std::stod(words[k + 1]) - kColmapHalfPixel);
         image.point_ids.push_back(std::stoll(words[k + 2]));
       } catch (const std::exception&) {
         throw Error(where + ": a feature is not 'X Y POINT3D_ID'");
@@ -221,9 +229,10 @@ std::vector<std::vector<double>> ReprojectionErrors(const ColmapModel& model) {
     std::vector<double>& track = errors.emplace_back();
     for (const auto& [image_id, feature] : point.track) {
       const ColmapImage& image = *by_id.at(image_id);
-      const auto projected = model.camera.Project(image.cam_from_world * point.position);
+      const Camera& camera = model.cameras.at(image.camera_id);
+      const auto projected = camera.Project(image.cam_from_world * point.position);
       track.push_back(projected ? (*projected - image.features.at(feature)).norm()
-                                : static_cast<double>(model.camera.width() + model.camera.height()));
+                                : static_cast<double>(camera.width() + camera.height()));
     }
   }
   return errors;
@@ -250,11 +259,13 @@ void SetReprojectionErrors(ColmapModel* model) {
   }
 }
 
-ColmapModel ResizeColmapModel(ColmapModel model, int width, int height) {
-  const double sx = static_cast<double>(width) / model.camera.width();
-  const double sy = static_cast<double>(height) / model.camera.height();
-  model.camera = model.camera.Resized(width, height);
+ColmapModel ResizeColmapModel(ColmapModel model, int camera_id, int width, int height) {
+  Camera& camera = model.cameras.at(camera_id);
+  const double sx = static_cast<double>(width) / camera.width();
+  const double sy = static_cast<double>(height) / camera.height();
+  camera = camera.Resized(width, height);
   for (ColmapImage& image : model.images) {
+    if (image.camera_id != camera_id) continue;
     for (Eigen::Vector2d& f : image.features) f = {(f.x() + 0.5) * sx - 0.5, (f.y() + 0.5) * sy - 0.5};
   }
   SetReprojectionErrors(&model);

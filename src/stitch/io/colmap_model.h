@@ -1,13 +1,15 @@
 #pragma once
 // A sparse model in COLMAP's text format (colmap.github.io/format.html): cameras.txt, images.txt
-// and points3D.txt, which COLMAP, OpenMVS and most photogrammetry tools read. One camera; images
-// with their poses (cam_from_world) and 2D features; points with their tracks.
+// and points3D.txt, which COLMAP, OpenMVS and most photogrammetry tools read. Cameras (one per
+// calibration: several aircraft may fly different ones); images with their camera, their poses
+// (cam_from_world) and 2D features; points with their tracks.
 //
 // Pixel convention: COLMAP puts the centre of the first pixel at (0.5, 0.5), OpenCV and stitch at
 // (0, 0). The model here is in stitch's convention; the files in COLMAP's (written +0.5, read -0.5).
 
 #include <array>
 #include <cstdint>
+#include <map>
 #include <string>
 #include <utility>
 #include <vector>
@@ -19,8 +21,12 @@
 
 namespace stitch {
 
+// COLMAP's first pixel centre, in stitch's pixels.
+inline constexpr double kColmapHalfPixel = 0.5;
+
 struct ColmapImage {
-  int id = 0;  // from 1
+  int id = 0;         // from 1
+  int camera_id = 1;  // its camera in ColmapModel::cameras
   Rigid3d cam_from_world;
   std::string name;                       // the image file, relative to the image folder COLMAP is given
   std::vector<Eigen::Vector2d> features;  // pixels, stitch's convention
@@ -36,25 +42,26 @@ struct ColmapPoint {
 };
 
 struct ColmapModel {
-  Camera camera;  // camera id 1
+  std::map<int, Camera> cameras;  // by camera id (from 1)
   std::vector<ColmapImage> images;
   std::vector<ColmapPoint> points;
 };
 
 // COLMAP's name for the camera's model (PINHOLE, OPENCV, FULL_OPENCV, OPENCV_FISHEYE) and its
 // parameters in COLMAP's order and pixel convention.
-std::string ColmapCameraLine(const Camera& camera);
+std::string ColmapCameraLine(const Camera& camera, int id = 1);
 
 // Writes DIR/cameras.txt, images.txt and points3D.txt (DIR is created). Throws stitch::Error.
 void WriteColmapModel(const ColmapModel& model, const std::string& dir);
 // Reads them back. Throws stitch::Error naming the file and line on anything malformed, a track
-// naming an image or feature that is not there, or a camera model stitch does not know.
+// naming an image or feature that is not there, an image naming a camera that is not there, or a
+// camera model stitch does not know.
 ColmapModel ReadColmapModel(const std::string& dir);
 
-// The model for its images resized to `width` x `height` (Camera::Resized): each feature moves
-// with its pixel, the reprojection errors are the new size's. A run that worked at a reduced size
-// (ingest.max_working_pixels) goes back to its images' size this way.
-ColmapModel ResizeColmapModel(ColmapModel model, int width, int height);
+// The model for camera `camera_id`'s images resized to `width` x `height` (Camera::Resized): each
+// of their features moves with its pixel, the reprojection errors are the new size's. A run that
+// worked at a reduced size (ingest.max_working_pixels) goes back to its images' size this way.
+ColmapModel ResizeColmapModel(ColmapModel model, int camera_id, int width, int height);
 
 // Root mean square of every track's reprojection error, pixels (0 without observations).
 double ReprojectionRms(const ColmapModel& model);

@@ -14,7 +14,7 @@ namespace {
 // Two images of three points, the features where the camera puts the points.
 ColmapModel TwoViews(const Camera& camera) {
   ColmapModel model;
-  model.camera = camera;
+  model.cameras.emplace(1, camera);
   const std::vector<Eigen::Vector3d> points = {{0, 0, 5}, {1, -0.5, 6}, {-1, 0.7, 4}};
   for (int i = 0; i < 2; ++i) {
     ColmapImage image;
@@ -51,8 +51,11 @@ TEST(ColmapModel, WritesAndReadsBackEveryCameraModel) {
     EXPECT_LT(ReprojectionRms(model), 1e-6) << camera.Describe();
     WriteColmapModel(model, dir / "sparse");
     const ColmapModel back = ReadColmapModel(dir / "sparse");
-    EXPECT_EQ(back.camera.Describe(), camera.Describe());
-    for (size_t k = 0; k < camera.params().size(); ++k) EXPECT_NEAR(back.camera.params()[k], camera.params()[k], 1e-9);
+    ASSERT_EQ(back.cameras.size(), 1u);
+    EXPECT_EQ(back.cameras.at(1).Describe(), camera.Describe());
+    for (size_t k = 0; k < camera.params().size(); ++k) {
+      EXPECT_NEAR(back.cameras.at(1).params()[k], camera.params()[k], 1e-9);
+    }
     ASSERT_EQ(back.images.size(), 2u);
     EXPECT_EQ(back.images[1].name, "rgb/1.png");
     ASSERT_EQ(back.images[1].features.size(), 4u);
@@ -69,13 +72,50 @@ TEST(ColmapModel, WritesAndReadsBackEveryCameraModel) {
 // resized camera puts the points, the reprojection still exact.
 TEST(ColmapModel, AModelResizedToItsImagesKeepsItsPointsWhereTheCameraSeesThem) {
   const Camera working = Camera::Pinhole(942, 530, 662.3, 662.3, 470.5, 264.5, -0.05);
-  const ColmapModel model = ResizeColmapModel(TwoViews(working), 1920, 1080);
-  EXPECT_EQ(model.camera.width(), 1920);
-  EXPECT_EQ(model.camera.height(), 1080);
+  const ColmapModel model = ResizeColmapModel(TwoViews(working), 1, 1920, 1080);
+  EXPECT_EQ(model.cameras.at(1).width(), 1920);
+  EXPECT_EQ(model.cameras.at(1).height(), 1080);
   EXPECT_LT(ReprojectionRms(model), 1e-6);
   const Eigen::Vector3d point = model.points[1].position;
-  const Eigen::Vector2d seen = *model.camera.Project(model.images[0].cam_from_world * point);
+  const Eigen::Vector2d seen = *model.cameras.at(1).Project(model.images[0].cam_from_world * point);
   EXPECT_NEAR((model.images[0].features[1] - seen).norm(), 0, 1e-6);
+}
+
+// Two aircraft with different cameras: each image keeps its own, and the model reads back so.
+TEST(ColmapModel, ImagesOfTwoCamerasKeepTheirOwn) {
+  testing::TempDir dir;
+  const Camera first = Camera::Pinhole(640, 480, 450, 451, 319.5, 239.5);
+  const Camera second = Camera::Pinhole(752, 480, 458, 457, 367, 248, -0.28, 0.07);
+  ColmapModel model = TwoViews(first);
+  model.cameras.emplace(2, second);
+  model.images[1].camera_id = 2;
+  for (size_t p = 0; p < model.points.size(); ++p) {
+    model.images[1].features[p] = *second.Project(model.images[1].cam_from_world * model.points[p].position);
+  }
+  EXPECT_LT(ReprojectionRms(model), 1e-6);
+  WriteColmapModel(model, dir / "m");
+  const ColmapModel back = ReadColmapModel(dir / "m");
+  ASSERT_EQ(back.cameras.size(), 2u);
+  EXPECT_EQ(back.cameras.at(2).Describe(), second.Describe());
+  EXPECT_EQ(back.images[0].camera_id, 1);
+  EXPECT_EQ(back.images[1].camera_id, 2);
+  EXPECT_LT(ReprojectionRms(back), 1e-6);
+  // Resizing one camera moves only its images' features.
+  const ColmapModel resized = ResizeColmapModel(back, 2, 1504, 960);
+  EXPECT_EQ(resized.cameras.at(1).width(), 640);
+  EXPECT_EQ(resized.cameras.at(2).width(), 1504);
+  EXPECT_EQ(resized.images[0].features[0], back.images[0].features[0]);
+  EXPECT_LT(ReprojectionRms(resized), 1e-6);
+  // An image naming a camera the model does not hold is refused, written or read.
+  model.images[1].camera_id = 3;
+  EXPECT_THROW(WriteColmapModel(model, dir / "bad"), Error);
+  std::ofstream(dir.path() / "m" / "images.txt") << "1 1 0 0 0 0 0 0 7 a.png\n\n";
+  try {
+    ReadColmapModel(dir / "m");
+    ADD_FAILURE() << "an image of camera 7 read";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("names camera 7"), std::string::npos) << e.what();
+  }
 }
 
 // COLMAP's first pixel centre is (0.5, 0.5): the files say cx + 0.5 and x + 0.5.

@@ -51,10 +51,9 @@ std::vector<bool> PointsToExport(const std::vector<Eigen::Vector3d>& positions, 
   return keep;
 }
 
-ColmapModel ColmapModelOf(const Map& map, const Camera& camera, const MapExportOptions& options,
-                          const std::function<std::string(const Keyframe&)>& name) {
+ColmapModel ColmapModelOf(const Map& map, const std::function<const Camera*(const Keyframe&)>& camera_of,
+                          const MapExportOptions& options, const std::function<std::string(const Keyframe&)>& name) {
   ColmapModel model;
-  model.camera = camera;
   // Images in frame order, ids from 1.
   std::vector<const Keyframe*> keyframes;
   for (const auto& [id, keyframe] : map.keyframes()) keyframes.push_back(&keyframe);
@@ -63,8 +62,22 @@ ColmapModel ColmapModelOf(const Map& map, const Camera& camera, const MapExportO
   });
   std::map<KeyframeId, size_t> image_of;
   for (const Keyframe* keyframe : keyframes) {
+    const Camera* camera = camera_of(*keyframe);
+    if (!camera) continue;
+    int camera_id = 0;
+    for (const auto& [id, known] : model.cameras) {
+      if (known.model() == camera->model() && known.width() == camera->width() && known.height() == camera->height() &&
+          known.params() == camera->params()) {
+        camera_id = id;
+      }
+    }
+    if (camera_id == 0) {
+      camera_id = static_cast<int>(model.cameras.size()) + 1;
+      model.cameras.emplace(camera_id, *camera);
+    }
     ColmapImage image;
     image.id = static_cast<int>(model.images.size()) + 1;
+    image.camera_id = camera_id;
     image.cam_from_world = keyframe->cam_from_world;
     image.name = name(*keyframe);
     for (const cv::KeyPoint& k : keyframe->keypoints) image.features.emplace_back(k.pt.x, k.pt.y);

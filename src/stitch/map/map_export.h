@@ -37,11 +37,12 @@ std::vector<bool> PointsToExport(const std::vector<Eigen::Vector3d>& positions, 
                                  const MapExportOptions& options);
 
 // The map as a COLMAP sparse model: every keyframe an image (its pose, its features where they
-// were detected, in the distorted image `camera` describes), every point PointsToExport keeps
+// were detected, in the distorted image its camera describes), every point PointsToExport keeps
 // with its observations as its track (ids renumbered from 1; points seen by fewer than two
-// images left out), each point's mean reprojection error set. `name` gives each keyframe's image
-// name.
-ColmapModel ColmapModelOf(const Map& map, const Camera& camera, const MapExportOptions& options,
-                          const std::function<std::string(const Keyframe&)>& name);
+// images left out), each point's mean reprojection error set. `camera_of` gives each keyframe's
+// camera (one model camera per distinct calibration, ids from 1 in the order first met; a
+// keyframe without one is left out), `name` its image name.
+ColmapModel ColmapModelOf(const Map& map, const std::function<const Camera*(const Keyframe&)>& camera_of,
+                          const MapExportOptions& options, const std::function<std::string(const Keyframe&)>& name);
 
 }  // namespace stitch

@@ -460,26 +460,24 @@ std::optional<MergeSession::MapCloud> MergeSession::TakeMapCloud() {
 }
 
 void MergeSession::WriteColmapRecord(const Merger::Graph& graph, const MergedMap* merged) const {
-  // colmap/: the largest map as a COLMAP sparse model, its images named agentA-frameNNNNNN. One
-  // camera: the map's submaps must share it.
-  std::optional<Camera> camera;
+  // colmap/: the largest map as a COLMAP sparse model, its images named agentA-frameNNNNNN, one
+  // camera per calibration its submaps' aircraft flew.
   const Map* map = merged ? &merged->map : nullptr;
   for (const auto& [id, placement] : graph.placement) {
-    if (placement.component != 0) continue;
-    const SubmapReplica& replica = merger_.submaps().at(id);
-    if (!replica.camera) continue;
-    if (camera && camera->Describe() != replica.camera->Describe()) {
-      STITCH_LOG(WARNING) << "no COLMAP model: the largest map's submaps come from more than one camera";
-      return;
-    }
-    camera = replica.camera;
-    if (!merged) map = &replica.map;
+    if (placement.component != 0 || map) continue;
+    if (merger_.submaps().at(id).camera) map = &merger_.submaps().at(id).map;
   }
-  if (!camera || !map) return;
-  const ColmapModel model = ColmapModelOf(*map, *camera, merger_.options().map_export, ColmapImageName);
+  if (!map) return;
+  const auto camera_of = [&](const Keyframe& keyframe) -> const Camera* {
+    const auto replica = merger_.submaps().find(SubmapOf(keyframe.id));
+    return replica == merger_.submaps().end() || !replica->second.camera ? nullptr : &*replica->second.camera;
+  };
+  const ColmapModel model = ColmapModelOf(*map, camera_of, merger_.options().map_export, ColmapImageName);
+  if (model.images.empty()) return;
   WriteColmapModel(model, (std::filesystem::path(record_dir_) / "colmap").string());
-  STITCH_LOG(INFO) << "colmap/: " << model.images.size() << " images, " << model.points.size()
-                   << " points, reprojection " << ReprojectionRms(model) << " px rms";
+  STITCH_LOG(INFO) << "colmap/: " << model.images.size() << " images, " << model.cameras.size() << " camera"
+                   << (model.cameras.size() == 1 ? "" : "s") << ", " << model.points.size() << " points, reprojection "
+                   << ReprojectionRms(model) << " px rms";
 }
 
 void MergeSession::WriteRecords(const Merger::Graph& graph, const MergedMap* merged) const {
