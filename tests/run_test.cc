@@ -6,12 +6,14 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <set>
 #include <sstream>
 #include <thread>
+#include <tuple>
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -357,6 +359,19 @@ TEST(StitchExport, AColmapModelOfARunReadsBackOnItsImagesAndColmapAcceptsIt) {
   std::set<int> reds;
   for (const ColmapPoint& point : model.points) reds.insert(point.rgb[0]);
   EXPECT_GT(reds.size(), 10u);
+  // The run's map.ply is in the images' colours too (the merger, without images, gave it one per
+  // submap): each point of the model has its colour there.
+  std::map<std::tuple<float, float, float>, std::array<uint8_t, 3>> cloud_colour;
+  for (const ColouredPoint& p : ReadPly(out + "/map.ply")) {
+    cloud_colour[{p.position.x(), p.position.y(), p.position.z()}] = {p.red, p.green, p.blue};
+  }
+  size_t same = 0;
+  for (const ColmapPoint& point : model.points) {
+    const Eigen::Vector3f f = point.position.cast<float>();
+    const auto it = cloud_colour.find({f.x(), f.y(), f.z()});
+    same += it != cloud_colour.end() && it->second == point.rgb;
+  }
+  EXPECT_GE(same, 0.95 * model.points.size()) << "of " << model.points.size() << " points";
   // Refused: a second export into the same folder; a run without a model.
   EXPECT_NE(RunProgram({Bin("stitch"), "export", "colmap", out, "--out", model_dir}, 30).exit_code, 0);
   EXPECT_NE(RunProgram({Bin("stitch"), "export", "colmap", dir / "flight", "--out", dir / "m2"}, 30).exit_code, 0);

@@ -2,99 +2,18 @@
 
 #include <cstdio>
 #include <filesystem>
-#include <map>
-#include <regex>
 
-#include <opencv2/imgcodecs.hpp>
-
-#include "stitch/io/calibration.h"
 #include "stitch/io/colmap_database.h"
 #include "stitch/io/colmap_model.h"
-#include "stitch/io/image_sequence.h"
 #include "stitch/records/run_info.h"
 #include "stitch/util/args.h"
 #include "stitch/util/error.h"
-#include "stitch/util/log.h"
 #include "tools/stitch/commands.h"
+#include "tools/stitch/launch/map_colours.h"
 
 namespace fs = std::filesystem;
 
 namespace stitch {
-namespace {
-
-// The run's model (RUN/colmap, named agentA-frameNNNNNN) with each image named by its file
-// relative to `images` and each point coloured from the first image that sees it.
-ColmapModel OnTheImages(ColmapModel model, const std::string& images, int start_frame, const std::string& scratch) {
-  // The dataset's own reader lists its images in play order; the model's camera stands in for a
-  // calibration (the run's; its size is checked against the images below), which an image folder may not have.
-  if (model.cameras.size() != 1) {
-    throw Error("the map holds the images of " + std::to_string(model.cameras.size()) +
-                " cameras; --images names one aircraft's images (export a single aircraft's run)");
-  }
-  const int camera_id = model.cameras.begin()->first;
-  const Camera camera = model.cameras.begin()->second;
-  SaveCalibration(camera, scratch);
-  SequenceOptions options;
-  options.calibration_path = scratch;
-  options.start_frame = start_frame;
-  const auto sequence = OpenDataset(images, options);
-  const std::regex placeholder("agent([0-9]+)-frame([0-9]+)");
-  std::map<int, std::vector<std::pair<int, int>>> first_sight;  // image index -> (feature, point index)
-  for (size_t p = 0; p < model.points.size(); ++p) {
-    const auto& [image_id, feature] = model.points[p].track.front();
-    first_sight[image_id].push_back({feature, static_cast<int>(p)});
-  }
-  std::vector<std::string> paths;  // per model image
-  for (ColmapImage& image : model.images) {
-    std::smatch match;
-    if (!std::regex_match(image.name, match, placeholder)) {
-      throw Error("image " + std::to_string(image.id) + " is named '" + image.name +
-                  "', not agentA-frameNNNNNN as the merger names them");
-    }
-    if (std::stoi(match[1]) != 0) {
-      throw Error("the map holds keyframes of aircraft " + match[1].str() +
-                  "; --images names one aircraft's images (export a single aircraft's run)");
-    }
-    const int frame = std::stoi(match[2]);
-    const std::string path = sequence->image_path(frame);
-    if (path.empty()) {
-      throw Error(images + " has no image file for frame " + std::to_string(frame) +
-                  (sequence->size() <= frame ? " (it holds " + std::to_string(sequence->size()) + " frames)"
-                                             : std::string(" (a video: write its frames as images first)")));
-    }
-    image.name = fs::relative(path, images).generic_string();
-    paths.push_back(path);
-  }
-  // A run works at a reduced size where the camera's frames are larger (ingest.max_working_pixels):
-  // the model goes back to the images' size.
-  for (const std::string& path : paths) {
-    const cv::Mat first = cv::imread(path, cv::IMREAD_GRAYSCALE);
-    if (first.empty()) continue;
-    if (first.cols != camera.width() || first.rows != camera.height()) {
-      STITCH_LOG(INFO) << "the run worked at " << camera.width() << "x" << camera.height()
-                       << "; the model is scaled to the images' " << first.cols << "x" << first.rows;
-      model = ResizeColmapModel(std::move(model), camera_id, first.cols, first.rows);
-    }
-    break;
-  }
-  for (size_t i = 0; i < model.images.size(); ++i) {
-    const ColmapImage& image = model.images[i];
-    const auto sights = first_sight.find(image.id);
-    if (sights == first_sight.end()) continue;
-    const cv::Mat colour = cv::imread(paths[i], cv::IMREAD_COLOR);
-    if (colour.empty()) continue;  // grey stays
-    for (const auto& [feature, p] : sights->second) {
-      const Eigen::Vector2d& f = image.features[feature];
-      const int x = std::clamp(static_cast<int>(std::lround(f.x())), 0, colour.cols - 1);
-      const int y = std::clamp(static_cast<int>(std::lround(f.y())), 0, colour.rows - 1);
-      const cv::Vec3b bgr = colour.at<cv::Vec3b>(y, x);
-      model.points[p].rgb = {bgr[2], bgr[1], bgr[0]};
-    }
-  }
-  return model;
-}
-
-}  // namespace
 
 int ExportCommand(int argc, char** argv) {
   std::vector<std::string> positional;
@@ -139,7 +58,7 @@ int ExportCommand(int argc, char** argv) {
     }
     fs::create_directories(out);
     ColmapModel model = ReadColmapModel(model_dir.string());
-    model = OnTheImages(std::move(model), images, info.start_frame, (fs::path(out) / ".camera.yaml").string());
+    model = ModelOnImages(std::move(model), images, info.start_frame, (fs::path(out) / ".camera.yaml").string());
     fs::remove(fs::path(out) / ".camera.yaml");
     WriteColmapModel(model, out);
     const ColmapDatabaseSummary database = WriteColmapDatabase(model, (fs::path(out) / "database.db").string());

@@ -11,6 +11,7 @@
 
 #include "stitch/config/stitch_config.h"
 #include "stitch/eval/georeference.h"
+#include "stitch/io/colmap_model.h"
 #include "stitch/io/output_frames.h"
 #include "stitch/io/ply.h"
 #include "stitch/io/trajectory.h"
@@ -23,6 +24,7 @@
 #include "stitch/util/error.h"
 #include "stitch/util/ids.h"
 #include "stitch/util/text_file.h"
+#include "tools/stitch/launch/map_colours.h"
 
 namespace fs = std::filesystem;
 
@@ -202,6 +204,23 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
   if (!fs::exists(dir / "map.ply")) {
     WritePly((dir / "map.ply").string(), {}, output_frames::kLargestMap);
     info->notes.push_back("map.ply is empty: no merger wrote a map in this run");
+  } else if (!info->dataset.empty() && fs::exists(dir / "colmap" / "images.txt")) {
+    // The map in the flight's colours: the merger, on the ground, has no images; the run's
+    // dataset does (image files: a video's frames are not kept).
+    const fs::path scratch = dir / ".dataset-camera.yaml";
+    try {
+      const ColmapModel model =
+          ModelOnImages(ReadColmapModel((dir / "colmap").string()), info->dataset, info->start_frame, scratch.string());
+      fs::remove(scratch);
+      ColourCloudFromModel((dir / "map.ply").string(), model, output_frames::kLargestMap);
+      if (fs::exists(dir / "map_raw.ply")) {
+        ColourCloudFromModel((dir / "map_raw.ply").string(), model, output_frames::kLargestMap);
+      }
+    } catch (const Error& e) {
+      std::error_code ignored;
+      fs::remove(scratch, ignored);
+      info->notes.push_back(std::string("map.ply keeps a colour per submap, not the images': ") + e.what());
+    }
   }
   if (records.empty()) {
     info->notes.push_back("the tracker reported no frame (see logs/tracker.log)");

@@ -1,0 +1,25 @@
+#pragma once
+// The colours of a run's map from the flight's own images: each point takes the colour of its
+// pixel in the first keyframe that sees it. The merger, on the ground, has no images; the
+// launcher and `stitch export colmap` have the dataset the run played.
+
+#include <string>
+
+#include "stitch/io/colmap_model.h"
+
+namespace stitch {
+
+// The model (the merger's colmap/, images named agentA-frameNNNNNN) on the images of the dataset
+// at `images` played from `start_frame`: each image named by its file relative to `images`, the
+// model scaled to the images' size where the run worked at a reduced one, each point coloured
+// from the first image that sees it. `scratch` is a file it may write and remove (the dataset's
+// calibration). Throws stitch::Error naming what is missing: a model of several aircraft, a
+// frame without an image file (a video), a frame the dataset does not hold.
+ColmapModel ModelOnImages(ColmapModel model, const std::string& images, int start_frame, const std::string& scratch);
+
+// Recolours the PLY cloud at `ply_path` (WritePly's) from `coloured`: each point at a model
+// point's position takes that point's colour; the others (seen by fewer than two of the model's
+// images) grey. Returns how many points took an image's colour. Throws stitch::Error.
+int ColourCloudFromModel(const std::string& ply_path, const ColmapModel& coloured, const std::string& frame);
+
+}  // namespace stitch
