@@ -3,6 +3,10 @@
 
 #include <climits>
 #include <cmath>
+#include <thread>
+#include <optional>
+#include <mutex>
+#include <chrono>
 
 #include <gtest/gtest.h>
 
@@ -10,6 +14,7 @@
 #include "services/common/map_convert.h"
 #include "services/merger/merger_service.h"
 #include "stitch/config/stitch_config.h"
+#include "stitch/map_cloud_t.hpp"
 #include "stitch/pipeline/inline_pipeline.h"
 #include "stitch/source/source.h"
 #include "stitch/testing/temp_dir.h"
@@ -47,6 +52,7 @@ class MergerOnMemq {
     dispatcher_.Start();
     merger_.Start();
   }
+  lcm::LCM* lcm() { return lcm_.get(); }
   void Send(stitch::submap_update_t message) { publisher_.Publish(bus::Channel("uav0", bus::kSubmap), &message); }
   void Send(stitch::gnss_fix_t message) { publisher_.Publish(bus::Channel("uav0", bus::kGnss), &message); }
   const Merger& Finish() {
@@ -104,6 +110,56 @@ TEST(MergerServiceInProcess, AForgedRevisionFarAheadIsRefusedAndTheRealUpdatesSt
     ASSERT_NE(received, nullptr);
     EXPECT_LT((received->position - point.position).norm(), 1e-9) << id.value;
   }
+}
+
+// The live view's map follows the merger's as a submap grows, not only once it closes (#46: at
+// frame 149 of TUM fr1/rpy the tracker had made 30 keyframes and the page showed no map): after
+// the updates of a submap still being mapped, a cloud comes that holds every keyframe the merger
+// took and their points.
+TEST(MergerServiceInProcess, TheMapCloudFollowsAGrowingSubmap) {
+  const StitchConfig config = ShortFlight();
+  const Vocabulary vocabulary = LoadVocabulary(config);
+  const std::vector<stitch::submap_update_t> updates = MappersUpdates(config, vocabulary);
+  ASSERT_GT(updates.size(), 8u);
+  MergerOnMemq merger(config, vocabulary);
+  std::mutex mutex;
+  std::vector<std::pair<int, int>> clouds;  // keyframes and points of the flight's submap
+  bus::Subscriber subscriber(merger.lcm());
+  subscriber.Subscribe<stitch::map_cloud_t>(
+      bus::Channel("uav0", bus::kMapCloud), [&](std::unique_ptr<stitch::map_cloud_t> cloud, const std::string&) {
+        std::lock_guard<std::mutex> lock(mutex);
+        for (int s = 0; s < cloud->num_submaps; ++s) {
+          if (cloud->submap_ids[s] == updates.front().submap_id) {
+            clouds.push_back({cloud->keyframe_counts[s], cloud->point_counts[s]});
+          }
+        }
+      });
+  // The cloud that holds `keyframes`, waited for (the merger makes it on its own thread).
+  const auto cloud_with = [&](int keyframes) -> std::optional<std::pair<int, int>> {
+    for (int wait = 0; wait < 200; ++wait) {
+      testing::WaitUntilDispatched(merger.lcm());
+      {
+        std::lock_guard<std::mutex> lock(mutex);
+        for (const auto& cloud : clouds) {
+          if (cloud.first == keyframes) return cloud;
+        }
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    }
+    return std::nullopt;
+  };
+  int held = 0, checked = 0;
+  for (size_t i = 0; i < updates.size() && !updates[i].closed; ++i) {
+    merger.Send(updates[i]);
+    held += updates[i].num_keyframes - updates[i].num_removed_keyframes;
+    if (i != updates.size() / 4 && i != updates.size() / 2) continue;
+    const auto cloud = cloud_with(held);
+    ASSERT_TRUE(cloud) << "no cloud of the " << held << " keyframes held after update " << i;
+    EXPECT_GT(cloud->second, 10 * held) << "points of " << held << " keyframes";
+    ++checked;
+  }
+  EXPECT_EQ(checked, 2);
+  merger.Finish();
 }
 
 // The aircraft's GNSS fixes reach the ground's records (gnss_received.csv), each time once; a fix

@@ -17,9 +17,12 @@
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
+#include <Eigen/Geometry>
 #include <opencv2/imgcodecs.hpp>
 
 #include "services/common/bus.h"
+#include "stitch/io/ply.h"
+#include "stitch/io/trajectory.h"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/util/child_process.h"
 #include "tests/test_process.h"
@@ -146,6 +149,53 @@ TEST(ViewerInBrowser, ThePageShowsTheFlightsSubmapsKeyframesPointsAndTrackingSta
   }
   EXPECT_GT(drawn, 2000) << "the canvas in " << shot << " is blank";
 
+  EXPECT_EQ(run.Terminate(30000ms), 0) << run.LogTail(20);
+}
+
+// A handheld camera's real sequence (#46): on TUM fr1/rpy the page's "whole map" showed one dot,
+// its view framing a point 2,390 units out that map.ply leaves out. The page frames the map as
+// map.ply holds it (and the keyframes' path): its framed radius is that cloud's, not the raw one's.
+TEST(ViewerInBrowser, ARealSequencesMapIsFramedAsMapPlyHoldsIt) {
+  if (access(kChromium, X_OK) != 0) GTEST_SKIP() << "Chromium is not installed (Debian's chromium)";
+  const std::string dataset = std::string(STITCH_DATASETS_DIR) + "/tum/rgbd_dataset_freiburg1_rpy";
+  if (!std::filesystem::exists(dataset)) {
+    GTEST_SKIP() << dataset << " is absent: real-data test skipped (datasets live in ../shared/datasets)";
+  }
+  stitch::testing::TempDir dir;
+  const int port = bus::UnusedTcpPort();
+  const std::string log = dir / "run.log";
+  ChildProcess run("run", Bin("stitch"),
+                   {"run", "--viewer", "--viewer-port", std::to_string(port), "--out", dir / "run", "--quiet",
+                    "--dataset", dataset, "--failures", "none", "--max-frames", "300"},
+                   log);
+  const auto deadline = std::chrono::steady_clock::now() + 300s;
+  while (true) {
+    std::ifstream in(log);
+    const std::string all((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    if (all.find("shows the finished flight") != std::string::npos) break;
+    ASSERT_LT(std::chrono::steady_clock::now(), deadline) << run.LogTail(20);
+    ASSERT_FALSE(run.Poll()) << run.LogTail(20);
+    std::this_thread::sleep_for(200ms);
+  }
+  const testing::CommandResult dom =
+      testing::RunProgram(Chromium("http://127.0.0.1:" + std::to_string(port) + "/", {"--dump-dom"}), 90);
+  ASSERT_EQ(dom.exit_code, 0) << dom.output.substr(0, 4000);
+  const auto data = BodyData(dom.output);
+  EXPECT_EQ(Number(data, "errors"), 0) << dom.output.substr(0, 4000);
+  ASSERT_EQ(data.count("framed-radius"), 1u) << "the view framed nothing: " << dom.output.substr(0, 4000);
+  const double framed = std::stod(data.at("framed-radius"));
+  // Half the diagonal of the box around a cloud's points (and the path's positions).
+  const auto half_diagonal = [](const std::vector<ColouredPoint>& cloud, const Trajectory& path) {
+    Eigen::AlignedBox3d box;
+    for (const ColouredPoint& p : cloud) box.extend(p.position.cast<double>());
+    for (const auto& pose : path.poses()) box.extend(pose.world_from_cam.translation);
+    return std::max(1.0, box.diagonal().norm() / 2);  // the page frames at least a unit
+  };
+  const Trajectory path = Trajectory::ReadTum(dir / "run/trajectory.tum");
+  const double exported = half_diagonal(ReadPly(dir / "run/map.ply"), path);
+  const double raw = half_diagonal(ReadPly(dir / "run/map_raw.ply"), path);
+  EXPECT_GT(framed, 0.5 * exported) << "map.ply's half diagonal " << exported << ", map_raw.ply's " << raw;
+  EXPECT_LT(framed, 1.5 * exported) << "map.ply's half diagonal " << exported << ", map_raw.ply's " << raw;
   EXPECT_EQ(run.Terminate(30000ms), 0) << run.LogTail(20);
 }
 

@@ -72,6 +72,7 @@ stitch::map_cloud_t ToMessage(const MergeSession::MapCloud& cloud) {
     m.submap_ids.push_back(submap.id.value);
     m.components.push_back(submap.component);
     m.point_counts.push_back(static_cast<int32_t>(submap.positions.size()));
+    m.keyframe_counts.push_back(submap.keyframes);
   }
   m.num_submaps = static_cast<int32_t>(m.submap_ids.size());
   m.num_coordinates = static_cast<int32_t>(m.positions.size());

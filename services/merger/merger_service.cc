@@ -1,5 +1,6 @@
 #include "services/merger/merger_service.h"
 
+#include <algorithm>
 #include <set>
 
 #include "services/common/convert.h"
@@ -12,8 +13,11 @@
 namespace stitch {
 
 namespace {
-// Between two map clouds while submaps grow (a refinement publishes one at once).
-constexpr double kCloudInterval_s = 10.0;
+// Between two map clouds while submaps grow (a refinement publishes one at once): at least this
+// long, and at least this many times what the last one took to make, so that the live view costs
+// the merger at most a tenth of its time on a large map.
+constexpr double kMinCloudInterval_s = 0.1;
+constexpr double kCloudCostFactor = 10.0;
 // Lines of the merge log each global map carries.
 constexpr size_t kGlobalMapLogLines = 100;
 }  // namespace
@@ -119,7 +123,10 @@ void MergerService::Work() {
     if (update) Process(**update);
     RequestWhatWasLost();
     session_.WriteLiveTrajectoryIfDue();
-    if (session_.map_cloud_stale() && MonotonicSeconds() - cloud_published_at_ >= kCloudInterval_s) PublishMapCloud();
+    if (session_.map_cloud_stale() &&
+        MonotonicSeconds() - cloud_published_at_ >= std::max(kMinCloudInterval_s, kCloudCostFactor * cloud_cost_s_)) {
+      PublishMapCloud();
+    }
     if (!update && queue_.closed()) return;
   }
 }
@@ -207,11 +214,14 @@ void MergerService::PublishGlobalMap(const Merger::Graph& graph) {
 }
 
 void MergerService::PublishMapCloud() {
-  cloud_published_at_ = MonotonicSeconds();
+  const double started = MonotonicSeconds();
   const std::optional<MergeSession::MapCloud> cloud = session_.TakeMapCloud();
-  if (!cloud) return;
-  stitch::map_cloud_t message = ToMessage(*cloud);
-  publisher_->Publish(bus::Channel(publisher_->agent(), bus::kMapCloud), &message);
+  if (cloud) {
+    stitch::map_cloud_t message = ToMessage(*cloud);
+    publisher_->Publish(bus::Channel(publisher_->agent(), bus::kMapCloud), &message);
+  }
+  cloud_published_at_ = MonotonicSeconds();
+  cloud_cost_s_ = cloud_published_at_ - started;
 }
 
 }  // namespace stitch

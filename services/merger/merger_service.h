@@ -80,6 +80,7 @@ class MergerService {
   std::atomic<double> last_receive_{0};
   int revision_ = 0;                  // of the global map
   double cloud_published_at_ = -1e9;  // MonotonicSeconds()
+  double cloud_cost_s_ = 0;           // what the last cloud took to make and publish
 };
 
 }  // namespace stitch

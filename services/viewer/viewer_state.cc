@@ -170,6 +170,15 @@ std::string ViewerState::LiveJson(double now_s) const {
                        {"tracking_ms", s.tracking_ms},
                        {"mapper_connected", s.mapper_connected != 0},
                        {"seconds_ago", now_s - a.frame_times.back()}};
+      // How far the map on the page is behind the tracker: the keyframes of its submap the
+      // latest cloud holds (-1: none of it yet).
+      int map_keyframes = -1;
+      if (cloud_) {
+        for (size_t k = 0; k < cloud_->submap_ids.size() && k < cloud_->keyframe_counts.size(); ++k) {
+          if (cloud_->submap_ids[k] == s.submap_id) map_keyframes = cloud_->keyframe_counts[k];
+        }
+      }
+      j["tracking"]["map_keyframes"] = map_keyframes;
     }
     if (a.pose) {
       const stitch::frame_pose_t& p = *a.pose;

@@ -48,7 +48,10 @@
   let offsets = {};         // merged map (component) -> THREE.Vector3 that sets it apart
   let up = new THREE.Vector3(0, -1, 0);  // the map's up (the normal of the plane of motion)
   let follow = false;
+  // The view frames the map until it has framed its points (the path alone may come first, and a
+  // handheld camera's path is a fraction of its scene), or until the user moves it.
   let needsFit = true;
+  controls.addEventListener('start', () => { needsFit = false; });
 
   function resize() {
     const width = canvas.clientWidth, height = canvas.clientHeight;
@@ -202,6 +205,7 @@
     if (!box) return;
     const centre = box.getCenter(new THREE.Vector3());
     const radius = Math.max(1, box.getSize(new THREE.Vector3()).length() / 2);
+    body.dataset.framedRadius = radius.toPrecision(4);  // what the view frames, for tests
     controls.target.copy(centre);
     const away = fromAbove ? up.clone() : up.clone().multiplyScalar(0.8).add(new THREE.Vector3(1, 0, 0).projectOnPlane(up).normalize().multiplyScalar(-0.6));
     camera.position.copy(centre).add(away.normalize().multiplyScalar(radius * 1.9));
@@ -281,7 +285,8 @@
         add('tracking', t.state + (t.detail ? ' (' + t.detail + ')' : ''), 'state-' + t.state);
         add('frame', String(t.frame));
         add('frame rate', t.seconds_ago > 2 ? '- (no frame for ' + t.seconds_ago.toFixed(0) + ' s)' : t.fps.toFixed(1) + ' fps');
-        add('submap', t.submap + ', ' + t.submap_keyframes + ' keyframes');
+        add('submap', t.submap + ', ' + t.submap_keyframes + ' keyframes' +
+            (t.map_keyframes >= 0 ? ' (' + t.map_keyframes + ' in the map shown)' : ' (none in the map shown yet)'));
         add('tracked points', String(t.tracked_points) + ' of ' + t.features + ' features');
         add('submaps closed', String(t.submaps_closed));
         add('mapper', t.mapper_connected ? 'connected' : 'not heard');
@@ -393,7 +398,7 @@
     updateFrustum();
     if (needsFit && sceneScale()) {
       fitView(false);
-      needsFit = false;
+      needsFit = !points;
     }
     renderNow();
   }

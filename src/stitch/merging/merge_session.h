@@ -96,10 +96,11 @@ class MergeSession {
       SubmapId id;
       int component = -1;
       std::vector<Eigen::Vector3f> positions;
+      int keyframes = 0;  // the submap's keyframes the merger held
     };
     std::vector<Submap> submaps;
   };
-  // Whether the maps changed since the last cloud.
+  // Whether the maps changed since the last cloud (a graph shown, or an update applied).
   bool map_cloud_stale() const { return cloud_stale_; }
   // The cloud (nullopt when none is wanted or nothing is placed); no longer stale after.
   std::optional<MapCloud> TakeMapCloud();
