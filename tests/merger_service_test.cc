@@ -1,12 +1,12 @@
 // The merger service on an in-process bus (memq://), fed what a mapper sends on <agent>/SUBMAP
 // during the short flight, with hostile updates between the real ones.
 
+#include <chrono>
 #include <climits>
 #include <cmath>
-#include <thread>
-#include <optional>
 #include <mutex>
-#include <chrono>
+#include <optional>
+#include <thread>
 
 #include <gtest/gtest.h>
 
@@ -125,15 +125,15 @@ TEST(MergerServiceInProcess, TheMapCloudFollowsAGrowingSubmap) {
   std::mutex mutex;
   std::vector<std::pair<int, int>> clouds;  // keyframes and points of the flight's submap
   bus::Subscriber subscriber(merger.lcm());
-  subscriber.Subscribe<stitch::map_cloud_t>(
-      bus::Channel("uav0", bus::kMapCloud), [&](std::unique_ptr<stitch::map_cloud_t> cloud, const std::string&) {
-        std::lock_guard<std::mutex> lock(mutex);
-        for (int s = 0; s < cloud->num_submaps; ++s) {
-          if (cloud->submap_ids[s] == updates.front().submap_id) {
-            clouds.push_back({cloud->keyframe_counts[s], cloud->point_counts[s]});
-          }
-        }
-      });
+  subscriber.Subscribe<stitch::map_cloud_t>(bus::Channel("uav0", bus::kMapCloud),
+                                            [&](std::unique_ptr<stitch::map_cloud_t> cloud, const std::string&) {
+                                              std::lock_guard<std::mutex> lock(mutex);
+                                              for (int s = 0; s < cloud->num_submaps; ++s) {
+                                                if (cloud->submap_ids[s] == updates.front().submap_id) {
+                                                  clouds.push_back({cloud->keyframe_counts[s], cloud->point_counts[s]});
+                                                }
+                                              }
+                                            });
   // The cloud that holds `keyframes`, waited for (the merger makes it on its own thread).
   const auto cloud_with = [&](int keyframes) -> std::optional<std::pair<int, int>> {
     for (int wait = 0; wait < 200; ++wait) {

@@ -438,6 +438,12 @@ TEST(StitchRun, TracksA1080pH264ClipAsAFileAndAsALivePipeline) {
   ASSERT_FALSE(report["ate_rmse_m"].is_null());
   EXPECT_LT(report["ate_rmse_m"].get<double>(), 0.3);
   EXPECT_TRUE(at_frame_times(Trajectory::ReadTum(file_run + "/trajectory.tum")));
+  // The map in the clip's colours, decoded again at its full size for the keyframes' frames (one
+  // colour per submap otherwise).
+  std::set<std::array<uint8_t, 3>> colours;
+  for (const ColouredPoint& p : ReadPly(file_run + "/map.ply")) colours.insert({p.red, p.green, p.blue});
+  EXPECT_GT(colours.size(), 20u) << played.output;
+  EXPECT_EQ(played.output.find("keeps a colour per submap"), std::string::npos) << played.output;
 
   const std::string pipeline = "filesrc location=" + video + " ! decodebin ! videoconvert ! appsink";
   {

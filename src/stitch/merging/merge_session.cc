@@ -453,8 +453,8 @@ std::optional<MergeSession::MapCloud> MergeSession::TakeMapCloud() {
   const int64_t stride = std::max<int64_t>(1, (cloud.points_in_maps + max_points - 1) / max_points);
   cloud.revision = ++cloud_revision_;
   for (const auto& [id, list] : points) {
-    MapCloud::Submap submap{id, latest_placement_.at(id).component, {},
-                            static_cast<int>(merger_.submaps().at(id).map.num_keyframes())};
+    MapCloud::Submap submap{
+        id, latest_placement_.at(id).component, {}, static_cast<int>(merger_.submaps().at(id).map.num_keyframes())};
     for (size_t i = 0; i < list.size(); i += static_cast<size_t>(stride)) submap.positions.push_back(list[i]);
     cloud.submaps.push_back(std::move(submap));
   }

@@ -1,5 +1,7 @@
 #include "tools/stitch/launch/map_colours.h"
 
+#include <algorithm>
+#include <cmath>
 #include <cstring>
 #include <filesystem>
 #include <map>
@@ -7,6 +9,7 @@
 #include <unordered_map>
 
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/videoio.hpp>
 
 #include "stitch/io/calibration.h"
 #include "stitch/io/image_sequence.h"
@@ -17,6 +20,48 @@
 namespace fs = std::filesystem;
 
 namespace stitch {
+namespace {
+
+// The frame of the flight a model image is (the merger names them agentA-frameNNNNNN, frames
+// counted from where the run started); one aircraft's only.
+int FrameOfImage(const ColmapImage& image) {
+  static const std::regex placeholder("agent([0-9]+)-frame([0-9]+)");
+  std::smatch match;
+  if (!std::regex_match(image.name, match, placeholder)) {
+    throw Error("image " + std::to_string(image.id) + " is named '" + image.name +
+                "', not agentA-frameNNNNNN as the merger names them");
+  }
+  if (std::stoi(match[1]) != 0) {
+    throw Error("the map holds keyframes of aircraft " + match[1].str() +
+                "; --images names one aircraft's images (export a single aircraft's run)");
+  }
+  return std::stoi(match[2]);
+}
+
+// Each point's first sight: image id -> (feature, point index).
+std::map<int, std::vector<std::pair<int, int>>> FirstSights(const ColmapModel& model) {
+  std::map<int, std::vector<std::pair<int, int>>> first_sight;
+  for (size_t p = 0; p < model.points.size(); ++p) {
+    const auto& [image_id, feature] = model.points[p].track.front();
+    first_sight[image_id].push_back({feature, static_cast<int>(p)});
+  }
+  return first_sight;
+}
+
+// The points first seen in `image` take their pixel's colour in `colour` (BGR), the image's
+// features scaled by (sx, sy) to its size.
+void ColourFromImage(const ColmapImage& image, const std::vector<std::pair<int, int>>& sights, const cv::Mat& colour,
+                     double sx, double sy, ColmapModel* model) {
+  for (const auto& [feature, p] : sights) {
+    const Eigen::Vector2d& f = image.features[feature];
+    const int x = std::clamp(static_cast<int>(std::lround((f.x() + 0.5) * sx - 0.5)), 0, colour.cols - 1);
+    const int y = std::clamp(static_cast<int>(std::lround((f.y() + 0.5) * sy - 0.5)), 0, colour.rows - 1);
+    const cv::Vec3b bgr = colour.at<cv::Vec3b>(y, x);
+    model->points[p].rgb = {bgr[2], bgr[1], bgr[0]};
+  }
+}
+
+}  // namespace
 
 ColmapModel ModelOnImages(ColmapModel model, const std::string& images, int start_frame, const std::string& scratch) {
   // The dataset's own reader lists its images in play order; the model's camera stands in for a
@@ -32,24 +77,10 @@ ColmapModel ModelOnImages(ColmapModel model, const std::string& images, int star
   options.calibration_path = scratch;
   options.start_frame = start_frame;
   const auto sequence = OpenDataset(images, options);
-  const std::regex placeholder("agent([0-9]+)-frame([0-9]+)");
-  std::map<int, std::vector<std::pair<int, int>>> first_sight;  // image index -> (feature, point index)
-  for (size_t p = 0; p < model.points.size(); ++p) {
-    const auto& [image_id, feature] = model.points[p].track.front();
-    first_sight[image_id].push_back({feature, static_cast<int>(p)});
-  }
+  const auto first_sight = FirstSights(model);
   std::vector<std::string> paths;  // per model image
   for (ColmapImage& image : model.images) {
-    std::smatch match;
-    if (!std::regex_match(image.name, match, placeholder)) {
-      throw Error("image " + std::to_string(image.id) + " is named '" + image.name +
-                  "', not agentA-frameNNNNNN as the merger names them");
-    }
-    if (std::stoi(match[1]) != 0) {
-      throw Error("the map holds keyframes of aircraft " + match[1].str() +
-                  "; --images names one aircraft's images (export a single aircraft's run)");
-    }
-    const int frame = std::stoi(match[2]);
+    const int frame = FrameOfImage(image);
     const std::string path = sequence->image_path(frame);
     if (path.empty()) {
       throw Error(images + " has no image file for frame " + std::to_string(frame) +
@@ -77,13 +108,38 @@ ColmapModel ModelOnImages(ColmapModel model, const std::string& images, int star
     if (sights == first_sight.end()) continue;
     const cv::Mat colour = cv::imread(paths[i], cv::IMREAD_COLOR);
     if (colour.empty()) continue;  // grey stays
-    for (const auto& [feature, p] : sights->second) {
-      const Eigen::Vector2d& f = image.features[feature];
-      const int x = std::clamp(static_cast<int>(std::lround(f.x())), 0, colour.cols - 1);
-      const int y = std::clamp(static_cast<int>(std::lround(f.y())), 0, colour.rows - 1);
-      const cv::Vec3b bgr = colour.at<cv::Vec3b>(y, x);
-      model.points[p].rgb = {bgr[2], bgr[1], bgr[0]};
+    ColourFromImage(image, sights->second, colour, 1.0, 1.0, &model);
+  }
+  return model;
+}
+
+ColmapModel ColourFromVideo(ColmapModel model, const std::string& video, int start_frame) {
+  if (model.cameras.size() != 1) {
+    throw Error("the map holds the images of " + std::to_string(model.cameras.size()) + " cameras, not one video's");
+  }
+  const Camera& camera = model.cameras.begin()->second;
+  const auto first_sight = FirstSights(model);
+  std::map<int, const ColmapImage*> image_at;  // by the video's frame index
+  for (const ColmapImage& image : model.images) {
+    if (first_sight.count(image.id)) image_at[start_frame + FrameOfImage(image)] = &image;
+  }
+  cv::VideoCapture capture(video);
+  if (!capture.isOpened()) throw Error(video + ": cannot be decoded here");
+  cv::Mat frame;
+  int index = 0;
+  auto next = image_at.begin();
+  while (next != image_at.end() && capture.read(frame)) {
+    if (index++ != next->first) continue;
+    if (frame.type() == CV_8UC3) {
+      ColourFromImage(*next->second, first_sight.at(next->second->id), frame,
+                      static_cast<double>(frame.cols) / camera.width(),
+                      static_cast<double>(frame.rows) / camera.height(), &model);
     }
+    ++next;
+  }
+  if (next != image_at.end()) {
+    throw Error(video + " ended at frame " + std::to_string(index) + ", before keyframe " +
+                std::to_string(next->first));
   }
   return model;
 }

@@ -17,6 +17,12 @@ namespace stitch {
 // frame without an image file (a video), a frame the dataset does not hold.
 ColmapModel ModelOnImages(ColmapModel model, const std::string& images, int start_frame, const std::string& scratch);
 
+// The model's points coloured from the keyframes' frames of the video at `video` played from
+// `start_frame` (decoded in order, in colour; the features scaled to the video's size where the run
+// worked at a reduced one). Throws stitch::Error: a model of several aircraft, a video that does
+// not decode or ends before a keyframe's frame.
+ColmapModel ColourFromVideo(ColmapModel model, const std::string& video, int start_frame);
+
 // Recolours the PLY cloud at `ply_path` (WritePly's) from `coloured`: each point at a model
 // point's position takes that point's colour; the others (seen by fewer than two of the model's
 // images) grey. Returns how many points took an image's colour. Throws stitch::Error.

@@ -12,6 +12,7 @@
 #include "stitch/config/stitch_config.h"
 #include "stitch/eval/georeference.h"
 #include "stitch/io/colmap_model.h"
+#include "stitch/io/image_sequence.h"
 #include "stitch/io/output_frames.h"
 #include "stitch/io/ply.h"
 #include "stitch/io/trajectory.h"
@@ -206,11 +207,13 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
     info->notes.push_back("map.ply is empty: no merger wrote a map in this run");
   } else if (!info->dataset.empty() && fs::exists(dir / "colmap" / "images.txt")) {
     // The map in the flight's colours: the merger, on the ground, has no images; the run's
-    // dataset does (image files: a video's frames are not kept).
+    // dataset does.
     const fs::path scratch = dir / ".dataset-camera.yaml";
     try {
-      const ColmapModel model =
-          ModelOnImages(ReadColmapModel((dir / "colmap").string()), info->dataset, info->start_frame, scratch.string());
+      ColmapModel model = ReadColmapModel((dir / "colmap").string());
+      model = DetectDatasetKind(info->dataset) == "video"
+                  ? ColourFromVideo(std::move(model), info->dataset, info->start_frame)
+                  : ModelOnImages(std::move(model), info->dataset, info->start_frame, scratch.string());
       fs::remove(scratch);
       ColourCloudFromModel((dir / "map.ply").string(), model, output_frames::kLargestMap);
       if (fs::exists(dir / "map_raw.ply")) {
