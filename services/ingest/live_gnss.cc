@@ -9,7 +9,8 @@ namespace stitch {
 
 std::unique_ptr<LiveGnssReceiver> OpenLiveGnssReceiver(const std::string& setting, double latency_s,
                                                        GnssFixCallback on_fix,
-                                                       const std::optional<Secret>& mavlink_signing_key) {
+                                                       const std::optional<Secret>& mavlink_signing_key,
+                                                       const std::string& signing_state_file) {
   if (const std::string why = WhyNotAGnssReceiver(setting); !why.empty() || setting.empty()) {
     throw Error(why.empty() ? "no GNSS receiver named" : why);
   }
@@ -28,10 +29,10 @@ std::unique_ptr<LiveGnssReceiver> OpenLiveGnssReceiver(const std::string& settin
         throw Error("ingest.gnss_receiver: '" + rest.substr(colon + 1) + "' is not a serial rate in baud");
       }
     }
-    return std::make_unique<MavlinkReceiver>(port, options, std::move(on_fix));
+    return std::make_unique<MavlinkReceiver>(port, options, std::move(on_fix), signing_state_file);
   }
   if (setting.rfind("mavlink:", 0) == 0) {
-    return std::make_unique<MavlinkReceiver>(setting.substr(8), options, std::move(on_fix));
+    return std::make_unique<MavlinkReceiver>(setting.substr(8), options, std::move(on_fix), signing_state_file);
   }
   if (mavlink_signing_key) {
     throw Error("ingest.gnss_signing_key_file is a MAVLink signing key: gpsd's fixes carry no signature");

@@ -24,10 +24,12 @@ class LiveGnssReceiver {
 
 // The receiver `setting` names (gpsd, gpsd:HOST:PORT, mavlink:ADDRESS:PORT: WhyNotAGnssReceiver);
 // throws stitch::Error for a setting that names none, or an address it cannot listen on.
-// `mavlink_signing_key`: a MAVLink receiver takes only frames signed with it (mavlink_gnss.h);
+// `mavlink_signing_key`: a MAVLink receiver takes only frames signed with it (mavlink_gnss.h),
+// keeping the newest signature timestamp in `signing_state_file` across runs ("": not kept);
 // with gpsd, an error.
 std::unique_ptr<LiveGnssReceiver> OpenLiveGnssReceiver(const std::string& setting, double latency_s,
                                                        GnssFixCallback on_fix,
-                                                       const std::optional<Secret>& mavlink_signing_key = {});
+                                                       const std::optional<Secret>& mavlink_signing_key = {},
+                                                       const std::string& signing_state_file = "");
 
 }  // namespace stitch

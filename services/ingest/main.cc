@@ -64,7 +64,7 @@ int main(int argc, char** argv) {
             stitch::gnss_fix_t message = ToMessage(fix);
             process.publisher->Publish(channel, &message);
           },
-          signing_key);
+          signing_key, o.gnss_signing_state_file);
     }
     FailureSchedule spoil;
     auto sequence = OpenSource(source, &spoil);

@@ -9,16 +9,58 @@
 #include <cerrno>
 #include <chrono>
 #include <cstring>
+#include <filesystem>
+#include <fstream>
 #include <thread>
 
 #include "services/common/udp_address.h"
 #include "stitch/util/error.h"
 #include "stitch/util/log.h"
+#include "stitch/util/text_file.h"
 #include "stitch/util/time.h"
 
 namespace stitch {
-MavlinkReceiver::MavlinkReceiver(const std::string& listen, const MavlinkGnssOptions& options, GnssFixCallback on_fix)
-    : on_fix_(std::move(on_fix)), decoder_(options) {
+namespace {
+constexpr double kKeepSignedEvery_s = 10;  // the state file's writes, at most
+constexpr char kStateKey[] = "newest_signed_timestamp";
+}  // namespace
+
+MavlinkGnssOptions MavlinkReceiver::WithStoredTimestamp(MavlinkGnssOptions options, const std::string& state_file) {
+  if (state_file.empty() || !options.signing_key || !std::filesystem::exists(state_file)) return options;
+  std::ifstream in(state_file);
+  std::string key;
+  unsigned long long timestamp = 0;
+  if (!(in >> key >> timestamp) || key != kStateKey) {
+    throw Error("ingest.gnss_signing_state_file " + state_file + " holds no '" + kStateKey +
+                " N' line (remove it to start without: a replay of frames the last run took is then taken once)");
+  }
+  options.newest_signed_before = timestamp;
+  STITCH_LOG(INFO) << "MAVLink signatures held to timestamp " << timestamp << " and newer (less a minute for a "
+                   << "new stream), from " << state_file;
+  return options;
+}
+
+void MavlinkReceiver::KeepNewestSigned(bool force) {
+  if (state_file_.empty() || !decoder_.checks_signatures()) return;
+  const uint64_t newest = decoder_.newest_signed();
+  if (newest <= kept_signed_ || (!force && MonotonicSeconds() - kept_at_s_ < kKeepSignedEvery_s)) return;
+  try {
+    WriteFileAtomically(state_file_, std::string(kStateKey) + " " + std::to_string(newest) + "\n");
+    kept_signed_ = newest;
+    kept_at_s_ = MonotonicSeconds();
+  } catch (const Error& e) {
+    if (!state_file_failed_) STITCH_LOG(WARNING) << e.what() << ": replays across a restart are not refused";
+    state_file_failed_ = true;
+    kept_at_s_ = MonotonicSeconds();
+  }
+}
+
+MavlinkReceiver::MavlinkReceiver(const std::string& listen, const MavlinkGnssOptions& options, GnssFixCallback on_fix,
+                                 std::string signing_state_file)
+    : on_fix_(std::move(on_fix)),
+      state_file_(std::move(signing_state_file)),
+      decoder_(WithStoredTimestamp(options, state_file_)),
+      kept_signed_(decoder_.newest_signed()) {
   const sockaddr_in address = ResolveIpv4(listen, "ingest.gnss_receiver mavlink:");
   fd_ = socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0);
   if (fd_ < 0) throw Error(std::string("ingest.gnss_receiver: cannot open a UDP socket: ") + std::strerror(errno));
@@ -69,8 +111,12 @@ speed_t BaudRate(int baud) {
 }  // namespace
 
 MavlinkReceiver::MavlinkReceiver(const MavlinkSerialPort& port, const MavlinkGnssOptions& options,
-                                 GnssFixCallback on_fix)
-    : serial_(port), on_fix_(std::move(on_fix)), decoder_(options) {
+                                 GnssFixCallback on_fix, std::string signing_state_file)
+    : serial_(port),
+      on_fix_(std::move(on_fix)),
+      state_file_(std::move(signing_state_file)),
+      decoder_(WithStoredTimestamp(options, state_file_)),
+      kept_signed_(decoder_.newest_signed()) {
   BaudRate(serial_.baud);
   OpenSerial();
   STITCH_LOG(INFO) << "reading the flight controller's MAVLink GNSS fixes from " << serial_.device << " at "
@@ -97,6 +143,8 @@ MavlinkReceiver::~MavlinkReceiver() {
   running_ = false;
   if (thread_.joinable()) thread_.join();
   if (fd_ >= 0) close(fd_);
+  std::lock_guard<std::mutex> lock(mutex_);
+  KeepNewestSigned(/*force=*/true);
 }
 
 MavlinkGnssCounts MavlinkReceiver::counts() const {
@@ -153,6 +201,7 @@ void MavlinkReceiver::Receive() {
       // A datagram holds whole frames; a serial port's bytes come in any pieces.
       fixes = serial ? decoder_.Feed(buffer, static_cast<size_t>(size), WallClockNs())
                      : decoder_.FeedDatagram(buffer, static_cast<size_t>(size), WallClockNs());
+      KeepNewestSigned(/*force=*/false);
     }
     for (const GnssFix& fix : fixes) on_fix_(fix);
   }

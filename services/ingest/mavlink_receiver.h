@@ -5,6 +5,11 @@
 // them (MavlinkGnssDecoder) and hands each fix, stamped with the wall clock at its arrival (the
 // live camera's clock), to `on_fix`. A serial port that goes away (a controller rebooted, a USB
 // cable pulled) is opened again every second.
+//
+// With a signing key and a state file, the newest signature timestamp accepted is kept there
+// (written at most every 10 s, and when the receiver stops) and read back when a receiver starts,
+// so that MAVLink's one-minute window for a stream not seen before holds across restarts: a
+// signed frame recorded in an earlier run is refused by the next one too.
 
 #include <atomic>
 #include <functional>
@@ -24,11 +29,14 @@ struct MavlinkSerialPort {
 
 class MavlinkReceiver : public LiveGnssReceiver {
  public:
-  // Binds at once; throws stitch::Error for an address that is not ADDRESS:PORT or cannot be bound.
-  MavlinkReceiver(const std::string& listen, const MavlinkGnssOptions& options, GnssFixCallback on_fix);
+  // Binds at once; throws stitch::Error for an address that is not ADDRESS:PORT or cannot be bound,
+  // or a state file (`signing_state_file`, "": none) that holds no timestamp.
+  MavlinkReceiver(const std::string& listen, const MavlinkGnssOptions& options, GnssFixCallback on_fix,
+                  std::string signing_state_file = "");
   // Opens the port at once (raw, 8N1, `baud`); throws stitch::Error for a rate it does not know or
-  // a device it cannot open.
-  MavlinkReceiver(const MavlinkSerialPort& port, const MavlinkGnssOptions& options, GnssFixCallback on_fix);
+  // a device it cannot open, or a state file as above.
+  MavlinkReceiver(const MavlinkSerialPort& port, const MavlinkGnssOptions& options, GnssFixCallback on_fix,
+                  std::string signing_state_file = "");
   ~MavlinkReceiver() override;
   MavlinkReceiver(const MavlinkReceiver&) = delete;
   MavlinkReceiver& operator=(const MavlinkReceiver&) = delete;
@@ -40,14 +48,23 @@ class MavlinkReceiver : public LiveGnssReceiver {
  private:
   void Receive();
   void OpenSerial();  // throws stitch::Error
+  // `options` with the timestamp `state_file` keeps (none where the file is absent).
+  static MavlinkGnssOptions WithStoredTimestamp(MavlinkGnssOptions options, const std::string& state_file);
+  // Writes the newest signed timestamp to the state file when it moved (`force`: whatever the
+  // time since the last write). Logs a file it cannot write, once.
+  void KeepNewestSigned(bool force);
 
   int fd_ = -1;  // the UDP socket, or the serial port (-1 while it is away)
   int port_ = 0;
   MavlinkSerialPort serial_;  // its device is empty for UDP
   GnssFixCallback on_fix_;
   mutable std::mutex mutex_;
+  std::string state_file_;
   MavlinkGnssDecoder decoder_;  // guarded by mutex_ (the thread decodes, counts() reads)
-  int64_t reads_ = 0;           // datagrams, or reads of the serial port
+  uint64_t kept_signed_ = 0;    // the timestamp the state file holds
+  double kept_at_s_ = 0;        // MonotonicSeconds() of its last write
+  bool state_file_failed_ = false;
+  int64_t reads_ = 0;  // datagrams, or reads of the serial port
   std::atomic<bool> running_{true};
   std::thread thread_;
 };

@@ -9,12 +9,15 @@
 #include <array>
 #include <chrono>
 #include <condition_variable>
+#include <filesystem>
+#include <fstream>
 #include <mutex>
 #include <optional>
 #include <thread>
 
 #include <gtest/gtest.h>
 
+#include "stitch/testing/temp_dir.h"
 #include "stitch/util/error.h"
 #include "stitch/util/time.h"
 
@@ -123,6 +126,64 @@ TEST(MavlinkReceiver, WithASigningKeyPublishesOnlyTheControllersSignedFixes) {
   EXPECT_EQ(counts.replayed, 1);
   EXPECT_NE(receiver.Describe().find("1 unsigned, 1 with a wrong signature, 1 replayed"), std::string::npos)
       << receiver.Describe();
+}
+
+// MAVLink replay protection across a restart (#45): a receiver started again refused nothing a
+// recording of the last run's signed frames held (each stream's last timestamp was the
+// decoder's). With the state file, the new receiver holds every stream to the newest timestamp
+// the last one took: frames recorded more than a minute before are refused, fresh ones taken.
+TEST(MavlinkReceiver, ASigningStateFileKeepsReplaysOutAfterARestart) {
+  testing::TempDir dir;
+  const std::string state = dir / "mavlink-signing.state";
+  std::array<uint8_t, 32> key{};
+  key.fill(0x5A);
+  MavlinkGnssOptions options;
+  options.signing_key = key;
+  constexpr uint64_t kFirst = 370'000'000'000'000, kMinute = 6'000'000;  // 10 us units
+  const auto frame = [&](uint64_t timestamp) {
+    MavlinkFrameHeader header;
+    header.signing_key = key;
+    header.signing_timestamp = timestamp;
+    return EncodeMavlinkFrame(kMavlinkGpsRawInt, MavlinkPayload(ZurichFix()), header);
+  };
+  // The first run takes frames over two minutes of the controller's clock.
+  const std::vector<uint8_t> recorded = frame(kFirst);
+  const auto fixes_of = [&](const std::vector<std::vector<uint8_t>>& frames) {
+    std::mutex mutex;
+    std::vector<GnssFix> fixes;
+    {
+      MavlinkReceiver receiver(
+          "127.0.0.1:0", options,
+          [&](const GnssFix& fix) {
+            std::lock_guard<std::mutex> lock(mutex);
+            fixes.push_back(fix);
+          },
+          state);
+      for (const auto& f : frames) SendTo(receiver.port(), f);
+      for (int wait = 0; wait < 100 && receiver.counts().frames < static_cast<int64_t>(frames.size()); ++wait) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(20));
+      }
+    }  // stops: the newest timestamp is kept
+    return fixes.size();
+  };
+  EXPECT_EQ(fixes_of({recorded, frame(kFirst + kMinute), frame(kFirst + 2 * kMinute)}), 3u);
+  ASSERT_TRUE(std::filesystem::exists(state));
+  // Started again: the recording's first frame (two minutes old) is refused; a frame within the
+  // minute a new stream may lag, and a fresh one, are taken.
+  EXPECT_EQ(fixes_of({recorded}), 0u);
+  EXPECT_EQ(fixes_of({frame(kFirst + 2 * kMinute - kMinute / 2), frame(kFirst + 3 * kMinute)}), 2u);
+  // Without the file (the protection the decoder alone gives), the recording is taken again.
+  std::filesystem::remove(state);
+  EXPECT_EQ(fixes_of({recorded}), 1u);
+  // A state file that holds no timestamp is an error that says what to do.
+  std::ofstream(state) << "garbage\n";
+  try {
+    MavlinkReceiver receiver(
+        "127.0.0.1:0", options, [](const GnssFix&) {}, state);
+    ADD_FAILURE() << "a damaged state file was taken";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("remove it"), std::string::npos) << e.what();
+  }
 }
 
 // A controller wired to a serial port: the frames come as a byte stream, cut anywhere. A

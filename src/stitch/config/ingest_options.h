@@ -46,6 +46,9 @@ struct IngestOptions {
   // MAVLink receivers: the flight controller's MAVLink 2 signing key, as 64 hex digits in a file
   // only its owner may read; with it only fixes signed with that key are taken. Empty: none.
   std::string gnss_signing_key_file;
+  // With a signing key: where the newest signature timestamp taken is kept across runs (relative
+  // to the ingest's working directory; the systemd unit's is /var/lib/stitch). Empty: not kept.
+  std::string gnss_signing_state_file = "mavlink-signing.state";
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
@@ -76,6 +79,9 @@ struct IngestOptions {
       "mavlink receivers: a file (mode 0600) holding the flight controller's MAVLink 2 signing key as 64 hex digits "
       "(MAVProxy's `signing setup PASSPHRASE` key: `printf %s PASSPHRASE | sha256sum`); only fixes signed with it "
       "are taken (empty: signatures are not checked)");
+    v("gnss_signing_state_file", gnss_signing_state_file,
+      "with a signing key: the file where the newest signature timestamp taken is kept, so that frames recorded in "
+      "an earlier run are refused after a restart too (relative to the ingest's working directory; empty: not kept)");
   }
 
   bool Check(std::string* why) const {

@@ -99,7 +99,8 @@ uint16_t MavlinkCrc(const uint8_t* data, size_t size, uint16_t crc) {
   return crc;
 }
 
-MavlinkGnssDecoder::MavlinkGnssDecoder(MavlinkGnssOptions options) : options_(options) {
+MavlinkGnssDecoder::MavlinkGnssDecoder(MavlinkGnssOptions options)
+    : options_(options), newest_signed_(options.newest_signed_before) {
   if (options_.signing_key && sodium_init() < 0) throw Error("libsodium could not be initialized");
 }
 

@@ -23,8 +23,11 @@
 // and the timestamp, as MAVLink 2 message signing defines it) must check out, and the timestamp
 // must be newer than the last one accepted from the same system, component and link, and for a
 // stream not seen before at most a minute older than the newest of any (a frame replayed, or one
-// recorded earlier, is refused); unsigned frames and MAVLink 1 are refused. The stream's state
-// is the decoder's: a new decoder (the ingest started again) takes a stream's first frame.
+// recorded earlier, is refused); unsigned frames and MAVLink 1 are refused. The streams' state
+// is the decoder's; a new decoder (the ingest started again) holds every stream to the newest
+// timestamp an earlier one accepted where it is given it (MavlinkGnssOptions::newest_signed_before,
+// which the ingest keeps in a file), so a frame recorded more than a minute before is refused
+// after a restart too.
 // Each refusal is counted. A fix's time is when its frame arrived (the caller's clock: the live
 // camera's, so fixes and frames share it), less MavlinkGnssOptions::latency_s.
 
@@ -54,6 +57,9 @@ struct MavlinkGnssOptions {
   // MAVLink 2 message signing: only frames signed with this key are read (none: signatures are
   // not checked).
   std::optional<std::array<uint8_t, 32>> signing_key;
+  // The newest signature timestamp an earlier decoder accepted (MAVLink's 10 us units since
+  // 2015): every stream, new to this decoder, is held to it as to the newest of its own.
+  uint64_t newest_signed_before = 0;
 };
 
 struct MavlinkGnssCounts {
@@ -82,6 +88,8 @@ class MavlinkGnssDecoder {
 
   const MavlinkGnssCounts& counts() const { return counts_; }
   bool checks_signatures() const { return options_.signing_key.has_value(); }
+  // The newest signature timestamp accepted (or given as newest_signed_before).
+  uint64_t newest_signed() const { return newest_signed_; }
 
  private:
   // Reads the frames in pending_; `whole`: pending_ is all there is (a datagram).
