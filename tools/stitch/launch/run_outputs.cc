@@ -222,7 +222,7 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
     } catch (const Error& e) {
       std::error_code ignored;
       fs::remove(scratch, ignored);
-      info->notes.push_back(std::string("map.ply keeps a colour per submap, not the images': ") + e.what());
+      info->notes.push_back(std::string("map.ply's colours could not be taken from the images: ") + e.what());
     }
   }
   if (records.empty()) {
