@@ -32,6 +32,14 @@ struct Rigid3d {
   }
   // For a cam_from_world transform: the camera centre in world coordinates.
   Eigen::Vector3d CentreInWorld() const { return -(rotation.conjugate() * translation); }
+  // For a cam2_from_cam1 transform: the essential matrix [t]x R, x2' E x1 = 0 for the two
+  // cameras' normalized rays to one point (scaled as the translation is).
+  Eigen::Matrix3d EssentialMatrix() const {
+    Eigen::Matrix3d t_cross;
+    t_cross << 0, -translation.z(), translation.y(), translation.z(), 0, -translation.x(), -translation.y(),
+        translation.x(), 0;
+    return t_cross * RotationMatrix();
+  }
 };
 
 struct Sim3d {

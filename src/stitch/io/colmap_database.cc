@@ -5,7 +5,6 @@
 #include <cstdint>
 #include <filesystem>
 #include <map>
-#include <sstream>
 #include <utility>
 #include <vector>
 
@@ -37,19 +36,6 @@ CREATE TABLE two_view_geometries (pair_id INTEGER PRIMARY KEY NOT NULL, rows INT
 
 constexpr int64_t kMaxImageId = 2147483647;  // COLMAP's pair id: image_id1 * kMaxImageId + image_id2
 constexpr int kCalibrated = 2;               // TwoViewGeometry::CALIBRATED
-
-// COLMAP's model number and parameters of a camera, from its cameras.txt line.
-std::pair<int, std::vector<double>> ColmapCameraModel(const Camera& camera) {
-  static const std::map<std::string, int> kModelIds = {
-      {"PINHOLE", 1}, {"OPENCV", 4}, {"OPENCV_FISHEYE", 5}, {"FULL_OPENCV", 6}};
-  std::istringstream line(ColmapCameraLine(camera));
-  int id = 0, width = 0, height = 0;
-  std::string name;
-  line >> id >> name >> width >> height;
-  std::vector<double> params;
-  for (double v; line >> v;) params.push_back(v);
-  return {kModelIds.at(name), params};
-}
 
 class Database {
  public:
@@ -119,17 +105,11 @@ class Database {
   sqlite3* db_ = nullptr;
 };
 
-Eigen::Matrix3d Skew(const Eigen::Vector3d& v) {
-  Eigen::Matrix3d m;
-  m << 0, -v.z(), v.y(), v.z(), 0, -v.x(), -v.y(), v.x(), 0;
-  return m;
-}
-
 // The pinhole part of a camera, in COLMAP's pixel convention.
-Eigen::Matrix3d CalibrationMatrix(const Camera& camera) {
-  const std::vector<double> p = camera.params();
-  Eigen::Matrix3d k;
-  k << p[0], 0, p[2] + kColmapHalfPixel, 0, p[1], p[3] + kColmapHalfPixel, 0, 0, 1;
+Eigen::Matrix3d ColmapK(const Camera& camera) {
+  Eigen::Matrix3d k = camera.Intrinsics().K();
+  k(0, 2) += kColmapHalfPixel;
+  k(1, 2) += kColmapHalfPixel;
   return k;
 }
 
@@ -172,9 +152,9 @@ ColmapDatabaseSummary WriteColmapDatabase(const ColmapModel& model, const std::s
                                  "INSERT INTO cameras (camera_id, model, width, height, params, prior_focal_length) "
                                  "VALUES (?, ?, ?, ?, ?, 1)");
       for (const auto& [id, camera] : model.cameras) {
-        const auto [colmap_model, params] = ColmapCameraModel(camera);
-        insert.Int(1, id).Int(2, colmap_model).Int(3, camera.width()).Int(4, camera.height());
-        insert.Blob(5, params.data(), params.size() * sizeof(double)).Run();
+        const ColmapCameraModel colmap = ColmapCameraModelOf(camera);
+        insert.Int(1, id).Int(2, colmap.id).Int(3, camera.width()).Int(4, camera.height());
+        insert.Blob(5, colmap.params.data(), colmap.params.size() * sizeof(double)).Run();
         ++summary.cameras;
       }
     }
@@ -215,14 +195,12 @@ ColmapDatabaseSummary WriteColmapDatabase(const ColmapModel& model, const std::s
         matches.Int(1, pair_id).Int(2, count).Blob(3, rows.data(), bytes).Run();
         // The pair's geometry as the map has it: x2' E x1 = 0 with cam2_from_cam1 = (R, t).
         const Rigid3d relative = second.cam_from_world * first.cam_from_world.Inverse();
-        const Eigen::Matrix3d rotation = relative.rotation.toRotationMatrix();
         const double baseline = relative.translation.norm();
         const Eigen::Vector3d direction =
             baseline > 0 ? Eigen::Vector3d(relative.translation / baseline) : Eigen::Vector3d::Zero();
-        const Eigen::Matrix3d essential = Skew(direction) * rotation;
-        const Eigen::Matrix3d fundamental =
-            CalibrationMatrix(model.cameras.at(second.camera_id)).inverse().transpose() * essential *
-            CalibrationMatrix(model.cameras.at(first.camera_id)).inverse();
+        const Eigen::Matrix3d essential = Rigid3d(relative.rotation, direction).EssentialMatrix();
+        const Eigen::Matrix3d fundamental = ColmapK(model.cameras.at(second.camera_id)).inverse().transpose() *
+                                            essential * ColmapK(model.cameras.at(first.camera_id)).inverse();
         const Eigen::Matrix3d homography = Eigen::Matrix3d::Zero();  // not estimated: the map is no plane
         const Eigen::Vector4d qvec(relative.rotation.w(), relative.rotation.x(), relative.rotation.y(),
                                    relative.rotation.z());

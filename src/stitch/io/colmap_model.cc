@@ -30,25 +30,23 @@ std::vector<std::string> DataLines(const std::string& path, bool keep_empty = fa
 
 }  // namespace
 
-std::string ColmapCameraLine(const Camera& camera, int id) {
+ColmapCameraModel ColmapCameraModelOf(const Camera& camera) {
   const std::vector<double> p = camera.params();
+  const double cx = p[2] + kColmapHalfPixel, cy = p[3] + kColmapHalfPixel;
+  if (camera.model() == CameraModel::kFisheye)
+    return {"OPENCV_FISHEYE", 5, {p[0], p[1], cx, cy, p[4], p[5], p[6], p[7]}};
+  if (!camera.HasDistortion()) return {"PINHOLE", 1, {p[0], p[1], cx, cy}};
+  if (p[8] == 0) return {"OPENCV", 4, {p[0], p[1], cx, cy, p[4], p[5], p[6], p[7]}};
+  // k3: COLMAP's full OpenCV model (its rational k4..k6 zero)
+  return {"FULL_OPENCV", 6, {p[0], p[1], cx, cy, p[4], p[5], p[6], p[7], p[8], 0, 0, 0}};
+}
+
+std::string ColmapCameraLine(const Camera& camera, int id) {
+  const ColmapCameraModel colmap = ColmapCameraModelOf(camera);
   std::ostringstream line;
   line.precision(17);
-  const double cx = p[2] + kColmapHalfPixel, cy = p[3] + kColmapHalfPixel;
-  line << id << " ";
-  if (camera.model() == CameraModel::kFisheye) {
-    line << "OPENCV_FISHEYE " << camera.width() << " " << camera.height() << " " << p[0] << " " << p[1] << " " << cx
-         << " " << cy << " " << p[4] << " " << p[5] << " " << p[6] << " " << p[7];
-  } else if (!camera.HasDistortion()) {
-    line << "PINHOLE " << camera.width() << " " << camera.height() << " " << p[0] << " " << p[1] << " " << cx << " "
-         << cy;
-  } else if (p[8] == 0) {
-    line << "OPENCV " << camera.width() << " " << camera.height() << " " << p[0] << " " << p[1] << " " << cx << " "
-         << cy << " " << p[4] << " " << p[5] << " " << p[6] << " " << p[7];
-  } else {  // k3: COLMAP's full OpenCV model (its rational k4..k6 zero)
-    line << "FULL_OPENCV " << camera.width() << " " << camera.height() << " " << p[0] << " " << p[1] << " " << cx << " "
-         << cy << " " << p[4] << " " << p[5] << " " << p[6] << " " << p[7] << " " << p[8] << " 0 0 0";
-  }
+  line << id << " " << colmap.name << " " << camera.width() << " " << camera.height();
+  for (double v : colmap.params) line << " " << v;
   return line.str();
 }
 

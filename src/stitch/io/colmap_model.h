@@ -49,6 +49,13 @@ struct ColmapModel {
 
 // COLMAP's name for the camera's model (PINHOLE, OPENCV, FULL_OPENCV, OPENCV_FISHEYE) and its
 // parameters in COLMAP's order and pixel convention.
+struct ColmapCameraModel {
+  std::string name;  // PINHOLE, OPENCV, FULL_OPENCV or OPENCV_FISHEYE
+  int id = 0;        // COLMAP's number of that model (its database's cameras.model)
+  std::vector<double> params;
+};
+ColmapCameraModel ColmapCameraModelOf(const Camera& camera);
+// The camera's line of cameras.txt.
 std::string ColmapCameraLine(const Camera& camera, int id = 1);
 
 // Writes DIR/cameras.txt, images.txt and points3D.txt (DIR is created). Throws stitch::Error.

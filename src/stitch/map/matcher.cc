@@ -325,12 +325,8 @@ std::vector<std::pair<int, int>> MatchKeyframesByBow(const Keyframe& a, const Ma
 
 Eigen::Matrix3d FundamentalMatrix(const Rigid3d& cam1_from_world, const Rigid3d& cam2_from_world,
                                   const PinholeIntrinsics& k) {
-  const Rigid3d cam2_from_cam1 = cam2_from_world * cam1_from_world.Inverse();
-  const Eigen::Vector3d& t = cam2_from_cam1.translation;
-  Eigen::Matrix3d t_cross;
-  t_cross << 0, -t.z(), t.y(), t.z(), 0, -t.x(), -t.y(), t.x(), 0;
   const Eigen::Matrix3d k_inv = k.K().inverse();
-  return k_inv.transpose() * t_cross * cam2_from_cam1.RotationMatrix() * k_inv;
+  return k_inv.transpose() * (cam2_from_world * cam1_from_world.Inverse()).EssentialMatrix() * k_inv;
 }
 
 std::vector<std::pair<int, int>> SearchForTriangulation(const Keyframe& kf1, const Keyframe& kf2,

@@ -49,13 +49,13 @@ std::map<int, std::vector<std::pair<int, int>>> FirstSights(const ColmapModel& m
 }
 
 // The points first seen in `image` take their pixel's colour in `colour` (BGR), the image's
-// features scaled by (sx, sy) to its size.
+// features at its size.
 void ColourFromImage(const ColmapImage& image, const std::vector<std::pair<int, int>>& sights, const cv::Mat& colour,
-                     double sx, double sy, ColmapModel* model) {
+                     ColmapModel* model) {
   for (const auto& [feature, p] : sights) {
     const Eigen::Vector2d& f = image.features[feature];
-    const int x = std::clamp(static_cast<int>(std::lround((f.x() + 0.5) * sx - 0.5)), 0, colour.cols - 1);
-    const int y = std::clamp(static_cast<int>(std::lround((f.y() + 0.5) * sy - 0.5)), 0, colour.rows - 1);
+    const int x = std::clamp(static_cast<int>(std::lround(f.x())), 0, colour.cols - 1);
+    const int y = std::clamp(static_cast<int>(std::lround(f.y())), 0, colour.rows - 1);
     const cv::Vec3b bgr = colour.at<cv::Vec3b>(y, x);
     model->points[p].rgb = {bgr[2], bgr[1], bgr[0]};
   }
@@ -108,7 +108,7 @@ ColmapModel ModelOnImages(ColmapModel model, const std::string& images, int star
     if (sights == first_sight.end()) continue;
     const cv::Mat colour = cv::imread(paths[i], cv::IMREAD_COLOR);
     if (colour.empty()) continue;  // grey stays
-    ColourFromImage(image, sights->second, colour, 1.0, 1.0, &model);
+    ColourFromImage(image, sights->second, colour, &model);
   }
   return model;
 }
@@ -117,24 +117,27 @@ ColmapModel ColourFromVideo(ColmapModel model, const std::string& video, int sta
   if (model.cameras.size() != 1) {
     throw Error("the map holds the images of " + std::to_string(model.cameras.size()) + " cameras, not one video's");
   }
-  const Camera& camera = model.cameras.begin()->second;
+  cv::VideoCapture capture(video);
+  if (!capture.isOpened()) throw Error(video + ": cannot be decoded here");
+  // The run may have worked at a reduced size: the model goes to the clip's.
+  const int camera_id = model.cameras.begin()->first;
+  const Camera camera = model.cameras.begin()->second;
+  const int width = static_cast<int>(capture.get(cv::CAP_PROP_FRAME_WIDTH));
+  const int height = static_cast<int>(capture.get(cv::CAP_PROP_FRAME_HEIGHT));
+  if (width > 0 && height > 0 && (width != camera.width() || height != camera.height())) {
+    model = ResizeColmapModel(std::move(model), camera_id, width, height);
+  }
   const auto first_sight = FirstSights(model);
   std::map<int, const ColmapImage*> image_at;  // by the video's frame index
   for (const ColmapImage& image : model.images) {
     if (first_sight.count(image.id)) image_at[start_frame + FrameOfImage(image)] = &image;
   }
-  cv::VideoCapture capture(video);
-  if (!capture.isOpened()) throw Error(video + ": cannot be decoded here");
   cv::Mat frame;
   int index = 0;
   auto next = image_at.begin();
   while (next != image_at.end() && capture.read(frame)) {
     if (index++ != next->first) continue;
-    if (frame.type() == CV_8UC3) {
-      ColourFromImage(*next->second, first_sight.at(next->second->id), frame,
-                      static_cast<double>(frame.cols) / camera.width(),
-                      static_cast<double>(frame.rows) / camera.height(), &model);
-    }
+    if (frame.type() == CV_8UC3) ColourFromImage(*next->second, first_sight.at(next->second->id), frame, &model);
     ++next;
   }
   if (next != image_at.end()) {
