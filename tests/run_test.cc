@@ -30,6 +30,7 @@
 #include "stitch/io/image_sequence.h"
 #include "stitch/io/ply.h"
 #include "stitch/io/trajectory.h"
+#include "stitch/mosaic/geotiff.h"
 #include "stitch/records/frame_record.h"
 #include "stitch/records/merger_records.h"
 #include "stitch/testing/full_disk.h"
@@ -147,6 +148,33 @@ TEST(StitchRun, TracksAShortFlightWithTheServicesAsProcesses) {
   const auto eval = RunProgram({Bin("stitch"), "eval", out});
   EXPECT_EQ(eval.exit_code, 0) << eval.output;
   EXPECT_EQ(ReadJson(out + "/report.json")["frames_total"], 60);
+  // The strip's orthomosaic: placed on Earth by the synthetic receiver's fixes, north up in UTM
+  // zone 32 (the world is at 48 N, 11 E), the flight's keyframes rendered again and laid on it.
+  const std::string ortho = dir / "ortho.tif";
+  const auto mosaic = RunProgram({Bin("stitch"), "mosaic", out, "--out", ortho}, 120);
+  ASSERT_EQ(mosaic.exit_code, 0) << mosaic.output;
+  const GeoTiffInfo tiff = ReadGeoTiffInfo(ortho);
+  EXPECT_EQ(tiff.epsg, 32632);
+  EXPECT_EQ(tiff.bands, 4);
+  EXPECT_NEAR(tiff.geo_transform[1], 0.15, 0.03);  // 70 m up, a 450 px focal length
+  const auto figures = ReadJson(dir / "ortho.json");
+  EXPECT_EQ(figures["on_earth"], true);
+  EXPECT_EQ(figures["images"].get<size_t>(), ReadColmapModel(out + "/colmap").images.size()) << figures.dump();
+  // Against the world's true orthophoto: where the strip is, and its shape.
+  ASSERT_TRUE(figures.contains("truth")) << figures.dump();
+  EXPECT_GT(figures["truth"]["checkpoints"].get<int>(), 100) << figures.dump();
+  EXPECT_LT(figures["truth"]["rms_after_similarity_gsd"].get<double>(), 3.0) << figures.dump();
+  EXPECT_GT(figures["truth"]["coverage"].get<double>(), 0.9) << figures.dump();
+  // gdalinfo, not ours, reads it with its CRS and place.
+  if (testing::OnPath("gdalinfo")) {
+    const auto info = RunProgram({"/usr/bin/env", "gdalinfo", ortho}, 30);
+    EXPECT_EQ(info.exit_code, 0) << info.output;
+    EXPECT_NE(info.output.find("WGS 84 / UTM zone 32N"), std::string::npos) << info.output;
+    EXPECT_NE(info.output.find("Band 4 Block=256x256 Type=Byte, ColorInterp=Alpha"), std::string::npos) << info.output;
+    EXPECT_NE(info.output.find("Overviews"), std::string::npos) << info.output;
+  }
+  // Refused: a folder that is no run.
+  EXPECT_NE(RunProgram({Bin("stitch"), "mosaic", dir / "nothing"}, 30).exit_code, 0);
 }
 
 TEST(StitchRun, CtrlCStopsEverythingAndStillWritesTheOutputs) {
@@ -218,6 +246,7 @@ TEST(StitchRun, EveryCommandHasHelp) {
                                                                                     {Bin("stitch"), "merger", "--help"},
                                                                                     {Bin("stitch"), "spy", "--help"},
                                                                                     {Bin("stitch"), "export", "--help"},
+                                                                                    {Bin("stitch"), "mosaic", "--help"},
                                                                                     {Bin("stitch-ingest"), "--help"},
                                                                                     {Bin("stitch-tracker"), "--help"},
                                                                                     {Bin("stitch"), "link", "--help"},
@@ -725,6 +754,11 @@ TEST(StitchRun, PlacesAFolderOfPhotosOnEarthByTheirExifGpsTags) {
   EXPECT_GE(geo["maps"][0]["inliers"].get<int>(), 10) << geo.dump();
   // The synthetic receiver's fixes have 2 m of noise; the photos' tags carry them to the metre.
   EXPECT_LT(geo["maps"][0]["horizontal_rms_m"].get<double>(), 5.0) << geo.dump();
+  // The photos' orthomosaic, from the JPEG files, in UTM.
+  const auto mosaic = RunProgram({Bin("stitch"), "mosaic", out}, 120);
+  ASSERT_EQ(mosaic.exit_code, 0) << mosaic.output;
+  EXPECT_EQ(ReadGeoTiffInfo(out + "/ortho.tif").epsg, 32632);
+  EXPECT_FALSE(ReadJson(out + "/ortho.json").contains("truth"));
 }
 
 }  // namespace

@@ -14,5 +14,5 @@ $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recomme
   default-jdk-headless liblcm-java libjchart2d-java lua5.2 liblcm-lua colmap \
   libcivetweb-dev libjs-three \
   libgps-dev gpsd gpsd-clients python3-gps libexiv2-dev \
-  gdal-bin \
+  gdal-bin libgdal-dev \
   iproute2 procps

@@ -14,5 +14,6 @@ int RecordCommand(int argc, char** argv);    // stitch record
 int CampaignCommand(int argc, char** argv);  // stitch campaign
 int SpyCommand(int argc, char** argv);       // stitch spy
 int ExportCommand(int argc, char** argv);    // stitch export colmap
+int MosaicCommand(int argc, char** argv);    // stitch mosaic
 
 }  // namespace stitch

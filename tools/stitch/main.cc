@@ -26,6 +26,7 @@ constexpr char kUsage[] =
     "  bench     time tracking and mapping on a sequence (no bus); --quality: the quality gate\n"
     "  campaign  many randomized flights, each merge scored against ground truth\n"
     "  export    a run's merged map for other tools: colmap (a sparse model on the flight's images)\n"
+    "  mosaic    a run's orthomosaic as a GeoTIFF (north up in UTM where the run is on Earth)\n"
     "  map       rebuild the merged map from recorded submap updates (a merger's journal or an LCM log)\n"
     "  record    record a flight's features (what crosses to the ground) with lcm-logger\n"
     "  spy       lcm-spy with stitch's message types, or decode a recorded log with them\n"
@@ -58,6 +59,7 @@ int main(int argc, char** argv) {
   if (command == "campaign") return stitch::CampaignCommand(argc - 1, argv + 1);
   if (command == "spy") return stitch::SpyCommand(argc - 1, argv + 1);
   if (command == "export") return stitch::ExportCommand(argc - 1, argv + 1);
+  if (command == "mosaic") return stitch::MosaicCommand(argc - 1, argv + 1);
   if (command == "version" || command == "--version") {
     std::printf("stitch %s\n", STITCH_VERSION);
     return 0;

@@ -122,19 +122,23 @@ FailureSchedule ResolveFailures(const SourceSpec& spec, int num_frames) {
   return FailureSchedule::Parse(spec.failures);
 }
 
+std::unique_ptr<SyntheticSequence> OpenSyntheticFlight(const SourceSpec& spec) {
+  const SyntheticOptions& options = spec.synthetic;
+  const int played =
+      spec.max_frames > 0 ? std::min(spec.max_frames, options.flight.num_frames) : options.flight.num_frames;
+  // Gusts are scheduled in frames of the played part.
+  const FailureSchedule gusts = ResolveFailures(spec, played);
+  std::vector<FailureWindow> shifted;
+  for (const auto& w : gusts.windows()) shifted.push_back({w.start + spec.start_frame, w.length});
+  return std::make_unique<SyntheticSequence>(options, FailureSchedule(shifted));
+}
+
 namespace {
 
 std::unique_ptr<ImageSequence> OpenAtFullSize(const SourceSpec& spec, FailureSchedule* spoil) {
   if (spec.synthetic_source()) {
-    const SyntheticOptions& options = spec.synthetic;
-    const int played =
-        spec.max_frames > 0 ? std::min(spec.max_frames, options.flight.num_frames) : options.flight.num_frames;
-    // Gusts are scheduled in frames of the played part.
-    FailureSchedule gusts = ResolveFailures(spec, played);
-    std::vector<FailureWindow> shifted;
-    for (const auto& w : gusts.windows()) shifted.push_back({w.start + spec.start_frame, w.length});
     *spoil = FailureSchedule();
-    auto sequence = std::make_unique<SyntheticSequence>(options, FailureSchedule(shifted));
+    std::unique_ptr<ImageSequence> sequence = OpenSyntheticFlight(spec);
     if (spec.start_frame == 0 && spec.max_frames < 0) return sequence;
     return std::make_unique<ClippedSequence>(std::move(sequence), spec.start_frame, spec.max_frames);
   }

@@ -67,6 +67,10 @@ FailureSchedule ResolveFailures(const SourceSpec& spec, int num_frames);
 // sequence); for datasets it is returned in `spoil` for ingest to apply. Throws stitch::Error.
 std::unique_ptr<ImageSequence> OpenSource(const SourceSpec& spec, FailureSchedule* spoil);
 
+// The whole synthetic flight `spec` plays (spec.synthetic, its gusts shifted by the start frame),
+// from its first frame: what OpenSource clips to the played part. Throws stitch::Error.
+std::unique_ptr<SyntheticSequence> OpenSyntheticFlight(const SourceSpec& spec);
+
 // Ground truth and length without rendering or reading images where avoidable (the launcher
 // needs them; ingest does the playing). A live source is not opened here (a device may be
 // opened once only): its camera comes from the calibration file, its length is unknown (-1).

@@ -295,4 +295,56 @@ cv::Mat Renderer::RenderPinhole(const Rigid3d& cam_from_world, cv::Mat* depth) c
   return raster.color();
 }
 
+cv::Mat RenderOrthophoto(const SyntheticWorld& world, const cv::Size& size, double pixel_m,
+                         const std::function<Eigen::Vector2d(int col, int row)>& world_at) {
+  const MipTexture& texture = world.ground();
+  const int max_level = static_cast<int>(texture.levels.size()) - 1;
+  const int level =
+      std::clamp(static_cast<int>(std::floor(std::log2(std::max(1.0, pixel_m / texture.texel_m)))), 0, max_level);
+  const cv::Mat& texels = texture.levels[level];
+  const double scale = 1.0 / (texture.texel_m * (1 << level));
+  const double spacing = world.spacing();
+  cv::Mat image(size, CV_8UC1, cv::Scalar(0));
+  for (int row = 0; row < size.height; ++row) {
+    uint8_t* out = image.ptr<uint8_t>(row);
+    for (int col = 0; col < size.width; ++col) {
+      const Eigen::Vector2d p = world_at(col, row);
+      const Eigen::Vector2d local = p - world.min_xy();
+      if (p.x() < world.min_xy().x() || p.y() < world.min_xy().y() || p.x() > world.max_xy().x() ||
+          p.y() > world.max_xy().y()) {
+        continue;
+      }
+      // Roofs are drawn unshaded; the terrain with its vertices' shade, across each cell.
+      float shade = -1.0f;
+      for (const Building& building : world.buildings()) {
+        const Eigen::Vector2d d = p - building.centre;
+        if (d.squaredNorm() > building.half_length * building.half_length + building.half_width * building.half_width) {
+          continue;
+        }
+        const double c = std::cos(building.yaw), s = std::sin(building.yaw);
+        if (std::abs(c * d.x() + s * d.y()) <= building.half_length &&
+            std::abs(-s * d.x() + c * d.y()) <= building.half_width) {
+          shade = 1.0f;
+          break;
+        }
+      }
+      if (shade < 0) {
+        const double u = local.x() / spacing, v = local.y() / spacing;
+        const int c0 = std::clamp(static_cast<int>(u), 0, world.grid_cols() - 2);
+        const int r0 = std::clamp(static_cast<int>(v), 0, world.grid_rows() - 2);
+        const float fu = static_cast<float>(u - c0), fv = static_cast<float>(v - r0);
+        // The mesh's triangles (a, b, c) and (a, c, d) interpolate linearly within each.
+        const float a = world.VertexShade(c0, r0), b = world.VertexShade(c0 + 1, r0);
+        const float cc = world.VertexShade(c0 + 1, r0 + 1), d = world.VertexShade(c0, r0 + 1);
+        shade = fu >= fv ? a + fu * (b - a) + fv * (cc - b) : a + fu * (cc - d) + fv * (d - a);
+      }
+      const float value =
+          SampleLevel(texels, static_cast<float>(local.x() * scale), static_cast<float>(local.y() * scale), false) *
+          shade;
+      out[col] = static_cast<uint8_t>(std::clamp(value, 0.0f, 255.0f));
+    }
+  }
+  return image;
+}
+
 }  // namespace stitch

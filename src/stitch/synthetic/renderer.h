@@ -4,6 +4,9 @@
 // and do not alias as the UAV climbs. Distortion, when the camera has some, is applied after.
 // A Renderer holds per-call buffers only; Render() is const and may run in several threads.
 
+#include <functional>
+
+#include <Eigen/Core>
 #include <opencv2/core.hpp>
 
 #include "stitch/geometry/camera.h"
@@ -33,5 +36,12 @@ class Renderer {
   // distorted camera whatever its pixels see.
   cv::Rect canvas_;
 };
+
+// The world's true orthophoto: what straight down shows at each of `size` pixels, whose centre
+// (col, row) lies at world x, y `world_at(col, row)`, `pixel_m` metres a side (the texture's mip
+// level for it): roofs where buildings stand, the shaded terrain elsewhere; no walls, no relief
+// displacement. CV_8UC1; 0 off the world.
+cv::Mat RenderOrthophoto(const SyntheticWorld& world, const cv::Size& size, double pixel_m,
+                         const std::function<Eigen::Vector2d(int col, int row)>& world_at);
 
 }  // namespace stitch

@@ -74,6 +74,39 @@ TEST(Renderer, MarkersLandWhereTheCameraModelProjectsThem) {
   }
 }
 
+TEST(Renderer, TheTrueOrthophotoHasEveryMarkerWhereItLies) {
+  SyntheticOptions options = SmallFlight();
+  options.world.num_buildings = 0;
+  SyntheticSequence sequence(options, FailureSchedule());
+  SyntheticWorld& world = sequence.mutable_world();
+  // North up at 0.1 m a pixel around the flight's first camera, markers spread over it.
+  const Eigen::Vector3d centre = sequence.flight().WorldFromCam(0).translation;
+  const double pixel = 0.1;
+  const cv::Size size(400, 300);
+  const auto world_at = [&](int col, int row) {
+    return Eigen::Vector2d(centre.x() + (col - size.width / 2) * pixel, centre.y() - (row - size.height / 2) * pixel);
+  };
+  Rng rng(3);
+  std::vector<Eigen::Vector2d> markers;
+  for (int m = 0; m < 6; ++m) {
+    const Eigen::Vector2d at(rng.Uniform(40, size.width - 40), rng.Uniform(40, size.height - 40));
+    const Eigen::Vector2d p = world_at(0, 0) + Eigen::Vector2d(at.x() * pixel, -at.y() * pixel);
+    world.PaintMarker(p.x(), p.y(), kMarkerRadiusM);
+    markers.push_back(at);
+  }
+  const cv::Mat ortho = RenderOrthophoto(world, size, pixel, world_at);
+  ASSERT_EQ(ortho.size(), size);
+  for (const Eigen::Vector2d& at : markers) {
+    const Eigen::Vector2d centroid = MarkerCentroid(ortho, at, 1.0, 1.0 / pixel);
+    EXPECT_LT((centroid - at).norm(), 0.3) << "marker at " << at.transpose() << " drawn at " << centroid.transpose();
+  }
+  // Off the world: nothing.
+  const cv::Mat outside = RenderOrthophoto(world, cv::Size(4, 4), pixel, [&](int, int) {
+    return Eigen::Vector2d(world.max_xy().x() + 10, 0);
+  });
+  EXPECT_EQ(cv::countNonZero(outside), 0);
+}
+
 TEST(Renderer, DepthMatchesTheSurfaceAndBuildingsOcclude) {
   SyntheticOptions options = SmallFlight();
   SyntheticSequence sequence(options, FailureSchedule());

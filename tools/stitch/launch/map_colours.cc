@@ -22,22 +22,6 @@ namespace fs = std::filesystem;
 namespace stitch {
 namespace {
 
-// The frame of the flight a model image is (the merger names them agentA-frameNNNNNN, frames
-// counted from where the run started); one aircraft's only.
-int FrameOfImage(const ColmapImage& image) {
-  static const std::regex placeholder("agent([0-9]+)-frame([0-9]+)");
-  std::smatch match;
-  if (!std::regex_match(image.name, match, placeholder)) {
-    throw Error("image " + std::to_string(image.id) + " is named '" + image.name +
-                "', not agentA-frameNNNNNN as the merger names them");
-  }
-  if (std::stoi(match[1]) != 0) {
-    throw Error("the map holds keyframes of aircraft " + match[1].str() +
-                "; --images names one aircraft's images (export a single aircraft's run)");
-  }
-  return std::stoi(match[2]);
-}
-
 // Each point's first sight: image id -> (feature, point index).
 std::map<int, std::vector<std::pair<int, int>>> FirstSights(const ColmapModel& model) {
   std::map<int, std::vector<std::pair<int, int>>> first_sight;
@@ -63,6 +47,20 @@ void ColourFromImage(const ColmapImage& image, const std::vector<std::pair<int, 
 
 }  // namespace
 
+int FrameOfModelImage(const ColmapImage& image) {
+  static const std::regex placeholder("agent([0-9]+)-frame([0-9]+)");
+  std::smatch match;
+  if (!std::regex_match(image.name, match, placeholder)) {
+    throw Error("image " + std::to_string(image.id) + " is named '" + image.name +
+                "', not agentA-frameNNNNNN as the merger names them");
+  }
+  if (std::stoi(match[1]) != 0) {
+    throw Error("the map holds keyframes of aircraft " + match[1].str() +
+                "; --images names one aircraft's images (export a single aircraft's run)");
+  }
+  return std::stoi(match[2]);
+}
+
 ColmapModel ModelOnImages(ColmapModel model, const std::string& images, int start_frame, const std::string& scratch) {
   // The dataset's own reader lists its images in play order; the model's camera stands in for a
   // calibration (the run's; its size is checked against the images below), which an image folder may not have.
@@ -80,7 +78,7 @@ ColmapModel ModelOnImages(ColmapModel model, const std::string& images, int star
   const auto first_sight = FirstSights(model);
   std::vector<std::string> paths;  // per model image
   for (ColmapImage& image : model.images) {
-    const int frame = FrameOfImage(image);
+    const int frame = FrameOfModelImage(image);
     const std::string path = sequence->image_path(frame);
     if (path.empty()) {
       throw Error(images + " has no image file for frame " + std::to_string(frame) +
@@ -130,7 +128,7 @@ ColmapModel ColourFromVideo(ColmapModel model, const std::string& video, int sta
   const auto first_sight = FirstSights(model);
   std::map<int, const ColmapImage*> image_at;  // by the video's frame index
   for (const ColmapImage& image : model.images) {
-    if (first_sight.count(image.id)) image_at[start_frame + FrameOfImage(image)] = &image;
+    if (first_sight.count(image.id)) image_at[start_frame + FrameOfModelImage(image)] = &image;
   }
   cv::Mat frame;
   int index = 0;

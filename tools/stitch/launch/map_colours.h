@@ -15,6 +15,11 @@ namespace stitch {
 // from the first image that sees it. `scratch` is a file it may write and remove (the dataset's
 // calibration). Throws stitch::Error naming what is missing: a model of several aircraft, a
 // frame without an image file (a video), a frame the dataset does not hold.
+// The frame of the flight a model image is (the merger names them agentA-frameNNNNNN, frames
+// counted from where the run started). Throws stitch::Error for another name, or an image of
+// another aircraft than the first (agent 0).
+int FrameOfModelImage(const ColmapImage& image);
+
 ColmapModel ModelOnImages(ColmapModel model, const std::string& images, int start_frame, const std::string& scratch);
 
 // The model's points coloured from the keyframes' frames of the video at `video` played from

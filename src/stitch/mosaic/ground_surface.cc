@@ -1,0 +1,117 @@
+#include "stitch/mosaic/ground_surface.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "stitch/util/error.h"
+
+namespace stitch {
+
+GroundSurface::GroundSurface(double height) : heights_{height}, min_height_(height), max_height_(height) {}
+
+GroundSurface GroundSurface::FromPoints(const std::vector<Eigen::Vector3d>& points, double cell, int min_points) {
+  if (!(cell > 0) || !std::isfinite(cell)) throw Error("the ground surface's cell must be a positive size");
+  std::vector<Eigen::Vector3d> finite;
+  finite.reserve(points.size());
+  for (const Eigen::Vector3d& p : points) {
+    if (p.allFinite()) finite.push_back(p);
+  }
+  if (static_cast<int>(finite.size()) < std::max(1, min_points)) {
+    throw Error("the map has " + std::to_string(finite.size()) + " points, too few to shape the ground");
+  }
+  Eigen::Vector2d lo = finite.front().head<2>(), hi = lo;
+  for (const Eigen::Vector3d& p : finite) {
+    lo = lo.cwiseMin(p.head<2>());
+    hi = hi.cwiseMax(p.head<2>());
+  }
+  GroundSurface surface;
+  surface.cell_ = cell;
+  surface.origin_ = lo + Eigen::Vector2d::Constant(0.5 * cell);
+  const double max_cells = 4e6;  // a stray point far away must not cost gigabytes
+  const double cols = std::floor((hi.x() - lo.x()) / cell) + 1, rows = std::floor((hi.y() - lo.y()) / cell) + 1;
+  if (cols * rows > max_cells) {
+    throw Error("the map's points spread over " + std::to_string(static_cast<long long>(cols)) + " x " +
+                std::to_string(static_cast<long long>(rows)) + " surface cells; give a larger cell");
+  }
+  surface.cols_ = static_cast<int>(cols);
+  surface.rows_ = static_cast<int>(rows);
+  std::vector<std::vector<double>> in_cell(static_cast<size_t>(surface.cols_) * surface.rows_);
+  for (const Eigen::Vector3d& p : finite) {
+    const int c = std::min(surface.cols_ - 1, static_cast<int>((p.x() - lo.x()) / cell));
+    const int r = std::min(surface.rows_ - 1, static_cast<int>((p.y() - lo.y()) / cell));
+    in_cell[static_cast<size_t>(r) * surface.cols_ + c].push_back(p.z());
+  }
+  const double unknown = std::numeric_limits<double>::quiet_NaN();
+  surface.heights_.assign(in_cell.size(), unknown);
+  surface.cells_measured_ = 0;
+  for (size_t i = 0; i < in_cell.size(); ++i) {
+    std::vector<double>& z = in_cell[i];
+    if (static_cast<int>(z.size()) < min_points) continue;
+    std::nth_element(z.begin(), z.begin() + z.size() / 2, z.end());
+    surface.heights_[i] = z[z.size() / 2];
+    ++surface.cells_measured_;
+  }
+  if (surface.cells_measured_ == 0) {
+    // Points too sparse for any cell: one height for all, their median.
+    std::vector<double> z;
+    for (const Eigen::Vector3d& p : finite) z.push_back(p.z());
+    std::nth_element(z.begin(), z.begin() + z.size() / 2, z.end());
+    std::fill(surface.heights_.begin(), surface.heights_.end(), z[z.size() / 2]);
+  }
+  // Empty cells take the mean of their measured (or already filled) neighbours, ring by ring.
+  for (bool missing = true; missing;) {
+    missing = false;
+    std::vector<double> next = surface.heights_;
+    for (int r = 0; r < surface.rows_; ++r) {
+      for (int c = 0; c < surface.cols_; ++c) {
+        const size_t i = static_cast<size_t>(r) * surface.cols_ + c;
+        if (!std::isnan(surface.heights_[i])) continue;
+        double sum = 0;
+        int n = 0;
+        for (int dr = -1; dr <= 1; ++dr) {
+          for (int dc = -1; dc <= 1; ++dc) {
+            const int rr = r + dr, cc = c + dc;
+            if (rr < 0 || cc < 0 || rr >= surface.rows_ || cc >= surface.cols_) continue;
+            const double h = surface.heights_[static_cast<size_t>(rr) * surface.cols_ + cc];
+            if (!std::isnan(h)) sum += h, ++n;
+          }
+        }
+        if (n > 0) {
+          next[i] = sum / n;
+        } else {
+          missing = true;
+        }
+      }
+    }
+    surface.heights_ = std::move(next);
+  }
+  const auto [min_it, max_it] = std::minmax_element(surface.heights_.begin(), surface.heights_.end());
+  surface.min_height_ = *min_it;
+  surface.max_height_ = *max_it;
+  return surface;
+}
+
+double GroundSurface::Height(double x, double y) const {
+  const double u = std::clamp((x - origin_.x()) / cell_, 0.0, static_cast<double>(cols_ - 1));
+  const double v = std::clamp((y - origin_.y()) / cell_, 0.0, static_cast<double>(rows_ - 1));
+  const int c = std::min(cols_ - 2, static_cast<int>(u)), r = std::min(rows_ - 2, static_cast<int>(v));
+  if (cols_ == 1 || rows_ == 1) {
+    // A single row or column: linear along the other axis.
+    if (cols_ == 1 && rows_ == 1) return heights_[0];
+    if (cols_ == 1) {
+      const int r0 = std::min(rows_ - 2, static_cast<int>(v));
+      const double f = v - r0;
+      return (1 - f) * heights_[r0] + f * heights_[r0 + 1];
+    }
+    const int c0 = std::min(cols_ - 2, static_cast<int>(u));
+    const double f = u - c0;
+    return (1 - f) * heights_[c0] + f * heights_[c0 + 1];
+  }
+  const double fu = u - c, fv = v - r;
+  const double* row0 = &heights_[static_cast<size_t>(r) * cols_];
+  const double* row1 = row0 + cols_;
+  return (1 - fv) * ((1 - fu) * row0[c] + fu * row0[c + 1]) + fv * ((1 - fu) * row1[c] + fu * row1[c + 1]);
+}
+
+}  // namespace stitch

@@ -1,0 +1,42 @@
+#pragma once
+// The orthomosaic's settings (orthomosaic.h): its resolution, tiles, the ground surface the
+// images are laid on, and which pixels of an image may be used.
+
+#include <string>
+
+namespace stitch {
+
+struct MosaicOptions {
+  // Ground sample distance, metres per mosaic pixel in a map placed on Earth (in the map's own
+  // units otherwise); 0: the images' own, the median over them of their height above the ground
+  // over their focal length.
+  double gsd_m = 0.0;
+  int tile_px = 256;  // mosaic tiles are this many pixels a side (what is redrawn when an image moves)
+  // The ground surface is a height grid from the map's points: cells of this many GSD a side, each
+  // the median height of its points (cells without points take their neighbours').
+  double surface_cell_gsd = 32.0;
+  int surface_min_points = 3;     // points a cell needs to give its own height
+  double max_off_nadir_deg = 45;  // a ground point seen further than this from an image's nadir is not taken from it
+  int image_border_px = 4;        // pixels along each image's edge that are not used
+  int max_pixels = 400'000'000;   // a mosaic larger than this is refused (a map with a stray camera far away)
+
+  template <class Visitor>
+  void VisitFields(Visitor& v) {
+    v("gsd_m", gsd_m,
+      "ground sample distance, metres per mosaic pixel for a map placed on Earth (the map's units otherwise); 0: the "
+      "images' own (their median height above the ground over their focal length)");
+    v("tile_px", tile_px, "the mosaic's tiles are this many pixels a side: what is redrawn when an image moves");
+    v("surface_cell_gsd", surface_cell_gsd,
+      "the ground the images are laid on is a height grid from the map's points, cells this many GSD a side, each the "
+      "median height of its points");
+    v("surface_min_points", surface_min_points,
+      "points a surface cell needs for a height of its own (the others take their neighbours')");
+    v("max_off_nadir_deg", max_off_nadir_deg,
+      "a ground point seen further than this from an image's nadir is not taken from that image");
+    v("image_border_px", image_border_px, "pixels along each image's edge that are not used");
+    v("max_pixels", max_pixels, "a mosaic of more pixels is refused (a map with a stray camera far away)");
+  }
+  bool Check(std::string* why) const;
+};
+
+}  // namespace stitch

@@ -1,0 +1,313 @@
+#include <cmath>
+#include <filesystem>
+#include <random>
+
+#include <gtest/gtest.h>
+#include <opencv2/imgproc.hpp>
+
+#include "stitch/mosaic/checkpoints.h"
+#include "stitch/mosaic/geotiff.h"
+#include "stitch/mosaic/ground_surface.h"
+#include "stitch/mosaic/orthomosaic.h"
+#include "stitch/testing/temp_dir.h"
+#include "stitch/util/error.h"
+
+namespace stitch {
+namespace {
+
+// A textured flat ground at z = 0 over [-60, 60] m on both axes, 0.05 m per texel: blobs of
+// several sizes, so that corners are found at any scale.
+class TexturedGround {
+ public:
+  TexturedGround() : texture_(2400, 2400, CV_8UC1) {
+    std::mt19937 random(7);
+    cv::Mat noise(texture_.size(), CV_32F);
+    cv::randu(noise, 0, 1);
+    cv::Mat sum = cv::Mat::zeros(texture_.size(), CV_32F);
+    for (const int blur : {3, 9, 31}) {
+      cv::Mat blurred;
+      cv::GaussianBlur(noise, blurred, cv::Size(0, 0), blur);
+      cv::normalize(blurred, blurred, -1, 1, cv::NORM_MINMAX);
+      sum += blurred;
+    }
+    cv::normalize(sum, sum, 20, 235, cv::NORM_MINMAX);
+    sum.convertTo(texture_, CV_8U);
+  }
+  // Ground (x, y) -> texel.
+  cv::Point2d Texel(double x, double y) const { return {(x + 60.0) / 0.05 - 0.5, (60.0 - y) / 0.05 - 0.5}; }
+  uchar At(double x, double y) const {
+    const cv::Point2d t = Texel(x, y);
+    cv::Mat out;
+    cv::getRectSubPix(texture_, cv::Size(1, 1), t, out);
+    return out.at<uchar>(0, 0);
+  }
+  // What a camera sees of it.
+  cv::Mat Photograph(const Camera& camera, const Sim3d& cam_from_ground) const {
+    const Sim3d ground_from_cam = cam_from_ground.Inverse();
+    cv::Mat map_x(camera.height(), camera.width(), CV_32F), map_y(camera.height(), camera.width(), CV_32F);
+    for (int r = 0; r < camera.height(); ++r) {
+      for (int c = 0; c < camera.width(); ++c) {
+        const Eigen::Vector3d ray = ground_from_cam.rotation * camera.PixelToRay(Eigen::Vector2d(c, r));
+        const Eigen::Vector3d& centre = ground_from_cam.translation;
+        const Eigen::Vector3d hit = centre + ray * (-centre.z() / ray.z());
+        const cv::Point2d t = Texel(hit.x(), hit.y());
+        map_x.at<float>(r, c) = static_cast<float>(t.x);
+        map_y.at<float>(r, c) = static_cast<float>(t.y);
+      }
+    }
+    cv::Mat image;
+    cv::remap(texture_, image, map_x, map_y, cv::INTER_LINEAR);
+    return image;
+  }
+  // The truth on the mosaic's grid.
+  cv::Mat Orthophoto(const MosaicGrid& grid, int col0, int row0, cv::Size size) const {
+    cv::Mat map_x(size, CV_32F), map_y(size, CV_32F);
+    for (int r = 0; r < size.height; ++r) {
+      for (int c = 0; c < size.width; ++c) {
+        const Eigen::Vector2d g = grid.Ground(col0 + c, row0 + r);
+        const cv::Point2d t = Texel(g.x(), g.y());
+        map_x.at<float>(r, c) = static_cast<float>(t.x);
+        map_y.at<float>(r, c) = static_cast<float>(t.y);
+      }
+    }
+    cv::Mat image;
+    cv::remap(texture_, image, map_x, map_y, cv::INTER_LINEAR);
+    return image;
+  }
+
+ private:
+  cv::Mat texture_;
+};
+
+const TexturedGround& Ground() {
+  static const TexturedGround* ground = new TexturedGround();  // built once: a second's work
+  return *ground;
+}
+
+// A camera `height` m above (x, y), looking down (image x east, y south), tilted by `tilt_deg`
+// about its x axis.
+Sim3d NadirCamera(double x, double y, double height, double tilt_deg = 0.0) {
+  Eigen::Matrix3d cam_from_ground_rotation;
+  cam_from_ground_rotation << 1, 0, 0, 0, -1, 0, 0, 0, -1;  // x east, y south, z down
+  const Eigen::Matrix3d tilt = Eigen::AngleAxisd(tilt_deg * M_PI / 180.0, Eigen::Vector3d::UnitX()).toRotationMatrix();
+  const Eigen::Matrix3d rotation = tilt * cam_from_ground_rotation;
+  const Eigen::Vector3d centre(x, y, height);
+  return Sim3d(1.0, Eigen::Quaterniond(rotation), -(rotation * centre));
+}
+
+const Camera kCamera = Camera::Pinhole(320, 240, 300, 300, 159.5, 119.5);
+
+TEST(GroundSurface, FollowsASlopeAndFillsCellsWithoutPoints) {
+  std::vector<Eigen::Vector3d> points;
+  for (double x = 0; x <= 40; x += 0.5) {
+    for (double y = 0; y <= 40; y += 0.5) {
+      if (x > 15 && x < 25 && y > 15 && y < 25) continue;  // a hole in the middle
+      points.emplace_back(x, y, 0.1 * x + 0.2 * y);
+    }
+  }
+  const GroundSurface surface = GroundSurface::FromPoints(points, 2.0, 3);
+  EXPECT_LT(surface.cells_measured(), surface.cells());
+  EXPECT_NEAR(surface.Height(10.3, 31.7), 0.1 * 10.3 + 0.2 * 31.7, 0.05);
+  // In the hole, from the neighbours: near the plane, not 0.
+  EXPECT_NEAR(surface.Height(20, 20), 6.0, 0.6);
+  // Beyond the points: the edge's height.
+  EXPECT_NEAR(surface.Height(-100, 10.5), surface.Height(0.5, 10.5), 1e-9);
+  EXPECT_NEAR(surface.min_height(), 0.15, 0.1);
+  EXPECT_NEAR(surface.max_height(), 11.85, 0.1);
+  EXPECT_THROW(GroundSurface::FromPoints({{0, 0, 0}}, 2.0, 3), Error);
+  EXPECT_THROW(GroundSurface::FromPoints(points, 0.0, 3), Error);
+  // A median per cell: a stray point does not lift it.
+  points.emplace_back(5.1, 5.1, 100.0);
+  EXPECT_NEAR(GroundSurface::FromPoints(points, 2.0, 3).Height(5, 5), 1.5, 0.1);
+}
+
+TEST(Orthomosaic, NadirImagesOfTexturedGroundGiveItsOrthophoto) {
+  const TexturedGround& ground = Ground();
+  MosaicOptions options;
+  options.tile_px = 64;
+  MosaicGrid grid;
+  grid.gsd = 0.1;
+  Orthomosaic mosaic(options, grid, GroundSurface(0.0));
+  int id = 0;
+  // A 2 x 2 block of images, slightly tilted, in a map of another scale.
+  for (const double x : {-8.0, 8.0}) {
+    for (const double y : {-6.0, 6.0}) {
+      const Sim3d pose = NadirCamera(x, y, 30.0, x > 0 ? 3.0 : -2.0);
+      EXPECT_NEAR(*NadirGsd(kCamera, pose, mosaic.surface()), 0.1, 1e-9);
+      const Orthomosaic::Change change = mosaic.SetImage(id++, kCamera, pose, ground.Photograph(kCamera, pose));
+      EXPECT_GT(change.pixels, 0);
+    }
+  }
+  const MosaicRaster raster = mosaic.Render();
+  ASSERT_FALSE(raster.colour.empty());
+  // Four 32 x 24 m footprints overlapping by 16 x 12 m: about 48 x 36 m at 0.1 m.
+  EXPECT_NEAR(cv::countNonZero(raster.coverage), 480 * 360, 0.06 * 480 * 360);
+  EXPECT_EQ(mosaic.covered_pixels(), cv::countNonZero(raster.coverage));
+  const cv::Mat truth = ground.Orthophoto(grid, raster.col0, raster.row0, raster.colour.size());
+  const CheckpointErrors errors = MeasureCheckpoints(truth, raster.colour, raster.coverage);
+  EXPECT_GT(errors.checkpoints, 100);
+  EXPECT_LT(errors.rms_px, 0.3);
+  // Grey in, the same grey in every channel out.
+  cv::Mat planes[3];
+  cv::split(raster.colour, planes);
+  EXPECT_EQ(cv::countNonZero(planes[0] != planes[2]), 0);
+}
+
+TEST(Orthomosaic, EachPixelComesFromTheImageNearestItsNadir) {
+  MosaicOptions options;
+  options.tile_px = 32;
+  MosaicGrid grid;
+  grid.gsd = 0.2;
+  Orthomosaic mosaic(options, grid, GroundSurface(0.0));
+  const cv::Mat dark(240, 320, CV_8UC1, cv::Scalar(50)), bright(240, 320, CV_8UC1, cv::Scalar(200));
+  mosaic.SetImage(1, kCamera, NadirCamera(0, 0, 30), dark);
+  mosaic.SetImage(2, kCamera, NadirCamera(10, 0, 30), bright);
+  const MosaicRaster raster = mosaic.Render();
+  const auto value_at = [&](double x, double y) {
+    const Eigen::Vector2d p = grid.Pixel({x, y});
+    return raster.colour.at<cv::Vec3b>(static_cast<int>(std::lround(p.y())) - raster.row0,
+                                       static_cast<int>(std::lround(p.x())) - raster.col0)[0];
+  };
+  EXPECT_EQ(value_at(1, 3), 50);
+  EXPECT_EQ(value_at(4.7, -3), 50);
+  EXPECT_EQ(value_at(5.3, 2), 200);
+  EXPECT_EQ(value_at(9, 1), 200);
+  // What only one sees comes from it.
+  EXPECT_EQ(value_at(-12, 0), 50);
+  EXPECT_EQ(value_at(22, 0), 200);
+  // Two images seeing a pixel alike: the lower id gives it, whichever came first.
+  const cv::Mat mid(240, 320, CV_8UC1, cv::Scalar(120));
+  mosaic.SetImage(3, kCamera, NadirCamera(0, 0, 30), mid);
+  EXPECT_EQ(mosaic.Render().colour.at<cv::Vec3b>(raster.coverage.rows / 2, 10)[0], 50);
+  mosaic.SetImage(0, kCamera, NadirCamera(0, 0, 30), mid);
+  EXPECT_EQ(mosaic.Render().colour.at<cv::Vec3b>(raster.coverage.rows / 2, 10)[0], 120);
+}
+
+TEST(Orthomosaic, AnImageMovedOrRemovedRedrawsItsTilesAsIfAddedThereOrNever) {
+  const TexturedGround& ground = Ground();
+  MosaicOptions options;
+  options.tile_px = 48;
+  MosaicGrid grid;
+  grid.gsd = 0.1;
+  const auto build = [&](const std::vector<std::pair<int, Sim3d>>& poses) {
+    Orthomosaic mosaic(options, grid, GroundSurface(0.0));
+    for (const auto& [id, pose] : poses) mosaic.SetImage(id, kCamera, pose, ground.Photograph(kCamera, pose));
+    return mosaic;
+  };
+  const Sim3d a = NadirCamera(0, 0, 30), b = NadirCamera(12, 3, 30), c = NadirCamera(-5, 10, 28, 4);
+  // Image 2 drawn at a wrong pose, then moved where it belongs, keeping its pixels.
+  const Sim3d c_wrong = NadirCamera(-9, 14, 28, 4);
+  Orthomosaic moved(options, grid, GroundSurface(0.0));
+  moved.SetImage(0, kCamera, a, ground.Photograph(kCamera, a));
+  moved.SetImage(1, kCamera, b, ground.Photograph(kCamera, b));
+  moved.SetImage(2, kCamera, c_wrong, ground.Photograph(kCamera, c));
+  Orthomosaic::Change change;
+  ASSERT_TRUE(moved.MoveImage(2, c, &change));
+  EXPECT_GT(change.tiles, 0);
+  const Orthomosaic fresh = build({{0, a}, {1, b}, {2, c}});
+  const MosaicRaster m = moved.Render(), f = fresh.Render();
+  ASSERT_EQ(m.colour.size(), f.colour.size());
+  EXPECT_EQ(m.col0, f.col0);
+  EXPECT_EQ(m.row0, f.row0);
+  EXPECT_EQ(cv::norm(m.colour, f.colour, cv::NORM_INF), 0);
+  EXPECT_EQ(cv::norm(m.coverage, f.coverage, cv::NORM_INF), 0);
+  // Removed: as if never added.
+  ASSERT_TRUE(moved.RemoveImage(1));
+  EXPECT_FALSE(moved.RemoveImage(1));
+  EXPECT_FALSE(moved.MoveImage(7, a));
+  const MosaicRaster without = moved.Render(), never = build({{0, a}, {2, c}}).Render();
+  ASSERT_EQ(without.colour.size(), never.colour.size());
+  EXPECT_EQ(cv::norm(without.colour, never.colour, cv::NORM_INF), 0);
+  // An image not looking at the ground (the camera under it) adds nothing; a bad image is refused.
+  Orthomosaic empty(options, grid, GroundSurface(50.0));
+  EXPECT_EQ(empty.SetImage(0, kCamera, a, ground.Photograph(kCamera, a)).pixels, 0);
+  EXPECT_TRUE(empty.Render().colour.empty());
+  EXPECT_THROW(empty.SetImage(1, kCamera, a, cv::Mat(10, 10, CV_32F)), Error);
+  MosaicOptions bad;
+  bad.max_off_nadir_deg = 95;
+  EXPECT_THROW(Orthomosaic(bad, grid, GroundSurface(0.0)), Error);
+}
+
+TEST(Orthomosaic, APoseInAScaledMapFrameGivesTheSameMosaic) {
+  // Only directions matter to where a pixel falls: the map's scale does not move the mosaic.
+  const TexturedGround& ground = Ground();
+  MosaicOptions options;
+  MosaicGrid grid;
+  grid.gsd = 0.1;
+  const Sim3d pose = NadirCamera(2, 1, 30, 5);
+  const cv::Mat image = ground.Photograph(kCamera, pose);
+  Orthomosaic metric(options, grid, GroundSurface(0.0));
+  metric.SetImage(0, kCamera, pose, image);
+  // The camera's frame in map units: cam_from_ground scaled; the ground in the same frame.
+  Orthomosaic scaled(options, grid, GroundSurface(0.0));
+  scaled.SetImage(0, kCamera, Sim3d(0.37, Eigen::Quaterniond::Identity(), Eigen::Vector3d::Zero()) * pose, image);
+  EXPECT_EQ(cv::norm(metric.Render().colour, scaled.Render().colour, cv::NORM_INF), 0);
+}
+
+TEST(Checkpoints, MeasureAKnownShiftAndTakeItOutWithASimilarity) {
+  const TexturedGround& ground = Ground();
+  MosaicGrid grid;
+  grid.gsd = 0.1;
+  const cv::Mat truth = ground.Orthophoto(grid, -200, -200, cv::Size(400, 400));
+  // The mosaic 3 px east and 2 px north of the truth: its content shifted right and up.
+  const cv::Mat shifted = ground.Orthophoto(grid, -203, -198, cv::Size(400, 400));
+  const cv::Mat all(400, 400, CV_8UC1, cv::Scalar(255));
+  const CheckpointErrors same = MeasureCheckpoints(truth, truth, all);
+  EXPECT_GT(same.checkpoints, 50);
+  EXPECT_LT(same.rms_px, 0.05);
+  const CheckpointErrors errors = MeasureCheckpoints(truth, shifted, all);
+  EXPECT_GT(errors.checkpoints, 50);
+  EXPECT_NEAR(errors.rms_px, std::hypot(3, 2), 0.15);
+  EXPECT_NEAR(errors.mean_offset_px.x(), 3, 0.15);
+  EXPECT_NEAR(errors.mean_offset_px.y(), -2, 0.15);
+  EXPECT_LT(errors.rms_after_similarity_px, 0.15);
+  EXPECT_NEAR(errors.similarity_scale, 1.0, 0.002);
+  // Where nothing is drawn there is nothing to measure.
+  EXPECT_EQ(MeasureCheckpoints(truth, shifted, cv::Mat::zeros(400, 400, CV_8UC1)).checkpoints, 0);
+  EXPECT_THROW(MeasureCheckpoints(truth, shifted(cv::Rect(0, 0, 10, 10)), all), Error);
+}
+
+TEST(GeoTiff, WritesWhatItReadsBackWithItsCrsAndOverviews) {
+  testing::TempDir dir;
+  GeoTiffImage image;
+  image.colour = cv::Mat(700, 900, CV_8UC3);
+  cv::randu(image.colour, 0, 255);
+  image.coverage = cv::Mat(700, 900, CV_8UC1, cv::Scalar(255));
+  image.coverage(cv::Rect(0, 0, 100, 100)).setTo(0);
+  image.west = 648'000.25;
+  image.north = 5'318'000.75;
+  image.pixel_size = 0.15;
+  image.epsg = 32632;
+  image.metadata["STITCH_GSD_M"] = "0.15";
+  const std::string path = dir / "ortho.tif";
+  WriteGeoTiff(path, image);
+  EXPECT_FALSE(std::filesystem::exists(path + ".partial"));
+  const GeoTiffInfo info = ReadGeoTiffInfo(path);
+  EXPECT_EQ(info.width, 900);
+  EXPECT_EQ(info.height, 700);
+  EXPECT_EQ(info.bands, 4);
+  EXPECT_EQ(info.epsg, 32632);
+  EXPECT_DOUBLE_EQ(info.geo_transform[0], 648'000.25);
+  EXPECT_DOUBLE_EQ(info.geo_transform[1], 0.15);
+  EXPECT_DOUBLE_EQ(info.geo_transform[3], 5'318'000.75);
+  EXPECT_DOUBLE_EQ(info.geo_transform[5], -0.15);
+  EXPECT_GE(info.overviews, 1);
+  EXPECT_EQ(info.metadata.at("STITCH_GSD_M"), "0.15");
+  const GeoTiffImage back = ReadGeoTiff(path);
+  EXPECT_EQ(cv::norm(back.colour, image.colour, cv::NORM_INF), 0);
+  EXPECT_EQ(cv::norm(back.coverage, image.coverage, cv::NORM_INF), 0);
+  // A local frame: no CRS.
+  image.epsg = 0;
+  WriteGeoTiff(dir / "local.tif", image);
+  EXPECT_EQ(ReadGeoTiffInfo(dir / "local.tif").epsg, 0);
+  // Refusals name the file and leave nothing behind.
+  EXPECT_THROW(WriteGeoTiff(dir / "missing/ortho.tif", image), Error);
+  image.epsg = 1;
+  EXPECT_THROW(WriteGeoTiff(dir / "bad.tif", image), Error);
+  EXPECT_FALSE(std::filesystem::exists(dir / "bad.tif"));
+  EXPECT_FALSE(std::filesystem::exists(dir / "bad.tif.partial"));
+  EXPECT_THROW(ReadGeoTiffInfo(dir / "nothing.tif"), Error);
+}
+
+}  // namespace
+}  // namespace stitch
