@@ -15,6 +15,7 @@
 #include <nlohmann/json.hpp>
 
 #include "stitch/io/trajectory.h"
+#include "stitch/records/keyframe_pictures.h"
 #include "stitch/records/keyframe_record.h"
 #include "stitch/records/merger_records.h"
 #include "stitch/testing/temp_dir.h"
@@ -122,6 +123,10 @@ void ExpectSameResult(const RunResult& plain, const RunResult& split, const std:
   // The pose stream crossed the link too: the ground placed (nearly) every frame of the largest map.
   EXPECT_GE(split.posed_on_the_ground, split.posed * 9 / 10)
       << what << ": " << split.posed_on_the_ground << " of " << split.posed << " frames in the ground's trajectory";
+  // The keyframes' pictures crossed too, behind everything else: (nearly) all the plain run's.
+  const size_t pictures = ReadKeyframePictureIndex(plain.dir.string()).size();
+  EXPECT_GT(pictures, 5u) << what;
+  EXPECT_GE(ReadKeyframePictureIndex(split.dir.string()).size(), pictures * 8 / 10) << what;
   EXPECT_FALSE(split.info["link"].get<std::string>().empty()) << what;
   const auto figures = split.info["link_figures"];
   ASSERT_EQ(figures.size(), 2u) << what << "\n" << split.output;

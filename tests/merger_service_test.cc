@@ -9,6 +9,7 @@
 #include <thread>
 
 #include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
 
 #include "services/common/convert.h"
 #include "services/common/map_convert.h"
@@ -55,6 +56,9 @@ class MergerOnMemq {
   lcm::LCM* lcm() { return lcm_.get(); }
   void Send(stitch::submap_update_t message) { publisher_.Publish(bus::Channel("uav0", bus::kSubmap), &message); }
   void Send(stitch::gnss_fix_t message) { publisher_.Publish(bus::Channel("uav0", bus::kGnss), &message); }
+  void Send(stitch::keyframe_image_t message) {
+    publisher_.Publish(bus::Channel("uav0", bus::kKeyframeImage), &message);
+  }
   const Merger& Finish() {
     testing::WaitUntilDispatched(lcm_.get());
     merger_.Stop();
@@ -192,6 +196,62 @@ TEST(MergerServiceInProcess, KeepsTheAircraftsGnssFixesAndRefusesImpossibleOnes)
   ASSERT_EQ(received.fixes.size(), 20u);
   EXPECT_EQ(received.fixes[19].t_ns, 19 * 200'000'000LL);
   EXPECT_DOUBLE_EQ(received.fixes[19].position.latitude_deg, 48.0 + 19 * 1e-5);
+}
+
+// The keyframes' pictures the aircraft sends down are kept with the merger's records, each under
+// its frame's COLMAP name with a line of the index; a picture that is not what it says is refused
+// before anything is decoded or written.
+TEST(MergerServiceInProcess, KeepsTheKeyframesPicturesAndRefusesOnesThatAreNotWhatTheySay) {
+  const StitchConfig config = ShortFlight();
+  const Vocabulary vocabulary = LoadVocabulary(config);
+  testing::TempDir dir;
+  MergerOnMemq merger(config, vocabulary, dir.path().string());
+  const auto picture = [](int frame) {
+    stitch::keyframe_image_t m{};
+    const SubmapId submap = MakeSubmapId(0, 1);
+    m.submap_id = submap.value;
+    m.keyframe_id = MakeKeyframeId(submap, frame).value;
+    m.frame_index = frame;
+    m.t_ns = frame * 50'000'000LL;
+    m.camera_width = 640;
+    m.camera_height = 480;
+    cv::Mat image(120, 160, CV_8UC1);
+    cv::randu(image, 0, 255);
+    cv::imencode(".jpg", image, m.jpeg);
+    m.width = 160;
+    m.height = 120;
+    m.num_bytes = static_cast<int32_t>(m.jpeg.size());
+    return m;
+  };
+  merger.Send(picture(4));
+  merger.Send(picture(30));
+  stitch::keyframe_image_t claims_more = picture(40);  // a 160x120 JPEG said to be 16000x12000
+  claims_more.width = 16000;
+  claims_more.height = 12000;
+  claims_more.camera_width = 16000;
+  claims_more.camera_height = 12000;
+  merger.Send(claims_more);
+  stitch::keyframe_image_t not_jpeg = picture(41);
+  std::fill(not_jpeg.jpeg.begin(), not_jpeg.jpeg.end(), 0xFF);
+  merger.Send(not_jpeg);
+  stitch::keyframe_image_t other_submap = picture(42);  // a keyframe of another submap than it names
+  other_submap.keyframe_id = MakeKeyframeId(MakeSubmapId(0, 7), 42).value;
+  merger.Send(other_submap);
+  stitch::keyframe_image_t larger_than_camera = picture(43);
+  larger_than_camera.camera_width = 100;
+  merger.Send(larger_than_camera);
+  merger.Finish();
+  const std::vector<KeyframePicture> kept = ReadKeyframePictureIndex(dir.path().string());
+  ASSERT_EQ(kept.size(), 2u);
+  EXPECT_EQ(kept[0].frame_index, 4);
+  EXPECT_EQ(kept[1].frame_index, 30);
+  EXPECT_EQ(kept[1].width, 160);
+  EXPECT_EQ(kept[1].camera_width, 640);
+  const cv::Mat back = cv::imread(dir / ("keyframe_images/" + KeyframePictureName(0, 30)), cv::IMREAD_UNCHANGED);
+  EXPECT_EQ(back.size(), cv::Size(160, 120));
+  for (int refused : {40, 41, 42, 43}) {
+    EXPECT_FALSE(std::filesystem::exists(dir / ("keyframe_images/" + KeyframePictureName(0, refused)))) << refused;
+  }
 }
 
 }  // namespace

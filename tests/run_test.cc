@@ -32,6 +32,7 @@
 #include "stitch/io/trajectory.h"
 #include "stitch/mosaic/geotiff.h"
 #include "stitch/records/frame_record.h"
+#include "stitch/records/keyframe_pictures.h"
 #include "stitch/records/merger_records.h"
 #include "stitch/testing/full_disk.h"
 #include "stitch/testing/temp_dir.h"
@@ -173,6 +174,16 @@ TEST(StitchRun, TracksAShortFlightWithTheServicesAsProcesses) {
     EXPECT_NE(info.output.find("Band 4 Block=256x256 Type=Byte, ColorInterp=Alpha"), std::string::npos) << info.output;
     EXPECT_NE(info.output.find("Overviews"), std::string::npos) << info.output;
   }
+  // The same from the reduced pictures the aircraft sent down (what the ground has of a live camera).
+  const size_t pictures = ReadKeyframePictureIndex(out).size();
+  EXPECT_GE(pictures, 3u);
+  const auto from_pictures =
+      RunProgram({Bin("stitch"), "mosaic", out, "--pictures", "received", "--out", dir / "received.tif"}, 120);
+  ASSERT_EQ(from_pictures.exit_code, 0) << from_pictures.output;
+  const auto received = ReadJson(dir / "received.json");
+  EXPECT_EQ(received["pictures"], "the pictures the ground received");
+  EXPECT_LE(received["images"].get<size_t>(), pictures);
+  EXPECT_GT(received["truth"]["coverage"].get<double>(), 0.8) << received.dump();
   // Refused: a folder that is no run.
   EXPECT_NE(RunProgram({Bin("stitch"), "mosaic", dir / "nothing"}, 30).exit_code, 0);
 }

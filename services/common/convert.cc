@@ -233,6 +233,41 @@ cv::Mat DecodeImage(const stitch::frame_t& frame) {
   throw Error("frame " + std::to_string(frame.frame_index) + ": unknown encoding " + std::to_string(frame.encoding));
 }
 
+KeyframePicture FromMessage(const stitch::keyframe_image_t& message) {
+  const std::string what = "keyframe picture of frame " + std::to_string(message.frame_index);
+  constexpr int kMaxSide = 8192;
+  constexpr size_t kMaxBytes = 8u << 20;
+  if (message.width <= 0 || message.height <= 0 || message.width > kMaxSide || message.height > kMaxSide ||
+      message.camera_width < message.width || message.camera_height < message.height ||
+      message.camera_width > 2 * kMaxSide || message.camera_height > 2 * kMaxSide) {
+    throw Error(what + ": sizes " + std::to_string(message.width) + "x" + std::to_string(message.height) + " of a " +
+                std::to_string(message.camera_width) + "x" + std::to_string(message.camera_height) +
+                " camera are not plausible");
+  }
+  if (message.jpeg.size() > kMaxBytes) throw Error(what + ": " + std::to_string(message.jpeg.size()) + " bytes");
+  const std::optional<std::pair<int, int>> size = JpegSize(message.jpeg);
+  if (!size || size->first != message.width || size->second != message.height) {
+    throw Error(what + ": its JPEG does not name the " + std::to_string(message.width) + "x" +
+                std::to_string(message.height) + " it claims");
+  }
+  const SubmapId submap(message.submap_id);
+  if (message.frame_index < 0 || !submap.valid() || SubmapOf(KeyframeId(message.keyframe_id)) != submap) {
+    throw Error(what + ": names no keyframe of its submap");
+  }
+  KeyframePicture picture;
+  picture.agent = AgentNumber(submap);
+  picture.frame_index = message.frame_index;
+  picture.t_ns = message.t_ns;
+  picture.submap_id = message.submap_id;
+  picture.keyframe_id = message.keyframe_id;
+  picture.camera_width = message.camera_width;
+  picture.camera_height = message.camera_height;
+  picture.width = message.width;
+  picture.height = message.height;
+  picture.jpeg = message.jpeg;
+  return picture;
+}
+
 stitch::submap_request_t ToMessage(const DeliveryRequest& request) {
   stitch::submap_request_t m{};
   m.submap_id = request.submap.value;

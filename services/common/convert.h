@@ -15,6 +15,8 @@
 #include "stitch/geometry/camera.h"
 #include "stitch/geometry/rigid3.h"
 #include "stitch/gnss_fix_t.hpp"
+#include "stitch/keyframe_image_t.hpp"
+#include "stitch/records/keyframe_pictures.h"
 #include "stitch/rigid3_t.hpp"
 #include "stitch/sim3_t.hpp"
 #include "stitch/submap_request_t.hpp"
@@ -43,6 +45,12 @@ stitch::frame_pose_t FramePoseMessage(int frame_index, int64_t t_ns, SubmapId su
 // not know, or a fix that is no place on Earth or states no accuracy (WhyNotAFix).
 stitch::gnss_fix_t ToMessage(const GnssFix& fix);
 GnssFix FromMessage(const stitch::gnss_fix_t& message);
+
+// A keyframe's picture for the ground (<agent>/KEYFRAME_IMAGE), checked before it is kept: a JPEG
+// whose header names the size the message states (read without decoding), at most 8192 pixels a
+// side and 8 MB, no larger than its camera's image, of a keyframe of the submap it names. Throws
+// stitch::Error saying what is wrong. The agent is the submap's.
+KeyframePicture FromMessage(const stitch::keyframe_image_t& message);
 
 // The name of a tracking state on the bus (tracking_status_t::STATE_*), as TrackingStateName
 // says it in the core ("UNKNOWN" for a value no tracker sends). Not the core's function: this

@@ -57,6 +57,11 @@ LinkBridge::LinkBridge(lcm::LCM* lcm, LinkOptions options)
   } catch (const std::regex_error& e) {
     throw Error("link.accept '" + options_.accept + "' is not a regular expression: " + e.what());
   }
+  try {
+    background_ = std::regex(options_.background, std::regex::extended);
+  } catch (const std::regex_error& e) {
+    throw Error("link.background '" + options_.background + "' is not a regular expression: " + e.what());
+  }
   const sockaddr_in listen = ResolveIpv4(options_.listen, "link.listen");
   const sockaddr_in peer = ResolveIpv4(options_.peer, "link.peer");
   peer_address_ = peer;
@@ -124,7 +129,7 @@ LinkCounts LinkBridge::counts() const {
   std::lock_guard<std::mutex> queue_lock(mutex_);
   counts.queued_bytes = static_cast<int64_t>(queued_bytes_);
   const double now = MonotonicSeconds();
-  for (const auto* queue : {&small_queue_, &large_queue_}) {
+  for (const auto* queue : {&small_queue_, &large_queue_, &background_queue_}) {
     if (!queue->empty()) counts.oldest_wait_s = std::max(counts.oldest_wait_s, now - queue->front().queued_at);
   }
   const double heard = last_heard_s_.load();
@@ -134,8 +139,9 @@ LinkCounts LinkBridge::counts() const {
 
 size_t LinkBridge::backlog() const {
   std::lock_guard<std::mutex> lock(mutex_);
-  return small_queue_.size() + large_queue_.size() + repairs_.size() + (small_sending_ ? 1 : 0) +
-         (large_sending_ ? 1 : 0) + (pending_ ? 1 : 0) + delay_line_.size();
+  return small_queue_.size() + large_queue_.size() + background_queue_.size() + repairs_.size() +
+         (small_sending_ ? 1 : 0) + (large_sending_ ? 1 : 0) + (background_sending_ ? 1 : 0) + (pending_ ? 1 : 0) +
+         delay_line_.size();
 }
 
 bool LinkBridge::Settled(double quiet_s) const {
@@ -218,7 +224,11 @@ void LinkBridge::OnLocalMessage(const lcm::ReceiveBuffer* buffer, const std::str
     Outgoing outgoing{channel, std::string(reinterpret_cast<const char*>(data), buffer->data_size), now};
     queued_bytes_ += outgoing.bytes.size();
     const bool small = static_cast<int>(outgoing.bytes.size()) <= options_.small_message_bytes;
-    (small ? small_queue_ : large_queue_).push_back(std::move(outgoing));
+    if (std::regex_match(channel, background_)) {
+      background_queue_.push_back(std::move(outgoing));
+    } else {
+      (small ? small_queue_ : large_queue_).push_back(std::move(outgoing));
+    }
   }
   {
     std::lock_guard<std::mutex> counts_lock(counts_mutex_);
@@ -237,7 +247,7 @@ void LinkBridge::QueueControl(std::string datagram) {
 
 void LinkBridge::ExpireLocked(double now) {
   int64_t expired = 0;
-  for (auto* queue : {&small_queue_, &large_queue_}) {
+  for (auto* queue : {&small_queue_, &large_queue_, &background_queue_}) {
     while (!queue->empty() && now - queue->front().queued_at > options_.max_queue_s) {
       queued_bytes_ -= queue->front().bytes.size();
       queue->pop_front();
@@ -277,7 +287,8 @@ std::optional<std::string> LinkBridge::NextDatagramLocked(double now) {
     return link::Encode(link::MakeFragment(session_, message, retained->second.channel, retained->second.bytes,
                                            datagram_bytes_, index));
   }
-  for (auto [queue, sending] : {std::pair(&small_queue_, &small_sending_), std::pair(&large_queue_, &large_sending_)}) {
+  for (auto [queue, sending] : {std::pair(&small_queue_, &small_sending_), std::pair(&large_queue_, &large_sending_),
+                                std::pair(&background_queue_, &background_sending_)}) {
     if (!*sending && !queue->empty()) {
       Outgoing outgoing = std::move(queue->front());
       queue->pop_front();
@@ -309,7 +320,7 @@ std::string LinkBridge::NextFragmentLocked(std::optional<Sending>* sending, doub
 
 uint64_t LinkBridge::SentEndLocked() const {
   uint64_t end = next_message_;
-  for (const auto* sending : {&small_sending_, &large_sending_}) {
+  for (const auto* sending : {&small_sending_, &large_sending_, &background_sending_}) {
     if (*sending) end = std::min(end, (*sending)->message);
   }
   return end;

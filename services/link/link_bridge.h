@@ -6,8 +6,9 @@
 // what the other sends on its own network, byte for byte. A message is split into numbered
 // datagrams; the receiver asks for the ones it lacks (REPAIR) and the sender keeps what it sent
 // for `retain_s` to answer, so a lossy link still delivers whole messages. Under a bandwidth
-// budget, messages wait in a queue (small ones first) and are dropped, oldest first, after
-// `max_queue_s`. A message this bridge published is never sent back (no echo between sides).
+// budget, messages wait in a queue (small ones first, `background` channels only when nothing
+// else waits) and are dropped, oldest first, after `max_queue_s`. A message this bridge published is never sent back
+// (no echo between sides).
 //
 // Threads: LCM's dispatcher (the caller runs it) queues local messages; a sender thread paces
 // and transmits; a receiver thread reassembles, asks for repairs and publishes.
@@ -159,6 +160,7 @@ class LinkBridge {
   int seal_overhead_ = 0;
   int datagram_bytes_ = 0;  // options_.max_datagram_bytes less the seal
   std::regex accept_;       // options_.accept
+  std::regex background_;   // options_.background
   int socket_ = -1;
   int local_port_ = 0;
   sockaddr_in peer_address_{};
@@ -167,12 +169,13 @@ class LinkBridge {
   // Sender state. Lock order: mutex_, then counts_mutex_ (never the other way).
   mutable std::mutex mutex_;
   std::condition_variable wake_;
-  std::deque<Outgoing> small_queue_, large_queue_;
+  std::deque<Outgoing> small_queue_, large_queue_, background_queue_;
   size_t queued_bytes_ = 0;
   std::deque<std::string> control_;                    // repair requests, statuses: first
   std::deque<std::pair<uint64_t, uint16_t>> repairs_;  // (message, fragment) asked for again
   std::set<std::pair<uint64_t, uint16_t>> repairs_waiting_;
-  std::optional<Sending> small_sending_, large_sending_;  // a small one goes between a large one's fragments
+  // A small one goes between a large one's fragments, and either between a background one's.
+  std::optional<Sending> small_sending_, large_sending_, background_sending_;
   uint64_t next_message_ = 0;
   std::map<uint64_t, Retained> retained_;
   size_t retained_bytes_ = 0;

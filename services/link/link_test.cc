@@ -213,7 +213,7 @@ struct TwoSides {
     if (ground_options.side.empty()) ground_options.side = "ground";
     aircraft_port = FreeUdpPort();
     const int ground_port = FreeUdpPort();
-    aircraft_options.forward = "uav0/(SUBMAP|SEQUENCE)";
+    if (aircraft_options.forward == LinkOptions().forward) aircraft_options.forward = "uav0/(SUBMAP|SEQUENCE)";
     aircraft_options.listen = "127.0.0.1:" + std::to_string(aircraft_port);
     aircraft_options.peer = "127.0.0.1:" + std::to_string(ground_port);
     aircraft_options.report_interval_s = 0;
@@ -371,6 +371,26 @@ TEST(LinkBridge, StaysUnderItsBudgetAndLetsSmallMessagesOvertake) {
   const auto order = sides.ground_seen->order();
   ASSERT_EQ(order.size(), 2u);
   EXPECT_EQ(order[0], "uav0/SEQUENCE");  // sent while the large one was still going out
+}
+
+TEST(LinkBridge, SendsBackgroundChannelsOnlyWhenNothingElseWaits) {
+  // A keyframe's picture published first, then a submap update and a small message: under a
+  // budget both go before the picture, which waits.
+  LinkOptions aircraft;
+  aircraft.budget_bytes_per_s = 200000;
+  aircraft.forward = "uav0/(SUBMAP|SEQUENCE|KEYFRAME_IMAGE)";
+  TwoSides sides(aircraft);
+  Publish(sides.aircraft_bus.get(), "uav0/KEYFRAME_IMAGE", RandomBytes(100000, 3));
+  std::this_thread::sleep_for(30ms);
+  Publish(sides.aircraft_bus.get(), "uav0/SUBMAP", RandomBytes(100000, 4));
+  Publish(sides.aircraft_bus.get(), "uav0/SEQUENCE", "small");
+  ASSERT_TRUE(sides.ground_seen->WaitFor("uav0/KEYFRAME_IMAGE", 1, 10s));
+  const auto order = sides.ground_seen->order();
+  ASSERT_EQ(order.size(), 3u);
+  EXPECT_EQ(order[0], "uav0/SEQUENCE");
+  EXPECT_EQ(order[1], "uav0/SUBMAP");
+  EXPECT_EQ(order[2], "uav0/KEYFRAME_IMAGE");
+  EXPECT_EQ(sides.ground_seen->Get("uav0/KEYFRAME_IMAGE")[0], RandomBytes(100000, 3));
 }
 
 TEST(LinkBridge, DropsWhatWaitedTooLongUnderATightBudget) {

@@ -66,11 +66,12 @@ int main(int argc, char** argv) {
       "Example, the aircraft (10.0.0.2) and the ground station (10.0.0.1), with a key made once by\n"
       "`stitch-link keygen uav0.key` and copied to both:\n"
       "  aircraft$ stitch-link --side aircraft --forward "
-      "'uav0/(SUBMAP|SEQUENCE|TRACKING_STATUS|POSE|GNSS|SERVICE|LINK_STATUS)' "
+      "'uav0/(SUBMAP|SEQUENCE|TRACKING_STATUS|POSE|GNSS|SERVICE|LINK_STATUS|KEYFRAME_IMAGE)' "
       "--key uav0.key \\\n"
       "              --accept 'uav0/SUBMAP_REQUEST' --listen 0.0.0.0:7720 --peer 10.0.0.1:7721 --budget 250000\n"
       "  ground$   stitch-link --side ground --forward 'uav0/SUBMAP_REQUEST' --key uav0.key --listen 0.0.0.0:7721 \\\n"
-      "              --accept 'uav0/(SUBMAP|SEQUENCE|TRACKING_STATUS|POSE|GNSS|SERVICE|LINK_STATUS)' --peer "
+      "              --accept 'uav0/(SUBMAP|SEQUENCE|TRACKING_STATUS|POSE|GNSS|SERVICE|LINK_STATUS|KEYFRAME_IMAGE)' "
+      "--peer "
       "10.0.0.2:7720\n"
       "Every 10 s the log says what was sent, repaired and received.\n");
   if (!args.Parse(argc, argv)) return args.exit_code();

@@ -28,11 +28,12 @@ MergerService::MergerService(lcm::LCM* lcm, bus::Publisher* publisher, const Mer
     : publisher_(publisher),
       pyramid_(ScalePyramid::From(orb)),
       agents_(agents.empty() ? std::vector<std::string>{publisher->agent()} : std::move(agents)),
-      session_(options, vocabulary, pyramid_, std::move(record_dir), agents_),
+      session_(options, vocabulary, pyramid_, record_dir, agents_),
       receiver_(ReceiverOptions{options.request_resends, options.resend_interval_s}),
       subscriber_(lcm),
       // Submap updates are state that matters: a generous queue, and a loud log if it overflows.
-      queue_(20000, BoundedQueue<std::unique_ptr<stitch::submap_update_t>>::WhenFull::kDropOldest) {
+      queue_(20000, BoundedQueue<std::unique_ptr<stitch::submap_update_t>>::WhenFull::kDropOldest),
+      pictures_(record_dir) {
   session_.OnGraph([this](const Merger::Graph& graph) { PublishGlobalMap(graph); });
   std::set<std::string> submap_channels;
   for (const std::string& agent : agents_) {
@@ -58,6 +59,19 @@ MergerService::MergerService(lcm::LCM* lcm, bus::Publisher* publisher, const Mer
             pose.submap_id = message->submap_id;
             pose.reference_keyframe = message->reference_keyframe;
             if (session_.AddFramePose(message->header.agent, pose, &why)) return;
+          } catch (const Error& e) {
+            why = e.what();
+          }
+          subscriber_.Reject(on, why);
+        });
+    subscriber_.Subscribe<stitch::keyframe_image_t>(
+        bus::Channel(agent, bus::kKeyframeImage),
+        [this](std::unique_ptr<stitch::keyframe_image_t> message, const std::string& on) {
+          std::string why;
+          try {
+            if (pictures_.Add(FromMessage(*message), &why)) return;
+            STITCH_LOG(WARNING) << "a keyframe picture not kept: " << why;
+            return;  // the picture was right; the disk was not
           } catch (const Error& e) {
             why = e.what();
           }

@@ -20,6 +20,7 @@
 #include "stitch/frame_pose_t.hpp"
 #include "stitch/gnss_fix_t.hpp"
 #include "stitch/merging/merge_session.h"
+#include "stitch/records/keyframe_pictures.h"
 #include "stitch/submap_update_t.hpp"
 #include "stitch/util/bounded_queue.h"
 
@@ -72,6 +73,7 @@ class MergerService {
   BoundedQueue<std::unique_ptr<stitch::submap_update_t>> queue_;
   std::unique_ptr<Heartbeat> heartbeat_;
   std::unique_ptr<UpdateJournal> journal_;
+  KeyframePictureStore pictures_;  // the keyframes' pictures received, with the records (dispatcher thread)
   std::atomic<bool> journal_failed_{false};
   bool recovering_ = false;
   std::thread worker_;

@@ -7,6 +7,7 @@
 #include "services/common/convert.h"
 #include "services/common/map_convert.h"
 #include "stitch/frame_ack_t.hpp"
+#include "stitch/keyframe_image_t.hpp"
 #include "stitch/records/frame_record.h"
 #include "stitch/records/tracker_state.h"
 #include "stitch/tracking_status_t.hpp"
@@ -59,7 +60,8 @@ TrackerService::TrackerService(lcm::LCM* lcm, bus::Publisher* publisher, Tracker
       subscriber_(lcm),
       frames_(static_cast<size_t>(std::max(1, options_.max_queued_frames)),
               BoundedQueue<std::unique_ptr<stitch::frame_t>>::WhenFull::kDropOldest),
-      updates_(512, BoundedQueue<std::unique_ptr<stitch::local_map_update_t>>::WhenFull::kDropOldest) {
+      updates_(512, BoundedQueue<std::unique_ptr<stitch::local_map_update_t>>::WhenFull::kDropOldest),
+      image_picker_(options_.keyframe_images) {
   CheckOptions(options_, "tracker");
   if (!vocabulary_ || vocabulary_->empty()) throw Error("the tracker needs a vocabulary");
   const std::string agent = publisher_->agent();
@@ -316,13 +318,14 @@ void TrackerService::Process(const stitch::frame_t& frame) {
   const Stopwatch watch;
   live_ = frame.pacing != stitch::frame_t::PACING_LOCKSTEP;
   Tracking::Output output;
+  cv::Mat image;
   try {
     if (tracking_ && (frame.width != tracking_->camera().width() || frame.height != tracking_->camera().height())) {
       throw Error("a " + std::to_string(frame.width) + "x" + std::to_string(frame.height) + " frame for a " +
                   std::to_string(tracking_->camera().width()) + "x" + std::to_string(tracking_->camera().height()) +
                   " camera; not decoded");
     }
-    const cv::Mat image = DecodeImage(frame);
+    image = DecodeImage(frame);
     if (!tracking_) {
       const Camera camera = FromMessage(frame.camera);
       const double fps = 0;  // the tracker does not know the source's rate: one second of frames = 30
@@ -340,6 +343,16 @@ void TrackerService::Process(const stitch::frame_t& frame) {
   }
   const float ms = static_cast<float>(watch.ElapsedMs());
   for (size_t k = 0; k < output.new_keyframes.size(); ++k) {
+    // The ground's picture of it, where its view moved on (only this frame's image is at hand).
+    const Keyframe& made = output.new_keyframes[k];
+    if (made.frame_index == frame.frame_index && tracking_ &&
+        image_picker_.Take(SubmapOf(made.id).value, made.cam_from_world.Inverse(), tracking_->camera())) {
+      if (publisher_thread_) {
+        publisher_thread_->Submit([this, made, image] { PublishKeyframeImage(made, image); });
+      } else {
+        PublishKeyframeImage(made, image);
+      }
+    }
     std::vector<MapPoint> points = k == 0 ? std::move(output.new_points) : std::vector<MapPoint>();
     if (publisher_thread_) {
       publisher_thread_->Submit([this, keyframe = std::move(output.new_keyframes[k]), points = std::move(points)] {
@@ -380,6 +393,27 @@ void TrackerService::PublishKeyframe(const Keyframe& keyframe, const std::vector
   std::lock_guard<std::mutex> lock(unacknowledged_mutex_);
   unacknowledged_keyframes_.push_back(std::move(message));
   ++keyframes_;
+}
+
+void TrackerService::PublishKeyframeImage(const Keyframe& keyframe, const cv::Mat& image) {
+  stitch::keyframe_image_t message{};
+  message.keyframe_id = keyframe.id.value;
+  message.submap_id = SubmapOf(keyframe.id).value;
+  message.frame_index = keyframe.frame_index;
+  message.t_ns = keyframe.t_ns;
+  message.camera_width = image.cols;
+  message.camera_height = image.rows;
+  try {
+    cv::Size size;
+    message.jpeg = EncodeKeyframePicture(image, options_.keyframe_images, &size);
+    message.width = size.width;
+    message.height = size.height;
+  } catch (const Error& e) {
+    STITCH_LOG(WARNING) << "keyframe " << keyframe.frame_index << ": no picture for the ground: " << e.what();
+    return;
+  }
+  message.num_bytes = static_cast<int32_t>(message.jpeg.size());
+  publisher_->Publish(bus::Channel(publisher_->agent(), bus::kKeyframeImage), &message);
 }
 
 void TrackerService::Report(const stitch::frame_t& frame, const TrackResult& result, float tracking_ms) {

@@ -24,6 +24,7 @@
 #include "stitch/frame_t.hpp"
 #include "stitch/keyframe_t.hpp"
 #include "stitch/local_map_update_t.hpp"
+#include "stitch/mosaic/keyframe_imagery.h"
 #include "stitch/service_status_t.hpp"
 #include "stitch/tracking/tracking.h"
 #include "stitch/util/bounded_queue.h"
@@ -82,6 +83,8 @@ class TrackerService {
   void RefreshReportedState();
   // Makes the keyframe's message, sends it, keeps it until the mapper covers it.
   void PublishKeyframe(const Keyframe& keyframe, const std::vector<MapPoint>& new_points);
+  // The keyframe's reduced picture for the ground (tracker.keyframe_images), made from `image`.
+  void PublishKeyframeImage(const Keyframe& keyframe, const cv::Mat& image);
 
   bus::Publisher* publisher_;
   TrackerOptions options_;
@@ -95,6 +98,7 @@ class TrackerService {
   // New keyframes' messages are made and sent here with tracker.tracking.keyframe_worker (off
   // the frame loop); Drain() before reading unacknowledged_keyframes_ in the worker thread.
   std::unique_ptr<WorkerThread> publisher_thread_;
+  KeyframeImagePicker image_picker_;  // worker thread only
   std::mutex unacknowledged_mutex_;
   std::vector<stitch::keyframe_t> unacknowledged_keyframes_;  // sent, not yet covered by an update
   std::mutex record_mutex_;                                   // Report() runs in the worker and the dispatcher thread

@@ -16,7 +16,7 @@ namespace stitch {
 
 int MosaicCommand(int argc, char** argv) {
   std::vector<std::string> positional, settings;
-  std::string out, images;
+  std::string out, images, pictures = "auto";
   double gsd = -1;
   ArgParser args(
       "stitch mosaic",
@@ -33,6 +33,10 @@ int MosaicCommand(int argc, char** argv) {
   args.AddOption("--gsd", &gsd, "M",
                  "ground sample distance, metres a pixel on Earth (the map's units otherwise); default mosaic.gsd_m");
   args.AddOption("--images", &images, "PATH", "the flight's images, where they moved (default: the run's --dataset)");
+  args.AddOption("--pictures", &pictures, "WHICH",
+                 "source (the flight's own images), received (the reduced keyframe pictures the ground received over "
+                 "the link, keyframe_images/: a live camera's run, a ground station without the recording) or auto "
+                 "(the flight's where they are at hand; default)");
   args.AddOption("--set", &settings, "KEY=VALUE", "a setting over the run's config.yaml, e.g. mosaic.tile_px=512");
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {
@@ -46,7 +50,7 @@ int MosaicCommand(int argc, char** argv) {
     SourceSpec source = SourceOfRun(run_dir);
     if (!images.empty()) source.dataset_path = images;
     if (out.empty()) out = (fs::path(run_dir) / "ortho.tif").string();
-    const RunMosaic mosaic = MakeRunMosaic(run_dir, source, config.mosaic, out);
+    const RunMosaic mosaic = MakeRunMosaic(run_dir, source, config.mosaic, out, ParseMosaicPictures(pictures));
     const std::string figures = fs::path(out).replace_extension(".json").string();
     WriteFileAtomically(figures, mosaic.ToJson().dump(1) + "\n");
     for (const std::string& line : mosaic.Summary()) std::printf("%s\n", line.c_str());

@@ -9,7 +9,10 @@ namespace stitch {
 struct LinkOptions {
   // LCM channels (a regular expression, as LCM subscribes) sent to the peer. The aircraft sends
   // its features and state down; the ground sends the merger's requests up.
-  std::string forward = "uav0/(SUBMAP|SEQUENCE|TRACKING_STATUS|POSE|GNSS|SERVICE|LINK_STATUS)";
+  std::string forward = "uav0/(SUBMAP|SEQUENCE|TRACKING_STATUS|POSE|GNSS|SERVICE|LINK_STATUS|KEYFRAME_IMAGE)";
+  // Of those, the channels sent only when nothing else waits: the first to wait, and to be
+  // dropped, when the budget is short (the keyframes' pictures for the ground's mosaic).
+  std::string background = ".*/KEYFRAME_IMAGE";
   // LCM channels (a regular expression) this bridge publishes from the other side: what the
   // other side's `forward` names, so a datagram for any other channel (a FRAME sent up to the
   // aircraft) is refused. ".*": whatever the other side sends.
@@ -44,6 +47,9 @@ struct LinkOptions {
   template <class Visitor>
   void VisitFields(Visitor& v) {
     v("forward", forward, "LCM channels sent to the other side (regular expression)");
+    v("background", background,
+      "of the forwarded channels, those sent only when nothing else waits (regular expression; first to be dropped "
+      "when the budget is short)");
     v("accept", accept, "LCM channels published from the other side (regular expression: the other side's forward)");
     v("listen", listen, "UDP address:port this bridge receives the other side on");
     v("peer", peer, "UDP address:port of the other side's bridge");

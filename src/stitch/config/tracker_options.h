@@ -3,6 +3,7 @@
 
 #include <string>
 
+#include "stitch/mosaic/keyframe_imagery.h"
 #include "stitch/tracking/tracking_options.h"
 
 namespace stitch {
@@ -19,7 +20,8 @@ struct TrackerOptions {
   // track, and the keyframe's points are what thickens it; lockstep frames always wait.
   double live_wait_for_points_s = 0.05;
   int live_wait_below_points = 100;
-  std::string state_file;  // keeps the next submap number across restarts ("" = none)
+  std::string state_file;                // keeps the next submap number across restarts ("" = none)
+  KeyframeImageOptions keyframe_images;  // pictures for the ground's orthomosaic
   TrackingOptions tracking;
 
   template <class Visitor>
@@ -43,6 +45,8 @@ struct TrackerOptions {
       "live frames: the map points tracked below which the tracker waits for a keyframe's new points");
     v("state_file", state_file,
       "file keeping the next submap number, so submap ids stay unique across tracker restarts (empty: none)");
+    v("keyframe_images", keyframe_images,
+      "reduced pictures of keyframes for the ground's orthomosaic (<agent>/KEYFRAME_IMAGE), where the view moved on");
     v("tracking", tracking, "the tracking algorithm");
   }
 

@@ -4,7 +4,6 @@
 #include <cmath>
 #include <vector>
 
-#include <Eigen/Geometry>
 #include <opencv2/imgproc.hpp>
 
 #include "stitch/util/error.h"
@@ -26,6 +25,30 @@ double ParabolaPeak(double a, double b, double c) {
 }
 
 }  // namespace
+
+Similarity2d FitSimilarity2d(const std::vector<Eigen::Vector2d>& from, const std::vector<Eigen::Vector2d>& to) {
+  if (from.size() != to.size() || from.size() < 2) throw Error("a 2D similarity needs at least two pairs of points");
+  Eigen::Vector2d mean_from = Eigen::Vector2d::Zero(), mean_to = Eigen::Vector2d::Zero();
+  for (size_t i = 0; i < from.size(); ++i) {
+    mean_from += from[i];
+    mean_to += to[i];
+  }
+  mean_from /= static_cast<double>(from.size());
+  mean_to /= static_cast<double>(to.size());
+  // As complex numbers: to - mean_to = (a + ib)(from - mean_from), a and b in least squares.
+  double a = 0, b = 0, norm = 0;
+  for (size_t i = 0; i < from.size(); ++i) {
+    const Eigen::Vector2d p = from[i] - mean_from, q = to[i] - mean_to;
+    a += p.dot(q);
+    b += p.x() * q.y() - p.y() * q.x();
+    norm += p.squaredNorm();
+  }
+  if (!(norm > 0)) throw Error("a 2D similarity of points all in one place");
+  Similarity2d fit;
+  fit.linear << a / norm, -b / norm, b / norm, a / norm;
+  fit.shift = mean_to - fit.linear * mean_from;
+  return fit;
+}
 
 CheckpointErrors MeasureCheckpoints(const cv::Mat& truth, const cv::Mat& mosaic, const cv::Mat& mask,
                                     const CheckpointOptions& options) {
@@ -86,19 +109,11 @@ CheckpointErrors MeasureCheckpoints(const cv::Mat& truth, const cv::Mat& mosaic,
   std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
   errors.median_px = sorted[sorted.size() / 2];
   if (at.size() >= 3) {
-    Eigen::Matrix2Xd source(2, at.size()), target(2, at.size());
-    for (size_t i = 0; i < at.size(); ++i) {
-      source.col(i) = at[i];
-      target.col(i) = found[i];
-    }
-    const Eigen::Matrix3d fit = Eigen::umeyama(source, target, true);
-    const Eigen::Matrix2d linear = fit.topLeftCorner<2, 2>();
-    errors.similarity_scale = std::sqrt(std::abs(linear.determinant()));
-    errors.similarity_rotation_deg = std::atan2(linear(1, 0), linear(0, 0)) * 180.0 / M_PI;
+    const Similarity2d fit = FitSimilarity2d(at, found);
+    errors.similarity_scale = fit.scale();
+    errors.similarity_rotation_deg = fit.angle() * 180.0 / M_PI;
     double left = 0;
-    for (size_t i = 0; i < at.size(); ++i) {
-      left += (linear * at[i] + fit.topRightCorner<2, 1>() - found[i]).squaredNorm();
-    }
+    for (size_t i = 0; i < at.size(); ++i) left += (fit * at[i] - found[i]).squaredNorm();
     errors.rms_after_similarity_px = std::sqrt(left / at.size());
   }
   return errors;

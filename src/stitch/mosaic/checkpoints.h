@@ -2,6 +2,7 @@
 // How far a mosaic's pixels are from where the truth has them: checkpoints (corners of the true
 // orthophoto's texture) found again in the mosaic by normalized cross-correlation, on one grid.
 
+#include <cmath>
 #include <vector>
 
 #include <Eigen/Core>
@@ -35,6 +36,17 @@ struct CheckpointErrors {
   };
   std::vector<Checkpoint> points;
 };
+
+// The 2D similarity (scale, rotation, shift) taking `from` onto `to` in least squares: to ~=
+// linear * from + shift. Throws stitch::Error for fewer than 2 pairs or points all in one place.
+struct Similarity2d {
+  Eigen::Matrix2d linear = Eigen::Matrix2d::Identity();  // scale times rotation
+  Eigen::Vector2d shift = Eigen::Vector2d::Zero();
+  double scale() const { return std::sqrt(std::abs(linear.determinant())); }
+  double angle() const { return std::atan2(linear(1, 0), linear(0, 0)); }  // radians
+  Eigen::Vector2d operator*(const Eigen::Vector2d& p) const { return linear * p + shift; }
+};
+Similarity2d FitSimilarity2d(const std::vector<Eigen::Vector2d>& from, const std::vector<Eigen::Vector2d>& to);
 
 // `truth` and `mosaic` on the same grid (CV_8UC1 or CV_8UC3); `mask` (CV_8UC1, of their size)
 // non-zero where the mosaic is drawn. Throws stitch::Error for images that differ in size.

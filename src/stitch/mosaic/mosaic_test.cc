@@ -3,11 +3,13 @@
 #include <random>
 
 #include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "stitch/mosaic/checkpoints.h"
 #include "stitch/mosaic/geotiff.h"
 #include "stitch/mosaic/ground_surface.h"
+#include "stitch/mosaic/keyframe_imagery.h"
 #include "stitch/mosaic/orthomosaic.h"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/util/error.h"
@@ -267,6 +269,25 @@ TEST(Checkpoints, MeasureAKnownShiftAndTakeItOutWithASimilarity) {
   EXPECT_THROW(MeasureCheckpoints(truth, shifted(cv::Rect(0, 0, 10, 10)), all), Error);
 }
 
+TEST(Checkpoints, ASimilarityIsFittedExactlyWhereThereIsOne) {
+  // UTM-sized coordinates, turned by 1.2 degrees and scaled by the projection's 0.9996.
+  const double angle = 1.2 * M_PI / 180.0, scale = 0.9996;
+  std::vector<Eigen::Vector2d> from, to;
+  for (int i = 0; i < 5; ++i) {
+    for (int j = 0; j < 5; ++j) {
+      const Eigen::Vector2d p(-300 + 150 * i, -200 + 100 * j);
+      from.push_back(p);
+      to.push_back(scale * Eigen::Rotation2Dd(angle).toRotationMatrix() * p + Eigen::Vector2d(649'312.5, 5'318'044.25));
+    }
+  }
+  const Similarity2d fit = FitSimilarity2d(from, to);
+  EXPECT_NEAR(fit.scale(), scale, 1e-12);
+  EXPECT_NEAR(fit.angle(), angle, 1e-12);
+  for (size_t i = 0; i < from.size(); ++i) EXPECT_LT((fit * from[i] - to[i]).norm(), 1e-6);
+  EXPECT_THROW(FitSimilarity2d({from[0]}, {to[0]}), Error);
+  EXPECT_THROW(FitSimilarity2d({from[0], from[0]}, {to[0], to[1]}), Error);
+}
+
 TEST(GeoTiff, WritesWhatItReadsBackWithItsCrsAndOverviews) {
   testing::TempDir dir;
   GeoTiffImage image;
@@ -307,6 +328,41 @@ TEST(GeoTiff, WritesWhatItReadsBackWithItsCrsAndOverviews) {
   EXPECT_FALSE(std::filesystem::exists(dir / "bad.tif"));
   EXPECT_FALSE(std::filesystem::exists(dir / "bad.tif.partial"));
   EXPECT_THROW(ReadGeoTiffInfo(dir / "nothing.tif"), Error);
+}
+
+TEST(KeyframeImagePicker, SendsASubmapsFirstKeyframeThenWhereTheViewMovedOn) {
+  KeyframeImageOptions options;
+  options.min_view_change = 0.25;
+  KeyframeImagePicker picker(options);
+  // 320 x 240 at 300 px: the footprint at unit depth is 0.8 across its narrower side.
+  const auto at = [](double x, double yaw_deg = 0.0) {
+    return Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(yaw_deg * M_PI / 180.0, Eigen::Vector3d::UnitZ())),
+                   Eigen::Vector3d(x, 0, 0));
+  };
+  EXPECT_TRUE(picker.Take(1, at(0), kCamera));
+  EXPECT_FALSE(picker.Take(1, at(0.1), kCamera));
+  EXPECT_FALSE(picker.Take(1, at(0.19), kCamera));
+  EXPECT_TRUE(picker.Take(1, at(0.21), kCamera));  // a quarter of 0.8 from the last one sent
+  EXPECT_FALSE(picker.Take(1, at(0.3), kCamera));
+  // Turned by a quarter of the 43.6-degree field of view.
+  EXPECT_TRUE(picker.Take(1, at(0.21, 11.5), kCamera));
+  // A new submap's first keyframe, wherever it is.
+  EXPECT_TRUE(picker.Take(2, at(0.21, 11.5), kCamera));
+  options.send = false;
+  EXPECT_FALSE(KeyframeImagePicker(options).Take(1, at(0), kCamera));
+  // The picture: reduced to max_side_px, a JPEG of that size.
+  options.max_side_px = 160;
+  cv::Size size;
+  const std::vector<uint8_t> jpeg =
+      EncodeKeyframePicture(Ground().Photograph(kCamera, NadirCamera(0, 0, 30)), options, &size);
+  EXPECT_EQ(size, cv::Size(160, 120));
+  const cv::Mat decoded = cv::imdecode(jpeg, cv::IMREAD_UNCHANGED);
+  EXPECT_EQ(decoded.size(), size);
+  EXPECT_EQ(decoded.channels(), 1);
+  EXPECT_THROW(EncodeKeyframePicture(cv::Mat(), options, &size), Error);
+  std::string why;
+  options.jpeg_quality = 0;
+  EXPECT_FALSE(options.Check(&why));
 }
 
 }  // namespace

@@ -127,7 +127,8 @@ LaunchPlan PlanRun(const RunArgs& a, const std::string& out) {
     const std::vector<int> ports = bus::UnusedUdpPorts(2);
     const std::string air_at = air_host + ":" + std::to_string(ports[0]);
     const std::string ground_at = ground_host + ":" + std::to_string(ports[1]);
-    const std::string aircraft_sends = a.agent + "/(SUBMAP|SEQUENCE|TRACKING_STATUS|POSE|GNSS|SERVICE|LINK_STATUS)";
+    const std::string aircraft_sends =
+        a.agent + "/(SUBMAP|SEQUENCE|TRACKING_STATUS|POSE|GNSS|SERVICE|LINK_STATUS|KEYFRAME_IMAGE)";
     const std::string ground_sends = a.agent + "/" + bus::kSubmapRequest;
     // Authenticated as deployed: the config's key, else one made for this run (beside its outputs).
     std::vector<std::string> key;

@@ -8,9 +8,11 @@
 #include <fstream>
 #include <limits>
 #include <map>
+#include <set>
 
 #include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
+#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "stitch/config/stitch_config.h"
@@ -19,6 +21,8 @@
 #include "stitch/mosaic/checkpoints.h"
 #include "stitch/mosaic/geotiff.h"
 #include "stitch/mosaic/orthomosaic.h"
+#include "stitch/records/keyframe_pictures.h"
+#include "stitch/records/pose_record.h"
 #include "stitch/records/run_info.h"
 #include "stitch/synthetic/renderer.h"
 #include "stitch/util/error.h"
@@ -70,23 +74,21 @@ UtmFrame UtmFrameOver(const GeodeticPoint& origin, const std::vector<Eigen::Vect
   lo -= Eigen::Vector2d::Constant(200.0);
   hi += Eigen::Vector2d::Constant(200.0);
   const int n = 5;
-  Eigen::Matrix2Xd enu(2, n * n), utm(2, n * n);
+  std::vector<Eigen::Vector2d> enu, utm;
   for (int i = 0; i < n; ++i) {
     for (int j = 0; j < n; ++j) {
       const Eigen::Vector2d p = lo + (hi - lo).cwiseProduct(Eigen::Vector2d(i, j) / (n - 1));
-      enu.col(i * n + j) = p;
-      utm.col(i * n + j) = ToUtm(plane.ToGeodetic(Eigen::Vector3d(p.x(), p.y(), 0.0)), frame.zone);
+      enu.push_back(p);
+      utm.push_back(ToUtm(plane.ToGeodetic(Eigen::Vector3d(p.x(), p.y(), 0.0)), frame.zone));
     }
   }
-  const Eigen::Matrix3d fit = Eigen::umeyama(enu, utm, true);
-  const Eigen::Matrix2d linear = fit.topLeftCorner<2, 2>();
-  const double scale = std::sqrt(std::abs(linear.determinant()));
-  const double angle = std::atan2(linear(1, 0), linear(0, 0));
+  const Similarity2d fit = FitSimilarity2d(enu, utm);
   const Eigen::Vector2d centre = ToUtm(origin, frame.zone);
   frame.reference = (centre / 1000.0).array().floor() * 1000.0;
-  const Eigen::Vector2d shift = fit.topRightCorner<2, 1>() - frame.reference;
-  frame.ground_from_enu = Sim3d(scale, Eigen::Quaterniond(Eigen::AngleAxisd(angle, Eigen::Vector3d::UnitZ())),
-                                Eigen::Vector3d(shift.x(), shift.y(), 0.0));
+  const Eigen::Vector2d shift = fit.shift - frame.reference;
+  frame.ground_from_enu =
+      Sim3d(fit.scale(), Eigen::Quaterniond(Eigen::AngleAxisd(fit.angle(), Eigen::Vector3d::UnitZ())),
+            Eigen::Vector3d(shift.x(), shift.y(), 0.0));
   return frame;
 }
 
@@ -168,6 +170,7 @@ nlohmann::json RunMosaic::ToJson() const {
                          {"on_earth", on_earth},
                          {"gsd", gsd},
                          {"units", on_earth ? "m" : "map units"},
+                         {"pictures", pictures},
                          {"images", images},
                          {"width_px", width},
                          {"height_px", height},
@@ -189,10 +192,10 @@ std::vector<std::string> RunMosaic::Summary() const {
   std::vector<std::string> lines;
   char text[512];
   if (on_earth) {
-    std::snprintf(text, sizeof(text), "  mosaic            %s: %d keyframes, %dx%d px at %.3f m, %.2f ha covered, %s",
+    std::snprintf(text, sizeof(text), "  mosaic            %s: %d pictures, %dx%d px at %.3f m, %.2f ha covered, %s",
                   path.c_str(), images, width, height, gsd, area / 1e4, crs.c_str());
   } else {
-    std::snprintf(text, sizeof(text), "  mosaic            %s: %d keyframes, %dx%d px at %.4g map units a pixel (%s)",
+    std::snprintf(text, sizeof(text), "  mosaic            %s: %d pictures, %dx%d px at %.4g map units a pixel (%s)",
                   path.c_str(), images, width, height, gsd, crs.c_str());
   }
   lines.push_back(text);
@@ -207,8 +210,15 @@ std::vector<std::string> RunMosaic::Summary() const {
   return lines;
 }
 
+MosaicPictures ParseMosaicPictures(const std::string& name) {
+  if (name == "auto") return MosaicPictures::kAuto;
+  if (name == "source") return MosaicPictures::kSource;
+  if (name == "received") return MosaicPictures::kReceived;
+  throw Error("pictures '" + name + "': give auto, source or received");
+}
+
 RunMosaic MakeRunMosaic(const std::string& run_dir, const SourceSpec& source, const MosaicOptions& options,
-                        const std::string& out_path) {
+                        const std::string& out_path, MosaicPictures pictures) {
   CheckOptions(options, "mosaic");
   const fs::path model_dir = fs::path(run_dir) / "colmap";
   if (!fs::exists(model_dir / "images.txt")) {
@@ -251,34 +261,61 @@ RunMosaic MakeRunMosaic(const std::string& run_dir, const SourceSpec& source, co
   for (const Eigen::Vector3d& p : ground_points) heights.push_back(p.z());
   const GroundSurface flat(Median(heights));
 
-  // The images' frames, and each image's pose in the ground's frame.
-  std::vector<int> frames;
-  std::map<int, const ColmapImage*> image_of_frame;
-  for (const ColmapImage& image : model.images) {
-    const int frame = FrameOfModelImage(image);
-    frames.push_back(frame);
-    image_of_frame[frame] = &image;
-  }
-  const auto pose_of = [&](const ColmapImage& image) {
-    return AsSim3(image.cam_from_world) * ground_from_map.Inverse();
+  // The pictures to lay: each with its frame, camera and pose in the ground's frame.
+  struct View {
+    int frame = 0;
+    int camera_id = 1;
+    Sim3d cam_from_map;
   };
+  std::vector<View> views;
+  const bool source_at_hand =
+      !source.live_uri.empty() ? false : (source.synthetic_source() || fs::exists(source.dataset_path));
+  const bool received = pictures == MosaicPictures::kReceived || (pictures == MosaicPictures::kAuto && !source_at_hand);
+  const int camera_id = model.images.front().camera_id;
+  if (received) {
+    // The frames of the largest map (component 0, the model's) the ground has a picture of.
+    std::set<int> pictured;
+    for (const KeyframePicture& p : ReadKeyframePictureIndex(run_dir)) {
+      if (p.agent == 0) pictured.insert(p.frame_index);
+    }
+    if (pictured.empty()) throw Error(run_dir + " holds no keyframe pictures the ground received (keyframe_images/)");
+    for (const PoseRecord& pose : ReadPoseRecords((fs::path(run_dir) / "poses.tsv").string())) {
+      if (pose.component == 0 && pictured.count(pose.frame_index)) {
+        views.push_back({pose.frame_index, camera_id, AsSim3(pose.world_from_cam.Inverse())});
+      }
+    }
+    if (views.empty()) throw Error("none of the pictures the ground received is of a frame of the largest map");
+    mosaic.pictures = "the pictures the ground received";
+  } else {
+    for (const ColmapImage& image : model.images) {
+      views.push_back({FrameOfModelImage(image), image.camera_id, AsSim3(image.cam_from_world)});
+    }
+    mosaic.pictures = "the flight's images";
+  }
+  std::map<int, const View*> view_of_frame;
+  std::vector<int> frames;
+  for (const View& view : views) {
+    view_of_frame[view.frame] = &view;
+    frames.push_back(view.frame);
+  }
+  const auto pose_of = [&](const View& view) { return view.cam_from_map * ground_from_map.Inverse(); };
   std::optional<Orthomosaic> ortho;
   MosaicGrid grid;
   double cpu_ms = 0;
   int done = 0, next_report = 1;
-  const int total = static_cast<int>(frames.size());
-  ReadRunImages(source, frames, [&](int frame, const cv::Mat& pixels) {
-    const ColmapImage& image = *image_of_frame.at(frame);
-    Camera camera = model.cameras.at(image.camera_id);
-    // The run may have worked at a reduced size: the camera goes to the image's.
+  const int total = static_cast<int>(views.size());
+  const auto lay = [&](int frame, const cv::Mat& pixels) {
+    const View& view = *view_of_frame.at(frame);
+    Camera camera = model.cameras.at(view.camera_id);
+    // The run may have worked at a reduced size, or the picture be one: the camera goes to its size.
     if (pixels.cols != camera.width() || pixels.rows != camera.height())
       camera = camera.Resized(pixels.cols, pixels.rows);
     if (!ortho) {
-      // The images' own resolution, unless set: their median height above the ground over the focal length.
+      // The pictures' own resolution, unless set: their median height above the ground over the focal length.
       grid.gsd = options.gsd_m;
       if (grid.gsd == 0) {
         std::vector<double> gsds;
-        for (const ColmapImage& other : model.images) {
+        for (const View& other : views) {
           if (const auto gsd = NadirGsd(camera, pose_of(other), flat)) gsds.push_back(*gsd);
         }
         if (gsds.empty()) throw Error("none of the map's cameras is above its ground: no mosaic of it can be made");
@@ -289,14 +326,24 @@ RunMosaic MakeRunMosaic(const std::string& run_dir, const SourceSpec& source, co
           GroundSurface::FromPoints(ground_points, options.surface_cell_gsd * grid.gsd, options.surface_min_points));
     }
     const double before = ThreadCpuMs();
-    ortho->SetImage(image.id, camera, pose_of(image), pixels);
+    ortho->SetImage(frame, camera, pose_of(view), pixels);
     cpu_ms += ThreadCpuMs() - before;
     ++done;
     if (done * 4 >= next_report * total && next_report <= 4) {
-      STITCH_LOG(INFO) << "mosaic: " << done << " of " << total << " keyframes laid";
+      STITCH_LOG(INFO) << "mosaic: " << done << " of " << total << " pictures laid";
       ++next_report;
     }
-  });
+  };
+  if (received) {
+    for (const int frame : frames) {
+      const fs::path file = fs::path(run_dir) / "keyframe_images" / KeyframePictureName(0, frame);
+      const cv::Mat pixels = cv::imread(file.string(), cv::IMREAD_UNCHANGED);
+      if (pixels.empty()) throw Error(file.string() + ": not a readable picture");
+      lay(frame, pixels);
+    }
+  } else {
+    ReadRunImages(source, frames, lay);
+  }
   const MosaicRaster raster = ortho->Render();
   if (raster.colour.empty()) throw Error("no keyframe of the map sees its ground: the mosaic is empty");
   mosaic.gsd = grid.gsd;
@@ -315,7 +362,7 @@ RunMosaic MakeRunMosaic(const std::string& run_dir, const SourceSpec& source, co
   tiff.epsg = epsg;
   tiff.metadata["TIFFTAG_SOFTWARE"] = "stitch";
   tiff.metadata["STITCH_FRAME"] = mosaic.crs;
-  tiff.metadata["STITCH_KEYFRAMES"] = std::to_string(total);
+  tiff.metadata["STITCH_PICTURES"] = std::to_string(total) + " (" + mosaic.pictures + ")";
   tiff.metadata["STITCH_GSD"] = std::to_string(grid.gsd);
   WriteGeoTiff(out_path, tiff);
 

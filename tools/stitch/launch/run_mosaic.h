@@ -33,8 +33,9 @@ struct RunMosaic {
   std::string path;  // the GeoTIFF
   std::string crs;   // "EPSG:32632 (WGS 84 / UTM zone 32N)", or the local frame's words
   bool on_earth = false;
-  double gsd = 0.0;  // metres on Earth, else the map's units
-  int images = 0;    // keyframes drawn
+  double gsd = 0.0;      // metres on Earth, else the map's units
+  std::string pictures;  // "the flight's images" or "the pictures the ground received"
+  int images = 0;        // pictures laid
   int width = 0, height = 0;
   double area = 0.0;              // covered, square metres on Earth (the map's units squared otherwise)
   double cpu_ms_per_image = 0.0;  // the mosaic's own upkeep (laying an image on it), not reading the image
@@ -53,10 +54,17 @@ struct RunMosaic {
   std::vector<std::string> Summary() const;  // lines for the terminal
 };
 
+// Which pictures a mosaic is made of: the flight's own images (what the run played: each keyframe
+// of colmap/), the reduced pictures the ground received (keyframe_images/: each frame of the
+// largest map that has one, placed by its pose in poses.tsv), or the first of those at hand.
+enum class MosaicPictures { kAuto, kSource, kReceived };
+// "auto", "source" or "received"; throws stitch::Error otherwise.
+MosaicPictures ParseMosaicPictures(const std::string& name);
+
 // Makes the mosaic of the run in `run_dir` (played from `source`) and writes it to `out_path` as a
-// GeoTIFF; for the synthetic flight, also each checkpoint with its offset (FILE.checkpoints.csv). Throws stitch::Error: no colmap/ model, images that cannot be read, a mosaic larger than
-// options.max_pixels, a file that cannot be written.
+// GeoTIFF; for the synthetic flight, also each checkpoint with its offset (FILE.checkpoints.csv). Throws stitch::Error:
+// no colmap/ model, images that cannot be read, a mosaic larger than options.max_pixels, a file that cannot be written.
 RunMosaic MakeRunMosaic(const std::string& run_dir, const SourceSpec& source, const MosaicOptions& options,
-                        const std::string& out_path);
+                        const std::string& out_path, MosaicPictures pictures = MosaicPictures::kAuto);
 
 }  // namespace stitch
