@@ -48,7 +48,10 @@ int MosaicCommand(int argc, char** argv) {
     const StitchConfig config =
         LoadStitchConfig(fs::exists(config_path) ? config_path.string() : std::string(), settings);
     SourceSpec source = SourceOfRun(run_dir);
-    if (!images.empty()) source.dataset_path = images;
+    if (!images.empty()) {
+      source.dataset_path = images;
+      source.live_uri.clear();  // a live flight recorded elsewhere too
+    }
     if (out.empty()) out = (fs::path(run_dir) / "ortho.tif").string();
     const RunMosaic mosaic = MakeRunMosaic(run_dir, source, config.mosaic, out, ParseMosaicPictures(pictures));
     const std::string figures = fs::path(out).replace_extension(".json").string();

@@ -42,6 +42,13 @@ cv::Vec3b Sample(const cv::Mat& image, double x, double y) {
 
 }  // namespace
 
+Eigen::Vector3d WithinOffNadirCone(const Eigen::Vector3d& ray, double max_angle) {
+  const double horizontal = ray.head<2>().norm();
+  if (horizontal < 1e-12 || std::atan2(horizontal, -ray.z()) <= max_angle) return ray;
+  return Eigen::Vector3d(ray.x() / horizontal * std::sin(max_angle), ray.y() / horizontal * std::sin(max_angle),
+                         -std::cos(max_angle));
+}
+
 std::optional<double> NadirGsd(const Camera& camera, const Sim3d& cam_from_ground, const GroundSurface& surface) {
   const Eigen::Vector3d centre = CentreOf(cam_from_ground);
   const double height = centre.z() - surface.Height(centre.x(), centre.y());
@@ -73,13 +80,8 @@ std::optional<cv::Rect> Orthomosaic::Footprint(const Image& image) const {
   Eigen::Vector2d lo = Eigen::Vector2d::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
   bool any = false;
   for (const Eigen::Vector2d& pixel : edge) {
-    Eigen::Vector3d ray = ground_from_cam * camera.PixelToRay(pixel);
-    const double horizontal = ray.head<2>().norm();
-    if (std::atan2(horizontal, -ray.z()) > max_angle) {
-      if (horizontal < 1e-12) continue;
-      ray = Eigen::Vector3d(ray.x() / horizontal * std::sin(max_angle), ray.y() / horizontal * std::sin(max_angle),
-                            -std::cos(max_angle));
-    }
+    const Eigen::Vector3d ray = WithinOffNadirCone(ground_from_cam * camera.PixelToRay(pixel), max_angle);
+    if (ray.z() >= 0) continue;
     for (const double ground : {surface_.min_height(), surface_.max_height()}) {
       if (image.centre.z() <= ground) continue;
       const Eigen::Vector2d hit = (image.centre + ray * ((ground - image.centre.z()) / ray.z())).head<2>();

@@ -46,6 +46,10 @@ struct MosaicRaster {
   cv::Mat coverage;  // CV_8UC1: 255 where drawn, 0 elsewhere
 };
 
+// `ray` (in the ground's frame, z up) turned toward the nadir onto the cone of `max_angle`
+// (radians) about it where it points further off; as it is otherwise (and when straight down or up).
+Eigen::Vector3d WithinOffNadirCone(const Eigen::Vector3d& ray, double max_angle);
+
 // A mosaic image's camera centre above the ground, over its focal length: the ground sample
 // distance it gives at its nadir (in the frame's units). Empty for a camera not above the ground.
 std::optional<double> NadirGsd(const Camera& camera, const Sim3d& cam_from_ground, const GroundSurface& surface);

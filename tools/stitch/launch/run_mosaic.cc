@@ -120,9 +120,8 @@ SourceSpec SourceOfRun(const std::string& run_dir) {
   const RunInfo info = LoadRunInfo(run_dir);
   SourceSpec spec;
   spec.dataset_path = info.dataset;
-  if (spec.dataset_path.empty() && info.source.rfind("synthetic", 0) != 0) {
-    throw Error(run_dir + " flew a live camera (" + info.source + "): its frames are gone once flown");
-  }
+  // A live camera's run: its frames are gone once flown (only the pictures the ground received stay).
+  if (spec.dataset_path.empty() && info.source.rfind("synthetic", 0) != 0) spec.live_uri = info.source;
   spec.start_frame = info.start_frame;
   spec.failures = info.failures.empty() ? "none" : info.failures;
   spec.max_frames = info.frames_total > 0 ? info.frames_total : -1;
@@ -344,6 +343,7 @@ RunMosaic MakeRunMosaic(const std::string& run_dir, const SourceSpec& source, co
   } else {
     ReadRunImages(source, frames, lay);
   }
+  if (!ortho) throw Error("no picture of the map could be laid");
   const MosaicRaster raster = ortho->Render();
   if (raster.colour.empty()) throw Error("no keyframe of the map sees its ground: the mosaic is empty");
   mosaic.gsd = grid.gsd;
@@ -431,12 +431,8 @@ RunMosaic MakeRunMosaic(const std::string& run_dir, const SourceSpec& source, co
       for (const Eigen::Vector2d& pixel :
            {Eigen::Vector2d(0, 0), Eigen::Vector2d(camera.width() - 1, 0),
             Eigen::Vector2d(camera.width() - 1, camera.height() - 1), Eigen::Vector2d(0, camera.height() - 1)}) {
-        Eigen::Vector3d ray = world_from_cam.rotation * camera.PixelToRay(pixel);
-        const double horizontal = ray.head<2>().norm();
-        if (std::atan2(horizontal, -ray.z()) > max_angle && horizontal > 1e-12) {
-          ray = Eigen::Vector3d(ray.x() / horizontal * std::sin(max_angle), ray.y() / horizontal * std::sin(max_angle),
-                                -std::cos(max_angle));
-        }
+        const Eigen::Vector3d ray = WithinOffNadirCone(world_from_cam.rotation * camera.PixelToRay(pixel), max_angle);
+        if (ray.z() >= 0) continue;
         const Eigen::Vector3d hit = c + ray * ((ground_z - c.z()) / ray.z());
         corners.emplace_back(hit.x(), hit.y());
         lo = lo.cwiseMin(hit.head<2>());

@@ -18,7 +18,8 @@
 
 namespace stitch {
 
-// What the run played, as run.json and config.yaml in its folder say. Throws stitch::Error.
+// What the run played, as run.json and config.yaml in its folder say (a live camera's run: its
+// live_uri set to what it was, whose frames cannot be read again). Throws stitch::Error.
 SourceSpec SourceOfRun(const std::string& run_dir);
 
 // The largest map's place on Earth (geo/georeference.json); empty when the run was not placed, or
