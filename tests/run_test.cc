@@ -174,6 +174,11 @@ TEST(StitchRun, TracksAShortFlightWithTheServicesAsProcesses) {
     EXPECT_NE(info.output.find("Band 4 Block=256x256 Type=Byte, ColorInterp=Alpha"), std::string::npos) << info.output;
     EXPECT_NE(info.output.find("Overviews"), std::string::npos) << info.output;
   }
+  // The merger kept its own during the flight from the pictures it received, in the map's frame.
+  const GeoTiffInfo live = ReadGeoTiffInfo(out + "/mosaic_live.tif");
+  EXPECT_EQ(live.bands, 4);
+  EXPECT_EQ(live.epsg, 0);
+  EXPECT_GT(live.width, 100);
   // The same from the reduced pictures the aircraft sent down (what the ground has of a live camera).
   const size_t pictures = ReadKeyframePictureIndex(out).size();
   EXPECT_GE(pictures, 3u);

@@ -69,9 +69,11 @@ MergerService::MergerService(lcm::LCM* lcm, bus::Publisher* publisher, const Mer
         [this](std::unique_ptr<stitch::keyframe_image_t> message, const std::string& on) {
           std::string why;
           try {
-            if (pictures_.Add(FromMessage(*message), &why)) return;
-            STITCH_LOG(WARNING) << "a keyframe picture not kept: " << why;
-            return;  // the picture was right; the disk was not
+            const KeyframePicture picture = FromMessage(*message);
+            if (!pictures_.Add(picture, &why)) STITCH_LOG(WARNING) << "a keyframe picture not kept: " << why;
+            if (!session_.AddKeyframePicture(picture, &why))
+              STITCH_LOG(WARNING) << "a keyframe picture not laid: " << why;
+            return;  // the picture was right; the disk or the queue was not
           } catch (const Error& e) {
             why = e.what();
           }
@@ -137,6 +139,7 @@ void MergerService::Work() {
     if (update) Process(**update);
     RequestWhatWasLost();
     session_.WriteLiveTrajectoryIfDue();
+    session_.UpdateMosaicIfDue();
     if (session_.map_cloud_stale() &&
         MonotonicSeconds() - cloud_published_at_ >= std::max(kMinCloudInterval_s, kCloudCostFactor * cloud_cost_s_)) {
       PublishMapCloud();

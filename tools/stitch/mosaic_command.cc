@@ -30,20 +30,22 @@ int MosaicCommand(int argc, char** argv) {
       "(checkpoints) and the share of the surveyed ground it covers.");
   args.AddPositional(&positional, "RUN_DIR", "the run folder", 1);
   args.AddOption("--out", &out, "FILE", "the GeoTIFF to write (default: RUN_DIR/ortho.tif)");
-  args.AddOption("--gsd", &gsd, "M",
-                 "ground sample distance, metres a pixel on Earth (the map's units otherwise); default mosaic.gsd_m");
+  args.AddOption(
+      "--gsd", &gsd, "M",
+      "ground sample distance, metres a pixel on Earth (the map's units otherwise); default merger.mosaic.gsd_m");
   args.AddOption("--images", &images, "PATH", "the flight's images, where they moved (default: the run's --dataset)");
   args.AddOption("--pictures", &pictures, "WHICH",
                  "source (the flight's own images), received (the reduced keyframe pictures the ground received over "
                  "the link, keyframe_images/: a live camera's run, a ground station without the recording) or auto "
                  "(the flight's where they are at hand; default)");
-  args.AddOption("--set", &settings, "KEY=VALUE", "a setting over the run's config.yaml, e.g. mosaic.tile_px=512");
+  args.AddOption("--set", &settings, "KEY=VALUE",
+                 "a setting over the run's config.yaml, e.g. merger.mosaic.tile_px=512");
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {
     if (positional.size() != 1) throw Error("give the run folder: stitch mosaic RUN_DIR");
     const std::string run_dir = positional[0];
     if (!fs::is_directory(run_dir)) throw Error(run_dir + " is not a run folder");
-    if (gsd >= 0) settings.push_back("mosaic.gsd_m=" + std::to_string(gsd));
+    if (gsd >= 0) settings.push_back("merger.mosaic.gsd_m=" + std::to_string(gsd));
     const fs::path config_path = fs::path(run_dir) / "config.yaml";
     const StitchConfig config =
         LoadStitchConfig(fs::exists(config_path) ? config_path.string() : std::string(), settings);
@@ -53,7 +55,7 @@ int MosaicCommand(int argc, char** argv) {
       source.live_uri.clear();  // a live flight recorded elsewhere too
     }
     if (out.empty()) out = (fs::path(run_dir) / "ortho.tif").string();
-    const RunMosaic mosaic = MakeRunMosaic(run_dir, source, config.mosaic, out, ParseMosaicPictures(pictures));
+    const RunMosaic mosaic = MakeRunMosaic(run_dir, source, config.merger.mosaic, out, ParseMosaicPictures(pictures));
     const std::string figures = fs::path(out).replace_extension(".json").string();
     WriteFileAtomically(figures, mosaic.ToJson().dump(1) + "\n");
     for (const std::string& line : mosaic.Summary()) std::printf("%s\n", line.c_str());

@@ -13,7 +13,6 @@
 #include "stitch/config/viewer_options.h"
 #include "stitch/features/vocabulary.h"
 #include "stitch/merging/merger_options.h"
-#include "stitch/mosaic/mosaic_options.h"
 #include "stitch/pipeline/pipeline_options.h"
 #include "stitch/synthetic/synthetic_sequence.h"
 
@@ -28,7 +27,6 @@ struct StitchConfig {
   MergerOptions merger;
   LinkOptions link;
   ViewerOptions viewer;
-  MosaicOptions mosaic;
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
@@ -40,11 +38,10 @@ struct StitchConfig {
     v("merger", merger, "submap merging service");
     v("link", link, "link bridge between the aircraft's and the ground's networks (stitch-link)");
     v("viewer", viewer, "the ground's live web page (stitch-viewer)");
-    v("mosaic", mosaic, "the orthomosaic of the largest map (stitch run's ortho.tif, stitch mosaic)");
   }
   bool Check(std::string* why) const {
     return synthetic.Check(why) && ingest.Check(why) && tracker.Check(why) && mapper.Check(why) && merger.Check(why) &&
-           link.Check(why) && viewer.Check(why) && mosaic.Check(why);
+           link.Check(why) && viewer.Check(why);
   }
   // The algorithms' settings, for running them inline (no bus).
   PipelineOptions pipeline() const { return {tracker.tracking, tracker.on_loss, mapper.mapping, merger}; }

@@ -6,11 +6,14 @@
 #include <filesystem>
 #include <limits>
 
+#include <opencv2/imgcodecs.hpp>
+
 #include "stitch/io/colmap_model.h"
 #include "stitch/io/output_frames.h"
 #include "stitch/io/ply.h"
 #include "stitch/io/trajectory.h"
 #include "stitch/map/map_export.h"
+#include "stitch/mosaic/geotiff.h"
 #include "stitch/util/log.h"
 #include "stitch/util/time.h"
 
@@ -163,6 +166,16 @@ bool MergeSession::Finish() {
     }
   }
   WriteLiveTrajectory();
+  if (merger_.options().mosaic.live) {
+    // The pictures that came last, on the refined map, and the file.
+    mosaic_updated_at_ = 0;
+    UpdateMosaicIfDue();
+    if (mosaic_unwritten_) WriteLiveMosaic();
+    STITCH_LOG(INFO) << "live mosaic: " << mosaic_cost_.laid << " pictures laid, " << mosaic_cost_.moved
+                     << " moved, drawn whole " << mosaic_cost_.redrawn << " times, in " << mosaic_cost_.updates
+                     << " updates: " << mosaic_cost_.update_ms << " ms CPU; mosaic_live.tif written "
+                     << mosaic_cost_.writes << " times, " << mosaic_cost_.write_ms << " ms";
+  }
   return refine_now;
 }
 
@@ -336,21 +349,171 @@ void MergeSession::WriteLiveTrajectoryIfDue() {
   if (interval > 0 && MonotonicSeconds() - trajectory_written_at_ >= interval) WriteLiveTrajectory();
 }
 
-void MergeSession::WriteLiveTrajectory() {
-  trajectory_written_at_ = MonotonicSeconds();
+void MergeSession::TakePendingPoses() {
+  std::vector<std::pair<std::string, TrackedFramePose>> pending;
   {
-    std::vector<std::pair<std::string, TrackedFramePose>> pending;
-    {
-      std::lock_guard<std::mutex> lock(poses_mutex_);
-      pending.swap(poses_pending_);
+    std::lock_guard<std::mutex> lock(poses_mutex_);
+    pending.swap(poses_pending_);
+  }
+  for (auto& [agent, pose] : pending) {
+    std::map<int, TrackedFramePose>& frames = frame_poses_[agent];
+    if (frames.size() >= kMaxFramePoses && !frames.count(pose.frame_index)) continue;
+    frames[pose.frame_index] = pose;
+    trajectory_stale_ = true;
+  }
+}
+
+bool MergeSession::AddKeyframePicture(const KeyframePicture& picture, std::string* why) {
+  if (!merger_.options().mosaic.live) return true;
+  constexpr size_t kMaxPicturesWaiting = 10000;
+  std::lock_guard<std::mutex> lock(poses_mutex_);
+  if (pictures_pending_.size() >= kMaxPicturesWaiting) {
+    *why = "10000 pictures wait for the live mosaic already";
+    return false;
+  }
+  pictures_pending_.push_back(picture);
+  return true;
+}
+
+LiveMosaic::MapState MergeSession::LargestMapForMosaic(
+    const std::map<int, std::pair<std::string, int>>& pictured) const {
+  LiveMosaic::MapState state;
+  std::map<int64_t, KeyframeInSubmap> keyframes;
+  std::map<int64_t, SubmapInMap> placement;
+  for (const auto& [id, p] : latest_placement_) {
+    placement[id.value] = {p.component, p.world_from_submap};
+    if (p.component == 0) state.frame = p.root.value;
+  }
+  // The map's points (at most 20,000, evenly taken) through its submaps' placements.
+  size_t total = 0;
+  for (const auto& [id, replica] : merger_.submaps()) {
+    const auto p = latest_placement_.find(id);
+    if (p != latest_placement_.end() && p->second.component == 0) total += replica.map.points().size();
+  }
+  const size_t stride = std::max<size_t>(1, total / 20000);
+  size_t n = 0;
+  for (const auto& [id, replica] : merger_.submaps()) {
+    for (const auto& [keyframe_id, keyframe] : replica.map.keyframes()) {
+      keyframes[keyframe_id.value] = {keyframe.cam_from_world, keyframe.frame_index};
     }
-    for (auto& [agent, pose] : pending) {
-      std::map<int, TrackedFramePose>& frames = frame_poses_[agent];
-      if (frames.size() >= kMaxFramePoses && !frames.count(pose.frame_index)) continue;
-      frames[pose.frame_index] = pose;
-      trajectory_stale_ = true;
+    const auto p = latest_placement_.find(id);
+    if (p == latest_placement_.end() || p->second.component != 0) continue;
+    for (const auto& [point_id, point] : replica.map.points()) {
+      if (n++ % stride == 0) state.points.push_back(p->second.world_from_submap * point.position);
     }
   }
+  // The pictured frames the pose stream has, placed as the live trajectory places them.
+  std::map<std::string, std::vector<TrackedFramePose>> frames;
+  std::map<std::pair<std::string, int>, int> key_of;
+  for (const auto& [key, at] : pictured) {
+    const auto agent = frame_poses_.find(at.first);
+    if (agent == frame_poses_.end()) continue;
+    const auto pose = agent->second.find(at.second);
+    if (pose == agent->second.end()) continue;
+    frames[at.first].push_back(pose->second);
+    key_of[at] = key;
+  }
+  for (const auto& [agent, list] : frames) {
+    for (const PoseRecord& p : PlaceTrackedFrames(list, keyframes, placement, {})) {
+      if (p.component == 0) state.world_from_cam[key_of.at({agent, p.frame_index})] = p.world_from_cam;
+    }
+  }
+  return state;
+}
+
+void MergeSession::UpdateMosaicIfDue() {
+  if (mosaic_failed_) return;
+  try {
+    UpdateMosaic();
+  } catch (const std::exception& e) {
+    // The mosaic is a picture of the flight: its failure must cost the flight nothing.
+    mosaic_failed_ = true;
+    STITCH_LOG(ERROR) << "the live mosaic stopped: " << e.what();
+  }
+}
+
+void MergeSession::UpdateMosaic() {
+  const MosaicOptions& options = merger_.options().mosaic;
+  const double interval = merger_.options().live_outputs_interval_s;
+  if (!options.live || interval <= 0 || MonotonicSeconds() - mosaic_updated_at_ < interval) return;
+  mosaic_updated_at_ = MonotonicSeconds();
+  std::vector<KeyframePicture> pictures;
+  {
+    std::lock_guard<std::mutex> lock(poses_mutex_);
+    pictures.swap(pictures_pending_);
+  }
+  if (!live_mosaic_) live_mosaic_.emplace(options);
+  std::vector<KeyframePicture> waiting;  // of a submap the merger does not hold yet
+  for (KeyframePicture& picture : pictures) {
+    const auto replica = merger_.submaps().find(SubmapId(picture.submap_id));
+    if (replica == merger_.submaps().end() || !replica->second.camera) {
+      waiting.push_back(std::move(picture));
+      continue;
+    }
+    cv::Mat pixels = cv::imdecode(picture.jpeg, cv::IMREAD_UNCHANGED);  // its header's size was checked
+    if (pixels.empty() || replica->second.camera->width() < pixels.cols) continue;
+    const int key = picture.agent * 10'000'000 + picture.frame_index % 10'000'000;
+    const std::string agent = agent_of_.count(replica->first) ? agent_of_.at(replica->first) : std::string();
+    pictured_[key] = {agent, picture.frame_index};
+    const Camera camera = replica->second.camera->Resized(pixels.cols, pixels.rows);
+    live_mosaic_->AddPicture(key, camera, std::move(pixels));
+  }
+  if (!waiting.empty()) {
+    std::lock_guard<std::mutex> lock(poses_mutex_);
+    pictures_pending_.insert(pictures_pending_.begin(), std::make_move_iterator(waiting.begin()),
+                             std::make_move_iterator(waiting.end()));
+  }
+  if (pictured_.empty() || latest_placement_.empty()) return;
+  TakePendingPoses();
+  const double started = ThreadCpuMs();
+  const LiveMosaic::Change change = live_mosaic_->Update(LargestMapForMosaic(pictured_));
+  ++mosaic_cost_.updates;
+  mosaic_cost_.update_ms += ThreadCpuMs() - started;
+  mosaic_cost_.laid += change.laid;
+  mosaic_cost_.moved += change.moved;
+  mosaic_cost_.redrawn += change.redrawn;
+  if (change.laid + change.moved > 0 || change.redrawn) {
+    mosaic_unwritten_ = true;
+    STITCH_LOG(DEBUG) << "live mosaic: " << change.laid << " pictures laid, " << change.moved << " moved, "
+                      << change.tiles << " tiles" << (change.redrawn ? ", drawn again whole" : "") << " in "
+                      << change.cpu_ms << " ms";
+  }
+  // The file at most a tenth of the merger's time: a large mosaic takes a while to compress.
+  if (mosaic_unwritten_ && MonotonicSeconds() - mosaic_written_at_ >= std::max(interval, 10 * mosaic_write_cost_s_)) {
+    WriteLiveMosaic();
+  }
+}
+
+void MergeSession::WriteLiveMosaic() {
+  if (record_dir_.empty() || !live_mosaic_ || !live_mosaic_->mosaic()) return;
+  const Stopwatch clock;
+  mosaic_written_at_ = MonotonicSeconds();
+  mosaic_unwritten_ = false;
+  try {
+    const MosaicRaster raster = live_mosaic_->mosaic()->Render();
+    if (raster.colour.empty()) return;
+    GeoTiffImage tiff;
+    tiff.colour = raster.colour;
+    tiff.coverage = raster.coverage;
+    const MosaicGrid& grid = live_mosaic_->mosaic()->grid();
+    tiff.pixel_size = grid.gsd;
+    tiff.west = grid.origin.x() + raster.col0 * grid.gsd;
+    tiff.north = grid.origin.y() - raster.row0 * grid.gsd;
+    tiff.metadata["TIFFTAG_SOFTWARE"] = "stitch";
+    tiff.metadata["STITCH_FRAME"] = "the largest merged map's frame, levelled on its points, in its units";
+    tiff.metadata["STITCH_PICTURES"] = std::to_string(live_mosaic_->laid());
+    WriteGeoTiff((std::filesystem::path(record_dir_) / "mosaic_live.tif").string(), tiff);
+  } catch (const std::exception& e) {
+    STITCH_LOG(ERROR) << "writing mosaic_live.tif failed: " << e.what();
+  }
+  mosaic_write_cost_s_ = clock.ElapsedMs() * 1e-3;
+  ++mosaic_cost_.writes;
+  mosaic_cost_.write_ms += clock.ElapsedMs();
+}
+
+void MergeSession::WriteLiveTrajectory() {
+  trajectory_written_at_ = MonotonicSeconds();
+  TakePendingPoses();
   if (!trajectory_stale_ || record_dir_.empty() || latest_placement_.empty()) return;
   trajectory_stale_ = false;
   // Keyframes as the ground holds them now, the newest placement, and the last refinement's

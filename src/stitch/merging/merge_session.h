@@ -19,6 +19,8 @@
 #include <Eigen/Core>
 
 #include "stitch/geo/gnss_fix.h"
+#include "stitch/mosaic/live_mosaic.h"
+#include "stitch/records/keyframe_pictures.h"
 
 #include "stitch/merging/frame_trajectory.h"
 #include "stitch/merging/merger.h"
@@ -80,6 +82,15 @@ class MergeSession {
   // several aircraft) with the records. Refuses (false, with why) a fix that is no place on Earth
   // or states no accuracy, and fixes beyond 10 hours at 10 Hz; thread-safe.
   bool AddGnssFix(const std::string& agent, const GnssFix& fix, std::string* why);
+  // A keyframe's picture the aircraft sent (merger.mosaic.live): laid on the live mosaic at its
+  // next update. Refuses (false, with why) pictures beyond 10,000 waiting; thread-safe.
+  bool AddKeyframePicture(const KeyframePicture& picture, std::string* why);
+  // merger.mosaic.live, every merger.live_outputs_interval_s: the pictures received laid where
+  // the largest merged map places their frames now (live_mosaic.h), written as mosaic_live.tif
+  // with the records (at most a tenth of the merger's time).
+  void UpdateMosaicIfDue();
+  const LiveMosaic* live_mosaic() const { return live_mosaic_ ? &*live_mosaic_ : nullptr; }
+
   // trajectory.tum (or one per aircraft): every frame of the pose stream that lies in the
   // largest merged map, with the newest placement and the last refinement's keyframe poses.
   void WriteLiveTrajectory();
@@ -148,6 +159,22 @@ class MergeSession {
   // The pose stream: what the subscriber took, waiting, and the owner's copy by aircraft and frame.
   mutable std::mutex poses_mutex_;
   std::vector<std::pair<std::string, TrackedFramePose>> poses_pending_;
+  std::vector<KeyframePicture> pictures_pending_;  // under poses_mutex_
+  // Moves the pose stream's pending frames into frame_poses_ (the worker's).
+  void TakePendingPoses();
+  // The largest merged map as the live mosaic lays pictures on it.
+  LiveMosaic::MapState LargestMapForMosaic(const std::map<int, std::pair<std::string, int>>& pictured) const;
+  std::optional<LiveMosaic> live_mosaic_;
+  std::map<int, std::pair<std::string, int>> pictured_;  // live mosaic key -> (agent, frame)
+  double mosaic_updated_at_ = 0, mosaic_written_at_ = 0, mosaic_write_cost_s_ = 0;
+  bool mosaic_unwritten_ = false;
+  bool mosaic_failed_ = false;  // said once; the flight goes on without it
+  struct MosaicCost {
+    int updates = 0, laid = 0, moved = 0, redrawn = 0, writes = 0;
+    double update_ms = 0, write_ms = 0;
+  } mosaic_cost_;
+  void UpdateMosaic();
+  void WriteLiveMosaic();
   int64_t poses_received_ = 0;
   std::map<std::string, std::map<int, TrackedFramePose>> frame_poses_;
   bool trajectory_stale_ = false;

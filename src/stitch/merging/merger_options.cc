@@ -70,6 +70,8 @@ bool MergerOptions::Check(std::string* why) const {
     return fail("merger.map_cloud_points must be within [0, 5000000]");
   std::string georeference_why;
   if (!georeference.Check(&georeference_why)) return fail("merger.georeference." + georeference_why);
+  std::string mosaic_why;
+  if (!mosaic.Check(&mosaic_why)) return fail("merger.mosaic." + mosaic_why);
   return connection_weights.Check(why) && merged_map.Check(why) && acceptance.Check(why) && map_export.Check(why);
 }
 

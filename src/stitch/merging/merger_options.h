@@ -6,6 +6,7 @@
 
 #include "stitch/geo/geo_registration.h"
 #include "stitch/map/map_export.h"
+#include "stitch/mosaic/mosaic_options.h"
 
 namespace stitch {
 
@@ -117,6 +118,7 @@ struct MergerOptions {
   AcceptanceOptions acceptance;           // checks before a connection or an edge may place a submap
   MapExportOptions map_export;            // what of the merged map goes into map.ply
   GeoReferenceOptions georeference;       // each map placed on Earth by the aircraft's GNSS fixes
+  MosaicOptions mosaic;                   // the largest map's orthomosaic (live, and stitch mosaic's)
   bool join_by_gnss = true;               // merged maps no view connects joined where GNSS places them
 
   template <class Visitor>
@@ -151,6 +153,9 @@ struct MergerOptions {
     v("acceptance", acceptance, "checks a connected frame and an edge must pass before they may place a submap");
     v("map_export", map_export,
       "what of the merged map goes into map.ply (everything, gross outliers included, goes into map_raw.ply)");
+    v("mosaic", mosaic,
+      "the largest map's orthomosaic: kept during the flight (mosaic_live.tif) and made after it (stitch mosaic, "
+      "ortho.tif)");
     v("georeference", georeference,
       "each map placed on Earth by the aircraft's GNSS fixes (gnss.csv in the run folder), its trajectory in WGS84 "
       "(geo/)");

@@ -19,6 +19,9 @@ struct MosaicOptions {
   double max_off_nadir_deg = 45;  // a ground point seen further than this from an image's nadir is not taken from it
   int image_border_px = 4;        // pixels along each image's edge that are not used
   int max_pixels = 400'000'000;   // a mosaic larger than this is refused (a map with a stray camera far away)
+  // The merger keeps the largest map's mosaic during the flight from the pictures it receives
+  // (live_mosaic.h) and writes it as mosaic_live.tif with its records.
+  bool live = true;
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
@@ -35,6 +38,9 @@ struct MosaicOptions {
       "a ground point seen further than this from an image's nadir is not taken from that image");
     v("image_border_px", image_border_px, "pixels along each image's edge that are not used");
     v("max_pixels", max_pixels, "a mosaic of more pixels is refused (a map with a stray camera far away)");
+    v("live", live,
+      "the merger keeps the largest map's mosaic during the flight from the keyframe pictures it receives and writes "
+      "it as mosaic_live.tif with its records (the map's own frame and units)");
   }
   bool Check(std::string* why) const;
 };

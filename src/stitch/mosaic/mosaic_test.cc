@@ -10,6 +10,7 @@
 #include "stitch/mosaic/geotiff.h"
 #include "stitch/mosaic/ground_surface.h"
 #include "stitch/mosaic/keyframe_imagery.h"
+#include "stitch/mosaic/live_mosaic.h"
 #include "stitch/mosaic/orthomosaic.h"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/util/error.h"
@@ -37,6 +38,7 @@ class TexturedGround {
   }
   // Ground (x, y) -> texel.
   cv::Point2d Texel(double x, double y) const { return {(x + 60.0) / 0.05 - 0.5, (60.0 - y) / 0.05 - 0.5}; }
+  const cv::Mat& texture() const { return texture_; }
   uchar At(double x, double y) const {
     const cv::Point2d t = Texel(x, y);
     cv::Mat out;
@@ -328,6 +330,89 @@ TEST(GeoTiff, WritesWhatItReadsBackWithItsCrsAndOverviews) {
   EXPECT_FALSE(std::filesystem::exists(dir / "bad.tif"));
   EXPECT_FALSE(std::filesystem::exists(dir / "bad.tif.partial"));
   EXPECT_THROW(ReadGeoTiffInfo(dir / "nothing.tif"), Error);
+}
+
+// The live mosaic on a map that is not metric and not level (a SLAM map's frame): pictures laid
+// once, moved when the map moves them, all drawn again when the map's frame changes, taken out
+// when the map no longer places them.
+TEST(LiveMosaic, LaysPicturesWhereTheMapPlacesThemAndFollowsTheMap) {
+  const TexturedGround& ground = Ground();
+  // map = s R ground + t: any similarity.
+  const Sim3d map_from_ground(0.05, Eigen::Quaterniond(Eigen::AngleAxisd(0.7, Eigen::Vector3d(1, 2, 3).normalized())),
+                              Eigen::Vector3d(1, -2, 0.5));
+  LiveMosaic::MapState state;
+  state.frame = 1;
+  for (double x = -30; x <= 30; x += 1.5) {
+    for (double y = -25; y <= 25; y += 1.5) state.points.push_back(map_from_ground * Eigen::Vector3d(x, y, 0));
+  }
+  const auto in_map = [&](const Sim3d& cam_from_ground) {
+    const Sim3d ground_from_cam = cam_from_ground.Inverse();
+    return Rigid3d((map_from_ground.rotation * ground_from_cam.rotation).normalized(),
+                   map_from_ground * ground_from_cam.translation);
+  };
+  MosaicOptions options;
+  options.tile_px = 64;
+  LiveMosaic live(options);
+  const std::vector<Sim3d> poses = {NadirCamera(-8, -4, 30), NadirCamera(8, -4, 30, 2), NadirCamera(0, 8, 30)};
+  for (int k = 0; k < 3; ++k) live.AddPicture(k, kCamera, ground.Photograph(kCamera, poses[k]));
+  // Too few points to shape the ground yet: nothing.
+  LiveMosaic::MapState young = state;
+  young.points.resize(10);
+  young.world_from_cam[0] = in_map(poses[0]);
+  EXPECT_EQ(live.Update(young).laid, 0);
+  EXPECT_EQ(live.mosaic(), nullptr);
+  for (int k = 0; k < 3; ++k) state.world_from_cam[k] = in_map(poses[k]);
+  LiveMosaic::Change change = live.Update(state);
+  EXPECT_EQ(change.laid, 3);
+  EXPECT_TRUE(change.redrawn);
+  ASSERT_NE(live.mosaic(), nullptr);
+  // The images' own resolution, 0.1 m, in map units.
+  EXPECT_NEAR(live.mosaic()->grid().gsd, 0.1 * 0.05, 1e-6);
+  // Against the truth: each mosaic pixel's place on the true ground, through the mosaic's frame.
+  {
+    const Orthomosaic& mosaic = *live.mosaic();
+    const MosaicRaster raster = mosaic.Render();
+    const Sim3d true_from_mosaic = map_from_ground.Inverse() * live.ground_from_map().Inverse();
+    cv::Mat map_x(raster.colour.size(), CV_32F), map_y(raster.colour.size(), CV_32F);
+    for (int r = 0; r < raster.colour.rows; ++r) {
+      for (int c = 0; c < raster.colour.cols; ++c) {
+        const Eigen::Vector2d g = mosaic.grid().Ground(raster.col0 + c, raster.row0 + r);
+        const Eigen::Vector3d p =
+            true_from_mosaic * Eigen::Vector3d(g.x(), g.y(), mosaic.surface().Height(g.x(), g.y()));
+        const cv::Point2d t = ground.Texel(p.x(), p.y());
+        map_x.at<float>(r, c) = static_cast<float>(t.x);
+        map_y.at<float>(r, c) = static_cast<float>(t.y);
+      }
+    }
+    cv::Mat truth;
+    cv::remap(ground.texture(), truth, map_x, map_y, cv::INTER_LINEAR);
+    const CheckpointErrors errors = MeasureCheckpoints(truth, raster.colour, raster.coverage);
+    EXPECT_GT(errors.checkpoints, 50);
+    EXPECT_LT(errors.rms_px, 0.5);
+  }
+  // Nothing moved: nothing to do.
+  change = live.Update(state);
+  EXPECT_EQ(change.laid + change.moved, 0);
+  EXPECT_FALSE(change.redrawn);
+  // The map moved picture 1 (an adjustment): it is moved, its tiles redrawn.
+  state.world_from_cam[1] = in_map(NadirCamera(8.5, -4, 30, 2));
+  change = live.Update(state);
+  EXPECT_EQ(change.moved, 1);
+  EXPECT_GT(change.tiles, 0);
+  // A sliver of movement (under half a mosaic pixel) is not a move.
+  state.world_from_cam[1] = in_map(NadirCamera(8.52, -4, 30, 2));
+  EXPECT_EQ(live.Update(state).moved, 0);
+  // Picture 2's frame left the map: taken out.
+  state.world_from_cam.erase(2);
+  const int64_t before = live.mosaic()->covered_pixels();
+  live.Update(state);
+  EXPECT_LT(live.mosaic()->covered_pixels(), before);
+  EXPECT_EQ(live.laid(), 2);
+  // The map's frame changed (a merge into a larger map): all drawn again.
+  state.frame = 2;
+  change = live.Update(state);
+  EXPECT_TRUE(change.redrawn);
+  EXPECT_EQ(change.laid, 2);
 }
 
 TEST(KeyframeImagePicker, SendsASubmapsFirstKeyframeThenWhereTheViewMovedOn) {

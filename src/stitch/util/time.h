@@ -1,6 +1,8 @@
 #pragma once
 // Clocks. Times are integers: nanoseconds for data, microseconds (LCM's utime) on the bus.
 
+#include <time.h>
+
 #include <chrono>
 #include <cstdint>
 #include <string>
@@ -22,6 +24,14 @@ inline int64_t WallClockNs() {
 // Monotonic seconds, for measuring durations.
 inline double MonotonicSeconds() {
   return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
+
+// CPU time the calling thread has used, milliseconds (what a piece of work costs, whatever else
+// the machine runs).
+inline double ThreadCpuMs() {
+  timespec t{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+  return static_cast<double>(t.tv_sec) * 1e3 + static_cast<double>(t.tv_nsec) * 1e-6;
 }
 
 class Stopwatch {

@@ -3,14 +3,12 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <ctime>
 #include <filesystem>
 #include <fstream>
 #include <limits>
 #include <map>
 #include <set>
 
-#include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -20,6 +18,7 @@
 #include "stitch/io/colmap_model.h"
 #include "stitch/mosaic/checkpoints.h"
 #include "stitch/mosaic/geotiff.h"
+#include "stitch/mosaic/live_mosaic.h"
 #include "stitch/mosaic/orthomosaic.h"
 #include "stitch/records/keyframe_pictures.h"
 #include "stitch/records/pose_record.h"
@@ -29,6 +28,7 @@
 #include "stitch/util/log.h"
 #include "stitch/util/options.h"
 #include "stitch/util/text_file.h"
+#include "stitch/util/time.h"
 #include "tools/stitch/launch/map_colours.h"
 #include "tools/stitch/launch/run_images.h"
 
@@ -36,12 +36,6 @@ namespace fs = std::filesystem;
 
 namespace stitch {
 namespace {
-
-double ThreadCpuMs() {
-  timespec t{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
-  return t.tv_sec * 1e3 + t.tv_nsec * 1e-6;
-}
 
 double Median(std::vector<double> values) {
   std::nth_element(values.begin(), values.begin() + values.size() / 2, values.end());
@@ -90,28 +84,6 @@ UtmFrame UtmFrameOver(const GeodeticPoint& origin, const std::vector<Eigen::Vect
       Sim3d(fit.scale(), Eigen::Quaterniond(Eigen::AngleAxisd(fit.angle(), Eigen::Vector3d::UnitZ())),
             Eigen::Vector3d(shift.x(), shift.y(), 0.0));
   return frame;
-}
-
-// A map not on Earth: its points' best plane, seen from above (the cameras' side), x along the
-// points' widest spread; the map's own units.
-Sim3d GroundFromMapByPlane(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& centres) {
-  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-  for (const Eigen::Vector3d& p : points) mean += p;
-  mean /= static_cast<double>(points.size());
-  Eigen::Matrix3d scatter = Eigen::Matrix3d::Zero();
-  for (const Eigen::Vector3d& p : points) scatter += (p - mean) * (p - mean).transpose();
-  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver(scatter);
-  Eigen::Vector3d normal = solver.eigenvectors().col(0);
-  const Eigen::Vector3d along = solver.eigenvectors().col(2);
-  double above = 0;
-  for (const Eigen::Vector3d& c : centres) above += normal.dot(c - mean);
-  if (above < 0) normal = -normal;
-  Eigen::Matrix3d rotation;
-  rotation.row(0) = along;
-  rotation.row(1) = normal.cross(along);
-  rotation.row(2) = normal;
-  const Eigen::Quaterniond q(rotation);
-  return Sim3d(1.0, q, -(q * mean));
 }
 
 }  // namespace

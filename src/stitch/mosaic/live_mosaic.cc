@@ -1,0 +1,147 @@
+#include "stitch/mosaic/live_mosaic.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include <Eigen/Eigenvalues>
+#include <Eigen/Geometry>
+
+#include "stitch/util/error.h"
+#include "stitch/util/time.h"
+
+namespace stitch {
+namespace {
+
+double Median(std::vector<double> values) {
+  std::nth_element(values.begin(), values.begin() + values.size() / 2, values.end());
+  return values[values.size() / 2];
+}
+
+// Points a map needs before its ground is shaped.
+constexpr size_t kMinPoints = 50;
+
+}  // namespace
+
+Sim3d GroundFromMapByPlane(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& centres) {
+  if (points.size() < 3) throw Error("a ground plane needs at least 3 points");
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (const Eigen::Vector3d& p : points) mean += p;
+  mean /= static_cast<double>(points.size());
+  Eigen::Matrix3d scatter = Eigen::Matrix3d::Zero();
+  for (const Eigen::Vector3d& p : points) scatter += (p - mean) * (p - mean).transpose();
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver(scatter);
+  Eigen::Vector3d normal = solver.eigenvectors().col(0);
+  const Eigen::Vector3d along = solver.eigenvectors().col(2);
+  double above = 0;
+  for (const Eigen::Vector3d& c : centres) above += normal.dot(c - mean);
+  if (above < 0) normal = -normal;
+  Eigen::Matrix3d rotation;
+  rotation.row(0) = along;
+  rotation.row(1) = normal.cross(along);
+  rotation.row(2) = normal;
+  const Eigen::Quaterniond q(rotation);
+  return Sim3d(1.0, q, -(q * mean));
+}
+
+LiveMosaic::LiveMosaic(const MosaicOptions& options) : options_(options) {}
+
+void LiveMosaic::AddPicture(int key, const Camera& camera, cv::Mat pixels) {
+  pictures_[key] = Picture{camera, std::move(pixels)};
+}
+
+Sim3d LiveMosaic::CamFromGround(const Rigid3d& world_from_cam) const {
+  const Rigid3d cam_from_world = world_from_cam.Inverse();
+  return Sim3d(1.0, cam_from_world.rotation, cam_from_world.translation) * ground_from_map_.Inverse();
+}
+
+bool LiveMosaic::Restart(const MapState& state) {
+  std::vector<Eigen::Vector3d> centres;
+  for (const auto& [key, pose] : state.world_from_cam) {
+    if (pictures_.count(key)) centres.push_back(pose.translation);
+  }
+  if (state.points.size() < kMinPoints || centres.empty()) return false;
+  const Sim3d ground_from_map = GroundFromMapByPlane(state.points, centres);
+  std::vector<Eigen::Vector3d> ground_points;
+  std::vector<double> heights;
+  for (const Eigen::Vector3d& p : state.points) {
+    ground_points.push_back(ground_from_map * p);
+    heights.push_back(ground_points.back().z());
+  }
+  MosaicGrid grid;
+  grid.gsd = options_.gsd_m;
+  if (grid.gsd == 0) {
+    const GroundSurface flat(Median(heights));
+    std::vector<double> gsds;
+    for (const auto& [key, pose] : state.world_from_cam) {
+      const auto picture = pictures_.find(key);
+      if (picture == pictures_.end()) continue;
+      const Rigid3d cam_from_world = pose.Inverse();
+      const Sim3d cam_from_ground =
+          Sim3d(1.0, cam_from_world.rotation, cam_from_world.translation) * ground_from_map.Inverse();
+      if (const auto gsd = NadirGsd(picture->second.camera, cam_from_ground, flat)) gsds.push_back(*gsd);
+    }
+    if (gsds.empty()) return false;  // no camera above the ground (yet)
+    grid.gsd = Median(gsds);
+  }
+  mosaic_.emplace(options_, grid,
+                  GroundSurface::FromPoints(ground_points, options_.surface_cell_gsd * grid.gsd,
+                                            std::min<int>(options_.surface_min_points, ground_points.size())));
+  ground_from_map_ = ground_from_map;
+  frame_ = state.frame;
+  shaped_by_points_ = state.points.size();
+  laid_.clear();
+  return true;
+}
+
+LiveMosaic::Change LiveMosaic::Update(const MapState& state) {
+  const double started = ThreadCpuMs();
+  Change change;
+  if (!mosaic_ || state.frame != frame_ || state.points.size() >= 2 * shaped_by_points_) {
+    if (!Restart(state)) {
+      change.cpu_ms = ThreadCpuMs() - started;
+      return change;
+    }
+    change.redrawn = true;
+  }
+  const double gsd = mosaic_->grid().gsd;
+  // Pictures whose frame the map no longer places (a submap that left it) come out.
+  for (auto it = laid_.begin(); it != laid_.end();) {
+    if (state.world_from_cam.count(it->first)) {
+      ++it;
+      continue;
+    }
+    Orthomosaic::Change removed;
+    mosaic_->RemoveImage(it->first, &removed);
+    change.tiles += removed.tiles;
+    it = laid_.erase(it);
+  }
+  for (const auto& [key, pose] : state.world_from_cam) {
+    const auto picture = pictures_.find(key);
+    if (picture == pictures_.end()) continue;
+    const auto laid = laid_.find(key);
+    if (laid == laid_.end()) {
+      const Orthomosaic::Change added =
+          mosaic_->SetImage(key, picture->second.camera, CamFromGround(pose), picture->second.pixels);
+      laid_[key] = pose;
+      ++change.laid;
+      change.tiles += added.tiles;
+      continue;
+    }
+    // Moved by more than half a mosaic pixel where it sees the ground: its centre, or its view
+    // turned by that much at its height above the ground.
+    const Eigen::Vector3d centre = ground_from_map_ * pose.translation;
+    const double height = std::max(gsd, centre.z() - mosaic_->surface().Height(centre.x(), centre.y()));
+    const double shifted = (pose.translation - laid->second.translation).norm();
+    const double turned = Eigen::AngleAxisd(laid->second.rotation.conjugate() * pose.rotation).angle() * height;
+    if (std::max(shifted, turned) <= 0.5 * gsd) continue;
+    Orthomosaic::Change moved;
+    mosaic_->MoveImage(key, CamFromGround(pose), &moved);
+    laid->second = pose;
+    ++change.moved;
+    change.tiles += moved.tiles;
+  }
+  change.cpu_ms = ThreadCpuMs() - started;
+  return change;
+}
+
+}  // namespace stitch

@@ -1,0 +1,75 @@
+#pragma once
+// The ground's orthomosaic kept up to date during the flight: the keyframe pictures received,
+// each laid where the merged map places its frame now. A picture is laid once; one the map moved
+// (an adjustment, a merge) is moved, which redraws only its tiles; a map whose frame changed (its
+// root submap: a merge into a larger map) or whose points doubled since the ground was shaped is
+// drawn again whole. The mosaic's frame is the map's, levelled on its points' best plane, in its
+// units (the run's end places it on Earth: `stitch mosaic`). One owner thread; not thread-safe.
+
+#include <cstdint>
+#include <map>
+#include <optional>
+#include <vector>
+
+#include <Eigen/Core>
+#include <opencv2/core.hpp>
+
+#include "stitch/geometry/camera.h"
+#include "stitch/geometry/rigid3.h"
+#include "stitch/mosaic/mosaic_options.h"
+#include "stitch/mosaic/orthomosaic.h"
+
+namespace stitch {
+
+class LiveMosaic {
+ public:
+  explicit LiveMosaic(const MosaicOptions& options);
+
+  // A picture (CV_8UC1 or CV_8UC3) of the frame `key` (any number naming it, e.g. agent * 10^7 +
+  // frame), its camera at the picture's size.
+  void AddPicture(int key, const Camera& camera, cv::Mat pixels);
+
+  // The map the pictures are laid on, as the merger holds it now.
+  struct MapState {
+    int64_t frame = 0;                      // its frame's identity (the root submap): another one redraws all
+    std::vector<Eigen::Vector3d> points;    // in its frame
+    std::map<int, Rigid3d> world_from_cam;  // the pictured frames it places, by key
+  };
+  struct Change {
+    int laid = 0, moved = 0, tiles = 0;
+    bool redrawn = false;  // the whole mosaic drawn again
+    double cpu_ms = 0.0;   // this update's, the thread's CPU time
+  };
+  Change Update(const MapState& state);
+
+  // Empty until the map placed two pictures on a ground of enough points.
+  const Orthomosaic* mosaic() const { return mosaic_ ? &*mosaic_ : nullptr; }
+  // The mosaic's frame (its ground's) from the map's, as the last start made it.
+  const Sim3d& ground_from_map() const { return ground_from_map_; }
+  int pictures() const { return static_cast<int>(pictures_.size()); }
+  int laid() const { return static_cast<int>(laid_.size()); }
+
+ private:
+  struct Picture {
+    Camera camera;
+    cv::Mat pixels;
+  };
+  // Starts over on `state`: the ground's frame, resolution and surface from its points.
+  bool Restart(const MapState& state);
+  Sim3d CamFromGround(const Rigid3d& world_from_cam) const;
+
+  MosaicOptions options_;
+  std::map<int, Picture> pictures_;
+  std::optional<Orthomosaic> mosaic_;
+  int64_t frame_ = 0;
+  size_t shaped_by_points_ = 0;
+  Sim3d ground_from_map_;
+  std::map<int, Rigid3d> laid_;  // where each picture was laid, world_from_cam
+};
+
+// The map's frame levelled on `points`' best plane: z along its normal toward `centres` (the
+// cameras' side), x along the points' widest spread; the map's units. Throws stitch::Error for
+// fewer than 3 points.
+Sim3d GroundFromMapByPlane(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& centres);
+
+}  // namespace stitch
