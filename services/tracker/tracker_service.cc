@@ -348,9 +348,11 @@ void TrackerService::Process(const stitch::frame_t& frame) {
     if (made.frame_index == frame.frame_index && tracking_ &&
         image_picker_.Take(SubmapOf(made.id).value, made.cam_from_world.Inverse(), tracking_->camera())) {
       if (publisher_thread_) {
-        publisher_thread_->Submit([this, made, image] { PublishKeyframeImage(made, image); });
+        publisher_thread_->Submit([this, id = made.id, frame_index = made.frame_index, t_ns = made.t_ns, image] {
+          PublishKeyframeImage(id, frame_index, t_ns, image);
+        });
       } else {
-        PublishKeyframeImage(made, image);
+        PublishKeyframeImage(made.id, made.frame_index, made.t_ns, image);
       }
     }
     std::vector<MapPoint> points = k == 0 ? std::move(output.new_points) : std::vector<MapPoint>();
@@ -395,12 +397,12 @@ void TrackerService::PublishKeyframe(const Keyframe& keyframe, const std::vector
   ++keyframes_;
 }
 
-void TrackerService::PublishKeyframeImage(const Keyframe& keyframe, const cv::Mat& image) {
+void TrackerService::PublishKeyframeImage(KeyframeId id, int frame_index, int64_t t_ns, const cv::Mat& image) {
   stitch::keyframe_image_t message{};
-  message.keyframe_id = keyframe.id.value;
-  message.submap_id = SubmapOf(keyframe.id).value;
-  message.frame_index = keyframe.frame_index;
-  message.t_ns = keyframe.t_ns;
+  message.keyframe_id = id.value;
+  message.submap_id = SubmapOf(id).value;
+  message.frame_index = frame_index;
+  message.t_ns = t_ns;
   message.camera_width = image.cols;
   message.camera_height = image.rows;
   try {
@@ -409,7 +411,7 @@ void TrackerService::PublishKeyframeImage(const Keyframe& keyframe, const cv::Ma
     message.width = size.width;
     message.height = size.height;
   } catch (const Error& e) {
-    STITCH_LOG(WARNING) << "keyframe " << keyframe.frame_index << ": no picture for the ground: " << e.what();
+    STITCH_LOG(WARNING) << "keyframe of frame " << frame_index << ": no picture for the ground: " << e.what();
     return;
   }
   message.num_bytes = static_cast<int32_t>(message.jpeg.size());

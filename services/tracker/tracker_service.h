@@ -83,8 +83,8 @@ class TrackerService {
   void RefreshReportedState();
   // Makes the keyframe's message, sends it, keeps it until the mapper covers it.
   void PublishKeyframe(const Keyframe& keyframe, const std::vector<MapPoint>& new_points);
-  // The keyframe's reduced picture for the ground (tracker.keyframe_images), made from `image`.
-  void PublishKeyframeImage(const Keyframe& keyframe, const cv::Mat& image);
+  // A keyframe's reduced picture for the ground (tracker.keyframe_images), made from `image`.
+  void PublishKeyframeImage(KeyframeId id, int frame_index, int64_t t_ns, const cv::Mat& image);
 
   bus::Publisher* publisher_;
   TrackerOptions options_;

@@ -1,5 +1,6 @@
 #include "stitch/mosaic/geotiff.h"
 
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <memory>
@@ -55,6 +56,7 @@ void WriteGeoTiff(const std::string& path, const GeoTiffImage& image) {
   options = CSLSetNameValue(options, "BLOCKXSIZE", "256");
   options = CSLSetNameValue(options, "BLOCKYSIZE", "256");
   options = CSLSetNameValue(options, "COMPRESS", "DEFLATE");
+  options = CSLSetNameValue(options, "ZLEVEL", std::to_string(std::clamp(image.deflate_level, 1, 9)).c_str());
   options = CSLSetNameValue(options, "PHOTOMETRIC", "RGB");
   options = CSLSetNameValue(options, "ALPHA", "YES");
   options = CSLSetNameValue(options, "BIGTIFF", "IF_SAFER");

@@ -18,6 +18,7 @@ struct GeoTiffImage {
   // pixel_size.
   double west = 0.0, north = 0.0, pixel_size = 1.0;
   int epsg = 0;                                 // 0: a local frame, no CRS
+  int deflate_level = 6;                        // 1 (fastest) to 9 (smallest): a file written again and again wants 1
   std::map<std::string, std::string> metadata;  // written as the dataset's metadata items
 };
 

@@ -45,8 +45,8 @@ Sim3d GroundFromMapByPlane(const std::vector<Eigen::Vector3d>& points, const std
 
 LiveMosaic::LiveMosaic(const MosaicOptions& options) : options_(options) {}
 
-void LiveMosaic::AddPicture(int key, const Camera& camera, cv::Mat pixels) {
-  pictures_[key] = Picture{camera, std::move(pixels)};
+void LiveMosaic::AddPicture(int key, const Camera& camera, std::vector<uint8_t> jpeg) {
+  pictures_[key] = Picture{camera, std::move(jpeg)};
 }
 
 Sim3d LiveMosaic::CamFromGround(const Rigid3d& world_from_cam) const {
@@ -121,7 +121,7 @@ LiveMosaic::Change LiveMosaic::Update(const MapState& state) {
     const auto laid = laid_.find(key);
     if (laid == laid_.end()) {
       const Orthomosaic::Change added =
-          mosaic_->SetImage(key, picture->second.camera, CamFromGround(pose), picture->second.pixels);
+          mosaic_->SetCompressedImage(key, picture->second.camera, CamFromGround(pose), picture->second.jpeg);
       laid_[key] = pose;
       ++change.laid;
       change.tiles += added.tiles;

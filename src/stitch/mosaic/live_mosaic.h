@@ -25,9 +25,9 @@ class LiveMosaic {
  public:
   explicit LiveMosaic(const MosaicOptions& options);
 
-  // A picture (CV_8UC1 or CV_8UC3) of the frame `key` (any number naming it, e.g. agent * 10^7 +
-  // frame), its camera at the picture's size.
-  void AddPicture(int key, const Camera& camera, cv::Mat pixels);
+  // A picture (a JPEG, kept compressed) of the frame `key` (any number naming it, e.g. agent * 10^7
+  // + frame), its camera at the picture's size.
+  void AddPicture(int key, const Camera& camera, std::vector<uint8_t> jpeg);
 
   // The map the pictures are laid on, as the merger holds it now.
   struct MapState {
@@ -52,7 +52,7 @@ class LiveMosaic {
  private:
   struct Picture {
     Camera camera;
-    cv::Mat pixels;
+    std::vector<uint8_t> jpeg;
   };
   // Starts over on `state`: the ground's frame, resolution and surface from its points.
   bool Restart(const MapState& state);

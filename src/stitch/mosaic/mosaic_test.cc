@@ -354,7 +354,11 @@ TEST(LiveMosaic, LaysPicturesWhereTheMapPlacesThemAndFollowsTheMap) {
   options.tile_px = 64;
   LiveMosaic live(options);
   const std::vector<Sim3d> poses = {NadirCamera(-8, -4, 30), NadirCamera(8, -4, 30, 2), NadirCamera(0, 8, 30)};
-  for (int k = 0; k < 3; ++k) live.AddPicture(k, kCamera, ground.Photograph(kCamera, poses[k]));
+  for (int k = 0; k < 3; ++k) {
+    std::vector<uint8_t> jpeg;
+    cv::imencode(".jpg", ground.Photograph(kCamera, poses[k]), jpeg, {cv::IMWRITE_JPEG_QUALITY, 95});
+    live.AddPicture(k, kCamera, std::move(jpeg));
+  }
   // Too few points to shape the ground yet: nothing.
   LiveMosaic::MapState young = state;
   young.points.resize(10);

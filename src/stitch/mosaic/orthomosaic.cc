@@ -158,13 +158,30 @@ Orthomosaic::Change Orthomosaic::SetImage(int id, const Camera& camera, const Si
     throw Error("a mosaic image must be 8-bit grey or BGR");
   }
   if (image.cols < 2 || image.rows < 2) throw Error("a mosaic image must be at least 2x2 pixels");
+  std::vector<uchar> jpeg;
+  if (!cv::imencode(".jpg", image, jpeg, {cv::IMWRITE_JPEG_QUALITY, kJpegQuality})) {
+    throw Error("a mosaic image could not be compressed");
+  }
+  return SetCompressedImage(id, camera, cam_from_ground, std::move(jpeg));
+}
+
+Orthomosaic::Change Orthomosaic::SetCompressedImage(int id, const Camera& camera, const Sim3d& cam_from_ground,
+                                                    std::vector<uchar> jpeg) {
+  cv::Mat decoded;
+  try {
+    decoded = cv::imdecode(jpeg, cv::IMREAD_UNCHANGED);
+  } catch (const cv::Exception&) {
+    decoded.release();
+  }
+  if (decoded.empty() || decoded.depth() != CV_8U || (decoded.channels() != 1 && decoded.channels() != 3) ||
+      decoded.cols < 2 || decoded.rows < 2) {
+    throw Error("a mosaic image's JPEG does not decode to an 8-bit grey or BGR image of at least 2x2 pixels");
+  }
   Image entry;
   entry.camera = camera;
   entry.cam_from_ground = cam_from_ground;
   entry.centre = CentreOf(cam_from_ground);
-  if (!cv::imencode(".jpg", image, entry.jpeg, {cv::IMWRITE_JPEG_QUALITY, kJpegQuality})) {
-    throw Error("a mosaic image could not be compressed");
-  }
+  entry.jpeg = std::move(jpeg);
   entry.pixels = entry.centre.allFinite() ? Footprint(entry) : std::nullopt;
   Change change;
   const auto existing = images_.find(id);
@@ -183,7 +200,6 @@ Orthomosaic::Change Orthomosaic::SetImage(int id, const Camera& camera, const Si
   }
   const Image& added = images_.emplace(id, std::move(entry)).first->second;
   if (!added.pixels) return change;
-  const cv::Mat decoded = cv::imdecode(added.jpeg, cv::IMREAD_UNCHANGED);
   for (const TileKey& key : TilesOf(*added.pixels)) {
     auto tile = tiles_.find(key);
     const bool fresh = tile == tiles_.end();

@@ -67,6 +67,9 @@ class Orthomosaic {
   // image's size), its pose (any similarity from the ground's frame to the camera's: a map's scale
   // is fine) and its pixels (CV_8UC1 or CV_8UC3). An image not looking at the ground adds nothing.
   Change SetImage(int id, const Camera& camera, const Sim3d& cam_from_ground, const cv::Mat& image);
+  // The same from a JPEG (kept as it is: a picture received compressed is not compressed again).
+  // Throws stitch::Error for bytes that do not decode to such an image.
+  Change SetCompressedImage(int id, const Camera& camera, const Sim3d& cam_from_ground, std::vector<uchar> jpeg);
   // Moves image `id` without new pixels; false when it is not there.
   bool MoveImage(int id, const Sim3d& cam_from_ground, Change* change = nullptr);
   // Takes image `id` out (its tiles redrawn from the others); false when it is not there.
