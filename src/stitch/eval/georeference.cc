@@ -164,7 +164,8 @@ std::vector<std::string> RunGeoReference::Summary() const {
                                   "    %s (%d frames) placed by %d of %d fixes%s: %.2f m horizontal, %.2f m vertical "
                                   "RMS from them",
                                   m.map.name.c_str(), m.map.frames, p.inliers, p.fixes_matched,
-                                  p.method == "gnss" ? ""
+                                  p.method == "gnss"         ? ""
+                                  : p.method == "gnss+level" ? " (levelled by the cameras' stated up axis)"
                                   : p.method == "gnss+camera-up"
                                       ? " (along a line: with the cameras' up)"
                                       : " (along a line: with the cameras' up as the run's other maps show it)",

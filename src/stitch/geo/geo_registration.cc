@@ -322,6 +322,26 @@ GeoPlacement PlaceByGnss(const Trajectory& map_poses, const std::vector<EnuFix>&
       disagreeing = d.fixes;
     }
   }
+  // A stated mount levels the map: turned about its inliers' centre (which stays where the fixes
+  // put it) so that the cameras' mean up axis points up.
+  if (!along_line && options.level_by_camera && (options.camera_up_axis == "-z" || options.camera_up_axis == "-y")) {
+    const Eigen::Vector3d up_in_cam = options.camera_up_axis == "-y" ? Eigen::Vector3d(-Eigen::Vector3d::UnitY())
+                                                                     : Eigen::Vector3d(-Eigen::Vector3d::UnitZ());
+    Eigen::Vector3d up = Eigen::Vector3d::Zero(), centre = Eigen::Vector3d::Zero();
+    for (int i : best_inliers) {
+      up += best.rotation * (pairs[i].map_from_cam * up_in_cam);
+      centre += pairs[i].centre;
+    }
+    centre /= static_cast<double>(best_inliers.size());
+    // Only cameras that agree on an up direction say one.
+    if (up.norm() > 0.5 * static_cast<double>(best_inliers.size())) {
+      const Eigen::Vector3d at = best * centre;
+      best.rotation =
+          (Eigen::Quaterniond::FromTwoVectors(up.normalized(), Eigen::Vector3d::UnitZ()) * best.rotation).normalized();
+      best.translation = at - best.scale * (best.rotation * centre);
+      placement.method += "+level";
+    }
+  }
   placement.enu_from_map = best;
   placement.inliers = static_cast<int>(best_inliers.size());
   double horizontal = 0.0, vertical = 0.0;

@@ -28,6 +28,9 @@ struct GeoReferenceOptions {
   double antenna_y_m = 0.0;
   double antenna_z_m = 0.0;
   double time_offset_s = 0.0;  // added to a fix's time to put it on the camera's clock
+  // A map placed by its fixes is turned so that camera_up_axis (-z or -y, as set), averaged over
+  // its cameras, points up: for a gimballed camera, whose tilt the fixes' heights barely say.
+  bool level_by_camera = false;
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
@@ -50,6 +53,10 @@ struct GeoReferenceOptions {
     v("antenna_y_m", antenna_y_m, "the antenna's position in the camera's frame: y (down in the image), metres");
     v("antenna_z_m", antenna_z_m, "the antenna's position in the camera's frame: z (along the optical axis), metres");
     v("time_offset_s", time_offset_s, "seconds added to a fix's time to put it on the camera's clock");
+    v("level_by_camera", level_by_camera,
+      "turn each map its fixes place (not along a line) so that camera_up_axis, set to -z (a gimballed nadir camera) "
+      "or -y, averaged over its cameras, points up: the fixes' heights (metres of noise) barely say a survey's tilt "
+      "across its strips, a gimbal holds it to a fraction of a degree");
   }
   bool Check(std::string* why) const;
 };

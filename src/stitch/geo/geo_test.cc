@@ -294,6 +294,37 @@ TEST(PlaceByGnss, PlacesAMapWithinItsFixesNoiseAndIgnoresJumps) {
   EXPECT_LE(placement.outlier_spans.size(), 3u);
 }
 
+// Fixes whose heights lean by a degree across the strips (what a few metres of vertical noise does
+// to a survey's tilt) tilt the map by as much; a gimballed camera's stated up axis levels it.
+TEST(PlaceByGnss, LevelsAMapByItsCamerasWhereTheirMountIsStated) {
+  const std::vector<StampedPose> truth = SurveyInEnu();
+  const Trajectory map = InMapFrame(truth, kMapFromEnu);
+  std::vector<EnuFix> fixes = NoisyFixes(truth, Eigen::Vector3d::Zero(), 0.5, 0.5);
+  double mean_y = 0;
+  for (const EnuFix& f : fixes) mean_y += f.enu.y() / static_cast<double>(fixes.size());
+  for (EnuFix& f : fixes) f.enu.z() += std::tan(1.0 * M_PI / 180.0) * (f.enu.y() - mean_y);
+  const auto tilt_deg = [&](const GeoPlacement& placement) {
+    // The placed cameras' optical axes against the truth's (straight down).
+    const Eigen::Vector3d axis =
+        placement.enu_from_map.rotation * (map.poses()[0].world_from_cam.rotation * Eigen::Vector3d::UnitZ());
+    return std::acos(std::clamp(-axis.z(), -1.0, 1.0)) * 180.0 / M_PI;
+  };
+  GeoReferenceOptions options;
+  const GeoPlacement tilted = PlaceByGnss(map, fixes, options);
+  ASSERT_TRUE(tilted.placed) << tilted.why_not;
+  EXPECT_NEAR(tilt_deg(tilted), 1.0, 0.15);
+  options.level_by_camera = true;
+  EXPECT_NEAR(tilt_deg(PlaceByGnss(map, fixes, options)), 1.0, 0.15);  // auto: no mount stated
+  options.camera_up_axis = "-z";
+  const GeoPlacement level = PlaceByGnss(map, fixes, options);
+  ASSERT_TRUE(level.placed) << level.why_not;
+  EXPECT_EQ(level.method, "gnss+level");
+  EXPECT_LT(tilt_deg(level), 0.01);
+  // Its cameras stay where the fixes put them, within their noise: closer to the truth than tilted.
+  EXPECT_LT(PlacedRms(level, map, truth), 0.3);
+  EXPECT_LT(PlacedRms(level, map, truth), PlacedRms(tilted, map, truth));
+}
+
 // From half the flight on the receiver puts every fix 20 m east (a datum switch, a spoofer): the
 // map stays where the fixes that came first put it, and the other group is reported with when it
 // began and how far off it would put the map.
