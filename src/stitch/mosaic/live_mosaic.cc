@@ -12,11 +12,6 @@
 namespace stitch {
 namespace {
 
-double Median(std::vector<double> values) {
-  std::nth_element(values.begin(), values.begin() + values.size() / 2, values.end());
-  return values[values.size() / 2];
-}
-
 // Points a map needs before its ground is shaped.
 constexpr size_t kMinPoints = 50;
 
@@ -62,26 +57,21 @@ bool LiveMosaic::Restart(const MapState& state) {
   if (state.points.size() < kMinPoints || centres.empty()) return false;
   const Sim3d ground_from_map = GroundFromMapByPlane(state.points, centres);
   std::vector<Eigen::Vector3d> ground_points;
-  std::vector<double> heights;
-  for (const Eigen::Vector3d& p : state.points) {
-    ground_points.push_back(ground_from_map * p);
-    heights.push_back(ground_points.back().z());
-  }
+  for (const Eigen::Vector3d& p : state.points) ground_points.push_back(ground_from_map * p);
   MosaicGrid grid;
   grid.gsd = options_.gsd_m;
   if (grid.gsd == 0) {
-    const GroundSurface flat(Median(heights));
-    std::vector<double> gsds;
+    std::vector<MosaicView> views;
     for (const auto& [key, pose] : state.world_from_cam) {
       const auto picture = pictures_.find(key);
       if (picture == pictures_.end()) continue;
       const Rigid3d cam_from_world = pose.Inverse();
-      const Sim3d cam_from_ground =
-          Sim3d(1.0, cam_from_world.rotation, cam_from_world.translation) * ground_from_map.Inverse();
-      if (const auto gsd = NadirGsd(picture->second.camera, cam_from_ground, flat)) gsds.push_back(*gsd);
+      views.push_back({&picture->second.camera,
+                       Sim3d(1.0, cam_from_world.rotation, cam_from_world.translation) * ground_from_map.Inverse()});
     }
-    if (gsds.empty()) return false;  // no camera above the ground (yet)
-    grid.gsd = Median(gsds);
+    const std::optional<double> gsd = MedianNadirGsd(views, ground_points);
+    if (!gsd) return false;  // no camera above the ground (yet)
+    grid.gsd = *gsd;
   }
   mosaic_.emplace(options_, grid,
                   GroundSurface::FromPoints(ground_points, options_.surface_cell_gsd * grid.gsd,

@@ -39,12 +39,6 @@ class TexturedGround {
   // Ground (x, y) -> texel.
   cv::Point2d Texel(double x, double y) const { return {(x + 60.0) / 0.05 - 0.5, (60.0 - y) / 0.05 - 0.5}; }
   const cv::Mat& texture() const { return texture_; }
-  uchar At(double x, double y) const {
-    const cv::Point2d t = Texel(x, y);
-    cv::Mat out;
-    cv::getRectSubPix(texture_, cv::Size(1, 1), t, out);
-    return out.at<uchar>(0, 0);
-  }
   // What a camera sees of it.
   cv::Mat Photograph(const Camera& camera, const Sim3d& cam_from_ground) const {
     const Sim3d ground_from_cam = cam_from_ground.Inverse();

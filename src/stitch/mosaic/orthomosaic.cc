@@ -9,6 +9,7 @@
 
 #include "stitch/util/error.h"
 #include "stitch/util/options.h"
+#include "stitch/util/statistics.h"
 
 namespace stitch {
 namespace {
@@ -54,6 +55,19 @@ std::optional<double> NadirGsd(const Camera& camera, const Sim3d& cam_from_groun
   const double height = centre.z() - surface.Height(centre.x(), centre.y());
   if (!(height > 0) || !std::isfinite(height)) return std::nullopt;
   return height / std::sqrt(camera.fx() * camera.fy());
+}
+
+std::optional<double> MedianNadirGsd(const std::vector<MosaicView>& views,
+                                     const std::vector<Eigen::Vector3d>& ground_points) {
+  std::vector<double> heights;
+  for (const Eigen::Vector3d& p : ground_points) heights.push_back(p.z());
+  const GroundSurface flat(Median(heights));
+  std::vector<double> gsds;
+  for (const MosaicView& view : views) {
+    if (const auto gsd = NadirGsd(*view.camera, view.cam_from_ground, flat)) gsds.push_back(*gsd);
+  }
+  if (gsds.empty()) return std::nullopt;
+  return Median(gsds);
 }
 
 Orthomosaic::Orthomosaic(const MosaicOptions& options, const MosaicGrid& grid, GroundSurface surface)

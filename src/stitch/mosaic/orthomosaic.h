@@ -54,6 +54,16 @@ Eigen::Vector3d WithinOffNadirCone(const Eigen::Vector3d& ray, double max_angle)
 // distance it gives at its nadir (in the frame's units). Empty for a camera not above the ground.
 std::optional<double> NadirGsd(const Camera& camera, const Sim3d& cam_from_ground, const GroundSurface& surface);
 
+// The pictures' own resolution: the median NadirGsd of the cameras (each with its pose from the
+// ground's frame) over a flat ground at the points' median height (`ground_points`, in the
+// ground's frame). Empty when no camera is above that ground.
+struct MosaicView {
+  const Camera* camera = nullptr;
+  Sim3d cam_from_ground;
+};
+std::optional<double> MedianNadirGsd(const std::vector<MosaicView>& views,
+                                     const std::vector<Eigen::Vector3d>& ground_points);
+
 class Orthomosaic {
  public:
   // Throws stitch::Error for options that fail their check or a grid without a positive GSD.

@@ -37,11 +37,6 @@ namespace fs = std::filesystem;
 namespace stitch {
 namespace {
 
-double Median(std::vector<double> values) {
-  std::nth_element(values.begin(), values.begin() + values.size() / 2, values.end());
-  return values[values.size() / 2];
-}
-
 Sim3d AsSim3(const Rigid3d& pose) {
   return Sim3d(1.0, pose.rotation, pose.translation);
 }
@@ -228,9 +223,6 @@ RunMosaic MakeRunMosaic(const std::string& run_dir, const SourceSpec& source, co
   }
   std::vector<Eigen::Vector3d> ground_points;
   for (const Eigen::Vector3d& p : points) ground_points.push_back(ground_from_map * p);
-  std::vector<double> heights;
-  for (const Eigen::Vector3d& p : ground_points) heights.push_back(p.z());
-  const GroundSurface flat(Median(heights));
 
   // The pictures to lay: each with its frame, camera and pose in the ground's frame.
   struct View {
@@ -285,12 +277,11 @@ RunMosaic MakeRunMosaic(const std::string& run_dir, const SourceSpec& source, co
       // The pictures' own resolution, unless set: their median height above the ground over the focal length.
       grid.gsd = options.gsd_m;
       if (grid.gsd == 0) {
-        std::vector<double> gsds;
-        for (const View& other : views) {
-          if (const auto gsd = NadirGsd(camera, pose_of(other), flat)) gsds.push_back(*gsd);
-        }
-        if (gsds.empty()) throw Error("none of the map's cameras is above its ground: no mosaic of it can be made");
-        grid.gsd = Median(gsds);
+        std::vector<MosaicView> all;
+        for (const View& other : views) all.push_back({&camera, pose_of(other)});
+        const std::optional<double> gsd = MedianNadirGsd(all, ground_points);
+        if (!gsd) throw Error("none of the map's cameras is above its ground: no mosaic of it can be made");
+        grid.gsd = *gsd;
       }
       ortho.emplace(
           options, grid,
