@@ -49,7 +49,9 @@ void MavlinkReceiver::KeepNewestSigned(bool force) {
     kept_signed_ = newest;
     kept_at_s_ = MonotonicSeconds();
   } catch (const Error& e) {
-    if (!state_file_failed_) STITCH_LOG(WARNING) << e.what() << ": replays across a restart are not refused";
+    if (!state_file_failed_) {
+      STITCH_LOG(WARNING) << e.what() << ": replays across a restart are not refused";
+    }
     state_file_failed_ = true;
     kept_at_s_ = MonotonicSeconds();
   }
