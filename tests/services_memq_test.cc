@@ -14,6 +14,7 @@
 
 #include "services/common/convert.h"
 #include "services/common/map_convert.h"
+#include "services/common/secret_file.h"
 #include "services/ingest/ingest_service.h"
 #include "services/mapper/mapper_service.h"
 #include "services/tracker/tracker_service.h"
@@ -44,7 +45,7 @@ struct InProcessStack {
       : config(LoadConfig(adjust)),
         vocabulary(LoadVocabulary(config)),
         lcm(bus::OpenLcm("memq://")),
-        publisher(lcm.get(), "uav0"),
+        publisher(lcm.get(), "uav0", bus::BusAuthenticator::FromSetting(config.bus.key_file)),
         ingest(lcm.get(), "memq://", &publisher, config.ingest),
         tracker(lcm.get(), &publisher, config.tracker, &vocabulary,
                 record_dir.empty() ? "" : record_dir + "/frames.tsv") {
@@ -272,7 +273,8 @@ TEST(ServicesInProcess, AFramesAckComesAfterTheKeyframesItMade) {
 
 // What the merger receives from a flight: the bytes on SUBMAP, and every submap rebuilt.
 struct MergerSide {
-  explicit MergerSide(lcm::LCM* lcm, const ScalePyramid& pyramid) : pyramid(pyramid), subscriber(lcm) {
+  MergerSide(lcm::LCM* lcm, const ScalePyramid& pyramid, std::optional<bus::BusAuthenticator> authenticator = {})
+      : pyramid(pyramid), subscriber(lcm, std::move(authenticator)) {
     subscriber.Subscribe<stitch::submap_update_t>(
         bus::Channel("uav0", bus::kSubmap),
         [this](std::unique_ptr<stitch::submap_update_t> message, const std::string&) {
@@ -305,16 +307,20 @@ struct SubmapBytes {
 
 // Flies the default short flight; returns the SUBMAP bytes the merger side received. `thin`:
 // the default thinning; `link_backlog_s` > 0: a link bridge reports that backlog all along.
-SubmapBytes FlyAndCountSubmapBytes(bool thin, double link_backlog_s = 0) {
+// `keyed_bus`: the services' bus has a key (bus.key_file) that the reporting bridge lacks.
+SubmapBytes FlyAndCountSubmapBytes(bool thin, double link_backlog_s = 0, bool keyed_bus = false) {
   testing::TempDir dir;
+  if (keyed_bus) GenerateSecretFile(dir / "bus.key", "bus key");
   InProcessStack stack(
-      [thin](StitchConfig* c) {
+      [&](StitchConfig* c) {
         c->mapper.delivery.submap_point_resend_fraction = thin ? 0.01 : 0.0;
         c->mapper.delivery.submap_window_associations = !thin;
         c->mapper.delivery.stop_link_drain_s = 0;  // the reported backlog never goes out here
+        if (keyed_bus) c->bus.key_file = dir / "bus.key";
       },
       /*with_mapper=*/true, dir.path().string());
-  MergerSide merger(stack.lcm.get(), ScalePyramid::From(stack.config.tracker.tracking.orb));
+  MergerSide merger(stack.lcm.get(), ScalePyramid::From(stack.config.tracker.tracking.orb),
+                    stack.publisher.authenticator());
   std::atomic<bool> flying{true};
   std::thread bridge([&] {
     bus::Publisher publisher(stack.lcm.get(), "uav0");
@@ -366,6 +372,15 @@ TEST(ServicesInProcess, WhileTheLinkIsBehindTheMapperHoldsRefinementsBackAndTheF
 TEST(ServicesInProcess, AnImplausibleLinkBacklogIsRefused) {
   const SubmapBytes forged = FlyAndCountSubmapBytes(true, 1e9);
   EXPECT_GT(forged.points_sent_again, 500);  // as without a bridge (2288 here); 0 when believed
+}
+
+// A plausible forged backlog (10 s, which the test above shows the mapper believes from a bridge)
+// from a process without the bus's key: on a keyed bus (bus.key_file) it is refused, and the
+// refinements go out as without a bridge. Unkeyed, the same process holds them back.
+TEST(ServicesInProcess, OnAKeyedBusAForgedLinkBacklogIsRefused) {
+  const SubmapBytes forged = FlyAndCountSubmapBytes(true, 10, /*keyed_bus=*/true);
+  EXPECT_GT(forged.points_sent_again, 500);  // believed: about 0
+  EXPECT_GT(forged.all, 0);                  // the keyed services heard each other
 }
 
 TEST(ServicesInProcess, TrackerWithoutAMapperKeepsTrackingAndSaysSo) {

@@ -108,7 +108,8 @@ std::unique_ptr<lcm::LCM> OpenLcm(const std::string& given_url) {
   return lcm;
 }
 
-Publisher::Publisher(lcm::LCM* lcm, std::string agent) : lcm_(lcm), agent_(std::move(agent)) {
+Publisher::Publisher(lcm::LCM* lcm, std::string agent, std::optional<BusAuthenticator> authenticator)
+    : lcm_(lcm), agent_(std::move(agent)), authenticator_(std::move(authenticator)) {
   CheckAgentName(agent_);
   std::random_device device;
   session_ =
@@ -116,7 +117,8 @@ Publisher::Publisher(lcm::LCM* lcm, std::string agent) : lcm_(lcm), agent_(std::
       0x7fffffffffffffffLL;
 }
 
-Subscriber::Subscriber(lcm::LCM* lcm) : lcm_(lcm) {}
+Subscriber::Subscriber(lcm::LCM* lcm, std::optional<BusAuthenticator> authenticator)
+    : lcm_(lcm), authenticator_(std::move(authenticator)) {}
 
 Subscriber::~Subscriber() {
   for (auto* subscription : subscriptions_) lcm_->unsubscribe(subscription);

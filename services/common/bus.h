@@ -6,17 +6,20 @@
 // subscription handlers; handlers should only decode-and-enqueue. Publisher is thread-safe.
 // In tests, several services share one `memq://` instance and one Dispatcher.
 
+#include <algorithm>
 #include <atomic>
 #include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <thread>
 #include <vector>
 
 #include <lcm/lcm-cpp.hpp>
 
+#include "services/common/bus_auth.h"
 #include "stitch/util/error.h"
 #include "stitch/util/log.h"
 #include "stitch/util/time.h"
@@ -82,10 +85,11 @@ std::string WithReceiveBuffer(const std::string& url);
 // multicast route...).
 std::unique_ptr<lcm::LCM> OpenLcm(const std::string& url);
 
-// Stamps the header of each message and publishes it. Thread-safe.
+// Stamps the header of each message and publishes it; with a bus key (bus_auth.h), with its tag
+// after it. Thread-safe.
 class Publisher {
  public:
-  Publisher(lcm::LCM* lcm, std::string agent);
+  Publisher(lcm::LCM* lcm, std::string agent, std::optional<BusAuthenticator> authenticator = std::nullopt);
 
   template <class Message>
   void Publish(const std::string& channel, Message* message) {
@@ -96,17 +100,31 @@ class Publisher {
       message->header.seq = next_seq_[channel]++;
       message->header.utime = WallUtime();
     }
-    if (lcm_->publish(channel, message) != 0) {
+    int status = 0;
+    if (authenticator_) {
+      const int size = message->getEncodedSize();
+      std::vector<uint8_t> bytes(static_cast<size_t>(size) + kBusTagBytes);
+      message->encode(bytes.data(), 0, size);
+      const auto tag = authenticator_->TagOf(channel, bytes.data(), static_cast<size_t>(size));
+      std::copy(tag.begin(), tag.end(), bytes.begin() + size);
+      status = lcm_->publish(channel, bytes.data(), static_cast<unsigned int>(bytes.size()));
+    } else {
+      status = lcm_->publish(channel, message);
+    }
+    if (status != 0) {
       STITCH_LOG(WARNING) << "publish on " << channel << " failed (message of " << message->getEncodedSize()
                           << " bytes)";
     }
   }
   const std::string& agent() const { return agent_; }
   int64_t session() const { return session_; }
+  // The bus key's authenticator, where this side's bus has one: the services' subscribers take it.
+  const std::optional<BusAuthenticator>& authenticator() const { return authenticator_; }
 
  private:
   lcm::LCM* lcm_;
   std::string agent_;
+  std::optional<BusAuthenticator> authenticator_;
   int64_t session_;
   std::mutex mutex_;
   std::map<std::string, int64_t> next_seq_;
@@ -118,9 +136,10 @@ class Publisher {
 // Each message is decoded into a fresh object handed to the handler. A message that does not
 // decode (wrong type fingerprint, truncated, trailing bytes, absurd sizes) or whose header names
 // another agent than its channel is dropped, counted and logged; it never reaches the handler.
+// With a bus key, so is one without its valid tag, and one this subscription has taken before.
 class Subscriber {
  public:
-  explicit Subscriber(lcm::LCM* lcm);
+  explicit Subscriber(lcm::LCM* lcm, std::optional<BusAuthenticator> authenticator = std::nullopt);
   ~Subscriber();
   Subscriber(const Subscriber&) = delete;
   Subscriber& operator=(const Subscriber&) = delete;
@@ -129,23 +148,30 @@ class Subscriber {
   void Subscribe(const std::string& channel,
                  std::function<void(std::unique_ptr<Message>, const std::string& channel)> handler) {
     const std::string expected_agent = channel.substr(0, channel.find('/'));
+    auto replays = authenticator_ ? std::make_shared<ReplayGuard>() : nullptr;
     auto raw = std::make_unique<RawHandler>(
-        [this, handler, expected_agent](const lcm::ReceiveBuffer* buffer, const std::string& on) {
+        [this, handler, expected_agent, replays](const lcm::ReceiveBuffer* buffer, const std::string& on) {
           auto message = std::make_unique<Message>();
           std::string why;
+          const auto* data = static_cast<const uint8_t*>(buffer->data);
           try {
-            const int used = buffer->data_size > kMaxMessageBytes
-                                 ? 0
-                                 : message->decode(buffer->data, 0, static_cast<int>(buffer->data_size));
+            const uint32_t tag_bytes = authenticator_ ? kBusTagBytes : 0;
+            const uint32_t size = buffer->data_size - std::min(buffer->data_size, tag_bytes);
+            int used = -1;
             if (buffer->data_size > kMaxMessageBytes) {
               why = "is " + std::to_string(buffer->data_size) + " bytes, more than the " +
                     std::to_string(kMaxMessageBytes) + " a message may have";
-            } else if (used < 0) {
+            } else if (authenticator_ && !authenticator_->Verify(on, data, buffer->data_size)) {
+              why = "does not carry this bus's tag (forged, or from a sender without the bus key)";
+            } else if ((used = message->decode(buffer->data, 0, static_cast<int>(size))) < 0) {
               why = "does not decode as " + std::string(Message::getTypeName()) + " (wrong type or truncated)";
-            } else if (static_cast<uint32_t>(used) != buffer->data_size) {
-              why = "has " + std::to_string(buffer->data_size - used) + " bytes after the message";
+            } else if (static_cast<uint32_t>(used) != size) {
+              why = "has " + std::to_string(size - used) + " bytes after the message" +
+                    (authenticator_ ? "" : " (a tag: is this bus keyed, bus.key_file?)");
             } else if (message->header.agent != expected_agent) {
               why = "header names agent '" + message->header.agent + "'";
+            } else if (replays && !replays->Take(on, message->header.sender_session, message->header.seq)) {
+              why = "was taken before (message " + std::to_string(message->header.seq) + " of its sender): a replay";
             }
           } catch (const std::exception& e) {
             why = std::string("could not be decoded: ") + e.what();
@@ -179,6 +205,7 @@ class Subscriber {
   };
 
   lcm::LCM* lcm_;
+  std::optional<BusAuthenticator> authenticator_;
   std::vector<lcm::Subscription*> subscriptions_;
   std::vector<std::unique_ptr<RawHandler>> handlers_;
   std::atomic<int64_t> rejected_{0};

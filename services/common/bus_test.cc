@@ -131,6 +131,83 @@ TEST(Bus, MalformedAndForeignMessagesNeverReachTheHandler) {
 
 // Every tool that opens a multicast bus asks for a receive buffer that holds a flight's traffic
 // (the docs' address form named none: a recorder lost submap messages); one the user names stays.
+// A bus key (bus.key_file): what a process without it publishes, a tag under another key, a tag
+// moved to another channel and a message heard again are refused; the keyed sender's arrive.
+TEST(Bus, OnAKeyedBusOnlyTaggedMessagesHeardOnceReachTheHandler) {
+  auto lcm = OpenLcm("memq://");
+  const BusAuthenticator authenticator(RandomSecret());
+  Inbox inbox;
+  Subscriber subscriber(lcm.get(), authenticator);
+  const std::string channel = Channel("uav3", kFrameAck);
+  subscriber.Subscribe<stitch::frame_ack_t>(
+      channel, [&](std::unique_ptr<stitch::frame_ack_t> ack, const std::string&) { inbox.Add(std::move(ack)); });
+  // What the keyed sender put on the bus, as a listener on the network hears it.
+  struct Recorder {
+    std::vector<std::vector<uint8_t>> heard;
+    void Handle(const lcm::ReceiveBuffer* buffer, const std::string&) {
+      const auto* data = static_cast<const uint8_t*>(buffer->data);
+      heard.emplace_back(data, data + buffer->data_size);
+    }
+  } recorder;
+  lcm::Subscription* recording = lcm->subscribe(channel, &Recorder::Handle, &recorder);
+  Dispatcher dispatcher(lcm.get());
+  dispatcher.Start();
+
+  Publisher keyed(lcm.get(), "uav3", authenticator);
+  Publisher forger(lcm.get(), "uav3");                                       // no key
+  Publisher other_key(lcm.get(), "uav3", BusAuthenticator(RandomSecret()));  // another deployment's
+  stitch::frame_ack_t ack{};
+  ack.frame_index = 1;
+  keyed.Publish(channel, &ack);
+  ASSERT_TRUE(inbox.WaitFor(1, 2000ms));
+  ack.frame_index = 666;
+  forger.Publish(channel, &ack);
+  other_key.Publish(channel, &ack);
+  // The keyed sender's message, replayed as it was heard.
+  const std::vector<uint8_t> replay = recorder.heard.at(0);
+  lcm->publish(channel, replay.data(), static_cast<unsigned>(replay.size()));
+  ack.frame_index = 2;
+  keyed.Publish(channel, &ack);
+  ASSERT_TRUE(inbox.WaitFor(2, 2000ms));
+  std::this_thread::sleep_for(100ms);
+  dispatcher.Stop();
+  lcm->unsubscribe(recording);
+
+  ASSERT_EQ(inbox.acks.size(), 2u);
+  EXPECT_EQ(inbox.acks[0].frame_index, 1);
+  EXPECT_EQ(inbox.acks[1].frame_index, 2);
+  EXPECT_EQ(subscriber.rejected(), 3);
+  // The tag binds the channel: the same bytes on another channel do not check out.
+  EXPECT_TRUE(authenticator.Verify(channel, replay.data(), replay.size()));
+  EXPECT_FALSE(authenticator.Verify(Channel("uav3", kFrame), replay.data(), replay.size()));
+  // A service left without the key refuses tagged messages rather than misreading them.
+  Subscriber unkeyed(lcm.get());
+  Inbox unkeyed_inbox;
+  unkeyed.Subscribe<stitch::frame_ack_t>(
+      channel, [&](std::unique_ptr<stitch::frame_ack_t> a, const std::string&) { unkeyed_inbox.Add(std::move(a)); });
+  Dispatcher second(lcm.get());
+  second.Start();
+  keyed.Publish(channel, &ack);
+  std::this_thread::sleep_for(200ms);
+  second.Stop();
+  EXPECT_TRUE(unkeyed_inbox.acks.empty());
+  EXPECT_EQ(unkeyed.rejected(), 1);
+}
+
+TEST(ReplayGuard, TakesEachSendersMessageOnceAndNothingBehindItsWindow) {
+  ReplayGuard guard;
+  EXPECT_TRUE(guard.Take("uav0/FRAME", 7, 0));
+  EXPECT_TRUE(guard.Take("uav0/FRAME", 7, 5));
+  EXPECT_TRUE(guard.Take("uav0/FRAME", 7, 3));  // late, but not seen
+  EXPECT_FALSE(guard.Take("uav0/FRAME", 7, 3));
+  EXPECT_FALSE(guard.Take("uav0/FRAME", 7, 5));
+  EXPECT_TRUE(guard.Take("uav0/FRAME", 8, 5));  // another sender (a restart)
+  EXPECT_TRUE(guard.Take("uav0/POSE", 7, 5));   // another channel
+  EXPECT_TRUE(guard.Take("uav0/FRAME", 7, 10000));
+  EXPECT_FALSE(guard.Take("uav0/FRAME", 7, 4));  // fell behind the window
+  EXPECT_FALSE(guard.Take("uav0/FRAME", 7, -1));
+}
+
 TEST(Bus, AMulticastAddressWithoutAReceiveBufferGetsOne) {
   EXPECT_EQ(WithReceiveBuffer("udpm://239.255.76.67:7746?ttl=0"),
             "udpm://239.255.76.67:7746?ttl=0&recv_buf_size=2097152");

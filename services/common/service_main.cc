@@ -16,7 +16,7 @@ int RunService(const std::string& service_name, const ServiceCommandLine& common
     const StitchConfig config = LoadStitchConfig(common.config_path, settings);
     const auto& stop = InstallStopSignals();
     auto lcm = bus::OpenLcm(common.lcm_url);
-    bus::Publisher publisher(lcm.get(), common.agent);
+    bus::Publisher publisher(lcm.get(), common.agent, bus::BusAuthenticator::FromSetting(config.bus.key_file));
     ServiceProcess process{common, config, lcm.get(), &publisher, stop};
     return body(process);
   } catch (const std::exception& e) {

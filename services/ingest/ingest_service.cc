@@ -26,7 +26,7 @@ std::string ChooseFrameEncoding(const std::string& setting, const std::string& l
 
 IngestService::IngestService(lcm::LCM* lcm, const std::string& lcm_url, bus::Publisher* publisher,
                              IngestOptions options)
-    : publisher_(publisher), options_(std::move(options)), subscriber_(lcm) {
+    : publisher_(publisher), options_(std::move(options)), subscriber_(lcm, publisher->authenticator()) {
   CheckOptions(options_, "ingest");
   options_.encoding = ChooseFrameEncoding(options_.encoding, lcm_url);
   const std::string agent = publisher_->agent();

@@ -101,23 +101,9 @@ Opener::Verdict Opener::Open(const uint8_t* bytes, size_t size, std::string* dat
   if (session < session_) return Verdict::kReplayed;  // an earlier run of the other side
   if (session > session_) {
     session_ = session;
-    any_ = false;
-    seen_.assign(kWindow, false);
+    counters_.Reset();
   }
-  if (any_) {
-    if (counter + kWindow <= newest_) return Verdict::kReplayed;  // fell out of the window
-    if (counter <= newest_ && seen_[counter % kWindow]) return Verdict::kReplayed;
-  }
-  if (!any_ || counter > newest_) {
-    if (!any_ || counter - newest_ >= kWindow) {
-      seen_.assign(kWindow, false);
-    } else {
-      for (uint64_t c = newest_ + 1; c < counter; ++c) seen_[c % kWindow] = false;
-    }
-    newest_ = counter;
-    any_ = true;
-  }
-  seen_[counter % kWindow] = true;
+  if (!counters_.Take(counter)) return Verdict::kReplayed;
   plain.resize(length);
   *datagram = std::move(plain);
   return Verdict::kOpened;

@@ -22,6 +22,7 @@
 #include <string>
 #include <vector>
 
+#include "services/common/replay_window.h"
 #include "services/common/secret_file.h"
 
 namespace stitch::link {
@@ -64,10 +65,8 @@ class Opener {
 
  private:
   LinkKey key_;
-  uint64_t session_ = 0;                                 // the newest session accepted
-  uint64_t newest_ = 0;                                  // its newest counter accepted
-  bool any_ = false;                                     // a datagram of session_ was accepted
-  std::vector<bool> seen_ = std::vector<bool>(kWindow);  // counter % kWindow, for counters in the window
+  uint64_t session_ = 0;            // the newest session accepted
+  ReplayWindow counters_{kWindow};  // its counters accepted
 };
 
 }  // namespace stitch::link

@@ -29,9 +29,10 @@ constexpr double kEchoLifetimeS = 5.0;
 
 }  // namespace
 
-LinkBridge::LinkBridge(lcm::LCM* lcm, LinkOptions options)
+LinkBridge::LinkBridge(lcm::LCM* lcm, LinkOptions options, std::optional<bus::BusAuthenticator> bus_authenticator)
     : lcm_(lcm),
       options_(std::move(options)),
+      bus_authenticator_(std::move(bus_authenticator)),
       session_(static_cast<uint64_t>(WallUtime())),
       impairment_rng_(static_cast<uint64_t>(options_.seed) * 0x9E3779B97F4A7C15ULL + 1) {
   std::string why;
@@ -182,6 +183,9 @@ std::string LinkBridge::Describe() const {
   text << "; repaired " << c.fragments_repaired << " fragments, asked " << c.repair_requests_sent << " times; received "
        << c.messages_delivered << " messages";
   if (c.messages_given_up > 0) text << ", gave up on " << c.messages_given_up;
+  if (c.local_unauthenticated > 0) {
+    text << "; refused " << c.local_unauthenticated << " messages on this side's bus without its tag";
+  }
   if (c.datagrams_refused > 0) {
     text << ", refused " << c.datagrams_refused << " datagrams (" << c.datagrams_unauthenticated << " unauthenticated, "
          << c.datagrams_replayed << " replayed)";
@@ -210,9 +214,25 @@ void LinkBridge::OnLocalMessage(const lcm::ReceiveBuffer* buffer, const std::str
       return;
     }
   }
-  if (buffer->data_size > kMaxMessageBytes || link::FragmentCount(channel, buffer->data_size, datagram_bytes_) == 0) {
+  // On a keyed bus, only what its services tagged crosses, without the tag (the other side tags
+  // what it publishes with its own bus's key).
+  size_t size = buffer->data_size;
+  if (bus_authenticator_) {
+    if (!bus_authenticator_->Verify(channel, data, size)) {
+      if (unauthenticated_log_.Allow()) {
+        STITCH_LOG(WARNING) << "link: a message on " << channel
+                            << " does not carry this bus's tag (forged, or from a sender without bus.key_file); "
+                               "not sent";
+      }
+      std::lock_guard<std::mutex> counts_lock(counts_mutex_);
+      ++counts_.local_unauthenticated;
+      return;
+    }
+    size -= bus::kBusTagBytes;
+  }
+  if (size > kMaxMessageBytes || link::FragmentCount(channel, size, datagram_bytes_) == 0) {
     if (too_large_log_.Allow()) {
-      STITCH_LOG(WARNING) << "link: a message of " << buffer->data_size << " bytes on " << channel
+      STITCH_LOG(WARNING) << "link: a message of " << size << " bytes on " << channel
                           << " is too large to send (or its channel name too long); dropped";
     }
     std::lock_guard<std::mutex> counts_lock(counts_mutex_);
@@ -221,7 +241,7 @@ void LinkBridge::OnLocalMessage(const lcm::ReceiveBuffer* buffer, const std::str
   }
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    Outgoing outgoing{channel, std::string(reinterpret_cast<const char*>(data), buffer->data_size), now};
+    Outgoing outgoing{channel, std::string(reinterpret_cast<const char*>(data), size), now};
     queued_bytes_ += outgoing.bytes.size();
     const bool small = static_cast<int>(outgoing.bytes.size()) <= options_.small_message_bytes;
     if (std::regex_match(channel, background_)) {
@@ -609,6 +629,11 @@ void LinkBridge::OnData(const link::DataFragment& fragment, double now) {
 }
 
 void LinkBridge::Deliver(uint64_t message, Partial* partial) {
+  if (bus_authenticator_) {
+    const auto tag = bus_authenticator_->TagOf(
+        partial->channel, reinterpret_cast<const uint8_t*>(partial->bytes.data()), partial->bytes.size());
+    partial->bytes.append(reinterpret_cast<const char*>(tag.data()), tag.size());
+  }
   {
     std::lock_guard<std::mutex> lock(echo_mutex_);
     echo_keys_[EchoKey(partial->channel, reinterpret_cast<const uint8_t*>(partial->bytes.data()),

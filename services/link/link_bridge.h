@@ -34,6 +34,7 @@
 
 #include <lcm/lcm-cpp.hpp>
 
+#include "services/common/bus_auth.h"
 #include "services/link/link_auth.h"
 #include "services/link/link_wire.h"
 #include "stitch/config/link_options.h"
@@ -44,12 +45,13 @@
 namespace stitch {
 
 struct LinkCounts {
-  int64_t messages_queued = 0;   // local messages taken for the other side
-  int64_t messages_sent = 0;     // every fragment sent at least once
-  int64_t messages_expired = 0;  // waited longer than max_queue_s under the budget; dropped
-  int64_t messages_refused = 0;  // too large to send
-  int64_t datagrams_sent = 0;    // including repairs, requests and statuses
-  int64_t bytes_sent = 0;        // with UDP/IP headers (what the budget counts)
+  int64_t messages_queued = 0;        // local messages taken for the other side
+  int64_t messages_sent = 0;          // every fragment sent at least once
+  int64_t messages_expired = 0;       // waited longer than max_queue_s under the budget; dropped
+  int64_t messages_refused = 0;       // too large to send
+  int64_t local_unauthenticated = 0;  // on this side's keyed bus without its tag: not sent
+  int64_t datagrams_sent = 0;         // including repairs, requests and statuses
+  int64_t bytes_sent = 0;             // with UDP/IP headers (what the budget counts)
   int64_t datagrams_lost_injected = 0;
   int64_t fragments_repaired = 0;  // sent again because the other side asked
   int64_t repair_requests_sent = 0;
@@ -67,7 +69,9 @@ struct LinkCounts {
 class LinkBridge {
  public:
   // Binds options.listen and resolves options.peer; throws stitch::Error with what to fix.
-  LinkBridge(lcm::LCM* lcm, LinkOptions options);
+  // `bus_authenticator`: this side's bus key's (bus.key_file), where its bus has one: only tagged
+  // messages are sent, and what comes from the other side is published tagged.
+  LinkBridge(lcm::LCM* lcm, LinkOptions options, std::optional<bus::BusAuthenticator> bus_authenticator = std::nullopt);
   ~LinkBridge();
   LinkBridge(const LinkBridge&) = delete;
   LinkBridge& operator=(const LinkBridge&) = delete;
@@ -152,6 +156,7 @@ class LinkBridge {
 
   lcm::LCM* lcm_;
   const LinkOptions options_;
+  const std::optional<bus::BusAuthenticator> bus_authenticator_;
   const uint64_t session_;
   // With a key: what is sent is sealed (sender thread only) and what arrives opened (receiver
   // thread only); fragments leave room for the seal.
@@ -213,7 +218,7 @@ class LinkBridge {
    private:
     double last_ = -1e9;
   };
-  Throttle too_large_log_, expired_log_, send_failed_log_, given_up_log_, refused_log_;
+  Throttle too_large_log_, expired_log_, send_failed_log_, given_up_log_, refused_log_, unauthenticated_log_;
 
   mutable std::mutex counts_mutex_;  // taken after mutex_ when both are held
   LinkCounts counts_;

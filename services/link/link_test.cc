@@ -19,6 +19,7 @@
 #include "services/link/link_auth.h"
 #include "services/link/link_bridge.h"
 #include "services/link/link_wire.h"
+#include "stitch/frame_ack_t.hpp"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/util/rng.h"
 #include "stitch/util/time.h"
@@ -203,7 +204,10 @@ class Collector {
 // Two buses (the aircraft's and the ground's), a bridge on each, joined over loopback.
 struct TwoSides {
   // Authenticated as deployed: both sides share a new key, unless the options name one or say insecure.
-  explicit TwoSides(LinkOptions aircraft_options = {}, LinkOptions ground_options = {}) {
+  // `aircraft_bus_key`, `ground_bus_key`: each side's bus key (bus.key_file), where it has one.
+  explicit TwoSides(LinkOptions aircraft_options = {}, LinkOptions ground_options = {},
+                    std::optional<bus::BusAuthenticator> aircraft_bus_key = {},
+                    std::optional<bus::BusAuthenticator> ground_bus_key = {}) {
     key_file = (key_dir.path() / "link.key").string();
     link::GenerateKeyFile(key_file);
     for (LinkOptions* o : {&aircraft_options, &ground_options}) {
@@ -228,8 +232,8 @@ struct TwoSides {
     ground_bus = bus::OpenLcm("memq://");
     aircraft_seen = std::make_unique<Collector>(aircraft_bus.get(), "uav0/.*");
     ground_seen = std::make_unique<Collector>(ground_bus.get(), "uav0/.*");
-    aircraft = std::make_unique<LinkBridge>(aircraft_bus.get(), aircraft_options);
-    ground = std::make_unique<LinkBridge>(ground_bus.get(), ground_options);
+    aircraft = std::make_unique<LinkBridge>(aircraft_bus.get(), aircraft_options, aircraft_bus_key);
+    ground = std::make_unique<LinkBridge>(ground_bus.get(), ground_options, ground_bus_key);
     ground_settings = ground_options;
     aircraft_settings = aircraft_options;
     aircraft_dispatcher = std::make_unique<bus::Dispatcher>(aircraft_bus.get());
@@ -622,6 +626,41 @@ TEST(LinkBridge, PublishesOnlyTheChannelsItAcceptsFromTheOtherSide) {
   std::this_thread::sleep_for(800ms);  // time for repair requests (repair_after_ms: 150), were it asked for again
   EXPECT_TRUE(sides.aircraft_seen->Get("uav0/FRAME").empty());
   EXPECT_EQ(sides.aircraft->counts().datagrams_refused, 1);  // and never asked for again
+}
+
+// Keyed buses on both sides (bus.key_file, each side its own key): what the aircraft's services
+// tagged crosses and is published on the ground tagged with the ground's key; what a process
+// without the aircraft bus's key publishes there is not sent.
+TEST(LinkBridge, OnKeyedBusesOnlyTaggedMessagesCrossAndArriveTaggedForTheOtherBus) {
+  const bus::BusAuthenticator aircraft_key(RandomSecret()), ground_key(RandomSecret());
+  TwoSides sides({}, {}, aircraft_key, ground_key);
+  bus::Subscriber ground_service(sides.ground_bus.get(), ground_key);
+  std::mutex mutex;
+  std::vector<int64_t> heard;
+  ground_service.Subscribe<stitch::frame_ack_t>("uav0/SEQUENCE",
+                                                [&](std::unique_ptr<stitch::frame_ack_t> ack, const std::string&) {
+                                                  std::lock_guard<std::mutex> lock(mutex);
+                                                  heard.push_back(ack->frame_index);
+                                                });
+  bus::Publisher service(sides.aircraft_bus.get(), "uav0", aircraft_key), forger(sides.aircraft_bus.get(), "uav0");
+  stitch::frame_ack_t ack{};
+  ack.frame_index = 666;
+  forger.Publish("uav0/SEQUENCE", &ack);
+  ack.frame_index = 1;
+  service.Publish("uav0/SEQUENCE", &ack);
+  ASSERT_TRUE(sides.ground_seen->WaitFor("uav0/SEQUENCE", 1, 5s));
+  std::this_thread::sleep_for(500ms);
+  const auto got = sides.ground_seen->Get("uav0/SEQUENCE");
+  ASSERT_EQ(got.size(), 1u);
+  EXPECT_TRUE(ground_key.Verify("uav0/SEQUENCE", reinterpret_cast<const uint8_t*>(got[0].data()), got[0].size()));
+  {
+    std::lock_guard<std::mutex> lock(mutex);
+    EXPECT_EQ(heard, std::vector<int64_t>{1});
+  }
+  EXPECT_EQ(ground_service.rejected(), 0);
+  EXPECT_EQ(sides.aircraft->counts().local_unauthenticated, 1);
+  EXPECT_EQ(sides.ground->counts().echoes_suppressed, 1);  // its own publication, not sent back
+  sides.ground_dispatcher->Stop();                         // before ground_service unsubscribes
 }
 
 TEST(LinkBridge, BadSettingsAreRefusedWithTheReason) {

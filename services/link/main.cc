@@ -90,7 +90,7 @@ int main(int argc, char** argv) {
   if (args.Given("--seed")) settings.push_back("link.seed=" + std::to_string(given.seed));
   return RunService("link", common, settings, [&](ServiceProcess& process) {
     const LinkOptions& options = process.config.link;
-    LinkBridge bridge(process.lcm, options);
+    LinkBridge bridge(process.lcm, options, process.publisher->authenticator());
     bus::Dispatcher dispatcher(process.lcm);
     dispatcher.Start();
     bridge.Start();

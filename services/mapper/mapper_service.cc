@@ -63,7 +63,7 @@ MapperService::MapperService(lcm::LCM* lcm, bus::Publisher* publisher, MapperOpt
                 publisher_->Publish(bus::Channel(publisher_->agent(), bus::kSubmap), &message);
                 return sent;
               }),
-      subscriber_(lcm),
+      subscriber_(lcm, publisher->authenticator()),
       queue_(static_cast<size_t>(options_.max_queued_keyframes),
              BoundedQueue<std::unique_ptr<stitch::keyframe_t>>::WhenFull::kDropOldest) {
   CheckOptions(options_, "mapper");

@@ -30,7 +30,7 @@ MergerService::MergerService(lcm::LCM* lcm, bus::Publisher* publisher, const Mer
       agents_(agents.empty() ? std::vector<std::string>{publisher->agent()} : std::move(agents)),
       session_(options, vocabulary, pyramid_, record_dir, agents_),
       receiver_(ReceiverOptions{options.request_resends, options.resend_interval_s}),
-      subscriber_(lcm),
+      subscriber_(lcm, publisher->authenticator()),
       // Submap updates are state that matters: a generous queue, and a loud log if it overflows.
       queue_(20000, BoundedQueue<std::unique_ptr<stitch::submap_update_t>>::WhenFull::kDropOldest),
       pictures_(record_dir) {
@@ -70,9 +70,12 @@ MergerService::MergerService(lcm::LCM* lcm, bus::Publisher* publisher, const Mer
           std::string why;
           try {
             const KeyframePicture picture = FromMessage(*message);
-            if (!pictures_.Add(picture, &why)) STITCH_LOG(WARNING) << "a keyframe picture not kept: " << why;
-            if (!session_.AddKeyframePicture(picture, &why))
+            if (!pictures_.Add(picture, &why)) {
+              STITCH_LOG(WARNING) << "a keyframe picture not kept: " << why;
+            }
+            if (!session_.AddKeyframePicture(picture, &why)) {
               STITCH_LOG(WARNING) << "a keyframe picture not laid: " << why;
+            }
             return;  // the picture was right; the disk or the queue was not
           } catch (const Error& e) {
             why = e.what();
@@ -109,8 +112,9 @@ void MergerService::Start() {
     const int64_t count = journal_->Recover([this](const stitch::submap_update_t& update) { Process(update, true); },
                                             [this](const stitch::gnss_fix_t& fix) {
                                               std::string why;
-                                              if (!AddGnssFix(fix, &why))
+                                              if (!AddGnssFix(fix, &why)) {
                                                 STITCH_LOG(WARNING) << "a GNSS fix in the journal refused: " << why;
+                                              }
                                             });
     recovering_ = false;
     if (count > 0) {

@@ -57,7 +57,7 @@ TrackerService::TrackerService(lcm::LCM* lcm, bus::Publisher* publisher, Tracker
       options_(std::move(options)),
       vocabulary_(vocabulary),
       record_path_(std::move(record_path)),
-      subscriber_(lcm),
+      subscriber_(lcm, publisher->authenticator()),
       frames_(static_cast<size_t>(std::max(1, options_.max_queued_frames)),
               BoundedQueue<std::unique_ptr<stitch::frame_t>>::WhenFull::kDropOldest),
       updates_(512, BoundedQueue<std::unique_ptr<stitch::local_map_update_t>>::WhenFull::kDropOldest),

@@ -50,8 +50,10 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
   LaunchPlan plan;
   std::unique_ptr<SplitNetwork> network;
   std::unique_ptr<lcm::LCM> lcm;
+  std::optional<bus::BusAuthenticator> authenticator;  // the bus key's (bus.key_file), for the monitor
   try {
     plan = PlanRun(a, out);
+    authenticator = bus::BusAuthenticator::FromSetting(plan.config.bus.key_file);
     outcome.on_loss = plan.config.tracker.on_loss;
     PrepareRunFolder(plan);
     if (plan.netns) network = std::make_unique<SplitNetwork>((fs::path(out) / "logs" / "netns.log").string());
@@ -73,7 +75,7 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
   std::fflush(stdout);
 
   const auto& stop = InstallStopSignals();
-  RunMonitor monitor(lcm.get(), a.agent);
+  RunMonitor monitor(lcm.get(), a.agent, authenticator);
   bus::Dispatcher dispatcher(lcm.get());
   dispatcher.Start();
   const Stopwatch clock;

@@ -6,6 +6,7 @@
 #include <string>
 #include <vector>
 
+#include "stitch/config/bus_options.h"
 #include "stitch/config/ingest_options.h"
 #include "stitch/config/link_options.h"
 #include "stitch/config/mapper_options.h"
@@ -27,6 +28,7 @@ struct StitchConfig {
   MergerOptions merger;
   LinkOptions link;
   ViewerOptions viewer;
+  BusOptions bus;
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
@@ -38,10 +40,11 @@ struct StitchConfig {
     v("merger", merger, "submap merging service");
     v("link", link, "link bridge between the aircraft's and the ground's networks (stitch-link)");
     v("viewer", viewer, "the ground's live web page (stitch-viewer)");
+    v("bus", bus, "this side's LCM bus, the same for each of its services");
   }
   bool Check(std::string* why) const {
     return synthetic.Check(why) && ingest.Check(why) && tracker.Check(why) && mapper.Check(why) && merger.Check(why) &&
-           link.Check(why) && viewer.Check(why);
+           link.Check(why) && viewer.Check(why) && bus.Check(why);
   }
   // The algorithms' settings, for running them inline (no bus).
   PipelineOptions pipeline() const { return {tracker.tracking, tracker.on_loss, mapper.mapping, merger}; }

@@ -16,7 +16,8 @@ namespace {
 constexpr double kMemorySampleSeconds = 2.0;
 }  // namespace
 
-RunMonitor::RunMonitor(lcm::LCM* lcm, const std::string& agent) : subscriber_(lcm) {
+RunMonitor::RunMonitor(lcm::LCM* lcm, const std::string& agent, std::optional<bus::BusAuthenticator> authenticator)
+    : subscriber_(lcm, std::move(authenticator)) {
   snapshot_.last_change = MonotonicSeconds();
   subscriber_.Subscribe<stitch::tracking_status_t>(
       bus::Channel(agent, bus::kTrackingStatus),

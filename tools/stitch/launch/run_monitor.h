@@ -19,7 +19,9 @@ namespace stitch {
 class RunMonitor {
  public:
   // Subscribes at once: construct before the Dispatcher starts.
-  RunMonitor(lcm::LCM* lcm, const std::string& agent);
+  // `authenticator`: the bus key's, where the run's bus has one (bus.key_file).
+  RunMonitor(lcm::LCM* lcm, const std::string& agent,
+             std::optional<bus::BusAuthenticator> authenticator = std::nullopt);
 
   struct Snapshot {
     int highest_frame = -1;  // the tracker's newest frame
