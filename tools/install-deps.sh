@@ -12,7 +12,7 @@ $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recomme
   libgtest-dev libgmock-dev libbenchmark-dev \
   gstreamer1.0-plugins-base gstreamer1.0-plugins-good gstreamer1.0-plugins-ugly gstreamer1.0-libav \
   default-jdk-headless liblcm-java libjchart2d-java lua5.2 liblcm-lua colmap \
-  libcivetweb-dev libjs-three \
+  libboost-dev libjs-three \
   libgps-dev gpsd gpsd-clients python3-gps libexiv2-dev \
   gdal-bin libgdal-dev \
   iproute2 procps

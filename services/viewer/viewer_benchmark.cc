@@ -15,7 +15,12 @@
 #include <random>
 #include <thread>
 
-#include <civetweb.h>
+#include <sys/socket.h>
+#include <sys/time.h>
+
+#include <boost/asio/ip/tcp.hpp>
+#include <boost/beast/core.hpp>
+#include <boost/beast/websocket.hpp>
 #include <nlohmann/json.hpp>
 
 #include <benchmark/benchmark.h>
@@ -102,44 +107,35 @@ void BM_MapUpdate(benchmark::State& bench) {
 }
 BENCHMARK(BM_MapUpdate)->Arg(250)->Arg(5000)->Unit(benchmark::kMillisecond);
 
-// One DevTools request over a WebSocket (civetweb's client) and its reply.
+// One DevTools request over a WebSocket (Boost.Beast's client) and its reply.
 class DevToolsPage {
  public:
-  explicit DevToolsPage(int port, const std::string& path) {
-    char error[256] = "";
-    connection_ = mg_connect_websocket_client("127.0.0.1", port, 0, error, sizeof(error), path.c_str(), nullptr,
-                                              &DevToolsPage::OnData, nullptr, this);
-    if (!connection_) throw Error(std::string("DevTools: ") + error);
+  DevToolsPage(int port, const std::string& path) {
+    namespace net = boost::asio;
+    socket_.next_layer().connect({net::ip::make_address("127.0.0.1"), static_cast<uint16_t>(port)});
+    const timeval ten_seconds{10, 0};  // a read waits at most this long (then throws)
+    setsockopt(socket_.next_layer().native_handle(), SOL_SOCKET, SO_RCVTIMEO, &ten_seconds, sizeof(ten_seconds));
+    socket_.handshake("127.0.0.1:" + std::to_string(port), path);
   }
-  ~DevToolsPage() { mg_close_connection(connection_); }
   std::string Evaluate(const std::string& expression) {
     const std::string request = nlohmann::json{{"id", 1},
                                                {"method", "Runtime.evaluate"},
                                                {"params", {{"expression", expression}, {"returnByValue", true}}}}
                                     .dump();
-    mg_websocket_client_write(connection_, MG_WEBSOCKET_OPCODE_TEXT, request.data(), request.size());
-    std::unique_lock<std::mutex> lock(mutex_);
-    if (!replied_.wait_for(lock, std::chrono::seconds(10), [&] { return !reply_.empty(); })) {
-      throw Error("DevTools: no reply");
+    socket_.text(true);
+    socket_.write(boost::asio::buffer(request));
+    for (;;) {
+      boost::beast::flat_buffer buffer;
+      socket_.read(buffer);
+      const std::string text = boost::beast::buffers_to_string(buffer.data());
+      if (text.find("\"id\":1") == std::string::npos) continue;  // an event, not the reply
+      return nlohmann::json::parse(text)["result"]["result"]["value"].get<std::string>();
     }
-    return nlohmann::json::parse(reply_)["result"]["result"]["value"].get<std::string>();
   }
 
  private:
-  static int OnData(mg_connection*, int bits, char* data, size_t length, void* self) {
-    auto* page = static_cast<DevToolsPage*>(self);
-    if ((bits & 0x0f) != MG_WEBSOCKET_OPCODE_TEXT) return 1;
-    const std::string text(data, length);
-    if (text.find("\"id\":1") == std::string::npos) return 1;  // an event, not the reply
-    std::lock_guard<std::mutex> lock(page->mutex_);
-    page->reply_ = text;
-    page->replied_.notify_all();
-    return 1;
-  }
-  mg_connection* connection_ = nullptr;
-  std::mutex mutex_;
-  std::condition_variable replied_;
-  std::string reply_;
+  boost::asio::io_context io_;
+  boost::beast::websocket::stream<boost::asio::ip::tcp::socket> socket_{io_};
 };
 
 void BM_PageFrameRate(benchmark::State& bench) {

@@ -14,7 +14,7 @@ namespace stitch {
 
 ViewerService::ViewerService(lcm::LCM* lcm, bus::Publisher* publisher, const ViewerOptions& options,
                              std::vector<std::string> agents)
-    : options_(options), state_(options.max_page_points), subscriber_(lcm) {
+    : options_(options), state_(options.max_page_points), subscriber_(lcm, publisher->authenticator()) {
   if (agents.empty()) agents.push_back(publisher->agent());
   // Each handler checks what the bus's decode cannot (ViewerState) and refuses the rest, counted.
   const auto take = [this](const std::string& channel, bool taken, const std::string& why) {

@@ -442,8 +442,8 @@ TEST(ViewerServer, AWebSocketOnlyFromThePagesOwnOriginAndOnlyAsManyAsAllowed) {
 
 // #45: a page that stops reading its WebSocket (or an attacker's socket that never reads) held
 // every push, the other pages' too, until civetweb's write timed out, and kept its place among
-// viewer.max_pages. Each page now has a sender of its own: the pushes go on, the reading page gets
-// every cloud, and a page whose write failed gives its place up.
+// viewer.max_pages. Each page is now written to on its own: the pushes go on, the reading page
+// gets every cloud, and a page that leaves a write unfinished for 10 s is closed.
 TEST(ViewerServer, APageThatDoesNotReadHoldsUpOnlyItself) {
   ViewerState state(/*max_page_points=*/200000);
   std::string why;
@@ -504,14 +504,14 @@ TEST(ViewerServer, APageThatDoesNotReadHoldsUpOnlyItself) {
     usleep(50000);
   }
   const double pushing_s = clock.ElapsedSeconds();
-  // Blocked behind the idle pages, each push waited out civetweb's write timeout (10 s).
+  // Blocked behind the idle pages, each push once waited out civetweb's write timeout (10 s).
   EXPECT_LT(pushing_s, 8.0) << "the pushes waited for pages that do not read";
   // The reading page got the last cloud: every push replaced what it had not taken yet, and the
   // last is sent once it has taken the one before.
   for (int i = 0; i < 200 && received.load() < int64_t{16} * kPoints; ++i) usleep(20000);
   EXPECT_GE(received.load(), int64_t{16} * kPoints);
-  // The idle pages' writes time out (civetweb's request_timeout_ms, 10 s): they give their places
-  // up, and a page opens where all three were held.
+  // The idle pages' writes time out (10 s): they give their places up, and a page opens where
+  // all three were held.
   for (int i = 0; i < 300 && server.pages_given_up() < 2; ++i) usleep(100000);
   EXPECT_EQ(server.pages_given_up(), 2);
   EXPECT_EQ(server.open_pages(), 1);
@@ -521,6 +521,61 @@ TEST(ViewerServer, APageThatDoesNotReadHoldsUpOnlyItself) {
   reading = false;
   read.join();
   for (int fd : {idle_first, idle_second, reader, operator_page}) close(fd);
+}
+
+// #45: 230 slow connections (a request never finished) held civetweb's eight threads, and the
+// operator's page did not load. Held connections are bounded, and a new one takes the place of
+// the oldest that has not finished its request.
+TEST(ViewerServer, SlowConnectionsDoNotLockTheOperatorOut) {
+  ViewerState state(1000);
+  ViewerOptions options;
+  options.port = bus::UnusedTcpPort();
+  ViewerServer server(options, &state);
+  std::vector<int> slow;
+  for (int i = 0; i < 300; ++i) {
+    const int fd = testing::ConnectToLocalPort(options.port);
+    if (fd < 0) continue;
+    const std::string start = "GET / HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: ";
+    send(fd, start.data(), start.size(), MSG_NOSIGNAL);
+    slow.push_back(fd);
+  }
+  EXPECT_GE(slow.size(), 290u);
+  const Stopwatch clock;
+  EXPECT_EQ(StatusLine(Exchange(options.port, "GET / HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")), "HTTP/1.1 200 OK");
+  EXPECT_LT(clock.ElapsedSeconds(), 2.0);
+  EXPECT_GE(server.connections_displaced(), static_cast<int64_t>(slow.size()) - ViewerServer::kMaxConnections);
+  for (int fd : slow) close(fd);
+}
+
+// #45: civetweb read a WebSocket frame whole, up to 2 GB, before the viewer saw it: a page could
+// make the viewer hold that much. A message larger than a page has reason to send (64 kB) ends
+// its socket before it is read.
+TEST(ViewerServer, AWebSocketMessageLargerThanAPageSendsClosesItsSocket) {
+  ViewerState state(1000);
+  ViewerOptions options;
+  options.port = bus::UnusedTcpPort();
+  ViewerServer server(options, &state);
+  const int fd = testing::ConnectToLocalPort(options.port);
+  ASSERT_GE(fd, 0);
+  const std::string request = WebSocketRequest(options.port, "http://127.0.0.1:" + std::to_string(options.port));
+  ASSERT_EQ(send(fd, request.data(), request.size(), MSG_NOSIGNAL), static_cast<ssize_t>(request.size()));
+  for (int i = 0; i < 100 && server.open_pages() < 1; ++i) usleep(20000);
+  ASSERT_EQ(server.open_pages(), 1);
+  // A masked binary frame claiming 1 GB (64-bit length), then 32 MB of it (more than the
+  // sockets' buffers hold).
+  std::string frame = {static_cast<char>(0x82), static_cast<char>(0xFF)};
+  for (int shift = 56; shift >= 0; shift -= 8) frame.push_back(static_cast<char>((uint64_t{1} << 30) >> shift));
+  frame += std::string("\x12\x34\x56\x78", 4) + std::string(32 << 20, 'x');
+  size_t sent = 0;
+  while (sent < frame.size()) {
+    const ssize_t n = send(fd, frame.data() + sent, frame.size() - sent, MSG_NOSIGNAL);
+    if (n <= 0) break;  // the viewer closed the socket
+    sent += static_cast<size_t>(n);
+  }
+  for (int i = 0; i < 100 && server.open_pages() > 0; ++i) usleep(20000);
+  EXPECT_EQ(server.open_pages(), 0) << "the socket stayed open, " << sent << " bytes of 1 GB sent";
+  EXPECT_LT(sent, frame.size()) << "the viewer read on past what a page may send";
+  close(fd);
 }
 
 // #45: a viewer that others can reach needs its access token on every request: in the page's

@@ -76,8 +76,8 @@ LogLine::~LogLine() {
   const std::string line = std::string(LevelLetter(level_)) + " " + stamp + millis_text + (tag.empty() ? "" : " ") +
                            tag + "] " + stream_.str() + "\n";
   // One write per line keeps lines from different threads whole. Not fprintf: on the unbuffered
-  // stderr it formats into an 8 kB buffer on the stack, which overflowed the small stacks of
-  // civetweb's threads (the viewer's) under AddressSanitizer.
+  // stderr it formats into an 8 kB buffer on the stack, too much for a library thread's small
+  // stack under AddressSanitizer.
   std::fwrite(line.data(), 1, line.size(), stderr);
 }
 
