@@ -88,10 +88,10 @@ def deadpage(port, viewer):
     time.sleep(70)
     page.settimeout(1)
     closed = False
+    deadline = time.time() + 5  # what was pushed meanwhile, then the end if it was closed
     try:
-        while True:
-            data = page.recv(1 << 20)
-            if not data:
+        while time.time() < deadline:
+            if not page.recv(1 << 20):
                 closed = True
                 break
     except OSError:
@@ -116,7 +116,12 @@ def main():
             deadpage(args.port, viewer)
     finally:
         viewer.send_signal(signal.SIGTERM)
-        viewer.wait()
+        try:
+            viewer.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            print("the viewer did not stop within 10 s of SIGTERM: killed")
+            viewer.kill()
+            viewer.wait()
 
 
 if __name__ == "__main__":
