@@ -54,6 +54,21 @@ int Number(const std::map<std::string, std::string>& data, const std::string& ke
   return it == data.end() ? -1 : std::atoi(it->second.c_str());
 }
 
+// Chromium logs what the page writes on its console (errors, warnings, uncaught exceptions) as
+// CONSOLE lines; the page writes nothing there when all is well (but for the GL driver's note
+// that reading the pixels back, as the page's pixel count does, stalls).
+std::string ConsoleLines(const std::string& output) {
+  std::string console;
+  std::istringstream lines(output);
+  for (std::string line; std::getline(lines, line);) {
+    if (line.find(":CONSOLE") != std::string::npos &&
+        line.find("GL Driver Message (OpenGL, Performance") == std::string::npos) {
+      console += line + "\n";
+    }
+  }
+  return console;
+}
+
 std::vector<std::string> Chromium(const std::string& url, const std::vector<std::string>& more) {
   std::vector<std::string> args{kChromium,
                                 "--headless",
@@ -90,8 +105,10 @@ TEST(ViewerInBrowser, ThePageShowsTheFlightsSubmapsKeyframesPointsAndTrackingSta
     const std::string all((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
     return all.find(text) != std::string::npos;
   };
-  // During the flight the page's state follows the tracker.
+  // During the flight the page's state follows the tracker, and its mosaic view shows the tiles
+  // the merger has laid so far (#43).
   int live_frame = -1;
+  std::map<std::string, std::string> mosaic_during;
   const auto deadline = std::chrono::steady_clock::now() + 240s;
   while (!said("shows the finished flight")) {
     ASSERT_LT(std::chrono::steady_clock::now(), deadline) << run.LogTail(20);
@@ -101,6 +118,14 @@ TEST(ViewerInBrowser, ThePageShowsTheFlightsSubmapsKeyframesPointsAndTrackingSta
       if (aircraft.contains("uav0") && aircraft["uav0"].contains("tracking")) {
         const int frame = aircraft["uav0"]["tracking"]["frame"].get<int>();
         if (frame > 0 && frame < 180) live_frame = frame;
+      }
+    }
+    if (const auto state = testing::HttpGet(port, "/state.json"); state && mosaic_during.empty() && !said("outputs:")) {
+      const nlohmann::json live = nlohmann::json::parse(*state)["live"];
+      if (live.contains("mosaic") && !live["mosaic"]["tiles"].empty()) {
+        const testing::CommandResult dom = testing::RunProgram(Chromium(url + "#mosaic", {"--dump-dom"}), 90);
+        mosaic_during = BodyData(dom.output);
+        mosaic_during["console"] = ConsoleLines(dom.output);
       }
     }
     std::this_thread::sleep_for(100ms);
@@ -121,18 +146,29 @@ TEST(ViewerInBrowser, ThePageShowsTheFlightsSubmapsKeyframesPointsAndTrackingSta
   EXPECT_EQ(data.count("tracking") ? data.at("tracking") : "", "OK");
   EXPECT_GE(Number(data, "drawn-pixels"), 2000) << "the canvas drew nothing";
   EXPECT_NE(dom.output.find("<td id=\"merged-count\">1</td>"), std::string::npos) << "the two submaps merged";
-  // Chromium logs what the page writes on its console (errors, warnings, uncaught exceptions) as
-  // CONSOLE lines; the page writes nothing there when all is well.
-  std::string console;
-  std::istringstream lines(dom.output);
-  for (std::string line; std::getline(lines, line);) {
-    // (but for the GL driver's note that reading the pixels back, as the page's pixel count does, stalls)
-    if (line.find(":CONSOLE") != std::string::npos &&
-        line.find("GL Driver Message (OpenGL, Performance") == std::string::npos) {
-      console += line + "\n";
-    }
-  }
-  EXPECT_EQ(console, "");
+  EXPECT_EQ(ConsoleLines(dom.output), "");
+
+  // The mosaic view: tiles during the flight, more once it ended, drawn, without a console line.
+  const testing::CommandResult mosaic = testing::RunProgram(Chromium(url + "#mosaic", {"--dump-dom"}), 90);
+  const auto mosaic_after = BodyData(mosaic.output);
+  EXPECT_EQ(mosaic_after.count("view") ? mosaic_after.at("view") : "", "mosaic");
+  EXPECT_GE(Number(mosaic_during, "mosaic-tiles"), 1) << "no tile on the page during the flight";
+  EXPECT_GT(Number(mosaic_after, "mosaic-tiles"), Number(mosaic_during, "mosaic-tiles"))
+      << "the mosaic did not grow as the flight went on";
+  EXPECT_GE(Number(mosaic_during, "mosaic-drawn-pixels"), 2000) << "the mosaic view drew nothing";
+  EXPECT_GE(Number(mosaic_after, "mosaic-drawn-pixels"), Number(mosaic_during, "mosaic-drawn-pixels"));
+  EXPECT_EQ(Number(mosaic_after, "errors"), 0) << mosaic.output.substr(0, 4000);
+  EXPECT_EQ(mosaic_during.count("console") ? mosaic_during.at("console") : "?", "");
+  EXPECT_EQ(ConsoleLines(mosaic.output), "");
+  // From a picture's sending on the aircraft to its tile on the ground's viewer, the median (the
+  // merger lays pictures every merger.mosaic.interval_s; a new submap's wait until it merges).
+  const double latency =
+      std::atof(mosaic_after.count("mosaic-latency") ? mosaic_after.at("mosaic-latency").c_str() : "-1");
+  std::printf(
+      "mosaic tiles on the page: %d during the flight, %d after; a picture's tile reached the viewer within %.2f s\n",
+      Number(mosaic_during, "mosaic-tiles"), Number(mosaic_after, "mosaic-tiles"), latency);
+  EXPECT_GE(latency, 0.0);
+  EXPECT_LT(latency, 5.0);
 
   // A screenshot whose canvas (the page left of the 360-pixel panel) is not blank.
   const std::string shot = dir / "viewer.png";

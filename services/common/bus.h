@@ -50,6 +50,7 @@ inline constexpr char kPose[] = "POSE";
 inline constexpr char kMapCloud[] = "MAP_CLOUD";
 inline constexpr char kGnss[] = "GNSS";
 inline constexpr char kKeyframeImage[] = "KEYFRAME_IMAGE";
+inline constexpr char kMosaicTile[] = "MOSAIC_TILE";
 
 // "uav0" + "FRAME" -> "uav0/FRAME". Throws stitch::Error for an agent name that is not
 // [A-Za-z0-9_-]{1,32} (channels are regular expressions to LCM).

@@ -5,6 +5,7 @@
 
 #include <opencv2/imgcodecs.hpp>
 
+#include "stitch/mosaic/live_mosaic.h"
 #include "stitch/tracking_status_t.hpp"
 #include "stitch/util/error.h"
 
@@ -258,6 +259,7 @@ KeyframePicture FromMessage(const stitch::keyframe_image_t& message) {
   picture.agent = AgentNumber(submap);
   picture.frame_index = message.frame_index;
   picture.t_ns = message.t_ns;
+  picture.sent_utime = message.header.utime;
   picture.submap_id = message.submap_id;
   picture.keyframe_id = message.keyframe_id;
   picture.camera_width = message.camera_width;
@@ -266,6 +268,24 @@ KeyframePicture FromMessage(const stitch::keyframe_image_t& message) {
   picture.height = message.height;
   picture.jpeg = message.jpeg;
   return picture;
+}
+
+stitch::mosaic_tile_t ToMessage(const LiveMosaicTile& tile, int64_t newest_picture_utime) {
+  stitch::mosaic_tile_t message{};
+  message.revision = tile.revision;
+  message.frame_submap = tile.frame;
+  message.ground_from_map = ToMessage(tile.ground_from_map);
+  message.origin_x = tile.grid.origin.x();
+  message.origin_y = tile.grid.origin.y();
+  message.gsd = tile.grid.gsd;
+  message.tile_px = tile.tile_px;
+  message.col = tile.col;
+  message.row = tile.row;
+  message.version = tile.version;
+  message.newest_picture_utime = newest_picture_utime;
+  message.png = tile.png;
+  message.num_bytes = static_cast<int32_t>(message.png.size());
+  return message;
 }
 
 stitch::submap_request_t ToMessage(const DeliveryRequest& request) {

@@ -16,6 +16,7 @@
 #include "stitch/geometry/rigid3.h"
 #include "stitch/gnss_fix_t.hpp"
 #include "stitch/keyframe_image_t.hpp"
+#include "stitch/mosaic_tile_t.hpp"
 #include "stitch/records/keyframe_pictures.h"
 #include "stitch/rigid3_t.hpp"
 #include "stitch/sim3_t.hpp"
@@ -23,6 +24,8 @@
 #include "stitch/util/ids.h"
 
 namespace stitch {
+
+struct LiveMosaicTile;  // stitch/mosaic/live_mosaic.h
 
 stitch::camera_t ToMessage(const Camera& camera);
 // Throws stitch::Error when the message does not describe a usable camera.
@@ -60,6 +63,8 @@ const char* MessageStateName(int8_t state);
 // The merger's requests to a mapper (<agent>/SUBMAP_REQUEST). The reader takes ids as they come
 // (the sender finds no submap or keyframe for one not its own).
 stitch::submap_request_t ToMessage(const DeliveryRequest& request);
+// A live mosaic tile for the viewer; `newest_picture_utime`: MergeSession::MosaicTiles's.
+stitch::mosaic_tile_t ToMessage(const LiveMosaicTile& tile, int64_t newest_picture_utime);
 DeliveryRequest FromMessage(const stitch::submap_request_t& message);
 
 enum class ImageEncoding { kGray8, kJpeg };

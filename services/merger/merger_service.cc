@@ -133,6 +133,7 @@ void MergerService::Stop() {
   queue_.Close();
   if (worker_.joinable()) worker_.join();
   if (session_.Finish()) PublishMapCloud();  // the last refinement's points
+  PublishMosaicTiles();                      // the mosaic on the refined map
   heartbeat_->SetState(stitch::service_status_t::STATE_FINISHED);
   heartbeat_->Stop();
 }
@@ -144,6 +145,7 @@ void MergerService::Work() {
     RequestWhatWasLost();
     session_.WriteLiveTrajectoryIfDue();
     session_.UpdateMosaicIfDue();
+    PublishMosaicTiles();
     if (session_.map_cloud_stale() &&
         MonotonicSeconds() - cloud_published_at_ >= std::max(kMinCloudInterval_s, kCloudCostFactor * cloud_cost_s_)) {
       PublishMapCloud();
@@ -232,6 +234,14 @@ void MergerService::PublishGlobalMap(const Merger::Graph& graph) {
                                               publisher_->agent(), session_.merge_log(), kGlobalMapLogLines);
   m.revision = ++revision_;
   publisher_->Publish(bus::Channel(publisher_->agent(), bus::kGlobalMap), &m);
+}
+
+void MergerService::PublishMosaicTiles() {
+  const MergeSession::MosaicTiles taken = session_.TakeMosaicTiles();
+  for (const LiveMosaicTile& tile : taken.tiles) {
+    stitch::mosaic_tile_t message = ToMessage(tile, taken.newest_picture_utime);
+    publisher_->Publish(bus::Channel(publisher_->agent(), bus::kMosaicTile), &message);
+  }
 }
 
 void MergerService::PublishMapCloud() {

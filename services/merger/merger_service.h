@@ -63,6 +63,7 @@ class MergerService {
   void Refine(const std::string& why);
   void PublishGlobalMap(const Merger::Graph& graph);
   void PublishMapCloud();
+  void PublishMosaicTiles();
 
   bus::Publisher* publisher_;
   ScalePyramid pyramid_;

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cctype>
+#include <charconv>
 #include <chrono>
 #include <filesystem>
 #include <fstream>
@@ -467,6 +468,23 @@ void ViewerServer::Impl::Answer(const std::shared_ptr<Connection>& connection, R
     if (path == "/cloud.bin") return connection->Send(200, "application/octet-stream", *updates.cloud, head, cookie);
     return connection->Send(200, "application/json", "{\"live\":" + *updates.live + ",\"map\":" + *updates.map + "}",
                             head, cookie);
+  }
+  if (path.rfind("/mosaic/", 0) == 0) {  // /mosaic/COL_ROW.png: a tile of the live mosaic
+    int col = 0, row = 0;
+    const char* end = path.data() + path.size();
+    const auto [after_col, col_error] = std::from_chars(path.data() + 8, end, col);
+    bool named = col_error == std::errc() && after_col < end && *after_col == '_';
+    if (named) {
+      const auto [after_row, row_error] = std::from_chars(after_col + 1, end, row);
+      named = row_error == std::errc() && std::string(after_row, end) == ".png" &&
+              path == "/mosaic/" + std::to_string(col) + "_" + std::to_string(row) + ".png";
+    }
+    if (!named) return refuse(404, "Not Found");
+    const std::shared_ptr<const std::string> png = state_->MosaicTilePng(col, row);
+    // A tile the mosaic no longer holds (it started over since the page's index): nothing, and
+    // no refusal (the page's next index no longer names it).
+    if (!png) return connection->Send(204, "image/png", "", head);
+    return connection->Send(200, "image/png", *png, head, cookie);
   }
   const auto asset = assets_.find(path);
   if (asset == assets_.end()) return refuse(404, "Not Found");

@@ -34,6 +34,12 @@ ViewerService::ViewerService(lcm::LCM* lcm, bus::Publisher* publisher, const Vie
         std::string why;
         take(on, state_.OnMapCloud(*m, &why), why);
       });
+  subscriber_.Subscribe<stitch::mosaic_tile_t>(
+      bus::Channel(station, bus::kMosaicTile),
+      [this, take](std::unique_ptr<stitch::mosaic_tile_t> m, const std::string& on) {
+        std::string why;
+        take(on, state_.OnMosaicTile(*m, WallUtime(), &why), why);
+      });
   for (const std::string& agent : agents) {
     subscriber_.Subscribe<stitch::tracking_status_t>(
         bus::Channel(agent, bus::kTrackingStatus),

@@ -10,6 +10,7 @@
 #include "services/common/convert.h"
 #include "stitch/util/error.h"
 #include "stitch/util/ids.h"
+#include "stitch/util/statistics.h"
 
 namespace stitch {
 
@@ -139,6 +140,81 @@ bool ViewerState::OnLinkStatus(const stitch::link_status_t& message, std::string
   return true;
 }
 
+namespace {
+constexpr size_t kMaxMosaicBytes = size_t{512} << 20;  // the tiles held, PNG
+constexpr size_t kMaxTileBytes = size_t{8} << 20;
+
+// A PNG's size from its IHDR chunk (bytes 16-23), without decoding it.
+std::optional<std::pair<uint32_t, uint32_t>> PngSize(const std::vector<uint8_t>& png) {
+  static const uint8_t kSignature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
+  if (png.size() < 24 || std::memcmp(png.data(), kSignature, 8) != 0 || std::memcmp(png.data() + 12, "IHDR", 4) != 0) {
+    return std::nullopt;
+  }
+  const auto word = [&](size_t at) {
+    return (uint32_t{png[at]} << 24) | (uint32_t{png[at + 1]} << 16) | (uint32_t{png[at + 2]} << 8) | png[at + 3];
+  };
+  return std::make_pair(word(16), word(20));
+}
+}  // namespace
+
+bool ViewerState::OnMosaicTile(const stitch::mosaic_tile_t& message, int64_t now_utime, std::string* why) {
+  if (message.revision < 1 || message.version < 1) return Refuse(why, "a mosaic tile's revision or version below 1");
+  if (message.tile_px < 16 || message.tile_px > 4096) return Refuse(why, "a mosaic tile's side outside 16-4096 pixels");
+  if (std::abs(message.col) > 1'000'000 || std::abs(message.row) > 1'000'000) {
+    return Refuse(why, "a mosaic tile more than 10^6 tiles out");
+  }
+  if (!Finite(message.origin_x) || !Finite(message.origin_y) || !(message.gsd > 0) || !Finite(message.gsd)) {
+    return Refuse(why, "a mosaic grid that is not finite");
+  }
+  try {
+    FromMessage(message.ground_from_map);
+  } catch (const Error& e) {
+    return Refuse(why, std::string("a mosaic frame: ") + e.what());
+  }
+  if (message.png.size() > kMaxTileBytes) return Refuse(why, "a mosaic tile over 8 MB");
+  if (!message.png.empty()) {
+    const auto size = PngSize(message.png);
+    if (!size || size->first != static_cast<uint32_t>(message.tile_px) ||
+        size->second != static_cast<uint32_t>(message.tile_px)) {
+      return Refuse(why, "a mosaic tile that is no PNG of its side");
+    }
+  }
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (mosaic_frame_ && message.revision < mosaic_frame_->revision) return true;  // an older mosaic's: not shown
+  if (!mosaic_frame_ || message.revision > mosaic_frame_->revision) {
+    mosaic_tiles_.clear();
+    mosaic_bytes_ = 0;
+  }
+  mosaic_frame_ = message;
+  mosaic_frame_->png.clear();
+  mosaic_frame_->num_bytes = 0;
+  const std::pair<int, int> key{message.col, message.row};
+  const auto held = mosaic_tiles_.find(key);
+  if (held != mosaic_tiles_.end()) {
+    if (held->second.version > message.version) return true;  // a newer one is held
+    mosaic_bytes_ -= held->second.png->size();
+    mosaic_tiles_.erase(held);
+  }
+  if (!message.png.empty()) {
+    if (mosaic_bytes_ + message.png.size() > kMaxMosaicBytes) return Refuse(why, "mosaic tiles over 512 MB");
+    mosaic_tiles_[key] = {message.version, std::make_shared<const std::string>(message.png.begin(), message.png.end())};
+    mosaic_bytes_ += message.png.size();
+  }
+  // One sample per update that laid pictures (its tiles all carry the same time).
+  if (message.newest_picture_utime > 0 && message.newest_picture_utime != mosaic_latency_utime_) {
+    mosaic_latency_utime_ = message.newest_picture_utime;
+    if (mosaic_latencies_s_.size() >= 10000) mosaic_latencies_s_.erase(mosaic_latencies_s_.begin());
+    mosaic_latencies_s_.push_back(1e-6 * static_cast<double>(now_utime - message.newest_picture_utime));
+  }
+  return true;
+}
+
+std::shared_ptr<const std::string> ViewerState::MosaicTilePng(int col, int row) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  const auto tile = mosaic_tiles_.find({col, row});
+  return tile == mosaic_tiles_.end() ? nullptr : tile->second.png;
+}
+
 std::string ViewerState::LiveJson(double now_s) const {
   std::lock_guard<std::mutex> lock(mutex_);
   nlohmann::json live;
@@ -215,6 +291,27 @@ std::string ViewerState::LiveJson(double now_s) const {
     aircraft[agent] = j;
   }
   live["aircraft"] = aircraft;
+  if (mosaic_frame_) {
+    const stitch::mosaic_tile_t& m = *mosaic_frame_;
+    const Sim3d g = FromMessage(m.ground_from_map);
+    nlohmann::json tiles = nlohmann::json::array();
+    for (const auto& [key, tile] : mosaic_tiles_) tiles.push_back({key.first, key.second, tile.version});
+    live["mosaic"] = {{"revision", m.revision},
+                      {"frame", SubmapName(SubmapId(m.frame_submap))},
+                      {"ground_from_map",
+                       {{"scale", g.scale},
+                        {"rotation_wxyz", {g.rotation.w(), g.rotation.x(), g.rotation.y(), g.rotation.z()}},
+                        {"translation", Vector(g.translation)}}},
+                      {"origin", {m.origin_x, m.origin_y}},
+                      {"gsd", m.gsd},
+                      {"tile_px", m.tile_px},
+                      {"tiles", tiles},
+                      {"latency_s", mosaic_latencies_s_.empty() ? -1.0 : mosaic_latencies_s_.back()},
+                      {"latency_median_s", mosaic_latencies_s_.empty() ? -1.0 : Median(mosaic_latencies_s_)},
+                      {"latency_max_s", mosaic_latencies_s_.empty() ? -1.0
+                                                                    : *std::max_element(mosaic_latencies_s_.begin(),
+                                                                                        mosaic_latencies_s_.end())}};
+  }
   return live.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);  // texts from the bus may be any bytes
 }
 

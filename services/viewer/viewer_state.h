@@ -8,6 +8,7 @@
 #include <cstdint>
 #include <deque>
 #include <map>
+#include <memory>
 #include <mutex>
 #include <optional>
 #include <string>
@@ -18,6 +19,7 @@
 #include "stitch/global_map_t.hpp"
 #include "stitch/link_status_t.hpp"
 #include "stitch/map_cloud_t.hpp"
+#include "stitch/mosaic_tile_t.hpp"
 #include "stitch/tracking_status_t.hpp"
 
 namespace stitch {
@@ -32,12 +34,19 @@ class ViewerState {
   bool OnTrackingStatus(const stitch::tracking_status_t& message, double now_s, std::string* why);
   bool OnPose(const stitch::frame_pose_t& message, std::string* why);
   bool OnLinkStatus(const stitch::link_status_t& message, std::string* why);
+  // A tile of the merger's live mosaic; `now_utime`: this machine's wall clock (how long its
+  // newest picture took from the aircraft). A newer revision drops every tile of the one before.
+  bool OnMosaicTile(const stitch::mosaic_tile_t& message, int64_t now_utime, std::string* why);
+  // Its PNG (empty when the tile is not held).
+  std::shared_ptr<const std::string> MosaicTilePng(int col, int row) const;
 
   // The page's three updates. Live: each aircraft's tracking state, frame rate, camera pose in its
   // merged map, link figures (small, every push). Map: submaps, edges, keyframe trajectories and
   // the merge log (when the global map changes). Cloud: the points, binary (when they change):
   //   "STCL", uint32 revision, uint32 count, uint32 0, then float32 x, y, z per point, then
   //   uint8 r, g, b per point, then uint8 merged map (component, 255 above) per point; little-endian.
+  // The live update holds the mosaic's index ("mosaic": its frame and grid, each tile held with
+  // its version; the page fetches /mosaic/COL_ROW.png for those it has not).
   std::string LiveJson(double now_s) const;
   std::string MapJson() const;
   std::string CloudBinary() const;
@@ -64,6 +73,16 @@ class ViewerState {
   std::map<int64_t, std::pair<int, Sim3d>> placement_;  // submap -> (component, world_from_submap)
   std::optional<stitch::map_cloud_t> cloud_;
   int64_t map_revision_ = 0, cloud_revision_ = 0, refused_ = 0;
+  // The live mosaic: the newest revision's frame and grid (its first tile's), and its tiles.
+  struct MosaicTile {
+    int64_t version = 0;
+    std::shared_ptr<const std::string> png;
+  };
+  std::optional<stitch::mosaic_tile_t> mosaic_frame_;  // png left empty
+  std::map<std::pair<int, int>, MosaicTile> mosaic_tiles_;
+  size_t mosaic_bytes_ = 0;
+  std::vector<double> mosaic_latencies_s_;  // picture sent -> its tile here, the last 10,000
+  int64_t mosaic_latency_utime_ = 0;        // the picture time of the last sample
 };
 
 // "#1e5ac8": the colour of the submap at `index` (in id order), as in map.ply.

@@ -19,6 +19,7 @@
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
 
 #include "services/common/bus.h"
 #include "services/common/convert.h"
@@ -185,6 +186,74 @@ TEST(ViewerState, AGnssJunctionIsShownAsOne) {
   EXPECT_DOUBLE_EQ(shown["edges"][0]["gnss_sigma_m"].get<double>(), 0.0);
 }
 
+// A PNG tile_px a side, as the merger sends a mosaic tile.
+std::vector<uint8_t> TilePng(int tile_px, uint8_t grey) {
+  std::vector<uint8_t> png;
+  cv::imencode(".png", cv::Mat(tile_px, tile_px, CV_8UC4, cv::Scalar(grey, grey, grey, 255)), png);
+  return png;
+}
+
+stitch::mosaic_tile_t MosaicTile(int64_t revision, int col, int row, int64_t version) {
+  stitch::mosaic_tile_t m{};
+  m.header.agent = "uav0";
+  m.revision = revision;
+  m.frame_submap = kFirst.value;
+  m.ground_from_map = ToMessage(Sim3d());
+  m.gsd = 0.01;
+  m.tile_px = 32;
+  m.col = col;
+  m.row = row;
+  m.version = version;
+  m.newest_picture_utime = 1'000'000;
+  m.png = TilePng(32, 100);
+  m.num_bytes = static_cast<int32_t>(m.png.size());
+  return m;
+}
+
+// #43: the merger's live mosaic on the page: the tiles of the newest revision, each at its newest
+// version, listed in the live update and served as PNG; what cannot be a tile is refused.
+TEST(ViewerState, TheMosaicHoldsTheNewestTilesAndRefusesWhatIsNoTile) {
+  ViewerState state(1000);
+  std::string why;
+  ASSERT_TRUE(state.OnMosaicTile(MosaicTile(1, 0, 0, 1), 1'500'000, &why)) << why;
+  ASSERT_TRUE(state.OnMosaicTile(MosaicTile(1, -1, 2, 2), 2'000'000, &why)) << why;
+  stitch::mosaic_tile_t emptied = MosaicTile(1, -1, 2, 3);  // nothing drawn there any more
+  emptied.png.clear();
+  emptied.num_bytes = 0;
+  ASSERT_TRUE(state.OnMosaicTile(emptied, 2'000'000, &why)) << why;
+  ASSERT_TRUE(state.OnMosaicTile(MosaicTile(1, 0, 0, 1), 2'000'000, &why));  // an older copy: kept the newer
+  nlohmann::json mosaic = nlohmann::json::parse(state.LiveJson(0))["mosaic"];
+  EXPECT_EQ(mosaic["tiles"], nlohmann::json::parse("[[0, 0, 1]]"));
+  EXPECT_EQ(mosaic["frame"], "0:1");
+  // One sample per update that laid pictures: the first tile's (the others carry the same picture).
+  EXPECT_NEAR(mosaic["latency_max_s"].get<double>(), 0.5, 1e-9);
+  EXPECT_NEAR(mosaic["latency_median_s"].get<double>(), 0.5, 1e-9);
+  ASSERT_NE(state.MosaicTilePng(0, 0), nullptr);
+  EXPECT_EQ(state.MosaicTilePng(-1, 2), nullptr);
+  // A new revision (the mosaic started over) replaces every tile.
+  ASSERT_TRUE(state.OnMosaicTile(MosaicTile(2, 5, 5, 9), 2'000'000, &why));
+  mosaic = nlohmann::json::parse(state.LiveJson(0))["mosaic"];
+  EXPECT_EQ(mosaic["tiles"], nlohmann::json::parse("[[5, 5, 9]]"));
+  EXPECT_EQ(state.MosaicTilePng(0, 0), nullptr);
+  // What is no tile.
+  const int64_t refused_before = state.refused();
+  std::vector<stitch::mosaic_tile_t> hostile(7, MosaicTile(2, 1, 1, 10));
+  hostile[0].png = TilePng(64, 1);   // another side than it says
+  hostile[1].png.assign(100, 0xAB);  // no PNG
+  hostile[2].gsd = std::numeric_limits<double>::quiet_NaN();
+  hostile[3].ground_from_map.scale = -1;
+  hostile[4].col = 2'000'000;
+  hostile[5].tile_px = 1 << 20;
+  hostile[6].version = 0;
+  for (auto& m : hostile) {
+    m.num_bytes = static_cast<int32_t>(m.png.size());
+    EXPECT_FALSE(state.OnMosaicTile(m, 2'000'000, &why));
+    EXPECT_FALSE(why.empty());
+  }
+  EXPECT_EQ(state.refused(), refused_before + 7);
+  EXPECT_EQ(state.MosaicTilePng(1, 1), nullptr);
+}
+
 TEST(ViewerState, ContentThatCannotBeDrawnIsRefusedAndCounted) {
   ViewerState state(1000);
   std::string why;
@@ -338,6 +407,31 @@ TEST(ViewerServer, ServesThePageAndThreeJsAndNothingElse) {
   // ...and it still serves.
   EXPECT_EQ(StatusLine(Exchange(port, "GET / HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")), "HTTP/1.1 200 OK");
   EXPECT_GE(server.requests_refused(), 8);  // 6 paths, a method, a plain GET of /live
+}
+
+// The mosaic's tiles: /mosaic/COL_ROW.png for a tile held, nothing (204) for one not held, and
+// every other form refused.
+TEST(ViewerServer, ServesTheMosaicsTilesByTheirPlace) {
+  ViewerState state(1000);
+  std::string why;
+  ASSERT_TRUE(state.OnMosaicTile(MosaicTile(1, -3, 4, 1), 2'000'000, &why)) << why;
+  ViewerOptions options;
+  options.port = bus::UnusedTcpPort();
+  ViewerServer server(options, &state);
+  const auto get = [&](const std::string& path) {
+    return Exchange(options.port, "GET " + path + " HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n");
+  };
+  const std::string tile = get("/mosaic/-3_4.png?v=1");
+  EXPECT_EQ(StatusLine(tile), "HTTP/1.1 200 OK");
+  EXPECT_NE(tile.find("Content-Type: image/png"), std::string::npos);
+  EXPECT_NE(tile.find("\x89PNG"), std::string::npos);
+  EXPECT_EQ(StatusLine(get("/mosaic/0_0.png")), "HTTP/1.1 204 No Content");
+  const int64_t refused_before = server.requests_refused();
+  for (const char* path : {"/mosaic/-3_4.pngx", "/mosaic/+-3_4.png", "/mosaic/-3_04.png", "/mosaic/../state.json",
+                           "/mosaic/", "/mosaic/99999999999_1.png"}) {
+    EXPECT_EQ(StatusLine(get(path)), "HTTP/1.1 404 Not Found") << path;
+  }
+  EXPECT_EQ(server.requests_refused(), refused_before + 6);
 }
 
 // DNS rebinding: a page of evil.example whose name was made to resolve to this machine sends

@@ -381,11 +381,186 @@
     }
   }
 
+  // --- The 2D mosaic view --------------------------------------------------------------------
+  // The merger's live orthomosaic of the largest merged map, north (its frame's +y) up: its tiles
+  // as the live update lists them (each fetched once per version), each submap of that map's
+  // outline and trajectory, and the aircraft. #mosaic in the address opens it.
+  const mosaicCanvas = document.getElementById('mosaic');
+  const mosaicContext = mosaicCanvas.getContext('2d', { willReadFrequently: true });
+  const tiles = new Map();  // "col_row" -> { col, row, version, image, loading }
+  let mosaicRevision = -1;
+  let showMosaic = window.location.hash === '#mosaic';
+  let mosaicDrawPending = false;
+
+  function rotate(q, v) {  // q: [w, x, y, z]
+    const [w, x, y, z] = q;
+    const tx = 2 * (y * v[2] - z * v[1]), ty = 2 * (z * v[0] - x * v[2]), tz = 2 * (x * v[1] - y * v[0]);
+    return [v[0] + w * tx + (y * tz - z * ty), v[1] + w * ty + (z * tx - x * tz), v[2] + w * tz + (x * ty - y * tx)];
+  }
+
+  function updateMosaicTiles() {
+    const m = live && live.mosaic;
+    if (!m) return;
+    if (m.revision !== mosaicRevision) {
+      tiles.clear();
+      mosaicRevision = m.revision;
+    }
+    const listed = new Set();
+    for (const [col, row, version] of m.tiles) {
+      const key = col + '_' + row;
+      listed.add(key);
+      let tile = tiles.get(key);
+      if (!tile) tiles.set(key, tile = { col: col, row: row, version: 0, image: null, loading: 0 });
+      if (tile.version >= version || tile.loading >= version) continue;
+      tile.loading = version;
+      const image = new Image();
+      image.onload = () => {
+        if (version > tile.version) {
+          tile.version = version;
+          tile.image = image;
+        }
+        requestMosaicDraw();
+      };
+      image.src = '/mosaic/' + key + '.png?v=' + version;
+    }
+    for (const key of Array.from(tiles.keys())) if (!listed.has(key)) tiles.delete(key);
+    requestMosaicDraw();
+  }
+
+  function requestMosaicDraw() {
+    if (!showMosaic || mosaicDrawPending) return;
+    mosaicDrawPending = true;
+    window.requestAnimationFrame(() => {
+      mosaicDrawPending = false;
+      drawMosaic();
+    });
+  }
+
+  function drawMosaic() {
+    const ratio = window.devicePixelRatio || 1;
+    const width = Math.max(1, Math.floor(mosaicCanvas.clientWidth * ratio));
+    const height = Math.max(1, Math.floor(mosaicCanvas.clientHeight * ratio));
+    if (mosaicCanvas.width !== width || mosaicCanvas.height !== height) {
+      mosaicCanvas.width = width;
+      mosaicCanvas.height = height;
+    }
+    const c = mosaicContext;
+    c.fillStyle = '#10141a';
+    c.fillRect(0, 0, width, height);
+    const m = live && live.mosaic;
+    let shown = 0;
+    if (m) {
+      // Mosaic pixels of a map position: the mosaic's frame, then its grid.
+      const g = m.ground_from_map;
+      const toPixel = (p) => {
+        const r = rotate(g.rotation_wxyz, p);
+        const x = g.scale * r[0] + g.translation[0], y = g.scale * r[1] + g.translation[1];
+        return [(x - m.origin[0]) / m.gsd, (m.origin[1] - y) / m.gsd];
+      };
+      const frame = map && map.submaps.find((s) => s.id === m.frame);
+      const component = frame ? frame.component : 0;
+      const paths = [];
+      if (map) {
+        for (const s of map.submaps) {
+          if (s.component === component && s.trajectory.length) paths.push({ colour: s.colour, points: s.trajectory.map(toPixel) });
+        }
+      }
+      let aircraft = null;
+      if (live) {
+        for (const agent of Object.keys(live.aircraft)) {
+          const cam = live.aircraft[agent].camera;
+          if (cam && cam.component === component && cam.position) {
+            aircraft = toPixel(cam.position);
+            break;
+          }
+        }
+      }
+      // The view holds every tile, path and the aircraft.
+      let x0 = Infinity, y0 = Infinity, x1 = -Infinity, y1 = -Infinity;
+      const extend = (x, y) => { x0 = Math.min(x0, x); y0 = Math.min(y0, y); x1 = Math.max(x1, x); y1 = Math.max(y1, y); };
+      for (const t of tiles.values()) {
+        if (!t.image) continue;
+        extend(t.col * m.tile_px, t.row * m.tile_px);
+        extend((t.col + 1) * m.tile_px, (t.row + 1) * m.tile_px);
+      }
+      for (const p of paths) for (const q of p.points) extend(q[0], q[1]);
+      if (aircraft) extend(aircraft[0], aircraft[1]);
+      if (x1 > x0 && y1 > y0) {
+        const scale = 0.94 * Math.min(width / (x1 - x0), height / (y1 - y0));
+        const ox = 0.5 * (width - scale * (x1 - x0)) - scale * x0, oy = 0.5 * (height - scale * (y1 - y0)) - scale * y0;
+        c.imageSmoothingEnabled = true;
+        for (const t of tiles.values()) {
+          if (!t.image) continue;
+          c.drawImage(t.image, ox + scale * t.col * m.tile_px, oy + scale * t.row * m.tile_px,
+                      scale * m.tile_px + 0.5, scale * m.tile_px + 0.5);
+          ++shown;
+        }
+        c.lineWidth = 2 * ratio;
+        for (const p of paths) {
+          // The submap's outline: the hull of its path (where its keyframes flew).
+          const hull = convexHull(p.points);
+          c.strokeStyle = p.colour;
+          c.setLineDash([6 * ratio, 4 * ratio]);
+          c.beginPath();
+          hull.forEach((q, i) => (i ? c.lineTo : c.moveTo).call(c, ox + scale * q[0], oy + scale * q[1]));
+          c.closePath();
+          c.stroke();
+          c.setLineDash([]);
+          c.beginPath();
+          p.points.forEach((q, i) => (i ? c.lineTo : c.moveTo).call(c, ox + scale * q[0], oy + scale * q[1]));
+          c.stroke();
+        }
+        if (aircraft) {
+          c.fillStyle = '#ffffff';
+          c.beginPath();
+          c.arc(ox + scale * aircraft[0], oy + scale * aircraft[1], 5 * ratio, 0, 2 * Math.PI);
+          c.fill();
+        }
+      }
+    }
+    body.dataset.mosaicTiles = String(shown);
+    // From a picture's sending on the aircraft to its tile at the viewer: the median so far.
+    body.dataset.mosaicLatency = m && m.latency_median_s >= 0 ? m.latency_median_s.toFixed(2) : '';
+    // Drawn pixels (a test's proof that the view is not blank): the background is #10141a.
+    const pixels = c.getImageData(0, 0, width, height).data;
+    let drawn = 0;
+    for (let i = 0; i < pixels.length; i += 4) {
+      if (Math.abs(pixels[i] - 16) + Math.abs(pixels[i + 1] - 20) + Math.abs(pixels[i + 2] - 26) > 24) ++drawn;
+    }
+    body.dataset.mosaicDrawnPixels = String(drawn);
+  }
+
+  function convexHull(points) {  // Andrew's monotone chain
+    const p = points.slice().sort((a, b) => a[0] - b[0] || a[1] - b[1]);
+    if (p.length < 3) return p;
+    const cross = (o, a, b) => (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0]);
+    const lower = [], upper = [];
+    for (const q of p) {
+      while (lower.length >= 2 && cross(lower[lower.length - 2], lower[lower.length - 1], q) <= 0) lower.pop();
+      lower.push(q);
+    }
+    for (let i = p.length - 1; i >= 0; --i) {
+      while (upper.length >= 2 && cross(upper[upper.length - 2], upper[upper.length - 1], p[i]) <= 0) upper.pop();
+      upper.push(p[i]);
+    }
+    return lower.slice(0, -1).concat(upper.slice(0, -1));
+  }
+
+  function setMosaicView(on) {
+    showMosaic = on;
+    canvas.hidden = on;
+    mosaicCanvas.hidden = !on;
+    document.getElementById('mosaic-view').setAttribute('aria-pressed', String(on));
+    body.dataset.view = on ? 'mosaic' : '3d';
+    if (on) requestMosaicDraw();
+  }
+
   // --- Updates -------------------------------------------------------------------------------
   function applyLive(update) {
     live = update;
     showLive();
     updateFrustum();
+    updateMosaicTiles();
   }
 
   function applyMap(update) {
@@ -475,6 +650,8 @@
   });
   document.getElementById('top-view').addEventListener('click', () => fitView(true));
   document.getElementById('fit').addEventListener('click', () => fitView(false));
+  document.getElementById('mosaic-view').addEventListener('click', () => setMosaicView(!showMosaic));
+  setMosaicView(showMosaic);
 
   // Drawn pixels, counted when the map or the points change (a test's proof that the canvas is
   // not blank; reading the pixels back stalls the GPU, so never every frame).
@@ -505,15 +682,18 @@
   }
 
   function frame(time) {
-    resize();
-    controls.update();
-    renderer.render(scene, camera);
+    if (!showMosaic) {
+      resize();
+      controls.update();
+      renderer.render(scene, camera);
+    }
     noteFrame(time);
     window.requestAnimationFrame(frame);
   }
 
   // Drawn at once when the map or the points change, and counted.
   function renderNow() {
+    if (showMosaic) return;
     resize();
     renderer.render(scene, camera);
     countDrawnPixels();

@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <limits>
+#include <utility>
 
 #include "stitch/io/colmap_model.h"
 #include "stitch/io/output_frames.h"
@@ -437,8 +438,8 @@ void MergeSession::UpdateMosaicIfDue() {
 
 void MergeSession::UpdateMosaic() {
   const MosaicOptions& options = merger_.options().mosaic;
-  const double interval = merger_.options().live_outputs_interval_s;
-  if (!options.live || interval <= 0 || MonotonicSeconds() - mosaic_updated_at_ < interval) return;
+  const double interval = options.interval_s;
+  if (!options.live || MonotonicSeconds() - mosaic_updated_at_ < interval) return;
   mosaic_updated_at_ = MonotonicSeconds();
   std::vector<KeyframePicture> pictures;
   {
@@ -458,6 +459,7 @@ void MergeSession::UpdateMosaic() {
     const int key = picture.agent * 10'000'000 + picture.frame_index % 10'000'000;
     const std::string agent = agent_of_.count(replica->first) ? agent_of_.at(replica->first) : std::string();
     pictured_[key] = {agent, picture.frame_index};
+    newest_picture_utime_ = std::max(newest_picture_utime_, picture.sent_utime);
     live_mosaic_->AddPicture(key, replica->second.camera->Resized(picture.width, picture.height),
                              std::move(picture.jpeg));
   }
@@ -475,6 +477,20 @@ void MergeSession::UpdateMosaic() {
   mosaic_cost_.laid += change.laid;
   mosaic_cost_.moved += change.moved;
   mosaic_cost_.redrawn += change.redrawn;
+  // How long a picture took to its tile: the newest one taken since pictures were last laid.
+  const int64_t laid_picture_utime = change.laid > 0 ? std::exchange(newest_picture_utime_, 0) : 0;
+  if (options.publish_tiles && (change.laid + change.moved > 0 || change.redrawn)) {
+    const double encoding = ThreadCpuMs();
+    std::vector<LiveMosaicTile> tiles = live_mosaic_->TakeChangedTiles();
+    mosaic_cost_.update_ms += ThreadCpuMs() - encoding;
+    if (!mosaic_tiles_.tiles.empty() && !tiles.empty() &&
+        tiles.front().revision != mosaic_tiles_.tiles.front().revision) {
+      mosaic_tiles_.tiles.clear();  // the viewer drops the older revision's anyway
+    }
+    mosaic_tiles_.tiles.insert(mosaic_tiles_.tiles.end(), std::make_move_iterator(tiles.begin()),
+                               std::make_move_iterator(tiles.end()));
+    mosaic_tiles_.newest_picture_utime = std::max(mosaic_tiles_.newest_picture_utime, laid_picture_utime);
+  }
   if (change.laid + change.moved > 0 || change.redrawn) {
     mosaic_unwritten_ = true;
     STITCH_LOG(DEBUG) << "live mosaic: " << change.laid << " pictures laid, " << change.moved << " moved, "
@@ -482,9 +498,16 @@ void MergeSession::UpdateMosaic() {
                       << change.cpu_ms << " ms";
   }
   // The file at most a tenth of the merger's time: a large mosaic takes a while to compress.
-  if (mosaic_unwritten_ && MonotonicSeconds() - mosaic_written_at_ >= std::max(interval, 10 * mosaic_write_cost_s_)) {
+  const double file_interval = std::max(merger_.options().live_outputs_interval_s, 10 * mosaic_write_cost_s_);
+  if (mosaic_unwritten_ && MonotonicSeconds() - mosaic_written_at_ >= file_interval) {
     WriteLiveMosaic();
   }
+}
+
+MergeSession::MosaicTiles MergeSession::TakeMosaicTiles() {
+  MosaicTiles taken;
+  std::swap(taken, mosaic_tiles_);
+  return taken;
 }
 
 void MergeSession::WriteLiveMosaic() {

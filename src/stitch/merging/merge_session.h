@@ -90,6 +90,14 @@ class MergeSession {
   // with the records (at most a tenth of the merger's time).
   void UpdateMosaicIfDue();
   const LiveMosaic* live_mosaic() const { return live_mosaic_ ? &*live_mosaic_ : nullptr; }
+  // merger.mosaic.publish_tiles: the live mosaic's tiles drawn anew since the last call (for the
+  // viewer), and the newest sending time of the pictures laid since (their header's utime; 0
+  // where none was laid: the tiles only moved or were drawn again).
+  struct MosaicTiles {
+    std::vector<LiveMosaicTile> tiles;
+    int64_t newest_picture_utime = 0;
+  };
+  MosaicTiles TakeMosaicTiles();
 
   // trajectory.tum (or one per aircraft): every frame of the pose stream that lies in the
   // largest merged map, with the newest placement and the last refinement's keyframe poses.
@@ -168,7 +176,9 @@ class MergeSession {
   std::map<int, std::pair<std::string, int>> pictured_;  // live mosaic key -> (agent, frame)
   double mosaic_updated_at_ = 0, mosaic_written_at_ = 0, mosaic_write_cost_s_ = 0;
   bool mosaic_unwritten_ = false;
-  bool mosaic_failed_ = false;  // said once; the flight goes on without it
+  MosaicTiles mosaic_tiles_;          // made, not taken yet
+  int64_t newest_picture_utime_ = 0;  // of the pictures taken since pictures were last laid
+  bool mosaic_failed_ = false;        // said once; the flight goes on without it
   struct MosaicCost {
     int updates = 0, laid = 0, moved = 0, redrawn = 0, writes = 0;
     double update_ms = 0, write_ms = 0;

@@ -6,6 +6,9 @@
 #include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
 
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+
 #include "stitch/util/error.h"
 #include "stitch/util/time.h"
 
@@ -78,6 +81,7 @@ bool LiveMosaic::Restart(const MapState& state) {
                                             std::min<int>(options_.surface_min_points, ground_points.size())));
   ground_from_map_ = ground_from_map;
   frame_ = state.frame;
+  ++revision_;
   shaped_by_points_ = state.points.size();
   laid_.clear();
   return true;
@@ -132,6 +136,35 @@ LiveMosaic::Change LiveMosaic::Update(const MapState& state) {
   }
   change.cpu_ms = ThreadCpuMs() - started;
   return change;
+}
+
+std::vector<LiveMosaicTile> LiveMosaic::TakeChangedTiles() {
+  std::vector<LiveMosaicTile> tiles;
+  if (!mosaic_) return tiles;
+  for (const auto& [col, row] : mosaic_->TakeChangedTiles()) {
+    LiveMosaicTile tile;
+    tile.revision = revision_;
+    tile.frame = frame_;
+    tile.ground_from_map = ground_from_map_;
+    tile.grid = mosaic_->grid();
+    tile.tile_px = options_.tile_px;
+    tile.col = col;
+    tile.row = row;
+    tile.version = ++tile_version_;
+    const MosaicRaster raster = mosaic_->Tile(col, row);
+    if (!raster.colour.empty()) {
+      std::vector<cv::Mat> channels;
+      cv::split(raster.colour, channels);
+      channels.push_back(raster.coverage);
+      cv::Mat bgra;
+      cv::merge(channels, bgra);
+      if (!cv::imencode(".png", bgra, tile.png, {cv::IMWRITE_PNG_COMPRESSION, 1})) {
+        throw Error("a mosaic tile could not be encoded as PNG");
+      }
+    }
+    tiles.push_back(std::move(tile));
+  }
+  return tiles;
 }
 
 }  // namespace stitch

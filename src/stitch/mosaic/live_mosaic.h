@@ -21,6 +21,18 @@
 
 namespace stitch {
 
+// A tile of the live mosaic as a viewer is sent it.
+struct LiveMosaicTile {
+  int64_t revision = 0;  // LiveMosaic::revision()
+  int64_t frame = 0;     // LiveMosaic::frame()
+  Sim3d ground_from_map;
+  MosaicGrid grid;
+  int tile_px = 0;
+  int col = 0, row = 0;
+  int64_t version = 0;       // higher each time a tile is made
+  std::vector<uint8_t> png;  // RGBA, alpha 0 where not drawn; empty: nothing drawn there any more
+};
+
 class LiveMosaic {
  public:
   explicit LiveMosaic(const MosaicOptions& options);
@@ -48,6 +60,13 @@ class LiveMosaic {
   const Sim3d& ground_from_map() const { return ground_from_map_; }
   int pictures() const { return static_cast<int>(pictures_.size()); }
   int laid() const { return static_cast<int>(laid_.size()); }
+  // Higher each time the mosaic started over (its frame, resolution or ground changed): a viewer
+  // drops every tile of an older revision.
+  int64_t revision() const { return revision_; }
+  // The map frame's identity the mosaic lies on (MapState::frame at its start).
+  int64_t frame() const { return frame_; }
+  // The tiles drawn anew since the last call, of revision(), as PNG; empty before the mosaic starts.
+  std::vector<LiveMosaicTile> TakeChangedTiles();
 
  private:
   struct Picture {
@@ -62,6 +81,8 @@ class LiveMosaic {
   std::map<int, Picture> pictures_;
   std::optional<Orthomosaic> mosaic_;
   int64_t frame_ = 0;
+  int64_t revision_ = 0;
+  int64_t tile_version_ = 0;
   size_t shaped_by_points_ = 0;
   Sim3d ground_from_map_;
   std::map<int, Rigid3d> laid_;  // where each picture was laid, world_from_cam

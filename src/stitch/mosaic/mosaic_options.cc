@@ -13,6 +13,7 @@ bool MosaicOptions::Check(std::string* why) const {
   if (!(max_off_nadir_deg > 0 && max_off_nadir_deg < 89)) return fail("max_off_nadir_deg must be in (0, 89)");
   if (image_border_px < 0 || image_border_px > 1000) return fail("image_border_px must be in [0, 1000]");
   if (max_pixels < 1) return fail("max_pixels must be positive");
+  if (!(interval_s >= 0.05 && interval_s <= 3600)) return fail("interval_s must be in [0.05, 3600]");
   return true;
 }
 

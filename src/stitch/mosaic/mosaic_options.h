@@ -22,6 +22,12 @@ struct MosaicOptions {
   // The merger keeps the largest map's mosaic during the flight from the pictures it receives
   // (live_mosaic.h) and writes it as mosaic_live.tif with its records.
   bool live = true;
+  // With `live`: how often the pictures received are laid, seconds (what a picture waits, at
+  // most, before its tiles go to the viewer).
+  double interval_s = 1.0;
+  // With `live`: the tiles drawn anew go to the viewer (PNG, on the ground's MOSAIC_TILE), which
+  // shows the mosaic on its page.
+  bool publish_tiles = true;
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
@@ -41,6 +47,11 @@ struct MosaicOptions {
     v("live", live,
       "the merger keeps the largest map's mosaic during the flight from the keyframe pictures it receives and writes "
       "it as mosaic_live.tif with its records (the map's own frame and units)");
+    v("interval_s", interval_s,
+      "with live: the pictures received are laid this often, seconds (at most what a picture waits before its tiles "
+      "reach the viewer)");
+    v("publish_tiles", publish_tiles,
+      "with live: the tiles drawn anew go to the viewer's page (PNG, on the ground's MOSAIC_TILE)");
   }
   bool Check(std::string* why) const;
 };

@@ -388,15 +388,36 @@ TEST(LiveMosaic, LaysPicturesWhereTheMapPlacesThemAndFollowsTheMap) {
     EXPECT_GT(errors.checkpoints, 50);
     EXPECT_LT(errors.rms_px, 0.5);
   }
+  // The tiles for a viewer: every tile drawn, each a PNG of its side with the mosaic's pixels and
+  // its coverage as alpha; then only what changes.
+  const std::vector<LiveMosaicTile> first = live.TakeChangedTiles();
+  EXPECT_EQ(first.size(), live.mosaic()->TileKeys().size());
+  for (const LiveMosaicTile& tile : first) {
+    EXPECT_EQ(tile.revision, live.revision());
+    const cv::Mat png = cv::imdecode(tile.png, cv::IMREAD_UNCHANGED);
+    ASSERT_EQ(png.type(), CV_8UC4);
+    EXPECT_EQ(png.rows, options.tile_px);
+    const MosaicRaster raster = live.mosaic()->Tile(tile.col, tile.row);
+    std::vector<cv::Mat> channels;
+    cv::split(png, channels);
+    EXPECT_EQ(cv::countNonZero(channels[3] != raster.coverage), 0);
+    cv::Mat colour;
+    cv::merge(std::vector<cv::Mat>(channels.begin(), channels.begin() + 3), colour);
+    EXPECT_EQ(cv::norm(colour, raster.colour, cv::NORM_INF), 0.0);
+  }
   // Nothing moved: nothing to do.
   change = live.Update(state);
   EXPECT_EQ(change.laid + change.moved, 0);
   EXPECT_FALSE(change.redrawn);
-  // The map moved picture 1 (an adjustment): it is moved, its tiles redrawn.
+  EXPECT_TRUE(live.TakeChangedTiles().empty());
+  // The map moved picture 1 (an adjustment): it is moved, its tiles redrawn and sent again.
   state.world_from_cam[1] = in_map(NadirCamera(8.5, -4, 30, 2));
   change = live.Update(state);
   EXPECT_EQ(change.moved, 1);
   EXPECT_GT(change.tiles, 0);
+  const std::vector<LiveMosaicTile> moved = live.TakeChangedTiles();
+  EXPECT_EQ(static_cast<int>(moved.size()), change.tiles);
+  for (const LiveMosaicTile& tile : moved) EXPECT_GT(tile.version, first.back().version);
   // A sliver of movement (under half a mosaic pixel) is not a move.
   state.world_from_cam[1] = in_map(NadirCamera(8.52, -4, 30, 2));
   EXPECT_EQ(live.Update(state).moved, 0);
@@ -406,11 +427,15 @@ TEST(LiveMosaic, LaysPicturesWhereTheMapPlacesThemAndFollowsTheMap) {
   live.Update(state);
   EXPECT_LT(live.mosaic()->covered_pixels(), before);
   EXPECT_EQ(live.laid(), 2);
-  // The map's frame changed (a merge into a larger map): all drawn again.
+  // The map's frame changed (a merge into a larger map): all drawn again, a new revision.
+  const int64_t revision = live.revision();
+  live.TakeChangedTiles();
   state.frame = 2;
   change = live.Update(state);
   EXPECT_TRUE(change.redrawn);
   EXPECT_EQ(change.laid, 2);
+  EXPECT_EQ(live.revision(), revision + 1);
+  EXPECT_EQ(live.TakeChangedTiles().size(), live.mosaic()->TileKeys().size());
 }
 
 TEST(KeyframeImagePicker, SendsASubmapsFirstKeyframeThenWhereTheViewMovedOn) {

@@ -229,6 +229,7 @@ Orthomosaic::Change Orthomosaic::SetCompressedImage(int id, const Camera& camera
       tiles_.erase(tile);  // nothing of it there after all
       continue;
     }
+    if (taken > 0) changed_.insert(key);
     ++change.tiles;
     change.pixels += taken;
   }
@@ -281,6 +282,7 @@ void Orthomosaic::RedrawAll(const std::vector<TileKey>& keys, Change* change) {
       drawn += Draw(id, image, pixels->second, key, &tile);
     }
     ++change->tiles;
+    changed_.insert(key);
     if (drawn == 0) {
       tiles_.erase(key);
     } else {
@@ -293,6 +295,12 @@ void Orthomosaic::RedrawAll(const std::vector<TileKey>& keys, Change* change) {
     const auto tile = tiles_.find(key);
     if (tile != tiles_.end()) change->pixels += cv::countNonZero(tile->second.owner >= 0);
   }
+}
+
+std::vector<std::pair<int, int>> Orthomosaic::TakeChangedTiles() {
+  std::vector<std::pair<int, int>> keys(changed_.begin(), changed_.end());
+  changed_.clear();
+  return keys;
 }
 
 std::vector<std::pair<int, int>> Orthomosaic::TileKeys() const {

@@ -12,6 +12,7 @@
 #include <cstdint>
 #include <map>
 #include <optional>
+#include <set>
 #include <utility>
 #include <vector>
 
@@ -92,6 +93,9 @@ class Orthomosaic {
   std::vector<std::pair<int, int>> TileKeys() const;
   // One tile's pixels (CV_8UC3 and its coverage); empty Mats for a tile never drawn.
   MosaicRaster Tile(int tile_col, int tile_row) const;
+  // The tiles drawn into, redrawn or emptied since the last call (all of them, the first time):
+  // what a viewer of the mosaic needs anew.
+  std::vector<std::pair<int, int>> TakeChangedTiles();
 
   int64_t covered_pixels() const;
   const MosaicGrid& grid() const { return grid_; }
@@ -127,6 +131,7 @@ class Orthomosaic {
   GroundSurface surface_;
   std::map<int, Image> images_;
   std::map<TileKey, TileBuffers> tiles_;
+  std::set<TileKey> changed_;  // since TakeChangedTiles
 };
 
 }  // namespace stitch

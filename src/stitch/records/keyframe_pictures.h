@@ -17,6 +17,7 @@ struct KeyframePicture {
   int agent = 0;
   int frame_index = 0;
   int64_t t_ns = 0;
+  int64_t sent_utime = 0;  // when the aircraft sent it (its message's header, the sender's wall clock)
   int64_t submap_id = 0;
   int64_t keyframe_id = 0;
   int camera_width = 0, camera_height = 0;  // the keyframe's camera's image size
