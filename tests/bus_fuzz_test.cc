@@ -18,6 +18,7 @@
 #include "services/viewer/viewer_service.h"
 #include "stitch/config/stitch_config.h"
 #include "stitch/link_status_t.hpp"
+#include "stitch/mosaic_tile_t.hpp"
 #include "stitch/service_status_t.hpp"
 #include "stitch/source/source.h"
 #include "stitch/submap_request_t.hpp"
@@ -88,9 +89,10 @@ struct Stack {
 
 // The channels the services listen to (and those they publish, which some tool may listen to),
 // and the first few real messages seen on each.
-const std::vector<std::string> kChannels = {"FRAME",          "FRAME_ACK",       "LOCAL_MAP", "KEYFRAME", "POSE",
-                                            "SUBMAP",         "TRACKING_STATUS", "SERVICE",   "SEQUENCE", "MAP_CLOUD",
-                                            "SUBMAP_REQUEST", "LINK_STATUS",     "GLOBAL_MAP"};
+const std::vector<std::string> kChannels = {"FRAME",      "FRAME_ACK",      "LOCAL_MAP",       "KEYFRAME",
+                                            "POSE",       "SUBMAP",         "TRACKING_STATUS", "SERVICE",
+                                            "SEQUENCE",   "MAP_CLOUD",      "SUBMAP_REQUEST",  "LINK_STATUS",
+                                            "GLOBAL_MAP", "KEYFRAME_IMAGE", "MOSAIC_TILE"};
 
 template <class Message>
 Bytes Encoded(const Message& message) {
@@ -113,6 +115,19 @@ void AddLinkSeeds(std::map<std::string, std::vector<Bytes>>* seeds) {
     status.authenticated = true;
     status.seconds_since_peer = 0.2;
     (*seeds)["LINK_STATUS"].push_back(Encoded(status));
+  }
+  if ((*seeds)["MOSAIC_TILE"].empty()) {  // the merger's, once its mosaic has started
+    stitch::mosaic_tile_t tile{};
+    tile.revision = 1;
+    tile.frame_submap = MakeSubmapId(0, 1).value;
+    tile.ground_from_map.scale = 1;
+    tile.ground_from_map.rotation_wxyz[0] = 1;
+    tile.gsd = 0.01;
+    tile.tile_px = 16;
+    tile.version = 1;
+    tile.png = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n', 0, 0, 0, 13, 'I', 'H', 'D', 'R', 0, 0, 0, 16, 0, 0, 0, 16};
+    tile.num_bytes = static_cast<int32_t>(tile.png.size());
+    (*seeds)["MOSAIC_TILE"].push_back(Encoded(tile));
   }
   if ((*seeds)["SUBMAP_REQUEST"].empty()) {
     stitch::submap_request_t request{};
