@@ -24,6 +24,19 @@ std::string Channel(const std::string& agent, const char* suffix) {
   return agent + "/" + suffix;
 }
 
+uint32_t MaxMessageBytes(const std::string& channel) {
+  const std::string suffix = channel.substr(channel.find('/') + 1);
+  for (const char* large : {kFrame, kKeyframe, kLocalMap, kSubmap, kGlobalMap, kMapCloud}) {
+    if (suffix == large) return kMaxMessageBytes;
+  }
+  if (suffix == kKeyframeImage || suffix == kMosaicTile) return 9u << 20;
+  for (const char* small :
+       {kFrameAck, kSequence, kTrackingStatus, kSubmapRequest, kService, kLinkStatus, kPose, kGnss}) {
+    if (suffix == small) return 1u << 20;
+  }
+  return kMaxMessageBytes;  // a channel of another program
+}
+
 std::vector<std::string> SplitAgents(const std::string& list) {
   std::vector<std::string> agents;
   size_t start = 0;

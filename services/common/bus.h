@@ -33,6 +33,11 @@ inline constexpr int kSubscriptionQueueCapacity = 2000;
 // bounds what one message can make a service allocate; stitch's largest messages are frames
 // (8.3 MB: a 4K camera's gray frame at full size) and submap parts (under 1 MB).
 inline constexpr uint32_t kMaxMessageBytes = 32u << 20;
+// The largest message a subscriber decodes on `channel`, by its suffix: kMaxMessageBytes for
+// frames, keyframes, submaps and maps; 9 MB for a keyframe's picture and a mosaic tile (each at
+// most 8 MB of image); 1 MB for statuses, acks, poses, fixes and requests, which are a few
+// hundred bytes (a forged 32 MB status cost a service about 100 MB to decode).
+uint32_t MaxMessageBytes(const std::string& channel);
 
 // Channel suffixes.
 inline constexpr char kFrame[] = "FRAME";
@@ -149,9 +154,10 @@ class Subscriber {
   void Subscribe(const std::string& channel,
                  std::function<void(std::unique_ptr<Message>, const std::string& channel)> handler) {
     const std::string expected_agent = channel.substr(0, channel.find('/'));
+    const uint32_t max_bytes = MaxMessageBytes(channel);
     auto replays = authenticator_ ? std::make_shared<ReplayGuard>() : nullptr;
     auto raw = std::make_unique<RawHandler>(
-        [this, handler, expected_agent, replays](const lcm::ReceiveBuffer* buffer, const std::string& on) {
+        [this, handler, expected_agent, replays, max_bytes](const lcm::ReceiveBuffer* buffer, const std::string& on) {
           auto message = std::make_unique<Message>();
           std::string why;
           const auto* data = static_cast<const uint8_t*>(buffer->data);
@@ -159,9 +165,9 @@ class Subscriber {
             const uint32_t tag_bytes = authenticator_ ? kBusTagBytes : 0;
             const uint32_t size = buffer->data_size - std::min(buffer->data_size, tag_bytes);
             int used = -1;
-            if (buffer->data_size > kMaxMessageBytes) {
-              why = "is " + std::to_string(buffer->data_size) + " bytes, more than the " +
-                    std::to_string(kMaxMessageBytes) + " a message may have";
+            if (buffer->data_size > max_bytes) {
+              why = "is " + std::to_string(buffer->data_size) + " bytes, more than the " + std::to_string(max_bytes) +
+                    " a message on this channel may have";
             } else if (authenticator_ && !authenticator_->Verify(on, data, buffer->data_size)) {
               why = "does not carry this bus's tag (forged, or from a sender without the bus key)";
             } else if ((used = message->decode(buffer->data, 0, static_cast<int>(size))) < 0) {

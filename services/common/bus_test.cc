@@ -194,6 +194,34 @@ TEST(Bus, OnAKeyedBusOnlyTaggedMessagesHeardOnceReachTheHandler) {
   EXPECT_EQ(unkeyed.rejected(), 1);
 }
 
+// A status is a few hundred bytes: one of 2 MB is refused before it is decoded (decoding a forged
+// 32 MB status cost about 100 MB), one of 512 kB still passes.
+TEST(Bus, EachChannelHasItsOwnLargestMessage) {
+  EXPECT_EQ(MaxMessageBytes(Channel("uav0", kFrame)), kMaxMessageBytes);
+  EXPECT_EQ(MaxMessageBytes(Channel("uav0", kSubmap)), kMaxMessageBytes);
+  EXPECT_EQ(MaxMessageBytes(Channel("uav0", kKeyframeImage)), 9u << 20);
+  EXPECT_EQ(MaxMessageBytes(Channel("uav0", kTrackingStatus)), 1u << 20);
+  EXPECT_EQ(MaxMessageBytes(Channel("station", kLinkStatus)), 1u << 20);
+  auto lcm = OpenLcm("memq://");
+  Subscriber subscriber(lcm.get());
+  std::atomic<int> taken{0};
+  const std::string channel = Channel("uav3", kTrackingStatus);
+  subscriber.Subscribe<stitch::tracking_status_t>(
+      channel, [&](std::unique_ptr<stitch::tracking_status_t>, const std::string&) { ++taken; });
+  Dispatcher dispatcher(lcm.get());
+  dispatcher.Start();
+  Publisher publisher(lcm.get(), "uav3");
+  stitch::tracking_status_t status{};
+  status.detail = std::string(2 << 20, 'x');
+  publisher.Publish(channel, &status);
+  status.detail = std::string(512 << 10, 'x');
+  publisher.Publish(channel, &status);
+  for (int i = 0; i < 100 && taken.load() + subscriber.rejected() < 2; ++i) std::this_thread::sleep_for(20ms);
+  dispatcher.Stop();
+  EXPECT_EQ(taken.load(), 1);
+  EXPECT_EQ(subscriber.rejected(), 1);
+}
+
 TEST(ReplayGuard, TakesEachSendersMessageOnceAndNothingBehindItsWindow) {
   ReplayGuard guard;
   EXPECT_TRUE(guard.Take("uav0/FRAME", 7, 0));
