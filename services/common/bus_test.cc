@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <condition_variable>
+#include <optional>
 
 #include <gtest/gtest.h>
 
@@ -143,10 +144,16 @@ TEST(Bus, OnAKeyedBusOnlyTaggedMessagesHeardOnceReachTheHandler) {
       channel, [&](std::unique_ptr<stitch::frame_ack_t> ack, const std::string&) { inbox.Add(std::move(ack)); });
   // What the keyed sender put on the bus, as a listener on the network hears it.
   struct Recorder {
+    std::mutex mutex;
     std::vector<std::vector<uint8_t>> heard;
     void Handle(const lcm::ReceiveBuffer* buffer, const std::string&) {
       const auto* data = static_cast<const uint8_t*>(buffer->data);
+      std::lock_guard<std::mutex> lock(mutex);
       heard.emplace_back(data, data + buffer->data_size);
+    }
+    std::optional<std::vector<uint8_t>> First() {
+      std::lock_guard<std::mutex> lock(mutex);
+      return heard.empty() ? std::nullopt : std::optional<std::vector<uint8_t>>(heard.front());
     }
   } recorder;
   lcm::Subscription* recording = lcm->subscribe(channel, &Recorder::Handle, &recorder);
@@ -163,8 +170,11 @@ TEST(Bus, OnAKeyedBusOnlyTaggedMessagesHeardOnceReachTheHandler) {
   ack.frame_index = 666;
   forger.Publish(channel, &ack);
   other_key.Publish(channel, &ack);
-  // The keyed sender's message, replayed as it was heard.
-  const std::vector<uint8_t> replay = recorder.heard.at(0);
+  // The keyed sender's message, replayed as it was heard (the recorder hears it after the
+  // subscriber: wait for it).
+  for (int i = 0; i < 100 && !recorder.First(); ++i) std::this_thread::sleep_for(10ms);
+  ASSERT_TRUE(recorder.First());
+  const std::vector<uint8_t> replay = *recorder.First();
   lcm->publish(channel, replay.data(), static_cast<unsigned>(replay.size()));
   ack.frame_index = 2;
   keyed.Publish(channel, &ack);
@@ -188,7 +198,7 @@ TEST(Bus, OnAKeyedBusOnlyTaggedMessagesHeardOnceReachTheHandler) {
   Dispatcher second(lcm.get());
   second.Start();
   keyed.Publish(channel, &ack);
-  std::this_thread::sleep_for(200ms);
+  for (int i = 0; i < 500 && unkeyed.rejected() < 1; ++i) std::this_thread::sleep_for(10ms);
   second.Stop();
   EXPECT_TRUE(unkeyed_inbox.acks.empty());
   EXPECT_EQ(unkeyed.rejected(), 1);
