@@ -479,7 +479,9 @@ void MergeSession::UpdateMosaic() {
   mosaic_cost_.redrawn += change.redrawn;
   // How long a picture took to its tile: the newest one taken since pictures were last laid.
   const int64_t laid_picture_utime = change.laid > 0 ? std::exchange(newest_picture_utime_, 0) : 0;
-  if (options.publish_tiles && (change.laid + change.moved > 0 || change.redrawn)) {
+  // Every tile drawn anew goes to the viewer: those of pictures laid or moved, and those a picture
+  // leaving the map emptied.
+  if (options.publish_tiles) {
     const double encoding = ThreadCpuMs();
     std::vector<LiveMosaicTile> tiles = live_mosaic_->TakeChangedTiles();
     mosaic_cost_.update_ms += ThreadCpuMs() - encoding;
@@ -491,7 +493,7 @@ void MergeSession::UpdateMosaic() {
                                std::make_move_iterator(tiles.end()));
     mosaic_tiles_.newest_picture_utime = std::max(mosaic_tiles_.newest_picture_utime, laid_picture_utime);
   }
-  if (change.laid + change.moved > 0 || change.redrawn) {
+  if (change.tiles > 0 || change.redrawn) {  // laid, moved, or taken out
     mosaic_unwritten_ = true;
     STITCH_LOG(DEBUG) << "live mosaic: " << change.laid << " pictures laid, " << change.moved << " moved, "
                       << change.tiles << " tiles" << (change.redrawn ? ", drawn again whole" : "") << " in "
