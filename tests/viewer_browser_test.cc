@@ -156,7 +156,9 @@ TEST(ViewerInBrowser, ThePageShowsTheFlightsSubmapsKeyframesPointsAndTrackingSta
   EXPECT_GT(Number(mosaic_after, "mosaic-tiles"), Number(mosaic_during, "mosaic-tiles"))
       << "the mosaic did not grow as the flight went on";
   EXPECT_GE(Number(mosaic_during, "mosaic-drawn-pixels"), 2000) << "the mosaic view drew nothing";
-  EXPECT_GE(Number(mosaic_after, "mosaic-drawn-pixels"), Number(mosaic_during, "mosaic-drawn-pixels"));
+  // The view frames the whole mosaic, so a larger one may cover fewer of the canvas's pixels: the
+  // growth is in the tiles' count above, the drawing only has to be there.
+  EXPECT_GE(Number(mosaic_after, "mosaic-drawn-pixels"), 2000) << "the finished mosaic drew nothing";
   EXPECT_EQ(Number(mosaic_after, "errors"), 0) << mosaic.output.substr(0, 4000);
   EXPECT_EQ(mosaic_during.count("console") ? mosaic_during.at("console") : "?", "");
   EXPECT_EQ(ConsoleLines(mosaic.output), "");
