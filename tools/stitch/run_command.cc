@@ -192,6 +192,9 @@ int RunCommand(int argc, char** argv) {
   args.AddOption("--vocabulary", &a.vocabulary, "FILE",
                  "bag-of-words vocabulary (a stitch vocabulary, or DBoW2 text such as ORB-SLAM's ORBvoc.txt; "
                  "default: the one shipped)");
+  args.AddOption("--map", &a.map, "FILE",
+                 "a saved map (map.stitchmap of an earlier run, or `stitch map save`): the flight's submaps merge "
+                 "into it and its frame is the merged map's (merger.prior_map)");
   args.AddOption("--pacing", &a.pacing, "MODE", "lockstep (reproducible, default) or realtime");
   args.AddOption("--lcm-url", &a.lcm_url, "URL", "bus for the services (default: a random local port, ttl=0)");
   args.AddOption("--agent", &a.agent, "NAME", "agent name prefixing the channels");
@@ -224,7 +227,8 @@ int RunCommand(int argc, char** argv) {
       "frames.tsv, poses.tsv, memory.tsv (each service's resident memory every 2 s), groundtruth.tum (when known), "
       "config.yaml (resolved settings), the\n"
       "merger's graph.png, graph.dot, merge_log.tsv, retrieval.tsv, submaps.tsv, keyframes_merged.tsv,\n"
-      "the mapper's keyframes.tsv and submaps.ply, logs/ (one per service); with --journal,\n"
+      "the mapper's keyframes.tsv and submaps.ply, map.stitchmap (the largest merged map, for --map), logs/ (one\n"
+      "per service); with --journal,\n"
       "merger/submap_updates.lcmlog.");
   if (!args.Parse(argc, argv)) return args.exit_code();
 

@@ -81,6 +81,7 @@ std::vector<DeliveryRequest> SubmapReceiver::Requests(const std::map<SubmapId, S
   int64_t missing_total = 0;
   std::map<KeyframeId, double> missing_since;
   for (const auto& [id, replica] : replicas) {
+    if (IsSavedMap(id)) continue;  // read whole from a file (merger.prior_map): no mapper sends it
     DeliveryRequest request;
     request.submap = id;
     const size_t missing_before = missing_since.size();

@@ -12,7 +12,9 @@
 #include "stitch/io/ply.h"
 #include "stitch/io/trajectory.h"
 #include "stitch/map/map_export.h"
+#include "stitch/map/map_file.h"
 #include "stitch/mosaic/geotiff.h"
+#include "stitch/util/error.h"
 #include "stitch/util/log.h"
 #include "stitch/util/time.h"
 
@@ -41,7 +43,32 @@ MergeSession::MergeSession(const MergerOptions& options, const Vocabulary* vocab
     : pyramid_(pyramid),
       merger_(options, vocabulary, pyramid_),
       record_dir_(std::move(record_dir)),
-      agents_(std::move(agents)) {}
+      agents_(std::move(agents)) {
+  if (!options.prior_map.empty()) LoadPriorMap(options.prior_map);
+}
+
+void MergeSession::LoadPriorMap(const std::string& path) {
+  const Stopwatch clock;
+  SavedMap saved = ReadMapFile(path, MakeSubmapId(kSavedMapAgent, 0));
+  if (saved.cameras.size() != 1) {
+    throw Error(path + ": a map of " + std::to_string(saved.cameras.size()) +
+                " cameras; maps of one camera only can be flown in again for now");
+  }
+  std::vector<KeyframeId> keyframes;
+  for (const auto& [id, keyframe] : saved.map.keyframes()) keyframes.push_back(id);
+  std::sort(keyframes.begin(), keyframes.end());
+  const SubmapUpdate update =
+      MakeResendSubmapUpdate(&saved.map, saved.cameras[0], keyframes, /*full_state=*/true, /*closed=*/true, 1);
+  const double read_s = clock.ElapsedSeconds();
+  // Named so no aircraft can be (agent names are channel prefixes, without spaces): no fixes or
+  // pictures of an aircraft are taken for it.
+  Apply(update, "saved map", /*first_part=*/true);
+  FirstWholeFinalState(update.submap);
+  prior_map_description_ = saved.description;
+  STITCH_LOG(INFO) << "the saved map " << path << ": " << saved.map.num_keyframes() << " keyframes, "
+                   << saved.map.num_points() << " points, read in " << read_s << " s, indexed in "
+                   << clock.ElapsedSeconds() - read_s << " s (" << saved.description << ")";
+}
 
 MergeSession::Applied MergeSession::Apply(const SubmapUpdate& update, const std::string& agent, bool first_part) {
   Applied applied;
@@ -160,6 +187,7 @@ bool MergeSession::Finish() {
       if (!refine_now) WriteRecords(graph, merged);
       // The COLMAP model, a product for after the flight, only at the end.
       WriteColmapRecord(graph, merged);
+      if (merger_.options().save_map) WriteSavedMap(graph, merged);
     } catch (const std::exception& e) {
       STITCH_LOG(ERROR) << "writing the merger's records failed: " << e.what();
     }
@@ -654,19 +682,54 @@ std::optional<MergeSession::MapCloud> MergeSession::TakeMapCloud() {
   return cloud;
 }
 
-void MergeSession::WriteColmapRecord(const Merger::Graph& graph, const MergedMap* merged) const {
-  // colmap/: the largest map as a COLMAP sparse model, its images named agentA-frameNNNNNN, one
-  // camera per calibration its submaps' aircraft flew.
+const Map* MergeSession::LargestMap(const Merger::Graph& graph, const MergedMap* merged) const {
   const Map* map = merged ? &merged->map : nullptr;
   for (const auto& [id, placement] : graph.placement) {
     if (placement.component != 0 || map) continue;
     if (merger_.submaps().at(id).camera) map = &merger_.submaps().at(id).map;
   }
+  return map;
+}
+
+const Camera* MergeSession::CameraOf(KeyframeId keyframe) const {
+  const auto replica = merger_.submaps().find(SubmapOf(keyframe));
+  return replica == merger_.submaps().end() || !replica->second.camera ? nullptr : &*replica->second.camera;
+}
+
+void MergeSession::WriteSavedMap(const Merger::Graph& graph, const MergedMap* merged) const {
+  const Map* map = LargestMap(graph, merged);
+  if (!map || map->num_keyframes() == 0) return;
+  // Keyframes whose submap's camera never arrived cannot be used again: left out.
+  Map kept(map->id(), map->pyramid());
+  std::set<SubmapId> submaps;
+  for (const auto& [id, point] : map->points()) {
+    MapPoint copy = point;
+    copy.observations.clear();
+    kept.AddPoint(std::move(copy));
+  }
+  for (const auto& [id, keyframe] : map->keyframes()) {
+    if (!CameraOf(id)) continue;
+    kept.AddKeyframe(UnlinkedCopy(keyframe));
+    submaps.insert(SubmapOf(id));
+  }
+  std::string description = "the merged map of submaps";
+  for (SubmapId s : submaps) description += " " + SubmapName(s);
+  if (prior_map_description_) description += "; the saved map was: " + *prior_map_description_;
+  const SavedMap saved =
+      MakeSavedMap(kept, [&](KeyframeId kf) -> const Camera& { return *CameraOf(kf); }, description,
+                   MakeSubmapId(kSavedMapAgent, 0));
+  const std::string path = (std::filesystem::path(record_dir_) / "map.stitchmap").string();
+  WriteMapFile(path, saved);
+  STITCH_LOG(INFO) << "map.stitchmap: " << saved.map.num_keyframes() << " keyframes, " << saved.map.num_points()
+                   << " points (stitch run --map)";
+}
+
+void MergeSession::WriteColmapRecord(const Merger::Graph& graph, const MergedMap* merged) const {
+  // colmap/: the largest map as a COLMAP sparse model, its images named agentA-frameNNNNNN, one
+  // camera per calibration its submaps' aircraft flew.
+  const Map* map = LargestMap(graph, merged);
   if (!map) return;
-  const auto camera_of = [&](const Keyframe& keyframe) -> const Camera* {
-    const auto replica = merger_.submaps().find(SubmapOf(keyframe.id));
-    return replica == merger_.submaps().end() || !replica->second.camera ? nullptr : &*replica->second.camera;
-  };
+  const auto camera_of = [&](const Keyframe& keyframe) { return CameraOf(keyframe.id); };
   const ColmapModel model = ColmapModelOf(*map, camera_of, merger_.options().map_export, ColmapImageName);
   if (model.images.empty()) return;
   WriteColmapModel(model, (std::filesystem::path(record_dir_) / "colmap").string());

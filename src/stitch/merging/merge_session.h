@@ -145,6 +145,17 @@ class MergeSession {
   SubmapFixes FixesOfSubmaps() const;
   // colmap/: the largest map as a COLMAP sparse model (at the end only).
   void WriteColmapRecord(const Merger::Graph& graph, const MergedMap* merged) const;
+  // map.stitchmap: the largest map as a saved map (merger.save_map; at the end only).
+  void WriteSavedMap(const Merger::Graph& graph, const MergedMap* merged) const;
+  // The largest merged map as one Map: the refined one, else the first of its submaps with a
+  // camera; nullptr where none.
+  const Map* LargestMap(const Merger::Graph& graph, const MergedMap* merged) const;
+  // The camera of a keyframe's submap (nullptr until one of its keyframes arrived).
+  const Camera* CameraOf(KeyframeId keyframe) const;
+  // merger.prior_map: the saved map as a closed submap of agent "saved map" (kSavedMapAgent), which
+  // roots its merged map. Throws stitch::Error for a file it cannot use.
+  void LoadPriorMap(const std::string& path);
+  std::optional<std::string> prior_map_description_;
 
   ScalePyramid pyramid_;
   Merger merger_;

@@ -18,6 +18,10 @@
 namespace stitch {
 namespace {
 
+// Added to a saved map's keyframe count when the submaps are placed (more than any flight's).
+constexpr int kSavedMapRootWeight = 1 << 24;
+
+
 // A submap's own relative poses come from bundle adjustment over many points; a connected
 // frame's Sim3 from a few dozen: the pose graph trusts the former more.
 constexpr double kIntraSubmapWeight = 10.0;
@@ -514,7 +518,9 @@ Merger::Graph Merger::Solve(bool refine, const SubmapFixes& gnss) const {
   std::map<SubmapId, SubmapCompleteness> completeness;
   for (const auto& [id, replica] : submaps_) {
     ids.push_back(id);
-    keyframes[id] = static_cast<int>(replica.map.num_keyframes());
+    // A saved map (merger.prior_map) counts as the largest: it roots its merged map, which keeps
+    // the saved map's frame and comes first.
+    keyframes[id] = static_cast<int>(replica.map.num_keyframes()) + (IsSavedMap(id) ? kSavedMapRootWeight : 0);
     completeness[id] = CompletenessOf(replica);
   }
   CheckEdges(&graph.edges, options_.min_connection_strength, options_.acceptance);

@@ -120,6 +120,8 @@ struct MergerOptions {
   GeoReferenceOptions georeference;       // each map placed on Earth by the aircraft's GNSS fixes
   MosaicOptions mosaic;                   // the largest map's orthomosaic (live, and stitch mosaic's)
   bool join_by_gnss = true;               // merged maps no view connects joined where GNSS places them
+  bool save_map = true;                   // map.stitchmap: the largest merged map at the end
+  std::string prior_map;                  // a saved map the flight's submaps merge into (empty: none)
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
@@ -162,6 +164,11 @@ struct MergerOptions {
     v("join_by_gnss", join_by_gnss,
       "during the flight, join the merged maps that no verified view connects where the aircraft's GNSS fixes place "
       "them (a junction of its own kind; needs georeference.enabled)");
+    v("save_map", save_map,
+      "at the end, write the largest merged map as map.stitchmap, for a later flight's --map (docs/map-file.md)");
+    v("prior_map", prior_map,
+      "a saved map (.stitchmap) the flight's submaps merge into, as a submap of its own whose frame is the merged "
+      "map's (stitch run --map; empty: none)");
   }
   bool Check(std::string* why) const;
 };

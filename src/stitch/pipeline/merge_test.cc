@@ -1,7 +1,9 @@
 // The merger on submaps from the SLAM core (synthetic strip, one gust): the merged placement
 // agrees with the ground truth, and survives updates that are dropped, repeated or reordered.
 
+#include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <set>
 
 #include <gtest/gtest.h>
@@ -11,6 +13,7 @@
 #include "stitch/pipeline/inline_pipeline.h"
 #include "stitch/source/source.h"
 #include "stitch/testing/default_vocabulary.h"
+#include "stitch/testing/temp_dir.h"
 
 namespace stitch {
 namespace {
@@ -192,6 +195,62 @@ TEST(Merge, AMergeRolledBackAfterPlacementWaitsForMoreConnectedFrames) {
   --with_less.connected_frames;
   merger.RefuseAfterPlacement(with_less, "after placement: doubted on less");
   EXPECT_EQ(merger.Solve().tree.size(), 1u);
+}
+
+// A second flight in the first flight's map (#44): the gust run's merged map saved as the merger
+// writes it at the end (map.stitchmap), then another seed's flight (other noise, gust and
+// jitter) over the same ground with merger.prior_map. Its submaps merge into the saved map, which
+// roots the merged map, and its frames land where the first flight's alignment to the truth puts
+// them.
+TEST(Merge, ASecondFlightLandsInTheSavedMapOfTheFirst) {
+  const GustRun& first = Gust();
+  testing::TempDir dir;
+  {
+    MergeSession saving(first.options.merger, &testing::DefaultVocabulary(),
+                        ScalePyramid::From(first.options.tracking.orb), dir.path().string());
+    for (const SubmapUpdate& update : first.run.submap_updates) saving.Apply(update, "uav0", true);
+    saving.Finish();
+  }
+  const std::string saved = dir / "map.stitchmap";
+  ASSERT_TRUE(std::filesystem::exists(saved));
+
+  SourceSpec spec;
+  spec.synthetic.seed = 2;
+  spec.synthetic.world_seed = 1;
+  spec.synthetic.flight.num_frames = 200;
+  spec.synthetic.flight.num_strips = 1;
+  spec.synthetic.flight.strip_length_m = 1.15 * 200;
+  spec.failures = "90:10";
+  FailureSchedule unused;
+  auto sequence = OpenSource(spec, &unused);
+  PipelineOptions options = first.options;
+  options.merger.prior_map = saved;
+  const InlineRun second = RunInline(*sequence, options, testing::DefaultVocabulary());
+  ASSERT_GE(second.graph.placement.size(), 3u) << "the saved map and the second flight's submaps";
+  for (const auto& [id, placement] : second.graph.placement) {
+    EXPECT_TRUE(IsSavedMap(placement.root)) << "submap " << SubmapName(id) << " is not in the saved map's merged map";
+  }
+
+  // The first flight's alignment to the truth, used unchanged for the second's frames.
+  std::vector<Eigen::Vector3d> estimated, truth;
+  for (const PoseRecord& p : first.run.merged_poses) {
+    estimated.push_back(p.world_from_cam.translation);
+    truth.push_back(first.truth.PoseAt(p.t_ns)->translation);
+  }
+  const Sim3d truth_from_map = AlignPoints(estimated, truth);
+  const auto rms_of = [&](const std::vector<PoseRecord>& poses, const Trajectory& true_poses) {
+    double sum = 0;
+    for (const PoseRecord& p : poses) {
+      sum += (truth_from_map * p.world_from_cam.translation - true_poses.PoseAt(p.t_ns)->translation).squaredNorm();
+    }
+    return std::sqrt(sum / std::max<size_t>(1, poses.size()));
+  };
+  const double first_rms = rms_of(first.run.merged_poses, first.truth);
+  const double second_rms = rms_of(second.merged_poses, sequence->ground_truth());
+  std::printf("first flight %zu frames at %.3f m; the second in its map, %zu frames at %.3f m (its alignment)\n",
+              first.run.merged_poses.size(), first_rms, second.merged_poses.size(), second_rms);
+  EXPECT_GE(second.merged_poses.size(), 180u);
+  EXPECT_LT(second_rms, 1.5 * first_rms);
 }
 
 }  // namespace

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <optional>
 
 #include <opencv2/imgproc.hpp>
 
@@ -16,6 +17,7 @@ bool SyntheticOptions::Check(std::string* why) const {
     if (why) *why = m;
     return false;
   };
+  if (world_seed < 0) return fail("synthetic.world_seed must be >= 0 (0: the world from synthetic.seed)");
   if (width < 32 || width > 8192 || height < 32 || height > 8192) {
     return fail("synthetic.width and height must be in [32, 8192]");
   }
@@ -35,12 +37,18 @@ SyntheticSequence::SyntheticSequence(const SyntheticOptions& options, const Fail
       flight_(options.flight, options.gust, camera_, gusts, static_cast<uint64_t>(options.seed)),
       imperfections_(options.camera, options.width, options.height, options.flight.num_frames, options.flight.fps,
                      static_cast<uint64_t>(options.seed)) {
+  // The world is built around a flight: this one, or with world_seed the one that seed flies
+  // (same plan and gust schedule), so that another seed's flight crosses the very same ground.
+  const bool other_world = options.world_seed > 0 && options.world_seed != options.seed;
+  const uint64_t world_seed = static_cast<uint64_t>(other_world ? options.world_seed : options.seed);
+  std::optional<FlightPlan> world_flight;
+  if (other_world) world_flight.emplace(options.flight, options.gust, camera_, gusts, world_seed);
+  const FlightPlan& around = world_flight ? *world_flight : flight_;
   WorldRoute route;
-  for (const Rigid3d& world_from_cam : flight_.world_from_cam())
-    route.camera_centres.push_back(world_from_cam.translation);
+  for (const Rigid3d& world_from_cam : around.world_from_cam()) route.camera_centres.push_back(world_from_cam.translation);
   route.paved = options_.flight.path == "road";
-  world_ = std::make_unique<SyntheticWorld>(options_.world, static_cast<uint64_t>(options_.seed) * 7919 + 17,
-                                            flight_.min_ground_xy(), flight_.max_ground_xy(), route);
+  world_ = std::make_unique<SyntheticWorld>(options_.world, world_seed * 7919 + 17, around.min_ground_xy(),
+                                            around.max_ground_xy(), route);
   renderer_ = std::make_unique<Renderer>(*world_, camera_);
   std::vector<StampedPose> poses;
   for (int i = 0; i < flight_.num_frames(); ++i) {
@@ -50,7 +58,11 @@ SyntheticSequence::SyntheticSequence(const SyntheticOptions& options, const Fail
 }
 
 std::string SyntheticSequence::description() const {
-  return Str() << "synthetic UAV survey (seed " << options_.seed << ", " << flight_.num_frames() << " frames, "
+  return Str() << "synthetic UAV survey (seed " << options_.seed
+               << (options_.world_seed > 0 && options_.world_seed != options_.seed
+                       ? ", the world of seed " + std::to_string(options_.world_seed)
+                       : std::string())
+               << ", " << flight_.num_frames() << " frames, "
                << options_.width << "x" << options_.height << ", gusts " << flight_.gusts().ToString() << ")";
 }
 

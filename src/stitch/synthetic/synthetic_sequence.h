@@ -16,6 +16,7 @@ namespace stitch {
 
 struct SyntheticOptions {
   int seed = 1;
+  int world_seed = 0;  // 0: the world from `seed` too
   int width = 640;
   int height = 480;
   double focal_px = 450.0;
@@ -29,6 +30,8 @@ struct SyntheticOptions {
   template <class Visitor>
   void VisitFields(Visitor& v) {
     v("seed", seed, "scene, flight and noise are deterministic from this");
+    v("world_seed", world_seed,
+      "the scene from this seed instead (0: from seed): another flight over the same ground, e.g. for --map");
     v("width", width, "image width, pixels");
     v("height", height, "image height, pixels");
     v("focal_px", focal_px, "focal length, pixels (pinhole; distortion: camera.lens_k1, lens_k2)");

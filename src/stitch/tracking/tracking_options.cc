@@ -90,7 +90,9 @@ bool TrackingOptions::Check(std::string* why) const {
     return fail("tracker.tracking.homography_search_px must be in (0, 200]");
   if (homography_roi_per_cell < 0 || homography_roi_per_cell > 1000)
     return fail("tracker.tracking.homography_roi_per_cell must be in [0, 1000]");
-  if (agent_number < 0 || agent_number > 32767) return fail("tracker.tracking.agent_number must be in [0, 32767]");
+  if (agent_number < 0 || agent_number >= kSavedMapAgent) {
+    return fail("tracker.tracking.agent_number must be in [0, 32766] (32767 names saved maps)");
+  }
   if (first_submap_number < 1 || first_submap_number > 65535)
     return fail("tracker.tracking.first_submap_number must be in [1, 65535]");
   return true;

@@ -243,7 +243,7 @@ struct TrackingOptions {
       "each (0: all tracked features)");
     v("keyframe_worker", keyframe_worker,
       "compute new keyframes' bag of words (relocalization database) on a background thread, off the frame loop");
-    v("agent_number", agent_number, "number of this aircraft in every id (0-32767)");
+    v("agent_number", agent_number, "number of this aircraft in every id (0-32766)");
     v("first_submap_number", first_submap_number, "number of the first submap (1-65535)");
   }
   bool Check(std::string* why) const;

@@ -4,6 +4,7 @@
 #include <cstdio>
 #include <cstring>
 #include <fstream>
+#include <iterator>
 
 #include "stitch/util/error.h"
 
@@ -40,6 +41,15 @@ void WriteFileAtomically(const std::string& path, const std::string& text) {
     std::remove(temporary.c_str());
     throw Error(path + ": cannot replace (" + std::strerror(rename_error) + ")");
   }
+}
+
+
+std::string ReadFileBytes(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw Error(std::string("cannot open (") + std::strerror(errno) + ")");
+  std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  if (in.bad()) throw Error("cannot read");
+  return bytes;
 }
 
 }  // namespace stitch

@@ -17,4 +17,8 @@ void ForEachDataLine(const std::string& path, const std::function<void(const std
 // stitch::Error naming the file on any failure (a full disk among them); the old file stays.
 void WriteFileAtomically(const std::string& path, const std::string& text);
 
+// The whole file's bytes. Throws stitch::Error "cannot open" or "cannot read" (without the path:
+// callers name the file).
+std::string ReadFileBytes(const std::string& path);
+
 }  // namespace stitch

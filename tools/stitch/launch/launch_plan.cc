@@ -9,6 +9,7 @@
 #include "services/link/link_auth.h"
 #include "stitch/io/calibration.h"
 #include "stitch/io/output_frames.h"
+#include "stitch/map/map_file.h"
 #include "stitch/util/error.h"
 #include "stitch/util/time.h"
 #include "tools/stitch/launch/split_network.h"
@@ -66,6 +67,13 @@ LaunchPlan PlanRun(const RunArgs& a, const std::string& out) {
     }
   }
   plan.config = LoadStitchConfig(a.config_path, CommandLineSettings(calibration, a.vocabulary, settings));
+  if (!a.map.empty()) {
+    // Read here first, so a file the merger cannot use stops the run before anything starts.
+    const SavedMap saved = ReadMapFile(a.map, MakeSubmapId(kSavedMapAgent, 0));
+    plan.config.merger.prior_map = fs::absolute(a.map).string();
+    info.notes.push_back("flown in the saved map " + a.map + ": " + std::to_string(saved.map.num_keyframes()) +
+                         " keyframes (" + saved.description + ")");
+  }
   const StitchConfig& config = plan.config;
   plan.spec = a.source;
   // The config may name a live camera.

@@ -24,6 +24,7 @@ struct RunArgs {
   std::string agent = "uav0";
   std::string log_level = "info";
   std::string vocabulary;  // over the settings' vocabulary
+  std::string map;         // a saved map the flight is merged into (merger.prior_map)
   bool quiet = false;
   bool journal = false;  // keep the merger's journal in OUT/merger
   bool compare = false;
