@@ -33,6 +33,7 @@
 #include "stitch/mosaic/geotiff.h"
 #include "stitch/records/frame_record.h"
 #include "stitch/records/keyframe_pictures.h"
+#include "stitch/util/text_file.h"
 #include "stitch/records/merger_records.h"
 #include "stitch/testing/full_disk.h"
 #include "stitch/testing/temp_dir.h"
@@ -108,9 +109,16 @@ TEST(StitchRun, TracksAShortFlightWithTheServicesAsProcesses) {
         "poses.tsv",        "keyframes.tsv",   "groundtruth.tum", "config.yaml",     "run.json",
         "logs/tracker.log", "logs/ingest.log", "logs/mapper.log", "logs/merger.log", "submaps.tsv",
         "graph.dot",        "graph.png",       "merge_log.tsv",   "retrieval.tsv",   "keyframes_merged.tsv",
-        "memory.tsv"}) {
+        "memory.tsv",       "map.stitchmap"}) {
     EXPECT_TRUE(fs::exists(fs::path(out) / file)) << file;
   }
+  // The map saved for a later flight (#44): read back and written again, the same bytes.
+  const auto saved = RunProgram({Bin("stitch"), "map", "save", out, "--out", dir / "site.stitchmap"}, 60);
+  ASSERT_EQ(saved.exit_code, 0) << saved.output;
+  EXPECT_EQ(ReadFileBytes(dir / "site.stitchmap"), ReadFileBytes(out + "/map.stitchmap"));
+  const auto info = RunProgram({Bin("stitch"), "map", "info", dir / "site.stitchmap"}, 60);
+  ASSERT_EQ(info.exit_code, 0) << info.output;
+  EXPECT_NE(info.output.find("format version 1"), std::string::npos) << info.output;
   // Each service's memory: sampled during the flight, its peak once it ended.
   std::ifstream memory(out + "/memory.tsv");
   std::string header, first;
@@ -218,6 +226,7 @@ TEST(StitchRun, BadInputsGiveAClearErrorAndANonZeroExit) {
       << "Camera.fx: 500\nCamera.fy: 500\nCamera.cx: 320\nCamera.cy: 240\nCamera.width: 752\nCamera.height: 480\n";
   fs::create_directories(dir.path() / "images");
   std::ofstream(dir / "images/0.png") << "not a png";
+  std::ofstream(dir / "cut.stitchmap") << "STITCHMP\x01";
   const std::vector<Case> cases = {
       {{Bin("stitch"), "run", "--dataset", dir / "missing"}, "no such file or folder"},
       {{Bin("stitch"), "run", "--config", dir / "typo.yaml"}, "pacnig"},
@@ -239,6 +248,10 @@ TEST(StitchRun, BadInputsGiveAClearErrorAndANonZeroExit) {
       {{Bin("stitch"), "run", "--start-frame", "-3"}, "--start-frame must be >= 0"},
       {{Bin("stitch"), "run", "--live", "flight.mp4", "--calib", dir / "calib.yaml"}, "GStreamer pipeline"},
       {{Bin("stitch"), "run", "--live", "/dev/video0"}, "--calib"},
+      {{Bin("stitch"), "run", "--map", dir / "nothere.stitchmap"}, "cannot open"},
+      {{Bin("stitch"), "run", "--map", dir / "calib.yaml"}, "not a stitch map"},
+      {{Bin("stitch"), "map", "info", dir / "cut.stitchmap"}, "not a stitch map"},
+      {{Bin("stitch"), "map", "save", dir.path().string(), "--out", dir / "x.stitchmap"}, "holds no map.stitchmap"},
       {{Bin("stitch-ingest"), "--live", "/dev/video-none", "--calib", dir / "calib.yaml", "--lcm-url", "memq://",
         "--set", "ingest.wait_for_tracker_s=0"},
        "cannot open it"},
@@ -263,6 +276,8 @@ TEST(StitchRun, EveryCommandHasHelp) {
                                                                                     {Bin("stitch"), "spy", "--help"},
                                                                                     {Bin("stitch"), "export", "--help"},
                                                                                     {Bin("stitch"), "mosaic", "--help"},
+                                                                                    {Bin("stitch"), "map", "save", "--help"},
+                                                                                    {Bin("stitch"), "map", "info", "--help"},
                                                                                     {Bin("stitch-ingest"), "--help"},
                                                                                     {Bin("stitch-tracker"), "--help"},
                                                                                     {Bin("stitch"), "link", "--help"},

@@ -314,5 +314,24 @@ TEST(Delivery, WithoutRequestsALossyLinkLeavesSubmapsIncomplete) {
   EXPECT_EQ(delivered.submaps_confirmed, 0);
 }
 
+// A saved map the merger read from a file (merger.prior_map) came from no mapper: nothing of it
+// is asked for, however it looks to the receiver (closed, its final state never "arrived").
+TEST(Delivery, NothingIsAskedForASavedMap) {
+  double now = 0;
+  SubmapReceiver receiver(ReceiverOptions(), [&] { return now; });
+  std::map<SubmapId, SubmapReplica> replicas;
+  for (const SubmapId id : {MakeSubmapId(kSavedMapAgent, 0), MakeSubmapId(0, 1)}) {
+    SubmapReplica& replica = replicas.try_emplace(id, id, kPyramid).first->second;
+    replica.closed = true;
+    replica.manifest = {MakeKeyframeId(id, 0)};  // listed, never received
+  }
+  now = 100;
+  receiver.Requests(replicas);
+  now = 200;
+  const std::vector<DeliveryRequest> requests = receiver.Requests(replicas);
+  ASSERT_EQ(requests.size(), 1u);
+  EXPECT_EQ(requests[0].submap, MakeSubmapId(0, 1)) << "the aircraft's submap only";
+}
+
 }  // namespace
 }  // namespace stitch
