@@ -249,6 +249,8 @@ TEST(StitchRun, BadInputsGiveAClearErrorAndANonZeroExit) {
       {{Bin("stitch"), "run", "--live", "flight.mp4", "--calib", dir / "calib.yaml"}, "GStreamer pipeline"},
       {{Bin("stitch"), "run", "--live", "/dev/video0"}, "--calib"},
       {{Bin("stitch"), "run", "--map", dir / "nothere.stitchmap"}, "cannot open"},
+      {{Bin("stitch"), "run", "--localize-only"}, "--localize-only needs --map"},
+      {{Bin("stitch-tracker"), "--set", "tracker.tracking.localize_only=true"}, "needs a prior_map"},
       {{Bin("stitch"), "run", "--map", dir / "calib.yaml"}, "not a stitch map"},
       {{Bin("stitch"), "map", "info", dir / "cut.stitchmap"}, "not a stitch map"},
       {{Bin("stitch"), "map", "save", dir.path().string(), "--out", dir / "x.stitchmap"}, "holds no map.stitchmap"},

@@ -195,6 +195,8 @@ int RunCommand(int argc, char** argv) {
   args.AddOption("--map", &a.map, "FILE",
                  "a saved map (map.stitchmap of an earlier run, or `stitch map save`): the flight's submaps merge "
                  "into it and its frame is the merged map's (merger.prior_map)");
+  args.AddFlag("--localize-only", &a.localize_only,
+               "with --map: track in the saved map only, without mapping (no keyframe, no submap of this flight)");
   args.AddOption("--pacing", &a.pacing, "MODE", "lockstep (reproducible, default) or realtime");
   args.AddOption("--lcm-url", &a.lcm_url, "URL", "bus for the services (default: a random local port, ttl=0)");
   args.AddOption("--agent", &a.agent, "NAME", "agent name prefixing the channels");
@@ -234,6 +236,10 @@ int RunCommand(int argc, char** argv) {
 
   if (!a.link && !a.netns && (a.link_loss >= 0 || a.link_delay_ms >= 0 || a.link_budget >= 0)) {
     std::fprintf(stderr, "stitch run: --link-loss, --link-delay-ms and --link-budget need --link\n");
+    return 2;
+  }
+  if (a.localize_only && a.map.empty()) {
+    std::fprintf(stderr, "stitch run: --localize-only needs --map FILE\n");
     return 2;
   }
   if (a.viewer && a.compare) {

@@ -178,11 +178,14 @@ std::vector<std::string> RunGeoReference::Summary() const {
                                  p.disagreement->apart_m);
       }
       if (m.absolute && written > 0 && written < static_cast<int>(sizeof(line))) {
+        // A flight without keyframes of its own (localize only) is judged by its frames.
+        const AbsoluteErrors& a = *m.absolute;
+        const bool by_keyframes = a.keyframes > 0;
         std::snprintf(line + written, sizeof(line) - written,
-                      "; against the truth, unaligned: keyframes %.2f m horizontal, %.2f m vertical RMS, scale off by "
-                      "%.2f%%",
-                      m.absolute->keyframe_horizontal_rms_m, m.absolute->keyframe_vertical_rms_m,
-                      100.0 * m.absolute->scale_error);
+                      "; against the truth, unaligned: %s %.2f m horizontal, %.2f m vertical RMS, scale off by %.2f%%",
+                      by_keyframes ? "keyframes" : "frames",
+                      by_keyframes ? a.keyframe_horizontal_rms_m : a.horizontal_rms_m,
+                      by_keyframes ? a.keyframe_vertical_rms_m : a.vertical_rms_m, 100.0 * a.scale_error);
       }
     }
     lines.push_back(line);

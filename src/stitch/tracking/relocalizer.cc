@@ -24,6 +24,7 @@ std::optional<KeyframeId> Relocalizer::Relocalize(Frame* frame, SubmapStore* sto
   const bool in_current = scope == RelocalizationScope::kCurrentSubmap;
   const std::function<bool(int64_t)> accept = [&](int64_t submap) {
     if ((submap == current_id) != in_current) return false;
+    if (scope == RelocalizationScope::kSavedMaps && !IsSavedMap(SubmapId(submap))) return false;
     if (in_current || more_keyframes_than == 0) return true;
     const Map* map = store->FindMap(SubmapId(submap));
     return map && map->num_keyframes() > more_keyframes_than;

@@ -17,8 +17,9 @@
 namespace stitch {
 
 // Where a frame is relocalized: in the current submap (the relocalize policy, or a camera lost in
-// it), or in the closed submaps only (a new submap initializing or still young).
-enum class RelocalizationScope { kCurrentSubmap, kClosedSubmaps };
+// it), in the closed submaps and saved maps (a new submap initializing or still young), or in
+// the saved maps only (a flight's first frames, stitch run --map).
+enum class RelocalizationScope { kCurrentSubmap, kClosedSubmaps, kSavedMaps };
 
 class Relocalizer {
  public:

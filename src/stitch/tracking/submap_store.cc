@@ -12,6 +12,10 @@ void SubmapStore::StartCurrent(std::unique_ptr<Map> map, uint32_t next_keyframe_
 
 std::optional<SubmapId> SubmapStore::CloseCurrent() {
   if (!current_) return std::nullopt;
+  if (IsSavedMap(current_->id())) {
+    saved_.push_back(std::move(current_));
+    return std::nullopt;
+  }
   const SubmapId id = current_->id();
   closed_.push_back({std::move(current_), next_keyframe_index_});
   return id;
@@ -62,11 +66,31 @@ Map* SubmapStore::FindMap(SubmapId id) {
   for (Closed& closed : closed_) {
     if (closed.map->id() == id) return closed.map.get();
   }
+  for (const std::unique_ptr<Map>& saved : saved_) {
+    if (saved->id() == id) return saved.get();
+  }
   return nullptr;
 }
 
+bool SubmapStore::MakeSavedCurrent(SubmapId id) {
+  const auto it =
+      std::find_if(saved_.begin(), saved_.end(), [&](const std::unique_ptr<Map>& m) { return m->id() == id; });
+  if (it == saved_.end()) return false;
+  std::unique_ptr<Map> map = std::move(*it);
+  saved_.erase(it);
+  if (current_) CloseCurrent();
+  current_ = std::move(map);
+  next_keyframe_index_ = 0;  // never used: no keyframe is added to a saved map
+  return true;
+}
+
+void SubmapStore::AddSaved(std::unique_ptr<Map> map) {
+  for (const auto& [id, keyframe] : map->keyframes()) AddToDatabase(keyframe);
+  saved_.push_back(std::move(map));
+}
+
 bool SubmapStore::Apply(const LocalMapUpdate& update) {
-  Map* target = FindMap(update.submap);
+  Map* target = IsSavedMap(update.submap) ? nullptr : FindMap(update.submap);
   if (!target) return false;
   ApplyLocalMapUpdate(update, target);
   for (KeyframeId id : update.removed_keyframes) database_.Remove(id.value);

@@ -26,6 +26,14 @@ class SubmapStore {
   // A closed submap becomes the current one again; false when there is no such closed submap.
   bool Reopen(SubmapId id);
   bool has_closed() const { return !closed_.empty(); }
+  // A saved map (stitch run --map, kSavedMapAgent): held for relocalization, never current,
+  // dropped or refined; its keyframes must carry their bags of words (they enter the database).
+  void AddSaved(std::unique_ptr<Map> map);
+  bool has_saved() const { return !saved_.empty(); }
+  // Localization only (tracker.tracking.localize_only): the saved map becomes the current one,
+  // tracked in but never added to; false when there is no such saved map. Closing it (CloseCurrent)
+  // puts it back among the saved maps and returns nothing: it is no submap of this flight.
+  bool MakeSavedCurrent(SubmapId id);
   // Drops closed submaps, the longest closed first, while the closed ones hold more than
   // `max_keyframes` keyframes; with `keep_last`, the last closed one stays whatever its size.
   // Returns the ids dropped.
@@ -37,7 +45,7 @@ class SubmapStore {
   KeyframeId NewKeyframeId();
   // A keyframe of the current or a closed submap.
   Keyframe* FindKeyframe(KeyframeId id);
-  // The current submap or a closed one with this id.
+  // The current submap, a closed one or a saved map with this id.
   Map* FindMap(SubmapId id);
   // Applies the mapper's update to the submap it is for (current or closed); false when the
   // store has no such submap.
@@ -55,6 +63,7 @@ class SubmapStore {
   std::unique_ptr<Map> current_;
   uint32_t next_keyframe_index_ = 0;
   std::vector<Closed> closed_;
+  std::vector<std::unique_ptr<Map>> saved_;
   KeyframeDatabase database_;
 };
 

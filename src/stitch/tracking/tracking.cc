@@ -30,7 +30,7 @@ Tracking::Tracking(const TrackingOptions& options, const Camera& camera, const V
       fps_(fps > 0 ? fps : 30.0),
       extractor_(options.orb),
       init_extractor_(TwiceTheFeatures(options.orb)),
-      policy_(policy),
+      policy_(options.localize_only ? LossPolicy::kRelocalize : policy),
       initializer_(options, &geometry_, vocabulary),
       placer_(options, &geometry_, vocabulary, [this] { AdoptKeyframeBow(/*wait=*/true); }),
       flow_(options.flow),
@@ -39,6 +39,18 @@ Tracking::Tracking(const TrackingOptions& options, const Camera& camera, const V
   CheckOptions(options_, "tracker");
   if (!vocabulary_ || vocabulary_->empty()) throw Error("Tracking needs a vocabulary");
   if (options_.keyframe_worker) keyframe_bow_ = std::make_unique<KeyframeBowWorker>(vocabulary_);
+  if (!options_.prior_map.empty()) {
+    SavedMap saved = ReadMapFile(options_.prior_map, MakeSubmapId(kSavedMapAgent, 0));
+    const size_t keyframes = saved.map.num_keyframes();
+    if (const std::string why = UseSavedMap(std::move(saved)); !why.empty()) {
+      if (options_.localize_only) throw Error(options_.prior_map + ": cannot localize in it: " + why);
+      STITCH_LOG(WARNING) << "the saved map " << options_.prior_map << " is not used by the tracker: " << why
+                          << " (the merger still merges the flight into it)";
+    } else {
+      STITCH_LOG(INFO) << "the saved map " << options_.prior_map << ": " << keyframes
+                       << " keyframes to relocalize in from the first frame";
+    }
+  }
 }
 
 void Tracking::AdoptKeyframeBow(bool wait) {
@@ -204,15 +216,36 @@ Tracking::Output Tracking::TrackExtracted(const cv::Mat& image, int frame_index,
 }
 
 Tracking::Output Tracking::Initialize(Frame frame) {
+  if (options_.localize_only) {
+    // No map of its own: the frame is placed in the saved map, or not at all.
+    Output output;
+    if (static_cast<int>(frame.size()) > options_.init_min_features &&
+        TryRelocalize(&frame, &output, nullptr, /*saved_only=*/true)) {
+      return output;
+    }
+    output.result.state = TrackingState::kNotTracked;
+    output.result.reason = TrackingReason::kNotRelocalized;
+    output.result.num_features = static_cast<int>(frame.size());
+    output.result.detail = "not relocalized in the saved map (localize only)";
+    return output;
+  }
   // The method re-initializes at once. When the new map cannot initialize (no parallax: hover,
   // pure rotation), the camera may be back over a closed submap and relocalize there.
   ++frames_initializing_;
   const bool enough_features = static_cast<int>(frame.size()) > options_.init_min_features;
-  const bool may_relocalize =
-      store_.has_closed() && frames_initializing_ > options_.relocalize_closed_after_frames && enough_features;
+  const bool may_relocalize = (store_.has_closed() || store_.has_saved()) &&
+                              frames_initializing_ > options_.relocalize_closed_after_frames && enough_features;
   const bool may_resume = !may_relocalize && !lost_from_.empty() && enough_features;
+  // A saved map (stitch run --map) is tried first, from the first frame: where the camera sees
+  // ground it mapped, the flight goes on in its frame rather than in a map of its own.
+  const bool into_saved_first = store_.has_saved() && !may_relocalize && enough_features;
   std::optional<Frame> copy;  // to relocalize, or to place backward later
-  if (may_relocalize || may_resume || options_.retrack_missed_frames > 0) copy = frame;
+  if (may_relocalize || may_resume || into_saved_first || options_.retrack_missed_frames > 0) copy = frame;
+  if (into_saved_first) {
+    Frame attempt = frame;
+    Output relocalized;
+    if (TryRelocalize(&attempt, &relocalized, nullptr, /*saved_only=*/true)) return relocalized;
+  }
 
   Output output;
   TrackResult& result = output.result;
@@ -382,7 +415,7 @@ void Tracking::OnTracked(Frame* frame, Output* output, bool may_make_keyframe) {
   const int inliers = frame->CountTracked();
   typical_sharpness_ = typical_sharpness_ > 0 ? 0.9 * typical_sharpness_ + 0.1 * frame->sharpness : frame->sharpness;
   consecutive_failures_ = 0;
-  if (may_make_keyframe) {
+  if (may_make_keyframe && !options_.localize_only) {
     KeyframeDecisionInput decision;
     decision.tracked_points = inliers;
     const Keyframe* reference = map.FindKeyframe(reference_keyframe_);
@@ -508,11 +541,12 @@ void Tracking::RetrackMissed(const Frame& from, Output* output) {
                                 std::make_move_iterator(placed.rend()));
 }
 
-bool Tracking::TryRelocalize(Frame* frame, Output* output, const std::set<KeyframeId>* only_at) {
+bool Tracking::TryRelocalize(Frame* frame, Output* output, const std::set<KeyframeId>* only_at, bool saved_only) {
   const bool reopening = !store_.current();
-  const std::optional<KeyframeId> at = relocalizer_.Relocalize(
-      frame, &store_, &reference_keyframe_,
-      reopening ? RelocalizationScope::kClosedSubmaps : RelocalizationScope::kCurrentSubmap, 0, only_at);
+  const RelocalizationScope scope = !reopening ? RelocalizationScope::kCurrentSubmap
+                                    : saved_only ? RelocalizationScope::kSavedMaps
+                                                 : RelocalizationScope::kClosedSubmaps;
+  const std::optional<KeyframeId> at = relocalizer_.Relocalize(frame, &store_, &reference_keyframe_, scope, 0, only_at);
   if (!at) return false;
   if (only_at) {
     // Back where it was lost (a blackout, a turn in place), or moved on to ground seen from afar?
@@ -532,7 +566,18 @@ bool Tracking::TryRelocalize(Frame* frame, Output* output, const std::set<Keyfra
     }
   }
   lost_from_.clear();
-  if (reopening) store_.Reopen(SubmapOf(*at));
+  const bool into_saved = reopening && IsSavedMap(SubmapOf(*at));
+  size_t copied = 0;
+  if (into_saved && options_.localize_only) {
+    store_.MakeSavedCurrent(SubmapOf(*at));
+  } else if (into_saved) {
+    // The saved map is not flown on: a new submap starts from copies of its local map here.
+    LocalMapCopy copy = CopyLocalMap(*store_.FindMap(SubmapOf(*at)), reference_keyframe_, frame);
+    copied = copy.keyframe_ids.size();
+    StartFromCopies(std::move(copy), frame, output);
+  } else if (reopening) {
+    store_.Reopen(SubmapOf(*at));
+  }
   ++relocalizations_;
   lost_ = false;
   ForgetMotion();
@@ -543,7 +588,17 @@ bool Tracking::TryRelocalize(Frame* frame, Output* output, const std::set<Keyfra
   result.detail = std::string(reopening ? "relocalized into closed submap " : "relocalized in submap ") +
                   SubmapName(result.submap) + " at keyframe " + std::to_string(IndexOf(*at)) + " with " +
                   std::to_string(result.num_tracked_points) + " points";
-  if (reopening) output->reopened_submap = result.submap;
+  if (into_saved && options_.localize_only) {
+    result.detail = "relocalized in the saved map at its keyframe " + std::to_string(IndexOf(*at)) + " with " +
+                    std::to_string(result.num_tracked_points) + " points (localize only)";
+  } else if (into_saved) {
+    result.detail = "relocalized in the saved map at its keyframe " + std::to_string(IndexOf(*at)) + " with " +
+                    std::to_string(result.num_tracked_points) + " points; submap " + SubmapName(result.submap) +
+                    " starts from copies of " + std::to_string(copied) + " of its keyframes";
+    STITCH_LOG(INFO) << "frame " << frame->frame_index << ": " << result.detail;
+  } else if (reopening) {
+    output->reopened_submap = result.submap;
+  }
   return true;
 }
 
@@ -610,80 +665,134 @@ bool Tracking::HandOverIfFull(Output* output) {
   const Keyframe* reference = full.FindKeyframe(reference_keyframe_);
   if (!reference) return false;
   AdoptKeyframeBow(/*wait=*/true);  // the copies carry their bags of words
-  // The reference's id, kept: the full submap may be dropped below.
-  const KeyframeId reference_id = reference->id;
-  std::vector<KeyframeId> window = full.BestCovisible(reference_id, options_.handover_keyframes - 1);
-  window.push_back(reference_id);
-  std::sort(window.begin(), window.end());  // in the order they were made
-
-  const SubmapId submap = MakeSubmapId(options_.agent_number, next_submap_number_);
-  auto map = std::make_unique<Map>(submap, full.pyramid());
-  std::unordered_map<KeyframeId, KeyframeId> keyframe_ids;
-  for (KeyframeId id : window) keyframe_ids[id] = MakeKeyframeId(submap, static_cast<uint32_t>(keyframe_ids.size()));
-  // The points the copies observe, numbered in the order they are met.
-  std::unordered_map<MapPointId, MapPointId> point_ids;
-  std::vector<MapPoint> new_points;
-  for (KeyframeId id : window) {
-    for (MapPointId p : full.FindKeyframe(id)->points) {
-      const MapPoint* point = p.valid() ? full.FindPoint(p) : nullptr;
-      if (!point || point_ids.count(p)) continue;
-      MapPoint copy = *point;
-      copy.id = point_ids[p] = map->NewPointId();
-      copy.observations.clear();
-      copy.reference_keyframe = copy.first_keyframe = keyframe_ids.at(id);
-      new_points.push_back(copy);
-      map->AddPoint(std::move(copy));
-    }
-  }
-  const auto new_point_id = [&](MapPointId p) {
-    const auto it = p.valid() ? point_ids.find(p) : point_ids.end();
-    return it == point_ids.end() ? MapPointId() : it->second;
-  };
-  for (KeyframeId id : window) {
-    Keyframe copy = UnlinkedCopy(*full.FindKeyframe(id));
-    copy.id = keyframe_ids.at(id);
-    for (MapPointId& p : copy.points) p = new_point_id(p);
-    map->AddKeyframe(std::move(copy));
-  }
-  for (KeyframeId id : window) map->UpdateConnections(keyframe_ids.at(id));
-
+  LocalMapCopy copy = CopyLocalMap(full, reference->id);
   // The frame goes on in the new submap: same pose, its points renamed.
   Frame frame = std::move(*last_frame_);
   const std::optional<Rigid3d> velocity = velocity_;
   const double sharpness = typical_sharpness_;
   const int last_keyframe = last_keyframe_frame_index_;
-  const SubmapId closed = *CloseSubmap();
-  for (MapPointId& p : frame.points) p = new_point_id(p);
-  store_.StartCurrent(std::move(map), static_cast<uint32_t>(window.size()));
-  ++next_submap_number_;
+  const SubmapId closed = *CloseSubmap();  // `full` and `reference` are gone after
+  const size_t copied = copy.keyframe_ids.size();
+  StartFromCopies(std::move(copy), &frame, output);
   DropClosedSubmaps(/*keep_last=*/false);  // its local map goes on in the new submap
   const Map& current = *store_.current();
-  reference_keyframe_ = keyframe_ids.at(reference_id);
   velocity_ = velocity;
   typical_sharpness_ = sharpness;
   last_keyframe_frame_index_ = last_keyframe;
   output->closed_submap = closed;
-  output->new_points = std::move(new_points);
-  for (KeyframeId id : window) {
-    const Keyframe& copy = *current.FindKeyframe(keyframe_ids.at(id));
-    store_.AddToDatabase(copy);
-    output->new_keyframes.push_back(copy);
-    NoteKeyframeSent(copy.id);
-  }
   TrackResult& result = output->result;
-  result.submap = submap;
+  result.submap = current.id();
   result.reference_keyframe = reference_keyframe_;
   result.cam_from_reference =
       *frame.cam_from_world * current.FindKeyframe(reference_keyframe_)->cam_from_world.Inverse();
   result.num_tracked_points = frame.CountTracked();
   result.submap_keyframes = static_cast<int>(current.num_keyframes());
   result.detail = "submap " + SubmapName(closed) + " reached " + std::to_string(options_.submap_max_keyframes) +
-                  " keyframes; continues in submap " + SubmapName(submap) + " from copies of its last " +
-                  std::to_string(window.size()) + " keyframes and " + std::to_string(output->new_points.size()) +
+                  " keyframes; continues in submap " + SubmapName(current.id()) + " from copies of its last " +
+                  std::to_string(copied) + " keyframes and " + std::to_string(output->new_points.size()) +
                   " points";
   STITCH_LOG(INFO) << "frame " << frame.frame_index << ": " << result.detail;
   last_frame_ = std::move(frame);
   return true;
+}
+
+Tracking::LocalMapCopy Tracking::CopyLocalMap(const Map& source, KeyframeId reference, const Frame* seen_by) const {
+  std::vector<KeyframeId> window;
+  if (seen_by) {
+    // The keyframes that see most of the frame's points (the frame's local map, as tracking
+    // builds it), the reference among them.
+    std::map<KeyframeId, int> shared;
+    for (MapPointId p : seen_by->points) {
+      const MapPoint* point = p.valid() ? source.FindPoint(p) : nullptr;
+      if (!point) continue;
+      for (const auto& [keyframe, feature] : point->observations) ++shared[keyframe];
+    }
+    shared.erase(reference);
+    std::vector<std::pair<int, KeyframeId>> ranked;
+    for (const auto& [keyframe, count] : shared) ranked.push_back({count, keyframe});
+    std::sort(ranked.begin(), ranked.end(), [](const auto& a, const auto& b) { return a.first > b.first; });
+    for (size_t i = 0; i < ranked.size() && static_cast<int>(i) + 1 < options_.handover_keyframes; ++i) {
+      window.push_back(ranked[i].second);
+    }
+  } else {
+    window = source.BestCovisible(reference, options_.handover_keyframes - 1);
+  }
+  window.push_back(reference);
+  std::sort(window.begin(), window.end());  // in the order they were made
+  LocalMapCopy copy;
+  const SubmapId submap = MakeSubmapId(options_.agent_number, next_submap_number_);
+  copy.map = std::make_unique<Map>(submap, source.pyramid());
+  for (KeyframeId id : window) {
+    copy.keyframe_ids[id] = MakeKeyframeId(submap, static_cast<uint32_t>(copy.keyframe_ids.size()));
+  }
+  copy.reference = copy.keyframe_ids.at(reference);
+  // The points the copies observe, numbered in the order they are met.
+  for (KeyframeId id : window) {
+    for (MapPointId p : source.FindKeyframe(id)->points) {
+      const MapPoint* point = p.valid() ? source.FindPoint(p) : nullptr;
+      if (!point || copy.point_ids.count(p)) continue;
+      MapPoint moved = *point;
+      moved.id = copy.point_ids[p] = copy.map->NewPointId();
+      moved.observations.clear();
+      moved.reference_keyframe = moved.first_keyframe = copy.keyframe_ids.at(id);
+      copy.map->AddPoint(std::move(moved));
+    }
+  }
+  for (KeyframeId id : window) {
+    Keyframe keyframe = UnlinkedCopy(*source.FindKeyframe(id));
+    keyframe.id = copy.keyframe_ids.at(id);
+    for (MapPointId& p : keyframe.points) p = copy.NewPointId(p);
+    copy.map->AddKeyframe(std::move(keyframe));
+  }
+  for (KeyframeId id : window) copy.map->UpdateConnections(copy.keyframe_ids.at(id));
+  return copy;
+}
+
+void Tracking::StartFromCopies(LocalMapCopy copy, Frame* frame, Output* output) {
+  for (MapPointId& p : frame->points) p = copy.NewPointId(p);
+  std::vector<KeyframeId> copies;
+  for (const auto& [original, id] : copy.keyframe_ids) copies.push_back(id);
+  std::sort(copies.begin(), copies.end());
+  for (const auto& [id, point] : copy.map->points()) {
+    MapPoint without_observations = point;
+    without_observations.observations.clear();
+    output->new_points.push_back(std::move(without_observations));
+  }
+  std::sort(output->new_points.begin(), output->new_points.end(),
+            [](const MapPoint& a, const MapPoint& b) { return a.id < b.id; });
+  store_.StartCurrent(std::move(copy.map), static_cast<uint32_t>(copies.size()));
+  ++next_submap_number_;
+  reference_keyframe_ = copy.reference;
+  const Map& current = *store_.current();
+  for (KeyframeId id : copies) {
+    const Keyframe& keyframe = *current.FindKeyframe(id);
+    store_.AddToDatabase(keyframe);
+    output->new_keyframes.push_back(keyframe);
+    NoteKeyframeSent(keyframe.id);
+  }
+}
+
+std::string Tracking::UseSavedMap(SavedMap saved) {
+  const Camera& own = geometry_.camera;
+  if (saved.cameras.size() != 1 || saved.cameras[0].model() != own.model() ||
+      saved.cameras[0].width() != own.width() || saved.cameras[0].height() != own.height() ||
+      (Eigen::Map<const Eigen::VectorXd>(saved.cameras[0].params().data(), own.params().size()) -
+       Eigen::Map<const Eigen::VectorXd>(own.params().data(), own.params().size()))
+              .cwiseAbs()
+              .maxCoeff() > 1e-6 * own.fx()) {
+    return "its keyframes were seen by another camera than this flight's";
+  }
+  for (const auto& [id, unused] : saved.map.keyframes()) {
+    Keyframe& keyframe = *saved.map.FindKeyframe(id);
+    keyframe.undistorted.clear();
+    for (const cv::KeyPoint& k : keyframe.keypoints) {
+      keyframe.undistorted.push_back(geometry_.undistorter.Undistort(k.pt.x, k.pt.y));
+    }
+    keyframe.grid = FeatureGrid(keyframe.undistorted, geometry_.undistorter);
+    keyframe.bow = vocabulary_->Transform(keyframe.descriptors, &keyframe.bow_features);
+  }
+  store_.AddSaved(std::make_unique<Map>(std::move(saved.map)));
+  return "";
 }
 
 Keyframe Tracking::CreateKeyframe(const Frame& frame) {

@@ -28,6 +28,7 @@
 #include <optional>
 #include <set>
 #include <string>
+#include <unordered_map>
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -36,6 +37,7 @@
 #include "stitch/features/vocabulary.h"
 #include "stitch/map/local_map_update.h"
 #include "stitch/map/map.h"
+#include "stitch/map/map_file.h"
 #include "stitch/map/view_geometry.h"
 #include "stitch/tracking/feature_flow.h"
 #include "stitch/tracking/frame_placer.h"
@@ -72,6 +74,12 @@ class Tracking {
            LossPolicy policy = LossPolicy::kNewSubmap);
 
   Output Track(const cv::Mat& image, int frame_index, int64_t t_ns);
+  // stitch run --map: a saved map (map_file.h) the camera relocalizes in while a new map
+  // initializes (from the first frames of the flight, and after every loss). Where a frame lands
+  // in it, a new submap starts with copies of the saved map's local map there (as at a handover:
+  // the same poses, so in the saved map's frame), which the merger joins to the saved map on the
+  // copies. Returns why not (empty: taken) where it cannot be used: a map of another camera.
+  std::string UseSavedMap(SavedMap saved);
   // Applies the mapper's changes to the tracker's copy of the submap (current or closed).
   // `last_part`: whether this is the last part of its update (only that one says the mapper is
   // done with update.last_keyframe).
@@ -119,7 +127,9 @@ class Tracking {
   // Relocalizes `frame` (in the current submap, or in a closed one which is reopened); on
   // success the frame is tracked and `output` says so.
   // `only_at` (optional): the keyframes it may land at.
-  bool TryRelocalize(Frame* frame, Output* output, const std::set<KeyframeId>* only_at = nullptr);
+  // `saved_only`: without a current submap, only into the saved maps.
+  bool TryRelocalize(Frame* frame, Output* output, const std::set<KeyframeId>* only_at = nullptr,
+                     bool saved_only = false);
   // The keyframes of the local map the camera is tracked in now (LostFrom's definition).
   std::set<KeyframeId> LocalMapKeyframes() const;
   // Submap policy, a young submap: relocalizes `frame` (a copy of the one tracked in it) into the
@@ -134,6 +144,25 @@ class Tracking {
   // starts with copies of its local map (same poses), sent to the mapper in `output`; the frame
   // is tracked in the new one. False (nothing done) below the cap.
   bool HandOverIfFull(Output* output);
+  // A new submap's start from copies of `source`'s local map around `reference` (it and its
+  // handover_keyframes - 1 best covisible keyframes, their points, the same poses), numbered
+  // for the next submap.
+  struct LocalMapCopy {
+    std::unique_ptr<Map> map;
+    KeyframeId reference;                                     // the reference's copy
+    std::unordered_map<KeyframeId, KeyframeId> keyframe_ids;  // source -> copy
+    std::unordered_map<MapPointId, MapPointId> point_ids;     // source -> copy
+    MapPointId NewPointId(MapPointId p) const {
+      const auto it = p.valid() ? point_ids.find(p) : point_ids.end();
+      return it == point_ids.end() ? MapPointId() : it->second;
+    }
+  };
+  // `seen_by` (optional): the copies are the keyframes that see most of that frame's points (a
+  // frame placed in `source`), not the reference's best covisible ones.
+  LocalMapCopy CopyLocalMap(const Map& source, KeyframeId reference, const Frame* seen_by = nullptr) const;
+  // The copy becomes the current submap (the reference its reference keyframe); its keyframes
+  // and points go to the mapper in `output`; `frame`'s points are renamed to the copies'.
+  void StartFromCopies(LocalMapCopy copy, Frame* frame, Output* output);
   // Drops the closed submaps beyond closed_keyframes_held (after a submap closed); with
   // `keep_last`, the one just closed stays (lost: the camera may resume it).
   void DropClosedSubmaps(bool keep_last);

@@ -149,6 +149,12 @@ struct TrackingOptions {
   // A new keyframe's bag of words (for relocalization; the mapper computes its own) on a
   // background thread instead of in the frame loop.
   bool keyframe_worker = true;
+  // A saved map (stitch run --map; map_file.h) the camera relocalizes in while a new map
+  // initializes; empty: none.
+  std::string prior_map;
+  // With prior_map: track in the saved map only, without mapping (no keyframe, no submap of its
+  // own): a lost camera relocalizes in it again (stitch run --localize-only).
+  bool localize_only = false;
   int agent_number = 0;  // high bits of every id this tracker makes
   int first_submap_number = 1;
 
@@ -244,6 +250,12 @@ struct TrackingOptions {
     v("keyframe_worker", keyframe_worker,
       "compute new keyframes' bag of words (relocalization database) on a background thread, off the frame loop");
     v("agent_number", agent_number, "number of this aircraft in every id (0-32766)");
+    v("prior_map", prior_map,
+      "a saved map (.stitchmap) the camera relocalizes in from the first frame and after every loss; where it "
+      "lands, a new submap starts from copies of the saved map's local map (stitch run --map; empty: none)");
+    v("localize_only", localize_only,
+      "with prior_map: track in the saved map only, making no keyframe and no submap of this flight; a lost camera "
+      "relocalizes in it again (stitch run --localize-only)");
     v("first_submap_number", first_submap_number, "number of the first submap (1-65535)");
   }
   bool Check(std::string* why) const;

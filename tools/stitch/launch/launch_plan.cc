@@ -70,7 +70,8 @@ LaunchPlan PlanRun(const RunArgs& a, const std::string& out) {
   if (!a.map.empty()) {
     // Read here first, so a file the merger cannot use stops the run before anything starts.
     const SavedMap saved = ReadMapFile(a.map, MakeSubmapId(kSavedMapAgent, 0));
-    plan.config.merger.prior_map = fs::absolute(a.map).string();
+    plan.config.merger.prior_map = plan.config.tracker.tracking.prior_map = fs::absolute(a.map).string();
+    plan.config.tracker.tracking.localize_only = a.localize_only;
     info.notes.push_back("flown in the saved map " + a.map + ": " + std::to_string(saved.map.num_keyframes()) +
                          " keyframes (" + saved.description + ")");
   }

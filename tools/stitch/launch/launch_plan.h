@@ -25,6 +25,7 @@ struct RunArgs {
   std::string log_level = "info";
   std::string vocabulary;  // over the settings' vocabulary
   std::string map;         // a saved map the flight is merged into (merger.prior_map)
+  bool localize_only = false;  // with `map`: track in it only (tracker.tracking.localize_only)
   bool quiet = false;
   bool journal = false;  // keep the merger's journal in OUT/merger
   bool compare = false;
