@@ -33,6 +33,11 @@ int EvalCommand(int argc, char** argv) {
   args.AddOption("--frames-total", &frames_total, "N",
                  "frames in the sequence, for completeness (default: poses in --est)");
   args.AddOption("--out", &out_dir, "DIR", "with --est: write report.json and trajectory.png here");
+  std::string align_as;
+  args.AddOption("--align-as", &align_as, "RUN_DIR",
+                 "with --est: align with that run's alignment (its trajectory.tum against its groundtruth.tum) "
+                 "instead of the estimate's own: a flight in that run's saved map (stitch run --map), judged where "
+                 "that map puts it");
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {
     if (!run_dirs.empty()) {
@@ -46,6 +51,23 @@ int EvalCommand(int argc, char** argv) {
       return 0;
     }
     if (estimate_path.empty()) throw Error("nothing to evaluate: give a run folder or --est FILE (see --help)");
+    if (!align_as.empty()) {
+      if (truth_path.empty()) throw Error("--align-as needs --gt");
+      const Trajectory theirs = Trajectory::ReadTum((fs::path(align_as) / "trajectory.tum").string());
+      const auto aligned =
+          CompareTrajectories(theirs.poses(), Trajectory::ReadTum((fs::path(align_as) / "groundtruth.tum").string()));
+      if (!aligned) throw Error(align_as + ": its trajectory has no alignment to its ground truth");
+      const Trajectory truth = ReadGroundTruth(truth_path, kitti_times);
+      const Trajectory ours = Trajectory::ReadTum(estimate_path);
+      const auto errors = CompareTrajectories(ours.poses(), truth, 50'000'000, aligned->ground_truth_from_estimate);
+      if (!errors) throw Error(estimate_path + ": fewer than 3 poses with ground truth");
+      std::printf(
+          "aligned as %s (its own ATE %.4f m over %d frames, scale %.4f)\n"
+          "ATE RMSE %.4f m over %d frames with that alignment (median %.4f, max %.4f)\n",
+          align_as.c_str(), aligned->ate_rmse_m, aligned->pairs, aligned->ground_truth_from_estimate.scale,
+          errors->ate_rmse_m, errors->pairs, errors->ate_median_m, errors->ate_max_m);
+      return 0;
+    }
     EvaluationInput input;
     const Trajectory estimate = Trajectory::ReadTum(estimate_path);
     for (size_t i = 0; i < estimate.size(); ++i) {

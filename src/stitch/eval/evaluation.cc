@@ -45,7 +45,8 @@ std::vector<StampedPose> ToStamped(const std::vector<PoseRecord>& poses) {
 }  // namespace
 
 std::optional<TrajectoryErrors> CompareTrajectories(const std::vector<StampedPose>& estimated,
-                                                    const Trajectory& ground_truth, int64_t max_association_gap_ns) {
+                                                    const Trajectory& ground_truth, int64_t max_association_gap_ns,
+                                                    const std::optional<Sim3d>& alignment) {
   std::vector<Eigen::Vector3d> estimate_positions, truth_positions;
   std::vector<Rigid3d> estimate_poses, truth_poses;
   for (const auto& pose : estimated) {
@@ -59,7 +60,8 @@ std::optional<TrajectoryErrors> CompareTrajectories(const std::vector<StampedPos
   if (estimate_positions.size() < 3) return std::nullopt;
   TrajectoryErrors errors;
   try {
-    errors.ground_truth_from_estimate = AlignPoints(estimate_positions, truth_positions, true);
+    errors.ground_truth_from_estimate =
+        alignment ? *alignment : AlignPoints(estimate_positions, truth_positions, true);
   } catch (const Error&) {
     return std::nullopt;  // collinear or coincident positions: no unique alignment
   }

@@ -84,11 +84,13 @@ struct Evaluation {
   bool has_ground_truth = false;
 };
 
-// Aligns `estimated` to `ground_truth` with a Sim3 (Umeyama) and measures the errors. Empty
-// when fewer than 3 poses have ground truth or they are degenerate (collinear).
+// Aligns `estimated` to `ground_truth` with a Sim3 (Umeyama), or with `alignment` where given
+// (another run's, for a trajectory in that run's map), and measures the errors. Empty when fewer
+// than 3 poses have ground truth or they are degenerate (collinear).
 std::optional<TrajectoryErrors> CompareTrajectories(const std::vector<StampedPose>& estimated,
                                                     const Trajectory& ground_truth,
-                                                    int64_t max_association_gap_ns = 50'000'000);
+                                                    int64_t max_association_gap_ns = 50'000'000,
+                                                    const std::optional<Sim3d>& alignment = std::nullopt);
 
 Evaluation Evaluate(const EvaluationInput& input);
 // report.json's figures (ToJson) and back (EvaluationFromJson, which throws stitch::Error naming
