@@ -33,11 +33,11 @@
 #include "stitch/mosaic/geotiff.h"
 #include "stitch/records/frame_record.h"
 #include "stitch/records/keyframe_pictures.h"
-#include "stitch/util/text_file.h"
 #include "stitch/records/merger_records.h"
 #include "stitch/testing/full_disk.h"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/util/child_process.h"
+#include "stitch/util/text_file.h"
 #include "stitch/util/time.h"
 #include "tests/test_process.h"
 
@@ -269,21 +269,22 @@ TEST(StitchRun, BadInputsGiveAClearErrorAndANonZeroExit) {
 }
 
 TEST(StitchRun, EveryCommandHasHelp) {
-  for (const std::vector<std::string>& args : std::vector<std::vector<std::string>>{{Bin("stitch"), "--help"},
-                                                                                    {Bin("stitch"), "run", "--help"},
-                                                                                    {Bin("stitch"), "eval", "--help"},
-                                                                                    {Bin("stitch"), "render", "--help"},
-                                                                                    {Bin("stitch"), "config", "--help"},
-                                                                                    {Bin("stitch"), "merger", "--help"},
-                                                                                    {Bin("stitch"), "spy", "--help"},
-                                                                                    {Bin("stitch"), "export", "--help"},
-                                                                                    {Bin("stitch"), "mosaic", "--help"},
-                                                                                    {Bin("stitch"), "map", "save", "--help"},
-                                                                                    {Bin("stitch"), "map", "info", "--help"},
-                                                                                    {Bin("stitch-ingest"), "--help"},
-                                                                                    {Bin("stitch-tracker"), "--help"},
-                                                                                    {Bin("stitch"), "link", "--help"},
-                                                                                    {Bin("stitch-link"), "--help"}}) {
+  for (const std::vector<std::string>& args :
+       std::vector<std::vector<std::string>>{{Bin("stitch"), "--help"},
+                                             {Bin("stitch"), "run", "--help"},
+                                             {Bin("stitch"), "eval", "--help"},
+                                             {Bin("stitch"), "render", "--help"},
+                                             {Bin("stitch"), "config", "--help"},
+                                             {Bin("stitch"), "merger", "--help"},
+                                             {Bin("stitch"), "spy", "--help"},
+                                             {Bin("stitch"), "export", "--help"},
+                                             {Bin("stitch"), "mosaic", "--help"},
+                                             {Bin("stitch"), "map", "save", "--help"},
+                                             {Bin("stitch"), "map", "info", "--help"},
+                                             {Bin("stitch-ingest"), "--help"},
+                                             {Bin("stitch-tracker"), "--help"},
+                                             {Bin("stitch"), "link", "--help"},
+                                             {Bin("stitch-link"), "--help"}}) {
     const auto result = RunProgram(args, 10);
     EXPECT_EQ(result.exit_code, 0) << args[0] << " " << args[1];
     EXPECT_NE(result.output.find("usage:"), std::string::npos) << result.output;

@@ -28,11 +28,12 @@ namespace {
 int MapSave(int argc, char** argv) {
   std::vector<std::string> runs;
   std::string out;
-  ArgParser args("stitch map save",
-                 "Saves a run's largest merged map for a later flight (`stitch run --map FILE`): the map.stitchmap the "
-                 "merger wrote at the end of the run (docs/map-file.md), read and checked whole, then written to --out. "
-                 "A run whose merger kept its journal but wrote no map (an older run) can be rebuilt first with "
-                 "`stitch map RUN/merger/submap_updates.lcmlog --out DIR`.");
+  ArgParser args(
+      "stitch map save",
+      "Saves a run's largest merged map for a later flight (`stitch run --map FILE`): the map.stitchmap the "
+      "merger wrote at the end of the run (docs/map-file.md), read and checked whole, then written to --out. "
+      "A run whose merger kept its journal but wrote no map (an older run) can be rebuilt first with "
+      "`stitch map RUN/merger/submap_updates.lcmlog --out DIR`.");
   args.AddPositional(&runs, "RUN", "a folder written by `stitch run` (or by `stitch map`)");
   args.AddOption("--out", &out, "FILE", "the saved map to write (e.g. site.stitchmap)");
   if (!args.Parse(argc, argv)) return args.exit_code();
@@ -41,8 +42,9 @@ int MapSave(int argc, char** argv) {
     if (out.empty()) throw Error("give --out FILE");
     const std::string source = (fs::path(runs[0]) / "map.stitchmap").string();
     if (!fs::exists(source)) {
-      throw Error(runs[0] + " holds no map.stitchmap (merger.save_map was off, or the run is older); with its "
-                            "journal, `stitch map RUN/merger/submap_updates.lcmlog --out DIR` makes one");
+      throw Error(runs[0] +
+                  " holds no map.stitchmap (merger.save_map was off, or the run is older); with its "
+                  "journal, `stitch map RUN/merger/submap_updates.lcmlog --out DIR` makes one");
     }
     const Stopwatch clock;
     const SavedMap saved = ReadMapFile(source, MakeSubmapId(kSavedMapAgent, 0));
@@ -101,7 +103,8 @@ int MapCommand(int argc, char** argv) {
       "lcm-logger recording that holds <agent>/SUBMAP. Runs the merger over them as they were received and "
       "writes its outputs to --out: map.ply, submaps.tsv, keyframes_merged.tsv, connections.tsv, graph.dot, "
       "graph.png, merge_log.tsv, retrieval.tsv, map.stitchmap. `stitch map save RUN --out FILE` saves a run's "
-      "map for `stitch run --map`; `stitch map info FILE` says what a saved map holds. A damaged log is read around its damage (every intact record), "
+      "map for `stitch run --map`; `stitch map info FILE` says what a saved map holds. A damaged log is read around "
+      "its damage (every intact record), "
       "with a warning and exit status 3.");
   args.AddPositional(&logs, "LOG", "an LCM log with submap updates");
   args.AddOption("--out", &out, "DIR", "where to write the merged map (created; must not hold one already)");

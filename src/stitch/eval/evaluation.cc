@@ -60,8 +60,7 @@ std::optional<TrajectoryErrors> CompareTrajectories(const std::vector<StampedPos
   if (estimate_positions.size() < 3) return std::nullopt;
   TrajectoryErrors errors;
   try {
-    errors.ground_truth_from_estimate =
-        alignment ? *alignment : AlignPoints(estimate_positions, truth_positions, true);
+    errors.ground_truth_from_estimate = alignment ? *alignment : AlignPoints(estimate_positions, truth_positions, true);
   } catch (const Error&) {
     return std::nullopt;  // collinear or coincident positions: no unique alignment
   }

@@ -229,7 +229,7 @@ std::string EncodeMapFile(const SavedMap& saved) {
   w.Bytes(kMagic, sizeof(kMagic));
   w.U32(kMapFileVersion);
   w.U32(static_cast<uint32_t>(kHeaderBytes));
-  w.U64(0);                             // payload bytes, filled below
+  w.U64(0);                                                           // payload bytes, filled below
   w.Bytes(std::string(kChecksumBytes, '\0').data(), kChecksumBytes);  // filled below
   w.String(saved.description.substr(0, kMaxDescriptionBytes));
   w.U32(static_cast<uint32_t>(map.pyramid().num_levels));
@@ -243,9 +243,7 @@ std::string EncodeMapFile(const SavedMap& saved) {
     w.U32(static_cast<uint32_t>(params.size()));
     for (double p : params) w.F64(p);
   }
-  const auto index_of = [&](auto any_id) {
-    return any_id.valid() && SubmapOf(any_id) == id ? IndexOf(any_id) : kNone;
-  };
+  const auto index_of = [&](auto any_id) { return any_id.valid() && SubmapOf(any_id) == id ? IndexOf(any_id) : kNone; };
   // Points and keyframes are numbered 0.. in their submap; each is written at its index.
   const uint32_t num_points = static_cast<uint32_t>(map.num_points());
   w.U32(num_points);
@@ -371,8 +369,8 @@ SavedMap DecodeMapFile(const std::string& bytes, SubmapId id) {
   const uint32_t num_keyframes = r.Count(kKeyframeMinBytes, "the keyframes");
   const auto keyframe_id = [&](uint32_t index, const std::string& what) {
     if (index == kNone) return KeyframeId();
-    if (index >= num_keyframes) throw Error(what + " names keyframe " + std::to_string(index) + " of " +
-                                            std::to_string(num_keyframes));
+    if (index >= num_keyframes)
+      throw Error(what + " names keyframe " + std::to_string(index) + " of " + std::to_string(num_keyframes));
     return MakeKeyframeId(id, index);
   };
   for (uint32_t j = 0; j < num_points; ++j) {
@@ -411,8 +409,8 @@ SavedMap DecodeMapFile(const std::string& bytes, SubmapId id) {
         throw Error(what + ", feature " + std::to_string(f) + ": outside its image or its pyramid");
       }
       if (point != kNone) {
-        if (point >= num_points) throw Error(what + " observes point " + std::to_string(point) + " of " +
-                                             std::to_string(num_points));
+        if (point >= num_points)
+          throw Error(what + " observes point " + std::to_string(point) + " of " + std::to_string(num_points));
         keyframe.points[f] = MakeMapPointId(id, point);
       }
     }

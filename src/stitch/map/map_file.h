@@ -23,10 +23,10 @@ namespace stitch {
 constexpr uint32_t kMapFileVersion = 1;
 
 struct SavedMap {
-  std::string description;      // where it came from (free text, at most 64 kB)
-  std::vector<Camera> cameras;  // at least one
-  Map map;                      // keyframes numbered 0.. and points 0.. in one submap; no caches
-  std::map<KeyframeId, int> camera_index;        // each keyframe's, into `cameras`
+  std::string description;                        // where it came from (free text, at most 64 kB)
+  std::vector<Camera> cameras;                    // at least one
+  Map map;                                        // keyframes numbered 0.. and points 0.. in one submap; no caches
+  std::map<KeyframeId, int> camera_index;         // each keyframe's, into `cameras`
   std::map<KeyframeId, int64_t> source_keyframe;  // each keyframe's id in the flight it came from
 
   explicit SavedMap(Map m) : map(std::move(m)) {}

@@ -43,14 +43,15 @@ std::string MapBytes(int keyframes) {
       kp.octave = static_cast<int>(rng() % 8);
       keyframe.keypoints.push_back(kp);
     }
-    // Points (k * 100 + i) / 1 for a band of keyframes: each point seen by views_per_point of them.
+    // Each band of views_per_point consecutive keyframes sees the same `observed` points.
     for (int i = 0; i < observed; ++i) {
       const int j = (k / views_per_point) * observed + i;
       if (j < points) keyframe.points[i] = MakeMapPointId(id, static_cast<uint32_t>(j));
     }
     map.AddKeyframe(std::move(keyframe));
   }
-  const SavedMap saved = MakeSavedMap(map, [&](KeyframeId) -> const Camera& { return camera; }, "benchmark", id);
+  const SavedMap saved = MakeSavedMap(
+      map, [&](KeyframeId) -> const Camera& { return camera; }, "benchmark", id);
   return EncodeMapFile(saved);
 }
 

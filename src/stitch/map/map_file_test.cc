@@ -31,15 +31,15 @@ Map FlightMap() {
 
 SavedMap Saved(const Map& map) {
   return MakeSavedMap(
-      map, [](KeyframeId kf) -> const Camera& { return IndexOf(kf) == 16 ? kOtherCamera : kCamera; },
-      "a test flight", kSaved);
+      map, [](KeyframeId kf) -> const Camera& { return IndexOf(kf) == 16 ? kOtherCamera : kCamera; }, "a test flight",
+      kSaved);
 }
 
 // Sets the checksum of a file whose payload a test changed, as a writer would have.
 void Reseal(std::string* bytes) {
   unsigned char hash[32];
-  crypto_generichash(hash, 32, reinterpret_cast<const unsigned char*>(bytes->data()) + 56, bytes->size() - 56,
-                     nullptr, 0);
+  crypto_generichash(hash, 32, reinterpret_cast<const unsigned char*>(bytes->data()) + 56, bytes->size() - 56, nullptr,
+                     0);
   std::copy(hash, hash + 32, bytes->begin() + 24);
 }
 

@@ -715,9 +715,9 @@ void MergeSession::WriteSavedMap(const Merger::Graph& graph, const MergedMap* me
   std::string description = "the merged map of submaps";
   for (SubmapId s : submaps) description += " " + SubmapName(s);
   if (prior_map_description_) description += "; the saved map was: " + *prior_map_description_;
-  const SavedMap saved =
-      MakeSavedMap(kept, [&](KeyframeId kf) -> const Camera& { return *CameraOf(kf); }, description,
-                   MakeSubmapId(kSavedMapAgent, 0));
+  const SavedMap saved = MakeSavedMap(
+      kept, [&](KeyframeId kf) -> const Camera& { return *CameraOf(kf); }, description,
+      MakeSubmapId(kSavedMapAgent, 0));
   const std::string path = (std::filesystem::path(record_dir_) / "map.stitchmap").string();
   WriteMapFile(path, saved);
   STITCH_LOG(INFO) << "map.stitchmap: " << saved.map.num_keyframes() << " keyframes, " << saved.map.num_points()

@@ -21,7 +21,6 @@ namespace {
 // Added to a saved map's keyframe count when the submaps are placed (more than any flight's).
 constexpr int kSavedMapRootWeight = 1 << 24;
 
-
 // A submap's own relative poses come from bundle adjustment over many points; a connected
 // frame's Sim3 from a few dozen: the pose graph trusts the former more.
 constexpr double kIntraSubmapWeight = 10.0;

@@ -45,7 +45,8 @@ SyntheticSequence::SyntheticSequence(const SyntheticOptions& options, const Fail
   if (other_world) world_flight.emplace(options.flight, options.gust, camera_, gusts, world_seed);
   const FlightPlan& around = world_flight ? *world_flight : flight_;
   WorldRoute route;
-  for (const Rigid3d& world_from_cam : around.world_from_cam()) route.camera_centres.push_back(world_from_cam.translation);
+  for (const Rigid3d& world_from_cam : around.world_from_cam())
+    route.camera_centres.push_back(world_from_cam.translation);
   route.paved = options_.flight.path == "road";
   world_ = std::make_unique<SyntheticWorld>(options_.world, world_seed * 7919 + 17, around.min_ground_xy(),
                                             around.max_ground_xy(), route);
@@ -62,8 +63,8 @@ std::string SyntheticSequence::description() const {
                << (options_.world_seed > 0 && options_.world_seed != options_.seed
                        ? ", the world of seed " + std::to_string(options_.world_seed)
                        : std::string())
-               << ", " << flight_.num_frames() << " frames, "
-               << options_.width << "x" << options_.height << ", gusts " << flight_.gusts().ToString() << ")";
+               << ", " << flight_.num_frames() << " frames, " << options_.width << "x" << options_.height << ", gusts "
+               << flight_.gusts().ToString() << ")";
 }
 
 void SyntheticSequence::AddSensorNoise(cv::Mat* image, uint64_t key) const {

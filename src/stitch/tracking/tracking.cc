@@ -543,7 +543,7 @@ void Tracking::RetrackMissed(const Frame& from, Output* output) {
 
 bool Tracking::TryRelocalize(Frame* frame, Output* output, const std::set<KeyframeId>* only_at, bool saved_only) {
   const bool reopening = !store_.current();
-  const RelocalizationScope scope = !reopening ? RelocalizationScope::kCurrentSubmap
+  const RelocalizationScope scope = !reopening   ? RelocalizationScope::kCurrentSubmap
                                     : saved_only ? RelocalizationScope::kSavedMaps
                                                  : RelocalizationScope::kClosedSubmaps;
   const std::optional<KeyframeId> at = relocalizer_.Relocalize(frame, &store_, &reference_keyframe_, scope, 0, only_at);
@@ -689,8 +689,7 @@ bool Tracking::HandOverIfFull(Output* output) {
   result.submap_keyframes = static_cast<int>(current.num_keyframes());
   result.detail = "submap " + SubmapName(closed) + " reached " + std::to_string(options_.submap_max_keyframes) +
                   " keyframes; continues in submap " + SubmapName(current.id()) + " from copies of its last " +
-                  std::to_string(copied) + " keyframes and " + std::to_string(output->new_points.size()) +
-                  " points";
+                  std::to_string(copied) + " keyframes and " + std::to_string(output->new_points.size()) + " points";
   STITCH_LOG(INFO) << "frame " << frame.frame_index << ": " << result.detail;
   last_frame_ = std::move(frame);
   return true;
@@ -774,8 +773,8 @@ void Tracking::StartFromCopies(LocalMapCopy copy, Frame* frame, Output* output) 
 
 std::string Tracking::UseSavedMap(SavedMap saved) {
   const Camera& own = geometry_.camera;
-  if (saved.cameras.size() != 1 || saved.cameras[0].model() != own.model() ||
-      saved.cameras[0].width() != own.width() || saved.cameras[0].height() != own.height() ||
+  if (saved.cameras.size() != 1 || saved.cameras[0].model() != own.model() || saved.cameras[0].width() != own.width() ||
+      saved.cameras[0].height() != own.height() ||
       (Eigen::Map<const Eigen::VectorXd>(saved.cameras[0].params().data(), own.params().size()) -
        Eigen::Map<const Eigen::VectorXd>(own.params().data(), own.params().size()))
               .cwiseAbs()

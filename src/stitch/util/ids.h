@@ -60,7 +60,9 @@ constexpr int AgentNumber(SubmapId id) {
 // The agent number of maps loaded from a file (`stitch run --map`, docs/map-file.md): no aircraft
 // has it (tracker.tracking.agent_number stops below it).
 constexpr int kSavedMapAgent = 0x7fff;
-constexpr bool IsSavedMap(SubmapId id) { return id.valid() && AgentNumber(id) == kSavedMapAgent; }
+constexpr bool IsSavedMap(SubmapId id) {
+  return id.valid() && AgentNumber(id) == kSavedMapAgent;
+}
 
 // "agent:submap" (e.g. "0:3") for logs and people; ids stay int64 everywhere else.
 inline std::string SubmapName(SubmapId id) {

@@ -43,7 +43,6 @@ void WriteFileAtomically(const std::string& path, const std::string& text) {
   }
 }
 
-
 std::string ReadFileBytes(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) throw Error(std::string("cannot open (") + std::strerror(errno) + ")");

@@ -23,8 +23,8 @@ struct RunArgs {
   std::string pacing;
   std::string agent = "uav0";
   std::string log_level = "info";
-  std::string vocabulary;  // over the settings' vocabulary
-  std::string map;         // a saved map the flight is merged into (merger.prior_map)
+  std::string vocabulary;      // over the settings' vocabulary
+  std::string map;             // a saved map the flight is merged into (merger.prior_map)
   bool localize_only = false;  // with `map`: track in it only (tracker.tracking.localize_only)
   bool quiet = false;
   bool journal = false;  // keep the merger's journal in OUT/merger
