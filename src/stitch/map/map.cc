@@ -326,6 +326,34 @@ void Map::UpdateConnections(KeyframeId id) {
   }
 }
 
+void Map::ConnectAll() {
+  std::vector<KeyframeId> ids;
+  for (auto& [id, keyframe] : keyframes_) {
+    ids.push_back(id);
+    keyframe.covisibility.clear();
+    keyframe.parent = KeyframeId();
+    keyframe.children.clear();
+    for (MapPointId p : keyframe.points) {
+      const MapPoint* point = p.valid() ? FindPoint(p) : nullptr;
+      if (!point) continue;
+      for (const auto& [other, feature] : point->observations) {
+        if (other != id) ++keyframe.covisibility[other];
+      }
+    }
+  }
+  for (auto& [id, keyframe] : keyframes_) SetOrderedCovisibility(&keyframe);
+  std::sort(ids.begin(), ids.end());
+  for (KeyframeId id : ids) {
+    Keyframe& keyframe = keyframes_.at(id);
+    if (keyframe.ordered.empty()) continue;
+    const KeyframeId parent = keyframe.ordered.front().second;
+    if (Keyframe* p = FindKeyframe(parent); p && p->parent != id) {
+      keyframe.parent = parent;
+      p->children.insert(id);
+    }
+  }
+}
+
 std::vector<KeyframeId> Map::BestCovisible(KeyframeId id, int n) const {
   std::vector<KeyframeId> result;
   const Keyframe* keyframe = FindKeyframe(id);

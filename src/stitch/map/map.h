@@ -100,6 +100,10 @@ class Map {
   // --- covisibility
   // Recomputes the keyframe's covisibility from shared points, and its neighbours' too.
   void UpdateConnections(KeyframeId id);
+  // Every keyframe's covisibility and spanning-tree parent from scratch, as UpdateConnections on
+  // each keyframe in id order would leave them, in one pass (a map read whole: UpdateConnections
+  // on each re-sorts every neighbour's list each time).
+  void ConnectAll();
   std::vector<KeyframeId> BestCovisible(KeyframeId id, int n) const;
   std::vector<KeyframeId> CovisibleAtLeast(KeyframeId id, int weight) const;
 

@@ -218,7 +218,7 @@ SavedMap MakeSavedMap(const Map& map, const std::function<const Camera&(Keyframe
     saved.source_keyframe[keyframe.id] = kf.value;
     saved.map.AddKeyframe(std::move(keyframe));
   }
-  for (KeyframeId kf : keyframes) saved.map.UpdateConnections(new_keyframe.at(kf));
+  saved.map.ConnectAll();
   return saved;
 }
 
@@ -424,7 +424,7 @@ SavedMap DecodeMapFile(const std::string& bytes, SubmapId id) {
     }
   }
   if (r.left() != 0) throw Error(std::to_string(r.left()) + " bytes after the map");
-  for (uint32_t i = 0; i < num_keyframes; ++i) saved.map.UpdateConnections(MakeKeyframeId(id, i));
+  saved.map.ConnectAll();
   return saved;
 }
 

@@ -1,5 +1,5 @@
 // Reading a saved map (map_file.h) the size of a long survey's: N keyframes of 1,000 features,
-// 600 of them on points, each point seen by 6 keyframes. What `stitch run --map` and `stitch map
+// 600 of them on points, each point seen by 12 keyframes (a merged survey: 13). What `stitch run --map` and `stitch map
 // info` pay before the flight.
 //   build/bin/map_file_benchmark
 // Counters: the file's size (MB) and keyframes read per second.
@@ -15,7 +15,7 @@ namespace {
 
 std::string MapBytes(int keyframes) {
   const SubmapId id = MakeSubmapId(kSavedMapAgent, 0);
-  const int features = 1000, observed = 600, views_per_point = 6;
+  const int features = 1000, observed = 600, views_per_point = 12;
   const int points = keyframes * observed / views_per_point;
   Map map(id, ScalePyramid::From(OrbOptions()));
   std::mt19937 rng(1);

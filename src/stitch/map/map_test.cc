@@ -90,6 +90,31 @@ TEST(Map, ObservationsAndCovisibilityFollowSharedPoints) {
   EXPECT_EQ(f.map.FindKeyframe(k1)->parent, k0);
 }
 
+// A map read whole connects its keyframes in one pass, to what keyframe-by-keyframe updates in id
+// order give: covisibility, its order, and the spanning tree.
+TEST(Map, ConnectingAllAtOnceGivesWhatUpdatingEachGives) {
+  Fixture one, all;
+  const std::vector<std::vector<int>> seen = {{0, 10}, {5, 20}, {8, 30}, {0, 40}, {15, 25}, {2, 12}};
+  for (Fixture* f : {&one, &all}) {
+    for (size_t k = 0; k < seen.size(); ++k) {
+      std::vector<MapPointId> observed(f->points.begin() + seen[k][0], f->points.begin() + seen[k][1]);
+      f->map.AddKeyframe(MakeKeyframe(f->map, static_cast<uint32_t>(k), observed));
+    }
+  }
+  for (size_t k = 0; k < seen.size(); ++k) one.map.UpdateConnections(MakeKeyframeId(one.map.id(), k));
+  all.map.ConnectAll();
+  for (size_t k = 0; k < seen.size(); ++k) {
+    const KeyframeId id = MakeKeyframeId(one.map.id(), k);
+    const Keyframe& a = *one.map.FindKeyframe(id);
+    const Keyframe& b = *all.map.FindKeyframe(id);
+    EXPECT_EQ(a.covisibility, b.covisibility) << k;
+    EXPECT_EQ(a.ordered, b.ordered) << k;
+    EXPECT_EQ(a.parent, b.parent) << k;
+    EXPECT_EQ(a.children, b.children) << k;
+    EXPECT_FALSE(b.covisibility.empty()) << k;
+  }
+}
+
 TEST(Map, ErasingObservationsRemovesUnderObservedPoints) {
   Fixture f;
   f.map.AddKeyframe(MakeKeyframe(f.map, 0, {f.points[0], f.points[1]}));

@@ -269,12 +269,13 @@ TEST(Merge, ASecondFlightLandsInTheSavedMapOfTheFirst) {
       "%.3f m\n",
       flight.first_rms, second.merged_poses.size(), second_rms, tracked_rms);
   // The default flight flown twice gives 1.2x (docs/map-file.md); this short strip, whose second
-  // submap starts right after the gust from a frame still turned by it, 2.0x merged and 3.2x as
-  // tracked (the merger alone, without the tracker's relocalization: 1.4x). Without the saved
-  // map the tracked poses are tens of metres off (each submap in its own frame).
+  // submap starts right after the gust from a frame still turned by it, 1.5x merged and 2.4x as
+  // tracked (without following the saved map past the first copies, saved_map_follow_frames 0:
+  // 2.0x and 3.2x; the merger alone, without the tracker's relocalization: 1.4x merged). Without
+  // the saved map the tracked poses are tens of metres off (each submap in its own frame).
   EXPECT_GE(second.merged_poses.size(), 180u);
-  EXPECT_LT(second_rms, 2.5 * flight.first_rms);
-  EXPECT_LT(tracked_rms, 4 * flight.first_rms);
+  EXPECT_LT(second_rms, 1.8 * flight.first_rms);
+  EXPECT_LT(tracked_rms, 3 * flight.first_rms);
 }
 
 // --localize-only: the tracker tracks in the saved map and maps nothing; its frames are where

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdio>
 #include <iterator>
+#include <limits>
 #include <unordered_map>
 
 #include "stitch/tracking/keyframe_decision.h"
@@ -81,6 +82,10 @@ std::optional<SubmapId> Tracking::CloseSubmap() {
   lost_ = false;
   frames_initializing_ = 0;
   young_submap_started_at_ = -1;
+  started_in_saved_ = SubmapId();
+  saved_keyframe_copies_.clear();
+  saved_point_copies_.clear();
+  saved_followed_at_ = -1;
   initializer_.Reset();
   return id;
 }
@@ -374,7 +379,7 @@ void Tracking::TrackInSubmap(Frame frame, Output* output) {
   if (ok) {
     // A frame right after untracked ones does not become a keyframe: its pose is the least sure.
     OnTracked(&frame, output, /*may_make_keyframe=*/consecutive_failures_ == 0);
-    HandOverIfFull(output);
+    if (!HandOverIfFull(output) && last_frame_) FollowSavedMap(*last_frame_, output);
   } else {
     ++consecutive_failures_;
     result.detail = why;
@@ -574,6 +579,10 @@ bool Tracking::TryRelocalize(Frame* frame, Output* output, const std::set<Keyfra
     // The saved map is not flown on: a new submap starts from copies of its local map here.
     LocalMapCopy copy = CopyLocalMap(*store_.FindMap(SubmapOf(*at)), reference_keyframe_, frame);
     copied = copy.keyframe_ids.size();
+    started_in_saved_ = SubmapOf(*at);
+    saved_keyframe_copies_ = copy.keyframe_ids;
+    saved_point_copies_ = copy.point_ids;
+    saved_followed_at_ = frame->frame_index;
     StartFromCopies(std::move(copy), frame, output);
   } else if (reopening) {
     store_.Reopen(SubmapOf(*at));
@@ -768,6 +777,72 @@ void Tracking::StartFromCopies(LocalMapCopy copy, Frame* frame, Output* output) 
     store_.AddToDatabase(keyframe);
     output->new_keyframes.push_back(keyframe);
     NoteKeyframeSent(keyframe.id);
+  }
+}
+
+void Tracking::FollowSavedMap(const Frame& frame, Output* output) {
+  if (!started_in_saved_.valid() || options_.saved_map_follow_frames <= 0 || !frame.cam_from_world ||
+      !output->new_keyframes.empty() || frame.frame_index - saved_followed_at_ < options_.saved_map_follow_frames) {
+    return;
+  }
+  saved_followed_at_ = frame.frame_index;
+  const Map* saved = store_.FindMap(started_in_saved_);
+  Map* current = store_.current();
+  if (!saved || !current) return;
+  // The saved keyframe nearest the camera among those looking within 37 degrees of its way.
+  const Eigen::Vector3d centre = frame.cam_from_world->CentreInWorld();
+  const Eigen::Vector3d axis = frame.cam_from_world->rotation.conjugate() * Eigen::Vector3d::UnitZ();
+  KeyframeId nearest;
+  double nearest_m2 = std::numeric_limits<double>::infinity();
+  for (const auto& [id, keyframe] : saved->keyframes()) {
+    if ((keyframe.cam_from_world.rotation.conjugate() * Eigen::Vector3d::UnitZ()).dot(axis) < 0.8) continue;
+    const double m2 = (keyframe.Centre() - centre).squaredNorm();
+    if (m2 < nearest_m2) {
+      nearest_m2 = m2;
+      nearest = id;
+    }
+  }
+  if (!nearest.valid()) return;
+  std::vector<KeyframeId> window = saved->BestCovisible(nearest, options_.handover_keyframes - 1);
+  window.push_back(nearest);
+  std::sort(window.begin(), window.end());
+  for (KeyframeId id : window) {
+    if (saved_keyframe_copies_.count(id)) continue;
+    Keyframe copy = UnlinkedCopy(*saved->FindKeyframe(id));
+    copy.id = store_.NewKeyframeId();
+    std::set<MapPointId> taken;  // a point the submap merged two copies into is observed once
+    for (MapPointId& p : copy.points) {
+      if (!p.valid()) continue;
+      const MapPointId original = p;
+      p = MapPointId();
+      const auto known = saved_point_copies_.find(original);
+      if (known != saved_point_copies_.end()) {
+        if (current->FindPoint(known->second) && taken.insert(known->second).second) p = known->second;
+        continue;
+      }
+      const MapPoint* point = saved->FindPoint(original);
+      if (!point) continue;
+      MapPoint moved = *point;
+      moved.id = current->NewPointId();
+      moved.observations.clear();
+      moved.reference_keyframe = moved.first_keyframe = copy.id;
+      saved_point_copies_[original] = moved.id;
+      output->new_points.push_back(moved);
+      p = moved.id;
+      taken.insert(moved.id);
+      current->AddPoint(std::move(moved));
+    }
+    saved_keyframe_copies_[id] = copy.id;
+    const KeyframeId copy_id = copy.id;
+    current->AddKeyframe(std::move(copy));
+    current->UpdateConnections(copy_id);
+    store_.AddToDatabase(*current->FindKeyframe(copy_id));
+    output->new_keyframes.push_back(*current->FindKeyframe(copy_id));
+    NoteKeyframeSent(copy_id);
+  }
+  if (!output->new_keyframes.empty()) {
+    STITCH_LOG(DEBUG) << "frame " << frame.frame_index << ": " << output->new_keyframes.size()
+                      << " keyframes of the saved map copied in around the camera";
   }
 }
 

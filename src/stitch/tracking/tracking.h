@@ -163,6 +163,12 @@ class Tracking {
   // The copy becomes the current submap (the reference its reference keyframe); its keyframes
   // and points go to the mapper in `output`; `frame`'s points are renamed to the copies'.
   void StartFromCopies(LocalMapCopy copy, Frame* frame, Output* output);
+  // A submap started in a saved map, its camera tracked at `frame`: the saved keyframes around
+  // the camera (the nearest looking the same way and its best covisible ones) that the submap
+  // holds no copy of are copied in with their points and go to the mapper in `output`, so the
+  // submap goes on over the saved map rather than only from the copies it started with. Every
+  // saved_map_follow_frames frames, on frames that made no keyframe.
+  void FollowSavedMap(const Frame& frame, Output* output);
   // Drops the closed submaps beyond closed_keyframes_held (after a submap closed); with
   // `keep_last`, the one just closed stays (lost: the camera may resume it).
   void DropClosedSubmaps(bool keep_last);
@@ -210,6 +216,12 @@ class Tracking {
   // The frame the current submap started at, while it is one started after a loss that may still
   // give way to a closed submap (return_to_closed_frames); -1 otherwise.
   int young_submap_started_at_ = -1;
+  // The saved map the current submap started in (invalid: none), the copies the submap holds of
+  // its keyframes and points (saved -> copy), and the frame it was last followed at.
+  SubmapId started_in_saved_;
+  std::unordered_map<KeyframeId, KeyframeId> saved_keyframe_copies_;
+  std::unordered_map<MapPointId, MapPointId> saved_point_copies_;
+  int saved_followed_at_ = -1;
   TrackingState last_state_ = TrackingState::kNotTracked;
 
   std::optional<Frame> last_frame_;  // last tracked frame

@@ -90,6 +90,7 @@ bool TrackingOptions::Check(std::string* why) const {
     return fail("tracker.tracking.homography_search_px must be in (0, 200]");
   if (homography_roi_per_cell < 0 || homography_roi_per_cell > 1000)
     return fail("tracker.tracking.homography_roi_per_cell must be in [0, 1000]");
+  if (saved_map_follow_frames < 0) return fail("tracker.tracking.saved_map_follow_frames must be >= 0");
   if (localize_only && prior_map.empty())
     return fail("tracker.tracking.localize_only needs a prior_map (stitch run --map)");
   if (agent_number < 0 || agent_number >= kSavedMapAgent) {

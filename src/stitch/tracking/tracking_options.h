@@ -155,6 +155,9 @@ struct TrackingOptions {
   // With prior_map: track in the saved map only, without mapping (no keyframe, no submap of its
   // own): a lost camera relocalizes in it again (stitch run --localize-only).
   bool localize_only = false;
+  // A submap started in the saved map copies in the saved keyframes around the camera every
+  // this many frames as it moves on (0: only the copies it started with).
+  int saved_map_follow_frames = 5;
   int agent_number = 0;  // high bits of every id this tracker makes
   int first_submap_number = 1;
 
@@ -256,6 +259,9 @@ struct TrackingOptions {
     v("localize_only", localize_only,
       "with prior_map: track in the saved map only, making no keyframe and no submap of this flight; a lost camera "
       "relocalizes in it again (stitch run --localize-only)");
+    v("saved_map_follow_frames", saved_map_follow_frames,
+      "a submap started in the saved map copies in the saved keyframes around the camera every this many frames as "
+      "it moves on (0: only the copies it started from)");
     v("first_submap_number", first_submap_number, "number of the first submap (1-65535)");
   }
   bool Check(std::string* why) const;
