@@ -159,14 +159,20 @@ Rigid3d ReadPose(Reader* r) {
 
 }  // namespace
 
-SavedMap MakeSavedMap(const Map& map, const std::function<const Camera&(KeyframeId)>& camera_of,
+SavedMap MakeSavedMap(const Map& map, const std::function<const Camera*(KeyframeId)>& camera_of,
                       const std::string& description, SubmapId id) {
   std::vector<KeyframeId> keyframes;
-  for (const auto& [kf, keyframe] : map.keyframes()) keyframes.push_back(kf);
+  for (const auto& [kf, keyframe] : map.keyframes()) {
+    if (camera_of(kf)) keyframes.push_back(kf);
+  }
   std::sort(keyframes.begin(), keyframes.end());
+  const auto kept = [&](KeyframeId kf) { return std::binary_search(keyframes.begin(), keyframes.end(), kf); };
   std::vector<MapPointId> points;
   for (const auto& [p, point] : map.points()) {
-    if (!point.observations.empty()) points.push_back(p);
+    if (std::any_of(point.observations.begin(), point.observations.end(),
+                    [&](const auto& observation) { return kept(observation.first); })) {
+      points.push_back(p);
+    }
   }
   std::sort(points.begin(), points.end());
   std::map<KeyframeId, KeyframeId> new_keyframe;
@@ -202,13 +208,10 @@ SavedMap MakeSavedMap(const Map& map, const std::function<const Camera&(Keyframe
       const auto it = new_point.find(original.points[i]);
       if (it != new_point.end()) keyframe.points[i] = it->second;
     }
-    const Camera& camera = camera_of(kf);
+    const Camera& camera = *camera_of(kf);
     int index = -1;
     for (size_t c = 0; c < saved.cameras.size() && index < 0; ++c) {
-      if (saved.cameras[c].model() == camera.model() && saved.cameras[c].width() == camera.width() &&
-          saved.cameras[c].height() == camera.height() && saved.cameras[c].params() == camera.params()) {
-        index = static_cast<int>(c);
-      }
+      if (saved.cameras[c].Describe() == camera.Describe()) index = static_cast<int>(c);
     }
     if (index < 0) {
       index = static_cast<int>(saved.cameras.size());

@@ -35,8 +35,9 @@ struct SavedMap {
 
 // Builds a saved map from `map` (any keyframe and point ids, e.g. a merged map of several
 // submaps): keyframes renumbered in id order, points in id order, each keyframe's camera from
-// `camera_of(keyframe id)`. Points no kept keyframe observes are left out.
-SavedMap MakeSavedMap(const Map& map, const std::function<const Camera&(KeyframeId)>& camera_of,
+// `camera_of(keyframe id)`; a keyframe it gives none for (its camera never arrived) is left out,
+// and so are points no kept keyframe observes.
+SavedMap MakeSavedMap(const Map& map, const std::function<const Camera*(KeyframeId)>& camera_of,
                       const std::string& description, SubmapId id);
 
 // The file's bytes (header, then the checksummed payload).

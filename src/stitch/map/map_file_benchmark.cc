@@ -51,7 +51,7 @@ std::string MapBytes(int keyframes) {
     map.AddKeyframe(std::move(keyframe));
   }
   const SavedMap saved = MakeSavedMap(
-      map, [&](KeyframeId) -> const Camera& { return camera; }, "benchmark", id);
+      map, [&](KeyframeId) { return &camera; }, "benchmark", id);
   return EncodeMapFile(saved);
 }
 

@@ -31,8 +31,7 @@ Map FlightMap() {
 
 SavedMap Saved(const Map& map) {
   return MakeSavedMap(
-      map, [](KeyframeId kf) -> const Camera& { return IndexOf(kf) == 16 ? kOtherCamera : kCamera; }, "a test flight",
-      kSaved);
+      map, [](KeyframeId kf) { return IndexOf(kf) == 16 ? &kOtherCamera : &kCamera; }, "a test flight", kSaved);
 }
 
 // Sets the checksum of a file whose payload a test changed, as a writer would have.
@@ -69,6 +68,17 @@ TEST(MapFile, ASavedMapKeepsEveryKeyframeAndSeenPointRenumberedInOneSubmap) {
     EXPECT_EQ(saved.map.FindKeyframe(kf)->CountPoints(), flight.FindKeyframe(source)->CountPoints());
     EXPECT_EQ(saved.map.FindKeyframe(kf)->covisibility.size(), flight.FindKeyframe(source)->covisibility.size());
   }
+}
+
+TEST(MapFile, AKeyframeWithoutACameraIsLeftOutWithThePointsOnlyItSaw) {
+  const Map flight = FlightMap();
+  const KeyframeId last = MakeKeyframeId(kFlight, 16);
+  const SavedMap saved = MakeSavedMap(
+      flight, [&](KeyframeId kf) { return kf == last ? nullptr : &kCamera; }, "", kSaved);
+  EXPECT_EQ(saved.map.num_keyframes(), 5u);
+  ASSERT_EQ(saved.cameras.size(), 1u);
+  for (const auto& [id, point] : saved.map.points()) EXPECT_FALSE(point.observations.empty()) << id;
+  EXPECT_LT(saved.map.num_points(), Saved(flight).map.num_points());
 }
 
 TEST(MapFile, AMapReadAndWrittenAgainIsTheSameBytes) {

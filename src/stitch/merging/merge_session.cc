@@ -699,25 +699,16 @@ const Camera* MergeSession::CameraOf(KeyframeId keyframe) const {
 void MergeSession::WriteSavedMap(const Merger::Graph& graph, const MergedMap* merged) const {
   const Map* map = LargestMap(graph, merged);
   if (!map || map->num_keyframes() == 0) return;
-  // Keyframes whose submap's camera never arrived cannot be used again: left out.
-  Map kept(map->id(), map->pyramid());
+  // Keyframes whose submap's camera never arrived cannot be used again: MakeSavedMap leaves them out.
   std::set<SubmapId> submaps;
-  for (const auto& [id, point] : map->points()) {
-    MapPoint copy = point;
-    copy.observations.clear();
-    kept.AddPoint(std::move(copy));
-  }
   for (const auto& [id, keyframe] : map->keyframes()) {
-    if (!CameraOf(id)) continue;
-    kept.AddKeyframe(UnlinkedCopy(keyframe));
-    submaps.insert(SubmapOf(id));
+    if (CameraOf(id)) submaps.insert(SubmapOf(id));
   }
   std::string description = "the merged map of submaps";
   for (SubmapId s : submaps) description += " " + SubmapName(s);
   if (prior_map_description_) description += "; the saved map was: " + *prior_map_description_;
   const SavedMap saved = MakeSavedMap(
-      kept, [&](KeyframeId kf) -> const Camera& { return *CameraOf(kf); }, description,
-      MakeSubmapId(kSavedMapAgent, 0));
+      *map, [&](KeyframeId kf) { return CameraOf(kf); }, description, MakeSubmapId(kSavedMapAgent, 0));
   const std::string path = (std::filesystem::path(record_dir_) / "map.stitchmap").string();
   WriteMapFile(path, saved);
   STITCH_LOG(INFO) << "map.stitchmap: " << saved.map.num_keyframes() << " keyframes, " << saved.map.num_points()

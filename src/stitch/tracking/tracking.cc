@@ -847,13 +847,8 @@ void Tracking::FollowSavedMap(const Frame& frame, Output* output) {
 }
 
 std::string Tracking::UseSavedMap(SavedMap saved) {
-  const Camera& own = geometry_.camera;
-  if (saved.cameras.size() != 1 || saved.cameras[0].model() != own.model() || saved.cameras[0].width() != own.width() ||
-      saved.cameras[0].height() != own.height() ||
-      (Eigen::Map<const Eigen::VectorXd>(saved.cameras[0].params().data(), own.params().size()) -
-       Eigen::Map<const Eigen::VectorXd>(own.params().data(), own.params().size()))
-              .cwiseAbs()
-              .maxCoeff() > 1e-6 * own.fx()) {
+  // One camera, the flight's as the merger tells calibrations apart (Camera::Describe).
+  if (saved.cameras.size() != 1 || saved.cameras[0].Describe() != geometry_.camera.Describe()) {
     return "its keyframes were seen by another camera than this flight's";
   }
   for (const auto& [id, unused] : saved.map.keyframes()) {
