@@ -64,6 +64,8 @@ TrackerService::TrackerService(lcm::LCM* lcm, bus::Publisher* publisher, Tracker
       image_picker_(options_.keyframe_images) {
   CheckOptions(options_, "tracker");
   if (!vocabulary_ || vocabulary_->empty()) throw Error("the tracker needs a vocabulary");
+  // Before the first frame can arrive: the dispatcher thread queues acks on it too (OnFrame).
+  if (options_.tracking.keyframe_worker) publisher_thread_ = std::make_unique<WorkerThread>();
   const std::string agent = publisher_->agent();
   subscriber_.Subscribe<stitch::frame_t>(
       bus::Channel(agent, bus::kFrame),
@@ -113,7 +115,6 @@ TrackerService::~TrackerService() {
 
 void TrackerService::Start() {
   if (running_.exchange(true)) return;
-  if (options_.tracking.keyframe_worker) publisher_thread_ = std::make_unique<WorkerThread>();
   worker_ = std::thread([this] { Work(); });
   heartbeat_->Start();
   heartbeat_->SetState(stitch::service_status_t::STATE_RUNNING);
@@ -123,7 +124,7 @@ void TrackerService::Stop() {
   if (!running_.exchange(false)) return;
   frames_.Close();
   if (worker_.joinable()) worker_.join();
-  publisher_thread_.reset();  // sends what is queued
+  if (publisher_thread_) publisher_thread_->Drain();  // sends what is queued
   updates_.Close();
   heartbeat_->SetState(stitch::service_status_t::STATE_FINISHED);
   heartbeat_->Stop();
@@ -151,7 +152,13 @@ void TrackerService::OnFrame(std::unique_ptr<stitch::frame_t> frame) {
     return;
   }
   if (frame->frame_index <= highest_processed_.load()) {
-    Ack(*frame);  // a re-send of a frame already tracked: the ack was lost
+    // A re-send of a frame already tracked (its ack was lost or is late): acknowledged again, but
+    // behind the keyframes it made, which may still be on their way out.
+    if (publisher_thread_) {
+      publisher_thread_->Submit([this, ack = AckOf(*frame)] { PublishAck(ack); });
+    } else {
+      Ack(*frame);
+    }
     return;
   }
   if (frame->frame_index <= highest_received_.load()) {

@@ -96,7 +96,8 @@ class TrackerService {
   std::unique_ptr<Heartbeat> heartbeat_;
   std::unique_ptr<Tracking> tracking_;  // created from the first frame's camera
   // New keyframes' messages are made and sent here with tracker.tracking.keyframe_worker (off
-  // the frame loop); Drain() before reading unacknowledged_keyframes_ in the worker thread.
+  // the frame loop), and frames' acks behind them; Drain() before reading unacknowledged_keyframes_
+  // in the worker thread.
   std::unique_ptr<WorkerThread> publisher_thread_;
   KeyframeImagePicker image_picker_;  // worker thread only
   std::mutex unacknowledged_mutex_;
