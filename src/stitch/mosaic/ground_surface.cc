@@ -59,32 +59,53 @@ GroundSurface GroundSurface::FromPoints(const std::vector<Eigen::Vector3d>& poin
     std::nth_element(z.begin(), z.begin() + z.size() / 2, z.end());
     std::fill(surface.heights_.begin(), surface.heights_.end(), z[z.size() / 2]);
   }
-  // Empty cells take the mean of their measured (or already filled) neighbours, ring by ring.
-  for (bool missing = true; missing;) {
-    missing = false;
-    std::vector<double> next = surface.heights_;
-    for (int r = 0; r < surface.rows_; ++r) {
-      for (int c = 0; c < surface.cols_; ++c) {
-        const size_t i = static_cast<size_t>(r) * surface.cols_ + c;
-        if (!std::isnan(surface.heights_[i])) continue;
-        double sum = 0;
-        int n = 0;
-        for (int dr = -1; dr <= 1; ++dr) {
-          for (int dc = -1; dc <= 1; ++dc) {
-            const int rr = r + dr, cc = c + dc;
-            if (rr < 0 || cc < 0 || rr >= surface.rows_ || cc >= surface.cols_) continue;
-            const double h = surface.heights_[static_cast<size_t>(rr) * surface.cols_ + cc];
-            if (!std::isnan(h)) sum += h, ++n;
-          }
-        }
-        if (n > 0) {
-          next[i] = sum / n;
-        } else {
-          missing = true;
-        }
+  // Empty cells take the mean of their measured (or already filled) neighbours, ring by ring:
+  // each ring is the empty cells next to the cells known before it, so every cell is visited a
+  // few times however far it lies from the points (a map's points in one corner of a grid of
+  // millions of cells).
+  const int cols_n = surface.cols_, rows_n = surface.rows_;
+  const auto for_each_neighbour = [&](size_t i, auto&& visit) {
+    const int r = static_cast<int>(i / cols_n), c = static_cast<int>(i % cols_n);
+    for (int rr = std::max(0, r - 1); rr <= std::min(rows_n - 1, r + 1); ++rr) {
+      for (int cc = std::max(0, c - 1); cc <= std::min(cols_n - 1, c + 1); ++cc) {
+        if (rr != r || cc != c) visit(static_cast<size_t>(rr) * cols_n + cc);
       }
     }
-    surface.heights_ = std::move(next);
+  };
+  std::vector<char> queued(surface.heights_.size(), 0);
+  std::vector<size_t> ring;
+  for (size_t i = 0; i < surface.heights_.size(); ++i) {
+    if (!std::isnan(surface.heights_[i])) continue;
+    bool next_to_known = false;
+    for_each_neighbour(i, [&](size_t j) { next_to_known |= !std::isnan(surface.heights_[j]); });
+    if (next_to_known) {
+      ring.push_back(i);
+      queued[i] = 1;
+    }
+  }
+  std::vector<double> filled;
+  while (!ring.empty()) {
+    filled.assign(ring.size(), 0.0);
+    for (size_t k = 0; k < ring.size(); ++k) {
+      double sum = 0;
+      int n = 0;
+      for_each_neighbour(ring[k], [&](size_t j) {
+        const double h = surface.heights_[j];
+        if (!std::isnan(h)) sum += h, ++n;
+      });
+      filled[k] = sum / n;  // n > 0: a ring's cells are next to a known one
+    }
+    for (size_t k = 0; k < ring.size(); ++k) surface.heights_[ring[k]] = filled[k];
+    std::vector<size_t> next;
+    for (const size_t i : ring) {
+      for_each_neighbour(i, [&](size_t j) {
+        if (!queued[j] && std::isnan(surface.heights_[j])) {
+          queued[j] = 1;
+          next.push_back(j);
+        }
+      });
+    }
+    ring = std::move(next);
   }
   const auto [min_it, max_it] = std::minmax_element(surface.heights_.begin(), surface.heights_.end());
   surface.min_height_ = *min_it;
