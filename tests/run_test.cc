@@ -237,6 +237,11 @@ TEST(StitchRun, BadInputsGiveAClearErrorAndANonZeroExit) {
       {{Bin("stitch"), "run", "--bogus"}, "unknown option"},
       {{Bin("stitch"), "eval"}, "nothing to evaluate"},
       {{Bin("stitch"), "eval", dir.path().string()}, "run.json"},
+      {{Bin("stitch"), "eval", "--est", dir / "calib.yaml", "--absolute"}, "--absolute needs --gt"},
+      {{Bin("stitch"), "eval", "--est", dir / "calib.yaml", "--origin", "48,11,600"}, "--origin goes with --absolute"},
+      {{Bin("stitch"), "eval", "--est", dir / "calib.yaml", "--gt", dir / "calib.yaml", "--absolute", "--origin",
+        "95,11,0"},
+       "latitude 95"},
       {{Bin("stitch"), "frobnicate"}, "unknown command"},
       {{Bin("stitch-ingest"), "--pacing", "warp"}, "pacing"},
       {{Bin("stitch-ingest"), "--agent", "uav 0"}, "agent name"},
@@ -618,6 +623,30 @@ TEST(StitchRun, AStraightFlightOverNewGroundEndsInOneMapJoinedByGnss) {
   EXPECT_EQ(geo["maps"][0]["submaps"], "0:1,0:2,0:3");
   EXPECT_LT(geo["maps"][0]["absolute"]["keyframe_horizontal_rms_m"].get<double>(), 2.0) << geo.dump();
   EXPECT_LT(std::abs(geo["maps"][0]["absolute"]["scale_error"].get<double>()), 0.01) << geo.dump();
+  // The same figures from the files a surveyor gets, with no alignment: the WGS 84 trajectory
+  // against the truth in the ENU frame at the origin the run states.
+  const auto& origin = geo["origin"];
+  char at[96];
+  std::snprintf(at, sizeof(at), "%.9f,%.9f,%.3f", origin["latitude_deg"].get<double>(),
+                origin["longitude_deg"].get<double>(), origin["height_m"].get<double>());
+  const auto eval = RunProgram({Bin("stitch"), "eval", "--absolute", "--est", out + "/geo/trajectory_wgs84.csv", "--gt",
+                                out + "/groundtruth.tum", "--origin", at, "--out", dir / "absolute"},
+                               60);
+  ASSERT_EQ(eval.exit_code, 0) << eval.output;
+  const auto absolute = ReadJson(dir / "absolute/absolute.json");
+  EXPECT_EQ(absolute["matched"], geo["maps"][0]["absolute"]["frames"]) << absolute.dump();
+  EXPECT_NEAR(absolute["horizontal_rms_m"].get<double>(), geo["maps"][0]["absolute"]["horizontal_rms_m"].get<double>(),
+              0.002)
+      << absolute.dump();
+  EXPECT_NEAR(absolute["vertical_rms_m"].get<double>(), geo["maps"][0]["absolute"]["vertical_rms_m"].get<double>(),
+              0.002)
+      << absolute.dump();
+  // Without the origin, a WGS 84 trajectory and one in a local frame are not compared.
+  const auto refused = RunProgram({Bin("stitch"), "eval", "--absolute", "--est", out + "/geo/trajectory_wgs84.csv",
+                                   "--gt", out + "/groundtruth.tum"},
+                                  60);
+  EXPECT_EQ(refused.exit_code, 1) << refused.output;
+  EXPECT_NE(refused.output.find("--origin"), std::string::npos) << refused.output;
 }
 
 TEST(StitchRun, AFullDiskIsReportedWithTheFileAndLeavesNoFileCut) {

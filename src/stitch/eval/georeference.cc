@@ -16,15 +16,13 @@ namespace fs = std::filesystem;
 
 namespace stitch {
 
-namespace {
-
 std::optional<AbsoluteErrors> MeasureAbsolute(const std::vector<const PoseRecord*>& poses, const Sim3d& enu_from_map,
-                                              const Trajectory& ground_truth) {
+                                              const Trajectory& ground_truth, int64_t max_gap_ns) {
   AbsoluteErrors e;
   double horizontal = 0, vertical = 0, key_horizontal = 0, key_vertical = 0;
   std::vector<Eigen::Vector3d> placed, truth;
   for (const PoseRecord* p : poses) {
-    const std::optional<Rigid3d> true_pose = ground_truth.PoseAt(p->t_ns);
+    const std::optional<Rigid3d> true_pose = ground_truth.PoseAt(p->t_ns, max_gap_ns);
     if (!true_pose) continue;
     const Eigen::Vector3d at = enu_from_map * p->world_from_cam.translation;
     const Eigen::Vector3d d = at - true_pose->translation;
@@ -54,8 +52,6 @@ std::optional<AbsoluteErrors> MeasureAbsolute(const std::vector<const PoseRecord
   }
   return e;
 }
-
-}  // namespace
 
 RunGeoReference GeoReferenceRun(const std::vector<PoseRecord>& poses, int largest_component, const GnssTrack& gnss,
                                 const Trajectory& ground_truth, const GeoReferenceOptions& options) {

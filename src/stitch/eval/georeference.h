@@ -31,6 +31,12 @@ struct AbsoluteErrors {
   double scale_error = 0.0;
 };
 
+// The cameras of `poses` moved into the ENU frame by `enu_from_map`, against `ground_truth`
+// (in that frame) at the same times, interpolated between truth samples at most `max_gap_ns`
+// apart; no alignment. Empty when no pose has a truth at its time.
+std::optional<AbsoluteErrors> MeasureAbsolute(const std::vector<const PoseRecord*>& poses, const Sim3d& enu_from_map,
+                                              const Trajectory& ground_truth, int64_t max_gap_ns = 50'000'000);
+
 struct MapGeoReference {
   RunMap map;
   GeoPlacement placement;

@@ -2,10 +2,14 @@
 
 #include <cmath>
 #include <cstdio>
+#include <fstream>
+#include <map>
 #include <sstream>
 
 #include <nlohmann/json.hpp>
 
+#include "stitch/geo/csv_fields.h"
+#include "stitch/util/error.h"
 #include "stitch/util/text_file.h"
 
 namespace stitch {
@@ -35,6 +39,8 @@ std::string XmlEscaped(const std::string& text) {
   return out;
 }
 
+constexpr const char* kTrajectoryHeader = "map,frame,t_ns,latitude_deg,longitude_deg,height_m";
+
 // Degrees to 1e-9 (0.1 mm), metres to the millimetre.
 nlohmann::json Coordinates(const GeodeticPoint& p) {
   const auto round = [](double value, double unit) { return std::round(value / unit) * unit; };
@@ -45,7 +51,7 @@ nlohmann::json Coordinates(const GeodeticPoint& p) {
 
 void WriteGeoTrajectoryCsv(const std::string& path, const std::vector<GeoTrack>& tracks) {
   std::ostringstream out;
-  out << "map,frame,t_ns,latitude_deg,longitude_deg,height_m\n";
+  out << kTrajectoryHeader << "\n";
   char line[200];
   for (const GeoTrack& track : tracks) {
     for (const GeoTrack::Point& p : track.points) {
@@ -56,6 +62,56 @@ void WriteGeoTrajectoryCsv(const std::string& path, const std::vector<GeoTrack>&
     }
   }
   WriteFileAtomically(path, out.str());
+}
+
+bool IsGeoTrajectoryCsv(const std::string& path) {
+  std::ifstream in(path);
+  std::string line;
+  return in && std::getline(in, line) && Trimmed(line) == kTrajectoryHeader;
+}
+
+std::vector<GeoTrack> ReadGeoTrajectoryCsv(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw Error(path + ": cannot open the trajectory");
+  std::vector<GeoTrack> tracks;
+  std::map<std::string, size_t> track_of;
+  std::string line;
+  int line_number = 0;
+  const auto fail = [&](const std::string& why) -> Error {
+    return Error(Str() << path << ":" << line_number << ": " << why);
+  };
+  while (std::getline(in, line)) {
+    ++line_number;
+    const std::string text = Trimmed(line);
+    if (line_number == 1) {
+      if (text != kTrajectoryHeader) throw fail(std::string("expected the header line \"") + kTrajectoryHeader + "\"");
+      continue;
+    }
+    if (text.empty()) continue;
+    const std::vector<std::string> fields = SplitFields(text);
+    if (fields.size() != 6) throw fail(Str() << fields.size() << " fields where a position has 6");
+    GeoTrack::Point point;
+    double frame = 0;
+    if (!ParseNumber(fields[1], &frame) || frame != std::floor(frame) || std::abs(frame) > 1e9) {
+      throw fail("frame is not a frame number: \"" + fields[1] + "\"");
+    }
+    point.frame_index = static_cast<int>(frame);
+    if (!ParseTime(fields[2], &point.t_ns)) throw fail("t_ns is not a time in nanoseconds: \"" + fields[2] + "\"");
+    double* numbers[] = {&point.position.latitude_deg, &point.position.longitude_deg, &point.position.height_m};
+    for (int i = 0; i < 3; ++i) {
+      if (!ParseNumber(fields[i + 3], numbers[i])) throw fail("field " + std::to_string(i + 4) + " is not a number");
+    }
+    if (const std::string why = WhyNotOnEarth(point.position); !why.empty()) throw fail(why);
+    const std::string name = Trimmed(fields[0]);
+    auto [it, added] = track_of.try_emplace(name, tracks.size());
+    if (added) {
+      tracks.emplace_back();
+      tracks.back().name = name;
+    }
+    tracks[it->second].points.push_back(point);
+  }
+  if (line_number == 0) throw Error(path + ": empty, where a trajectory's header was expected");
+  return tracks;
 }
 
 void WriteGeoJson(const std::string& path, const std::vector<GeoTrack>& tracks) {

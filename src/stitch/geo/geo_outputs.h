@@ -27,6 +27,12 @@ struct GeoTrack {
 // Each throws stitch::Error naming the file when it cannot be written (written atomically).
 // "map,frame,t_ns,latitude_deg,longitude_deg,height_m", one line per camera position.
 void WriteGeoTrajectoryCsv(const std::string& path, const std::vector<GeoTrack>& tracks);
+// What WriteGeoTrajectoryCsv wrote: one track per map name, its points in the file's order (only
+// name and points). Throws stitch::Error naming the file and line for another header, a field
+// that is not a number or a time, or a position that is no place on Earth.
+std::vector<GeoTrack> ReadGeoTrajectoryCsv(const std::string& path);
+// Whether `path`'s first line is WriteGeoTrajectoryCsv's header.
+bool IsGeoTrajectoryCsv(const std::string& path);
 // A FeatureCollection of one LineString per track (a track of one point: a Point).
 void WriteGeoJson(const std::string& path, const std::vector<GeoTrack>& tracks);
 void WriteKml(const std::string& path, const std::vector<GeoTrack>& tracks);

@@ -500,6 +500,63 @@ TEST(GeoOutputs, WriteGeoJsonCoordinatesAsLongitudeLatitudeHeight) {
   EXPECT_EQ(first, "map-0,0,1,48.000000000,11.000000000,650.000");
 }
 
+// trajectory_wgs84.csv read back: each map's positions as written (1e-9 degrees, millimetres),
+// and anything else refused naming the file and line.
+TEST(GeoOutputs, ReadsBackTheTrajectoryCsvAndRefusesWhatIsNotOne) {
+  testing::TempDir dir;
+  GeoTrack a, b;
+  a.name = "map-0";
+  b.name = "submap-0-3";
+  for (int i = 0; i < 3; ++i) {
+    a.points.push_back({1000 + i, i, {48.0 + 1e-5 * i, 11.0 - 2e-5 * i, 650.0 + 0.25 * i}});
+    b.points.push_back({5000 + i, 10 + i, {-33.5, 151.25, -10.0 * i}});
+  }
+  WriteGeoTrajectoryCsv((dir / "t.csv"), {a, b});
+  EXPECT_TRUE(IsGeoTrajectoryCsv((dir / "t.csv")));
+  const std::vector<GeoTrack> read = ReadGeoTrajectoryCsv((dir / "t.csv"));
+  ASSERT_EQ(read.size(), 2u);
+  for (size_t t = 0; t < 2; ++t) {
+    const GeoTrack& written = t == 0 ? a : b;
+    EXPECT_EQ(read[t].name, written.name);
+    ASSERT_EQ(read[t].points.size(), written.points.size());
+    for (size_t i = 0; i < written.points.size(); ++i) {
+      EXPECT_EQ(read[t].points[i].t_ns, written.points[i].t_ns);
+      EXPECT_EQ(read[t].points[i].frame_index, written.points[i].frame_index);
+      EXPECT_NEAR(read[t].points[i].position.latitude_deg, written.points[i].position.latitude_deg, 1e-9);
+      EXPECT_NEAR(read[t].points[i].position.longitude_deg, written.points[i].position.longitude_deg, 1e-9);
+      EXPECT_NEAR(read[t].points[i].position.height_m, written.points[i].position.height_m, 1e-3);
+    }
+  }
+  const std::string header = "map,frame,t_ns,latitude_deg,longitude_deg,height_m\n";
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {"t_ns,latitude_deg,longitude_deg,height_m,horizontal_accuracy_m,vertical_accuracy_m,fix\n", "header"},
+      {"", "empty"},
+      {header + "map-0,0,1,48,11\n", "5 fields"},
+      {header + "map-0,0.5,1,48,11,600\n", "frame is not a frame number"},
+      {header + "map-0,0,-1,48,11,600\n", "t_ns is not a time"},
+      {header + "map-0,0,1,48,east,600\n", "field 5 is not a number"},
+      {header + "map-0,0,1,-91,11,600\n", "latitude -91"},
+      {header + "map-0,0,1,48,11,1e9\n", "height"},
+  };
+  for (const auto& [text, expected] : cases) {
+    {
+      std::ofstream out(dir / "bad.csv", std::ios::trunc);
+      out << text;
+    }
+    try {
+      ReadGeoTrajectoryCsv((dir / "bad.csv"));
+      ADD_FAILURE() << "accepted: " << text;
+    } catch (const Error& e) {
+      const std::string what = e.what();
+      EXPECT_NE(what.find((dir / "bad.csv")), std::string::npos) << what;
+      EXPECT_NE(what.find(expected), std::string::npos) << "expected \"" << expected << "\" in: " << what;
+    }
+  }
+  std::ofstream(dir / "poses.tum") << "1.0 0 0 0 0 0 0 1\n";
+  EXPECT_FALSE(IsGeoTrajectoryCsv((dir / "poses.tum")));
+  EXPECT_FALSE(IsGeoTrajectoryCsv((dir / "missing.csv")));
+}
+
 // What GDAL's ogrinfo (not ours) says of `path`: its summary of every layer; empty when it fails.
 std::string OgrInfo(const std::string& path) {
   std::string text;
