@@ -34,10 +34,17 @@ class InterruptionCallback : public ceres::IterationCallback {
   bool stopped_ = false;
 };
 
-ceres::Solver::Summary Solve(ceres::Problem* problem, int iterations, InterruptionCallback* callback) {
+// Free keyframes from which the reduced camera system is solved sparsely: a local window's few
+// cameras see each other's points, and a dense Schur complement is the fastest; a merged map's
+// hundreds form a sparse system whose dense solve grows with the cube of their number (a
+// 460-keyframe map: most of the merger's CPU).
+constexpr int kSparseFromKeyframes = 64;
+
+ceres::Solver::Summary Solve(ceres::Problem* problem, int iterations, int free_keyframes,
+                             InterruptionCallback* callback) {
   ceres::Solver::Options options;
   options.callbacks.push_back(callback);
-  options.linear_solver_type = ceres::DENSE_SCHUR;
+  options.linear_solver_type = free_keyframes >= kSparseFromKeyframes ? ceres::SPARSE_SCHUR : ceres::DENSE_SCHUR;
   options.max_num_iterations = iterations;
   options.num_threads = 1;
   options.minimizer_progress_to_stdout = false;
@@ -138,7 +145,7 @@ BundleAdjustmentReport BundleAdjust(Map* map, const std::vector<KeyframeId>& fre
   }
 
   InterruptionCallback callback(interrupted);
-  ceres::Solver::Summary summary = Solve(&problem, options.iterations, &callback);
+  ceres::Solver::Summary summary = Solve(&problem, options.iterations, report.keyframes_free, &callback);
   // Second pass without the observations that are outliers at the first pass's solution.
   const auto pose_of = [&](KeyframeId id) { return poses.at(id).ToRigid(); };
   const auto chi2_now = [&](const ObservationRecord& r) {
@@ -152,7 +159,7 @@ BundleAdjustmentReport BundleAdjust(Map* map, const std::vector<KeyframeId>& fre
     for (const auto& r : records) {
       if (chi2_now(r) > options.chi2_threshold) problem.RemoveResidualBlock(r.residual);
     }
-    summary = Solve(&problem, options.refine_iterations, &callback);
+    summary = Solve(&problem, options.refine_iterations, report.keyframes_free, &callback);
   }
   report.interrupted = callback.stopped();
   report.converged = summary.IsSolutionUsable();
