@@ -71,46 +71,48 @@ bool IsGeoTrajectoryCsv(const std::string& path) {
 }
 
 std::vector<GeoTrack> ReadGeoTrajectoryCsv(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) throw Error(path + ": cannot open the trajectory");
   std::vector<GeoTrack> tracks;
   std::map<std::string, size_t> track_of;
-  std::string line;
-  int line_number = 0;
-  const auto fail = [&](const std::string& why) -> Error {
-    return Error(Str() << path << ":" << line_number << ": " << why);
-  };
-  while (std::getline(in, line)) {
-    ++line_number;
-    const std::string text = Trimmed(line);
-    if (line_number == 1) {
-      if (text != kTrajectoryHeader) throw fail(std::string("expected the header line \"") + kTrajectoryHeader + "\"");
-      continue;
-    }
-    if (text.empty()) continue;
-    const std::vector<std::string> fields = SplitFields(text);
-    if (fields.size() != 6) throw fail(Str() << fields.size() << " fields where a position has 6");
-    GeoTrack::Point point;
-    double frame = 0;
-    if (!ParseNumber(fields[1], &frame) || frame != std::floor(frame) || std::abs(frame) > 1e9) {
-      throw fail("frame is not a frame number: \"" + fields[1] + "\"");
-    }
-    point.frame_index = static_cast<int>(frame);
-    if (!ParseTime(fields[2], &point.t_ns)) throw fail("t_ns is not a time in nanoseconds: \"" + fields[2] + "\"");
-    double* numbers[] = {&point.position.latitude_deg, &point.position.longitude_deg, &point.position.height_m};
-    for (int i = 0; i < 3; ++i) {
-      if (!ParseNumber(fields[i + 3], numbers[i])) throw fail("field " + std::to_string(i + 4) + " is not a number");
-    }
-    if (const std::string why = WhyNotOnEarth(point.position); !why.empty()) throw fail(why);
-    const std::string name = Trimmed(fields[0]);
-    auto [it, added] = track_of.try_emplace(name, tracks.size());
-    if (added) {
-      tracks.emplace_back();
-      tracks.back().name = name;
-    }
-    tracks[it->second].points.push_back(point);
-  }
-  if (line_number == 0) throw Error(path + ": empty, where a trajectory's header was expected");
+  bool header_seen = false;
+  ForEachDataLine(
+      path,
+      [&](const std::string& line, int line_number) {
+        const auto fail = [&](const std::string& why) -> Error {
+          return Error(Str() << path << ":" << line_number << ": " << why);
+        };
+        const std::string text = Trimmed(line);
+        if (!header_seen) {
+          if (text != kTrajectoryHeader) {
+            throw fail(std::string("expected the header line \"") + kTrajectoryHeader + "\"");
+          }
+          header_seen = true;
+          return;
+        }
+        const std::vector<std::string> fields = SplitFields(text);
+        if (fields.size() != 6) throw fail(Str() << fields.size() << " fields where a position has 6");
+        GeoTrack::Point point;
+        double frame = 0;
+        if (!ParseNumber(fields[1], &frame) || frame != std::floor(frame) || std::abs(frame) > 1e9) {
+          throw fail("frame is not a frame number: \"" + fields[1] + "\"");
+        }
+        point.frame_index = static_cast<int>(frame);
+        if (!ParseTime(fields[2], &point.t_ns)) throw fail("t_ns is not a time in nanoseconds: \"" + fields[2] + "\"");
+        double* numbers[] = {&point.position.latitude_deg, &point.position.longitude_deg, &point.position.height_m};
+        for (int i = 0; i < 3; ++i) {
+          if (!ParseNumber(fields[i + 3], numbers[i]))
+            throw fail("field " + std::to_string(i + 4) + " is not a number");
+        }
+        if (const std::string why = WhyNotOnEarth(point.position); !why.empty()) throw fail(why);
+        const std::string name = Trimmed(fields[0]);
+        const auto [it, added] = track_of.try_emplace(name, tracks.size());
+        if (added) {
+          tracks.emplace_back();
+          tracks.back().name = name;
+        }
+        tracks[it->second].points.push_back(point);
+      },
+      " the trajectory");
+  if (!header_seen) throw Error(path + ": empty, where a trajectory's header was expected");
   return tracks;
 }
 
