@@ -307,6 +307,12 @@ std::optional<std::string> LinkBridge::NextDatagramLocked(double now) {
     return link::Encode(link::MakeFragment(session_, message, retained->second.channel, retained->second.bytes,
                                            datagram_bytes_, index));
   }
+  // A background message, once begun, goes on to its end before a large one (only small messages
+  // pass it): held half-sent it would hold back the end of what was sent, below which the
+  // receiver asks for its lost datagrams, for as long as larger messages keep coming (a saturated
+  // link stopped repairing, gave up on its messages and had them all sent again).
+  const bool small_waits = small_sending_ || !small_queue_.empty();
+  if (background_sending_ && !small_waits) return NextFragmentLocked(&background_sending_, now);
   for (auto [queue, sending] : {std::pair(&small_queue_, &small_sending_), std::pair(&large_queue_, &large_sending_),
                                 std::pair(&background_queue_, &background_sending_)}) {
     if (!*sending && !queue->empty()) {

@@ -6,8 +6,9 @@
 // what the other sends on its own network, byte for byte. A message is split into numbered
 // datagrams; the receiver asks for the ones it lacks (REPAIR) and the sender keeps what it sent
 // for `retain_s` to answer, so a lossy link still delivers whole messages. Under a bandwidth
-// budget, messages wait in a queue (small ones first, `background` channels only when nothing
-// else waits) and are dropped, oldest first, after `max_queue_s`. A message this bridge published is never sent back
+// budget, messages wait in a queue (small ones first, `background` channels begun only when
+// nothing else waits, then sent to their end with only small ones between their datagrams) and
+// are dropped, oldest first, after `max_queue_s`. A message this bridge published is never sent back
 // (no echo between sides).
 //
 // Threads: LCM's dispatcher (the caller runs it) queues local messages; a sender thread paces
@@ -179,7 +180,8 @@ class LinkBridge {
   std::deque<std::string> control_;                    // repair requests, statuses: first
   std::deque<std::pair<uint64_t, uint16_t>> repairs_;  // (message, fragment) asked for again
   std::set<std::pair<uint64_t, uint16_t>> repairs_waiting_;
-  // A small one goes between a large one's fragments, and either between a background one's.
+  // A small one goes between a large or a background one's fragments; a background one, once
+  // begun, goes before a large one.
   std::optional<Sending> small_sending_, large_sending_, background_sending_;
   uint64_t next_message_ = 0;
   std::map<uint64_t, Retained> retained_;

@@ -11,6 +11,7 @@
 #include <cstring>
 #include <map>
 #include <mutex>
+#include <set>
 #include <thread>
 
 #include <gtest/gtest.h>
@@ -378,23 +379,52 @@ TEST(LinkBridge, StaysUnderItsBudgetAndLetsSmallMessagesOvertake) {
 }
 
 TEST(LinkBridge, SendsBackgroundChannelsOnlyWhenNothingElseWaits) {
-  // A keyframe's picture published first, then a submap update and a small message: under a
-  // budget both go before the picture, which waits.
+  // A submap update going out, then a keyframe's picture, then a second update and a small
+  // message: under a budget the picture waits for the first update; once begun it goes out to its
+  // end with only the small message between its datagrams, then the second update.
   LinkOptions aircraft;
   aircraft.budget_bytes_per_s = 200000;
   aircraft.forward = "uav0/(SUBMAP|SEQUENCE|KEYFRAME_IMAGE)";
   TwoSides sides(aircraft);
-  Publish(sides.aircraft_bus.get(), "uav0/KEYFRAME_IMAGE", RandomBytes(100000, 3));
+  Publish(sides.aircraft_bus.get(), "uav0/SUBMAP", RandomBytes(100000, 5));
   std::this_thread::sleep_for(30ms);
+  Publish(sides.aircraft_bus.get(), "uav0/KEYFRAME_IMAGE", RandomBytes(100000, 3));
+  ASSERT_TRUE(sides.ground_seen->WaitFor("uav0/SUBMAP", 1, 10s));
+  std::this_thread::sleep_for(100ms);  // the picture has begun
   Publish(sides.aircraft_bus.get(), "uav0/SUBMAP", RandomBytes(100000, 4));
   Publish(sides.aircraft_bus.get(), "uav0/SEQUENCE", "small");
-  ASSERT_TRUE(sides.ground_seen->WaitFor("uav0/KEYFRAME_IMAGE", 1, 10s));
+  ASSERT_TRUE(sides.ground_seen->WaitFor("uav0/SUBMAP", 2, 10s));
   const auto order = sides.ground_seen->order();
-  ASSERT_EQ(order.size(), 3u);
-  EXPECT_EQ(order[0], "uav0/SEQUENCE");
-  EXPECT_EQ(order[1], "uav0/SUBMAP");
+  ASSERT_EQ(order.size(), 4u);
+  EXPECT_EQ(order[0], "uav0/SUBMAP");
+  EXPECT_EQ(order[1], "uav0/SEQUENCE");
   EXPECT_EQ(order[2], "uav0/KEYFRAME_IMAGE");
+  EXPECT_EQ(order[3], "uav0/SUBMAP");
   EXPECT_EQ(sides.ground_seen->Get("uav0/KEYFRAME_IMAGE")[0], RandomBytes(100000, 3));
+  EXPECT_EQ(sides.ground_seen->Get("uav0/SUBMAP")[1], RandomBytes(100000, 4));
+}
+
+// Pictures on a lossy link under a budget, with updates coming all the time: every lost
+// datagram of the updates is still repaired (a picture held half-sent behind them held back the
+// end below which the ground asks for repairs: the ground gave up on the updates).
+TEST(LinkBridge, UpdatesSentDuringAPictureAreRepairedOnALossyLink) {
+  LinkOptions aircraft;
+  aircraft.budget_bytes_per_s = 300000;
+  aircraft.loss = 0.05;
+  aircraft.forward = "uav0/(SUBMAP|KEYFRAME_IMAGE)";
+  TwoSides sides(aircraft);
+  constexpr int kUpdates = 30, kPictures = 6;
+  for (int i = 0; i < kUpdates; ++i) {
+    if (i % 5 == 0) Publish(sides.aircraft_bus.get(), "uav0/KEYFRAME_IMAGE", RandomBytes(40000, 100 + i));
+    Publish(sides.aircraft_bus.get(), "uav0/SUBMAP", RandomBytes(20000, i));
+    std::this_thread::sleep_for(50ms);
+  }
+  ASSERT_TRUE(sides.ground_seen->WaitFor("uav0/SUBMAP", kUpdates, 30s));
+  ASSERT_TRUE(sides.ground_seen->WaitFor("uav0/KEYFRAME_IMAGE", kPictures, 30s));
+  const auto received = sides.ground_seen->Get("uav0/SUBMAP");  // repaired ones come later
+  const std::set<std::string> updates(received.begin(), received.end());
+  for (int i = 0; i < kUpdates; ++i) EXPECT_TRUE(updates.count(RandomBytes(20000, i))) << "update " << i;
+  EXPECT_EQ(sides.ground->counts().messages_given_up, 0);
 }
 
 TEST(LinkBridge, DropsWhatWaitedTooLongUnderATightBudget) {
