@@ -28,6 +28,12 @@ int ScalePyramid::PredictLevel(double distance, double max_distance) const {
 }
 
 Undistorter::Undistorter(const Camera& camera) : camera_(camera) {
+  if (!camera.HasDistortion()) {
+    min_x_ = min_y_ = 0;
+    max_x_ = camera.width() - 1;
+    max_y_ = camera.height() - 1;
+    return;
+  }
   map_x_.create(camera.height(), camera.width(), CV_32F);
   map_y_.create(camera.height(), camera.width(), CV_32F);
   min_x_ = min_y_ = 1e18;
@@ -36,8 +42,7 @@ Undistorter::Undistorter(const Camera& camera) : camera_(camera) {
     float* mx = map_x_.ptr<float>(y);
     float* my = map_y_.ptr<float>(y);
     for (int x = 0; x < camera.width(); ++x) {
-      const Eigen::Vector2d u =
-          camera.HasDistortion() ? camera.UndistortPixel(Eigen::Vector2d(x, y)) : Eigen::Vector2d(x, y);
+      const Eigen::Vector2d u = camera.UndistortPixel(Eigen::Vector2d(x, y));
       mx[x] = static_cast<float>(u.x());
       my[x] = static_cast<float>(u.y());
       if (x == 0 || y == 0 || x == camera.width() - 1 || y == camera.height() - 1) {
@@ -51,6 +56,7 @@ Undistorter::Undistorter(const Camera& camera) : camera_(camera) {
 }
 
 Eigen::Vector2d Undistorter::Undistort(double x, double y) const {
+  if (map_x_.empty()) return {x, y};
   // Bilinear interpolation of the table (the mapping is smooth at pixel scale).
   const double cx = std::clamp(x, 0.0, camera_.width() - 1.001);
   const double cy = std::clamp(y, 0.0, camera_.height() - 1.001);

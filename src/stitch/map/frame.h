@@ -33,7 +33,8 @@ struct ScalePyramid {
 };
 
 // Maps distorted pixels to the ideal pinhole image (same fx, fy, cx, cy) through a per-pixel
-// table: fast for the thousand keypoints of every frame. Immutable; thread-safe.
+// table: fast for the thousand keypoints of every frame. A camera without distortion needs no
+// table (16 MB at 1080p, 66 MB at 4K, in the tracker and in the merger). Immutable; thread-safe.
 class Undistorter {
  public:
   Undistorter() = default;
@@ -48,7 +49,7 @@ class Undistorter {
 
  private:
   Camera camera_;
-  cv::Mat map_x_, map_y_;  // CV_32F, one entry per pixel
+  cv::Mat map_x_, map_y_;  // CV_32F, one entry per pixel; empty without distortion
   double min_x_ = 0, min_y_ = 0, max_x_ = 0, max_y_ = 0;
 };
 

@@ -165,5 +165,34 @@ TEST(Map, PointGeometryGivesDirectionAndScaleRange) {
   EXPECT_NEAR(p->max_distance / p->min_distance, std::pow(1.2, 7), 1e-3);
 }
 
+TEST(Undistorter, FollowsTheExactInverseOfAStrongDistortionBetweenItsPixels) {
+  // The TUM fr1 camera's distortion (k1 0.26, k2 -0.95, k3 1.16): tens of pixels at the corners.
+  const Camera camera =
+      Camera::Pinhole(640, 480, 517.306, 516.469, 318.643, 255.314, 0.262383, -0.953104, -0.005358, 0.002628, 1.16331);
+  const Undistorter undistorter(camera);
+  double worst = 0;
+  for (double y = 0; y <= 479; y += 3.7) {
+    for (double x = 0; x <= 639; x += 2.9) {
+      worst = std::max(worst, (undistorter.Undistort(x, y) - camera.UndistortPixel({x, y})).norm());
+    }
+  }
+  worst = std::max(worst, (undistorter.Undistort(639, 479) - camera.UndistortPixel({639, 479})).norm());
+  EXPECT_LT(worst, 0.01);
+  // Outside the image: the exact inverse.
+  EXPECT_LT((undistorter.Undistort(-3, 500) - camera.UndistortPixel({-3, 500})).norm(), 1e-9);
+  // The bounds enclose every border pixel's undistorted position.
+  const Eigen::Vector2d corner = camera.UndistortPixel({0, 0});
+  EXPECT_LE(undistorter.min_x(), corner.x());
+  EXPECT_LE(undistorter.min_y(), corner.y());
+}
+
+TEST(Undistorter, LeavesAPinholeCameraAsItIs) {
+  const Undistorter undistorter(Camera::Pinhole(3840, 2160, 2700, 2700, 1919.5, 1079.5));
+  EXPECT_EQ(undistorter.Undistort(1234.25, 567.75), Eigen::Vector2d(1234.25, 567.75));
+  EXPECT_EQ(undistorter.min_x(), 0);
+  EXPECT_EQ(undistorter.max_x(), 3839);
+  EXPECT_EQ(undistorter.max_y(), 2159);
+}
+
 }  // namespace
 }  // namespace stitch
