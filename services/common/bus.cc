@@ -130,6 +130,12 @@ Publisher::Publisher(lcm::LCM* lcm, std::string agent, std::optional<BusAuthenti
       0x7fffffffffffffffLL;
 }
 
+Publisher::Publisher(lcm::LCM* lcm, const Publisher& same_sender)
+    : lcm_(lcm),
+      agent_(same_sender.agent_),
+      authenticator_(same_sender.authenticator_),
+      session_(same_sender.session_) {}
+
 Subscriber::Subscriber(lcm::LCM* lcm, std::optional<BusAuthenticator> authenticator)
     : lcm_(lcm), authenticator_(std::move(authenticator)) {}
 

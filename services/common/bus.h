@@ -96,6 +96,8 @@ std::unique_ptr<lcm::LCM> OpenLcm(const std::string& url);
 class Publisher {
  public:
   Publisher(lcm::LCM* lcm, std::string agent, std::optional<BusAuthenticator> authenticator = std::nullopt);
+  // Another LCM instance of the same sender (the frame bus): the same agent, key and session.
+  Publisher(lcm::LCM* lcm, const Publisher& same_sender);
 
   template <class Message>
   void Publish(const std::string& channel, Message* message) {

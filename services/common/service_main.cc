@@ -2,6 +2,8 @@
 
 #include <chrono>
 #include <cstdio>
+#include <memory>
+#include <optional>
 
 namespace stitch {
 
@@ -17,7 +19,20 @@ int RunService(const std::string& service_name, const ServiceCommandLine& common
     const auto& stop = InstallStopSignals();
     auto lcm = bus::OpenLcm(common.lcm_url);
     bus::Publisher publisher(lcm.get(), common.agent, bus::BusAuthenticator::FromSetting(config.bus.key_file));
-    ServiceProcess process{common, config, lcm.get(), &publisher, stop};
+    // The frame bus only where a service uses it (an unused socket would still receive them all).
+    const bool own_frame_bus = !config.bus.frame_url.empty() && config.bus.frame_url != common.lcm_url &&
+                               (service_name == "ingest" || service_name == "tracker");
+    std::unique_ptr<lcm::LCM> frame_lcm = own_frame_bus ? bus::OpenLcm(config.bus.frame_url) : nullptr;
+    std::optional<bus::Publisher> frame_publisher;
+    if (frame_lcm) frame_publisher.emplace(frame_lcm.get(), publisher);
+    ServiceProcess process{common,
+                           config,
+                           lcm.get(),
+                           &publisher,
+                           stop,
+                           frame_lcm ? frame_lcm.get() : lcm.get(),
+                           frame_publisher ? &*frame_publisher : &publisher,
+                           frame_lcm ? config.bus.frame_url : common.lcm_url};
     return body(process);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "stitch-%s: %s\n", service_name.c_str(), e.what());

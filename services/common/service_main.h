@@ -18,6 +18,7 @@
 
 #include <atomic>
 #include <functional>
+#include <optional>
 #include <string>
 #include <thread>
 #include <vector>
@@ -35,6 +36,11 @@ struct ServiceProcess {
   lcm::LCM* lcm;
   bus::Publisher* publisher;
   const std::atomic<bool>& stop;  // SIGINT or SIGTERM
+  // The camera's frames (bus.frame_url), or the bus itself: only the ingest and the tracker use
+  // them; RunUntilStopped dispatches it too.
+  lcm::LCM* frame_lcm;
+  bus::Publisher* frame_publisher;
+  std::string frame_url;
 
   // Sleeps until SIGINT or SIGTERM.
   void WaitForStop() const;
@@ -47,14 +53,22 @@ struct ServiceProcess {
   template <class Service>
   void RunUntilStopped(Service& service, StopOrder order, const std::function<void()>& after_signal = nullptr) const {
     bus::Dispatcher dispatcher(lcm);
+    std::optional<bus::Dispatcher> frame_dispatcher;
+    if (frame_lcm != lcm) frame_dispatcher.emplace(frame_lcm);
     dispatcher.Start();
+    if (frame_dispatcher) frame_dispatcher->Start();
     service.Start();
-    STITCH_LOG(INFO) << "listening on " << common.lcm_url;
+    STITCH_LOG(INFO) << "listening on " << common.lcm_url
+                     << (frame_dispatcher ? " (the camera's frames on " + frame_url + ")" : std::string());
     WaitForStop();
     if (after_signal) after_signal();
-    if (order == StopOrder::kBusFirst) dispatcher.Stop();
+    if (order == StopOrder::kBusFirst) {
+      dispatcher.Stop();
+      if (frame_dispatcher) frame_dispatcher->Stop();
+    }
     service.Stop();
     dispatcher.Stop();
+    if (frame_dispatcher) frame_dispatcher->Stop();
   }
 };
 

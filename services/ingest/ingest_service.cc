@@ -24,11 +24,14 @@ std::string ChooseFrameEncoding(const std::string& setting, const std::string& l
   return "jpeg";
 }
 
-IngestService::IngestService(lcm::LCM* lcm, const std::string& lcm_url, bus::Publisher* publisher,
-                             IngestOptions options)
-    : publisher_(publisher), options_(std::move(options)), subscriber_(lcm, publisher->authenticator()) {
+IngestService::IngestService(lcm::LCM* lcm, const std::string& frame_url, bus::Publisher* publisher,
+                             IngestOptions options, bus::Publisher* frame_publisher)
+    : publisher_(publisher),
+      frame_publisher_(frame_publisher ? frame_publisher : publisher),
+      options_(std::move(options)),
+      subscriber_(lcm, publisher->authenticator()) {
   CheckOptions(options_, "ingest");
-  options_.encoding = ChooseFrameEncoding(options_.encoding, lcm_url);
+  options_.encoding = ChooseFrameEncoding(options_.encoding, frame_url);
   const std::string agent = publisher_->agent();
   subscriber_.Subscribe<stitch::frame_ack_t>(bus::Channel(agent, bus::kFrameAck),
                                              [this](std::unique_ptr<stitch::frame_ack_t> ack, const std::string&) {
@@ -174,7 +177,7 @@ IngestSummary IngestService::Play(ImageSequence& sequence, const FailureSchedule
       highest_sent_ = std::max(highest_sent_, frame.index);
     }
     publish_fixes_until(frame.t_ns, first_t_ns);
-    publisher_->Publish(frame_channel, &message);
+    frame_publisher_->Publish(frame_channel, &message);
     ++summary.frames_published;
     ++published_;
     if (lockstep) {
@@ -188,7 +191,7 @@ IngestSummary IngestService::Play(ImageSequence& sequence, const FailureSchedule
         }
         ++resends;
         ++summary.resends;
-        publisher_->Publish(frame_channel, &message);
+        frame_publisher_->Publish(frame_channel, &message);
       }
     }
     if (clock.ElapsedSeconds() - last_info >= 1.0) {

@@ -44,9 +44,11 @@ std::string ChooseFrameEncoding(const std::string& setting, const std::string& l
 
 class IngestService {
  public:
-  // Subscribes at once: construct before the Dispatcher starts. `lcm_url` is the bus `lcm` was
-  // opened on (it decides the `auto` encoding).
-  IngestService(lcm::LCM* lcm, const std::string& lcm_url, bus::Publisher* publisher, IngestOptions options);
+  // Subscribes at once: construct before the Dispatcher starts. Frames go out through
+  // `frame_publisher` (the frame bus, bus.frame_url; null: `publisher`, the bus `lcm` is);
+  // `frame_url` is the URL they go out on (it decides the `auto` encoding).
+  IngestService(lcm::LCM* lcm, const std::string& frame_url, bus::Publisher* publisher, IngestOptions options,
+                bus::Publisher* frame_publisher = nullptr);
 
   // Plays `sequence` to its end or until `stop`. `spoil` names frames to replace by unusable
   // ones (datasets; the synthetic flight renders its gusts itself). Throws stitch::Error when
@@ -69,6 +71,7 @@ class IngestService {
   void PublishSequenceInfo(const ImageSequence& sequence, const IngestSummary& summary, bool finished);
 
   bus::Publisher* publisher_;
+  bus::Publisher* frame_publisher_;
   IngestOptions options_;
   bus::Subscriber subscriber_;
   std::mutex mutex_;

@@ -35,7 +35,8 @@ int main(int argc, char** argv) {
     source.synthetic = process.config.synthetic;
     source.max_working_pixels = process.config.ingest.max_working_pixels;
     if (source.live_uri.empty() && source.dataset_path.empty()) source.live_uri = process.config.ingest.live;
-    IngestService ingest(process.lcm, common.lcm_url, process.publisher, process.config.ingest);
+    IngestService ingest(process.lcm, process.frame_url, process.publisher, process.config.ingest,
+                         process.frame_publisher);
     Heartbeat heartbeat(process.publisher, "ingest", [&] {
       return Heartbeat::Counts{ingest.frames_published(), ingest.frames_published(), ingest.rejected()};
     });

@@ -22,7 +22,8 @@ int main(int argc, char** argv) {
   if (args.Given("--state")) settings.push_back(TextSetting("tracker.state_file", state_file));
   return RunService("tracker", common, settings, [&](ServiceProcess& process) {
     const Vocabulary vocabulary = LoadVocabulary(process.config);
-    TrackerService tracker(process.lcm, process.publisher, process.config.tracker, &vocabulary, record_path);
+    TrackerService tracker(process.lcm, process.publisher, process.config.tracker, &vocabulary, record_path,
+                           process.frame_lcm);
     process.RunUntilStopped(tracker, ServiceProcess::StopOrder::kBusFirst);
     if (tracker.points_waits() > 0)
       STITCH_LOG(INFO) << "waited " << tracker.points_waits() << " times for a keyframe's new points on a thin map ("

@@ -52,12 +52,13 @@ stitch::frame_ack_t AckOf(const stitch::frame_t& frame) {
 }  // namespace
 
 TrackerService::TrackerService(lcm::LCM* lcm, bus::Publisher* publisher, TrackerOptions options,
-                               const Vocabulary* vocabulary, std::string record_path)
+                               const Vocabulary* vocabulary, std::string record_path, lcm::LCM* frame_lcm)
     : publisher_(publisher),
       options_(std::move(options)),
       vocabulary_(vocabulary),
       record_path_(std::move(record_path)),
       subscriber_(lcm, publisher->authenticator()),
+      frame_subscriber_(frame_lcm ? frame_lcm : lcm, publisher->authenticator()),
       frames_(static_cast<size_t>(std::max(1, options_.max_queued_frames)),
               BoundedQueue<std::unique_ptr<stitch::frame_t>>::WhenFull::kDropOldest),
       updates_(512, BoundedQueue<std::unique_ptr<stitch::local_map_update_t>>::WhenFull::kDropOldest),
@@ -67,7 +68,7 @@ TrackerService::TrackerService(lcm::LCM* lcm, bus::Publisher* publisher, Tracker
   // Before the first frame can arrive: the dispatcher thread queues acks on it too (OnFrame).
   if (options_.tracking.keyframe_worker) publisher_thread_ = std::make_unique<WorkerThread>();
   const std::string agent = publisher_->agent();
-  subscriber_.Subscribe<stitch::frame_t>(
+  frame_subscriber_.Subscribe<stitch::frame_t>(
       bus::Channel(agent, bus::kFrame),
       [this](std::unique_ptr<stitch::frame_t> frame, const std::string&) { OnFrame(std::move(frame)); });
   subscriber_.Subscribe<stitch::local_map_update_t>(bus::Channel(agent, bus::kLocalMap),
@@ -79,7 +80,8 @@ TrackerService::TrackerService(lcm::LCM* lcm, bus::Publisher* publisher, Tracker
           mapper_alive_at_ = MonotonicSeconds();
       });
   heartbeat_ = std::make_unique<Heartbeat>(publisher_, "tracker", [this] {
-    return Heartbeat::Counts{received_.load(), tracked_.load(), subscriber_.rejected() + dropped_.load()};
+    return Heartbeat::Counts{received_.load(), tracked_.load(),
+                             subscriber_.rejected() + frame_subscriber_.rejected() + dropped_.load()};
   });
   if (!record_path_.empty()) record_ = AppendToFrameRecord(record_path_);
   if (!options_.state_file.empty()) {
@@ -146,7 +148,7 @@ void TrackerService::OnFrame(std::unique_ptr<stitch::frame_t> frame) {
   // 2^31-1 made every later real frame look "already tracked") is refused, not acknowledged.
   if (frame->frame_index < 0 ||
       (highest_received_.load() >= 0 && frame->frame_index > highest_received_.load() + kMaxFrameIndexJump)) {
-    subscriber_.Reject(
+    frame_subscriber_.Reject(
         bus::Channel(publisher_->agent(), bus::kFrame),
         "jumps to frame " + std::to_string(frame->frame_index) + " from " + std::to_string(highest_received_.load()));
     return;

@@ -38,8 +38,9 @@ int8_t ToMessageState(TrackingState state);
 class TrackerService {
  public:
   // Subscribes at once: construct before the Dispatcher starts. `vocabulary` must outlive it.
+  // Frames come on `frame_lcm` (the frame bus, bus.frame_url; null: `lcm`).
   TrackerService(lcm::LCM* lcm, bus::Publisher* publisher, TrackerOptions options, const Vocabulary* vocabulary,
-                 std::string record_path);
+                 std::string record_path, lcm::LCM* frame_lcm = nullptr);
   ~TrackerService();
 
   void Start();
@@ -91,6 +92,7 @@ class TrackerService {
   const Vocabulary* vocabulary_;
   std::string record_path_;
   bus::Subscriber subscriber_;
+  bus::Subscriber frame_subscriber_;
   BoundedQueue<std::unique_ptr<stitch::frame_t>> frames_;
   BoundedQueue<std::unique_ptr<stitch::local_map_update_t>> updates_;
   std::unique_ptr<Heartbeat> heartbeat_;

@@ -43,6 +43,9 @@ TEST(StitchConfig, TyposAndBadValuesAreErrors) {
   std::ofstream(dir / "geo.yaml") << "merger:\n  georeference:\n    min_fixes: 1\n";
   EXPECT_NE(WhyNotLoaded(dir / "geo.yaml").find("merger.georeference.min_fixes"), std::string::npos)
       << "a map placed on Earth by one fix: " << WhyNotLoaded(dir / "geo.yaml");
+  std::ofstream(dir / "frames.yaml") << "bus:\n  frame_url: 239.255.76.67:7668\n";
+  EXPECT_NE(WhyNotLoaded(dir / "frames.yaml").find("bus.frame_url"), std::string::npos)
+      << "a frame bus that is no URL: " << WhyNotLoaded(dir / "frames.yaml");
   std::ofstream(dir / "section.yaml") << "mystery:\n  a: 1\n";
   EXPECT_THROW(LoadStitchConfig(dir / "section.yaml"), Error);
 }

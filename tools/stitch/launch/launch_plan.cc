@@ -105,6 +105,12 @@ LaunchPlan PlanRun(const RunArgs& a, const std::string& out) {
     while (plan.ground_url == plan.url);
     info.link = DescribeLink(config.link, a.netns);
   }
+  // The camera's frames on a bus of their own (bus.frame_url), where the run chose the bus: the
+  // other services' sockets never receive them.
+  if (a.lcm_url.empty() && plan.config.bus.frame_url.empty()) {
+    do plan.config.bus.frame_url = bus::UnusedLocalUdpUrl();
+    while (plan.config.bus.frame_url == plan.url || plan.config.bus.frame_url == plan.ground_url);
+  }
   info.source = plan.source.description;
   info.dataset = plan.spec.dataset_path;
   info.start_frame = plan.spec.start_frame;

@@ -57,6 +57,19 @@ TEST(LaunchPlan, TheDefaultRunStartsTheGroundFirstAndIngestLastOnOneBus) {
   EXPECT_EQ(plan.info.frames_total, 20);
   EXPECT_EQ(plan.info.failures, "4:1,9:1,14:1");  // the default's three gusts, spread over the flight
   EXPECT_EQ(plan.info.frames_unusable, 3);
+  // The camera's frames on a bus of their own, which only the ingest and the tracker open.
+  EXPECT_EQ(plan.config.bus.frame_url.rfind("udpm://", 0), 0u) << plan.config.bus.frame_url;
+  EXPECT_NE(plan.config.bus.frame_url, plan.url);
+}
+
+// A bus the user names is the frames' bus too (their own services may listen for frames there),
+// unless the config names one for them.
+TEST(LaunchPlan, ABusTheUserNamesCarriesTheFramesUnlessTheConfigSaysOtherwise) {
+  RunArgs args = ShortFlight();
+  args.lcm_url = "udpm://239.255.76.67:7667?ttl=0";
+  EXPECT_EQ(PlanRun(args, "/tmp/planned").config.bus.frame_url, "");
+  args.settings = {"bus.frame_url=udpm://239.255.76.67:7668?ttl=0"};
+  EXPECT_EQ(PlanRun(args, "/tmp/planned").config.bus.frame_url, "udpm://239.255.76.67:7668?ttl=0");
 }
 
 // ORB-SLAM settings set the extractor, and a --set of the same key wins: the note says so
