@@ -340,7 +340,8 @@ void TrackerService::Process(const stitch::frame_t& frame) {
       const double fps = 0;  // the tracker does not know the source's rate: one second of frames = 30
       tracking_ =
           std::make_unique<Tracking>(options_.tracking, camera, vocabulary_, fps, ParseLossPolicy(options_.on_loss));
-      STITCH_LOG(INFO) << "camera " << camera.Describe();
+      STITCH_LOG(INFO) << "camera " << camera.Describe() << " (tracking set up in " << std::lround(watch.ElapsedMs())
+                       << " ms)";
     }
     output = tracking_->Track(image, frame.frame_index, frame.t_ns);
     last_tracked_points_ = output.result.num_tracked_points;
