@@ -40,7 +40,9 @@ struct ServiceProcess {
   // them; RunUntilStopped dispatches it too.
   lcm::LCM* frame_lcm;
   bus::Publisher* frame_publisher;
-  std::string frame_url;
+
+  // The URL the camera's frames travel on.
+  const std::string& frame_url() const { return frame_lcm != lcm ? config.bus.frame_url : common.lcm_url; }
 
   // Sleeps until SIGINT or SIGTERM.
   void WaitForStop() const;
@@ -59,7 +61,7 @@ struct ServiceProcess {
     if (frame_dispatcher) frame_dispatcher->Start();
     service.Start();
     STITCH_LOG(INFO) << "listening on " << common.lcm_url
-                     << (frame_dispatcher ? " (the camera's frames on " + frame_url + ")" : std::string());
+                     << (frame_dispatcher ? " (the camera's frames on " + frame_url() + ")" : std::string());
     WaitForStop();
     if (after_signal) after_signal();
     if (order == StopOrder::kBusFirst) {
@@ -74,8 +76,12 @@ struct ServiceProcess {
 
 // Applies the common flags for `service_name`, loads the settings (`settings`: --set's and the
 // program's own flags as KEY=VALUE), opens the bus and runs `body`; returns its status, or 1 with
-// the message on stderr when anything throws.
+// the message on stderr when anything throws. A service that sends or takes the camera's frames
+// (FrameBus::kOpen: the ingest, the tracker) also opens bus.frame_url where it is another bus;
+// the others never do (a socket on it would receive every frame).
+enum class FrameBus { kNone, kOpen };
 int RunService(const std::string& service_name, const ServiceCommandLine& common,
-               const std::vector<std::string>& settings, const std::function<int(ServiceProcess&)>& body);
+               const std::vector<std::string>& settings, const std::function<int(ServiceProcess&)>& body,
+               FrameBus frame_bus = FrameBus::kNone);
 
 }  // namespace stitch

@@ -20,15 +20,19 @@ int main(int argc, char** argv) {
   std::vector<std::string> settings = common.settings;
   if (args.Given("--on-loss")) settings.push_back(TextSetting("tracker.on_loss", on_loss));
   if (args.Given("--state")) settings.push_back(TextSetting("tracker.state_file", state_file));
-  return RunService("tracker", common, settings, [&](ServiceProcess& process) {
-    const Vocabulary vocabulary = LoadVocabulary(process.config);
-    TrackerService tracker(process.lcm, process.publisher, process.config.tracker, &vocabulary, record_path,
-                           process.frame_lcm);
-    process.RunUntilStopped(tracker, ServiceProcess::StopOrder::kBusFirst);
-    if (tracker.points_waits() > 0)
-      STITCH_LOG(INFO) << "waited " << tracker.points_waits() << " times for a keyframe's new points on a thin map ("
-                       << static_cast<int>(tracker.points_wait_s() * 1000) << " ms in all)";
-    STITCH_LOG(INFO) << "stopped after " << tracker.frames_tracked() << " frames";
-    return 0;
-  });
+  return RunService(
+      "tracker", common, settings,
+      [&](ServiceProcess& process) {
+        const Vocabulary vocabulary = LoadVocabulary(process.config);
+        TrackerService tracker(process.lcm, process.publisher, process.config.tracker, &vocabulary, record_path,
+                               process.frame_lcm);
+        process.RunUntilStopped(tracker, ServiceProcess::StopOrder::kBusFirst);
+        if (tracker.points_waits() > 0)
+          STITCH_LOG(INFO) << "waited " << tracker.points_waits()
+                           << " times for a keyframe's new points on a thin map ("
+                           << static_cast<int>(tracker.points_wait_s() * 1000) << " ms in all)";
+        STITCH_LOG(INFO) << "stopped after " << tracker.frames_tracked() << " frames";
+        return 0;
+      },
+      FrameBus::kOpen);
 }
