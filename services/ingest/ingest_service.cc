@@ -110,10 +110,13 @@ IngestSummary IngestService::Play(ImageSequence& sequence, const FailureSchedule
   STITCH_LOG(INFO) << "playing " << sequence.description() << ", " << (live ? "live" : options_.pacing) << " pacing, "
                    << options_.encoding << " frames"
                    << (spoil.empty() ? std::string() : ", spoiling frames " + spoil.ToString());
-  if (live && !WaitForTracker(stop) && !stop.load()) {
-    // The camera will not wait: frames go out whether anyone listens or not.
+  // A recording played at its camera's rate starts once a tracker runs, as a flight starts once
+  // the aircraft's computer is up: the frames sent before it listened were lost to every run
+  // (TUM at twice its rate: the first 7). A live camera's frames go out as they come; both go on
+  // without a tracker once the wait is over.
+  if (!lockstep && !WaitForTracker(stop) && !stop.load()) {
     STITCH_LOG(WARNING) << "no tracker answered within " << options_.wait_for_tracker_s
-                        << " s on this bus; sending the live frames anyway";
+                        << " s on this bus; sending the " << (live ? "live" : "real-time") << " frames anyway";
   }
   if (lockstep && !WaitForTracker(stop)) {
     if (stop.load()) {

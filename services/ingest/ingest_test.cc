@@ -213,6 +213,7 @@ IngestOptions RealtimeAt4x() {
   options.pacing = "realtime";
   options.speed = 4.0;
   options.encoding = "jpeg";
+  options.wait_for_tracker_s = 0;  // no tracker here
   return options;
 }
 

@@ -34,7 +34,7 @@ struct IngestOptions {
   int jpeg_quality = 92;
   double ack_timeout_s = 0.25;         // lockstep: re-send a frame not acknowledged within this
   int max_resends = 40;                // lockstep: then give up on that frame and go on (10 s by default)
-  double wait_for_tracker_s = 30.0;    // lockstep and live sources: how long to wait for a tracker at start
+  double wait_for_tracker_s = 30.0;    // every source: how long to wait for a tracker at start
   std::string failure_style = "blur";  // datasets: black, or blur (heavy blur and a jump)
   int failure_seed = 1;
   // A live camera's GNSS receiver (services/ingest/live_gnss.h): "gpsd" or "gpsd:HOST:PORT" (a
@@ -67,7 +67,9 @@ struct IngestOptions {
     v("ack_timeout_s", ack_timeout_s, "lockstep: re-send a frame not acknowledged within this, seconds");
     v("max_resends", max_resends, "lockstep: re-sends before giving up on a frame");
     v("wait_for_tracker_s", wait_for_tracker_s,
-      "lockstep and live sources: how long to wait for a tracker at start, seconds (live ones then go on anyway)");
+      "how long to wait for a tracker at start, seconds (lockstep playback then fails; real-time and live sources go "
+      "on "
+      "anyway)");
     v("failure_style", failure_style, "how induced failures spoil dataset frames: black or blur");
     v("failure_seed", failure_seed, "seed of the spoiled frames");
     v("gnss_receiver", gnss_receiver,

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 
 #include <opencv2/imgproc.hpp>
 
@@ -28,48 +29,72 @@ int ScalePyramid::PredictLevel(double distance, double max_distance) const {
 }
 
 Undistorter::Undistorter(const Camera& camera) : camera_(camera) {
-  if (!camera.HasDistortion()) {
-    min_x_ = min_y_ = 0;
-    max_x_ = camera.width() - 1;
-    max_y_ = camera.height() - 1;
-    return;
-  }
-  map_x_.create(camera.height(), camera.width(), CV_32F);
-  map_y_.create(camera.height(), camera.width(), CV_32F);
+  min_x_ = min_y_ = 0;
+  max_x_ = camera.width() - 1;
+  max_y_ = camera.height() - 1;
+  if (!camera.HasDistortion()) return;
+  const int64_t pixels = static_cast<int64_t>(camera.width()) * camera.height();
+  // Value-initialized: all zero, "not computed"; the pages are the system's until touched.
+  table_ = std::shared_ptr<std::atomic<uint64_t>[]>(new std::atomic<uint64_t>[pixels]());
   min_x_ = min_y_ = 1e18;
   max_x_ = max_y_ = -1e18;
+  // The bounds from the border's pixels, unrounded.
+  const auto bound = [&](int x, int y) {
+    const Eigen::Vector2d u = camera.UndistortPixel(Eigen::Vector2d(x, y));
+    min_x_ = std::min(min_x_, u.x());
+    min_y_ = std::min(min_y_, u.y());
+    max_x_ = std::max(max_x_, u.x());
+    max_y_ = std::max(max_y_, u.y());
+  };
+  for (int x = 0; x < camera.width(); ++x) {
+    bound(x, 0);
+    bound(x, camera.height() - 1);
+  }
   for (int y = 0; y < camera.height(); ++y) {
-    float* mx = map_x_.ptr<float>(y);
-    float* my = map_y_.ptr<float>(y);
-    for (int x = 0; x < camera.width(); ++x) {
-      const Eigen::Vector2d u = camera.UndistortPixel(Eigen::Vector2d(x, y));
-      mx[x] = static_cast<float>(u.x());
-      my[x] = static_cast<float>(u.y());
-      if (x == 0 || y == 0 || x == camera.width() - 1 || y == camera.height() - 1) {
-        min_x_ = std::min(min_x_, u.x());
-        min_y_ = std::min(min_y_, u.y());
-        max_x_ = std::max(max_x_, u.x());
-        max_y_ = std::max(max_y_, u.y());
-      }
-    }
+    bound(0, y);
+    bound(camera.width() - 1, y);
   }
 }
 
+Eigen::Vector2f Undistorter::Pixel(int x, int y) const {
+  std::atomic<uint64_t>& entry = table_[static_cast<int64_t>(y) * camera_.width() + x];
+  uint64_t packed = entry.load(std::memory_order_relaxed);
+  float xy[2];
+  if (packed == 0) {
+    const Eigen::Vector2d u = camera_.UndistortPixel(Eigen::Vector2d(x, y));
+    xy[0] = static_cast<float>(u.x());
+    xy[1] = static_cast<float>(u.y());
+    std::memcpy(&packed, xy, sizeof(packed));
+    entry.store(packed, std::memory_order_relaxed);
+  } else {
+    std::memcpy(xy, &packed, sizeof(packed));
+  }
+  return {xy[0], xy[1]};
+}
+
+int64_t Undistorter::pixels_filled() const {
+  if (!table_) return 0;
+  const int64_t pixels = static_cast<int64_t>(camera_.width()) * camera_.height();
+  int64_t filled = 0;
+  for (int64_t i = 0; i < pixels; ++i) filled += table_[i].load(std::memory_order_relaxed) != 0;
+  return filled;
+}
+
 Eigen::Vector2d Undistorter::Undistort(double x, double y) const {
-  if (map_x_.empty()) return {x, y};
+  if (!table_) return {x, y};
   // Bilinear interpolation of the table (the mapping is smooth at pixel scale).
   const double cx = std::clamp(x, 0.0, camera_.width() - 1.001);
   const double cy = std::clamp(y, 0.0, camera_.height() - 1.001);
-  const int x0 = static_cast<int>(cx), y0 = static_cast<int>(cy);
-  const double fx = cx - x0, fy = cy - y0;
-  const auto sample = [&](const cv::Mat& m) {
-    const float* r0 = m.ptr<float>(y0);
-    const float* r1 = m.ptr<float>(y0 + 1);
-    return (r0[x0] * (1 - fx) + r0[x0 + 1] * fx) * (1 - fy) + (r1[x0] * (1 - fx) + r1[x0 + 1] * fx) * fy;
-  };
   // Outside the table (never for keypoints) fall back to the exact inverse.
   if (cx != x || cy != y) return camera_.UndistortPixel(Eigen::Vector2d(x, y));
-  return {sample(map_x_), sample(map_y_)};
+  const int x0 = static_cast<int>(cx), y0 = static_cast<int>(cy);
+  const double fx = cx - x0, fy = cy - y0;
+  const Eigen::Vector2f p00 = Pixel(x0, y0), p10 = Pixel(x0 + 1, y0);
+  const Eigen::Vector2f p01 = Pixel(x0, y0 + 1), p11 = Pixel(x0 + 1, y0 + 1);
+  const auto blend = [&](int i) {
+    return (p00[i] * (1 - fx) + p10[i] * fx) * (1 - fy) + (p01[i] * (1 - fx) + p11[i] * fx) * fy;
+  };
+  return {blend(0), blend(1)};
 }
 
 FeatureGrid::FeatureGrid(const std::vector<Eigen::Vector2d>& points, const Undistorter& bounds)

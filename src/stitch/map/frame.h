@@ -2,7 +2,9 @@
 // A camera frame with its features, and the helpers that make features searchable: the scale
 // pyramid's constants, an undistortion lookup, and a grid for area queries.
 
+#include <atomic>
 #include <cstdint>
+#include <memory>
 #include <optional>
 #include <vector>
 
@@ -33,8 +35,10 @@ struct ScalePyramid {
 };
 
 // Maps distorted pixels to the ideal pinhole image (same fx, fy, cx, cy) through a per-pixel
-// table: fast for the thousand keypoints of every frame. A camera without distortion needs no
-// table (16 MB at 1080p, 66 MB at 4K, in the tracker and in the merger). Immutable; thread-safe.
+// table, interpolated between pixels: fast for the thousand keypoints of every frame. The table is
+// filled as keypoints need its pixels (each pixel's exact inverse, computed once), not all at
+// construction: a whole 640x480 table took 60-90 ms, the tracker's first frame. A camera without
+// distortion needs no table (16 MB at 1080p, 66 MB at 4K). Copies share the table; thread-safe.
 class Undistorter {
  public:
   Undistorter() = default;
@@ -46,10 +50,18 @@ class Undistorter {
   double max_x() const { return max_x_; }
   double max_y() const { return max_y_; }
   const Camera& camera() const { return camera_; }
+  // Pixels of the table filled so far (0 without distortion); for tests.
+  int64_t pixels_filled() const;
 
  private:
+  // The table entry of pixel (x, y), computed on first use.
+  Eigen::Vector2f Pixel(int x, int y) const;
+
   Camera camera_;
-  cv::Mat map_x_, map_y_;  // CV_32F, one entry per pixel; empty without distortion
+  // Per pixel, the undistorted point's two floats packed in 64 bits; 0: not computed yet (a
+  // point at exactly (0, 0) is computed each time). Relaxed atomics: every thread that computes
+  // an entry writes the same value. Absent without distortion.
+  std::shared_ptr<std::atomic<uint64_t>[]> table_;
   double min_x_ = 0, min_y_ = 0, max_x_ = 0, max_y_ = 0;
 };
 

@@ -1,6 +1,7 @@
 #include "stitch/map/map.h"
 
 #include <gtest/gtest.h>
+#include <thread>
 
 namespace stitch {
 namespace {
@@ -184,6 +185,32 @@ TEST(Undistorter, FollowsTheExactInverseOfAStrongDistortionBetweenItsPixels) {
   const Eigen::Vector2d corner = camera.UndistortPixel({0, 0});
   EXPECT_LE(undistorter.min_x(), corner.x());
   EXPECT_LE(undistorter.min_y(), corner.y());
+}
+
+TEST(Undistorter, FillsItsTableOnlyWhereKeypointsLieAndSharesItWithItsCopies) {
+  const Camera camera =
+      Camera::Pinhole(640, 480, 517.306, 516.469, 318.643, 255.314, 0.262383, -0.953104, -0.005358, 0.002628, 1.16331);
+  const Undistorter undistorter(camera);
+  EXPECT_EQ(undistorter.pixels_filled(), 0);  // no whole table at construction
+  const Undistorter copy = undistorter;
+  const Eigen::Vector2d first = copy.Undistort(100.25, 200.5);
+  EXPECT_EQ(undistorter.pixels_filled(), 4);  // the four pixels around the point, in the shared table
+  EXPECT_EQ(undistorter.Undistort(100.25, 200.5), first);
+  // Threads filling the same pixels at once answer as one thread alone does.
+  const Undistorter shared(camera), alone(camera);
+  std::vector<Eigen::Vector2d> answers[2];
+  std::vector<std::thread> threads;
+  for (auto& answer : answers) {
+    threads.emplace_back([&shared, &answer] {
+      for (double y = 10; y < 470; y += 7.3) answer.push_back(shared.Undistort(320.6, y));
+    });
+  }
+  for (auto& t : threads) t.join();
+  size_t k = 0;
+  for (double y = 10; y < 470; y += 7.3, ++k) {
+    EXPECT_EQ(answers[0][k], alone.Undistort(320.6, y));
+    EXPECT_EQ(answers[1][k], answers[0][k]);
+  }
 }
 
 TEST(Undistorter, LeavesAPinholeCameraAsItIs) {
