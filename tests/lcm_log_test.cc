@@ -40,12 +40,12 @@ TEST(LcmLog, LoggerRecordsFramesAndLogplayerReplaysThem) {
   const std::string record_url = bus::LocalUdpUrl(ports[0]);
   const std::string log = dir / "run.lcmlog";
   const std::string logger = "/usr/bin/lcm-logger";
-  // Record while ingest plays 10 frames in real time (no tracker needed).
+  // Record while ingest plays 10 frames in real time (no tracker: it does not wait for one).
   std::thread recorder([&] { RunProgram({logger, "--lcm-url=" + record_url, "-f", log}, 30, 4, SIGINT); });
   std::this_thread::sleep_for(1s);
   const auto ingest = RunProgram({Bin("stitch-ingest"), "--lcm-url", record_url, "--config",
                                   std::string(STITCH_SOURCE_DIR) + "/tests/short_flight.yaml", "--pacing", "realtime",
-                                  "--max-frames", "10", "--encoding", "jpeg"},
+                                  "--max-frames", "10", "--encoding", "jpeg", "--set", "ingest.wait_for_tracker_s=0"},
                                  30);
   recorder.join();
   ASSERT_EQ(ingest.exit_code, 0) << ingest.output;

@@ -283,7 +283,9 @@ TEST(ViewerOnAReplay, ARecordedFlightPlayedBackShowsAsItWasFlown) {
   EXPECT_EQ(viewer.Terminate(5000ms), 0) << viewer.LogTail(10);
 }
 
-// The process of `program` among the children of `parent` (0: none).
+// The process of `program` among the children of `parent` (0: none). Its name exactly (as the
+// kernel keeps it, 15 characters): a child forked but not yet started is named as its parent
+// ("stitch"), and killing it killed the merger.
 pid_t ChildNamed(pid_t parent, const std::string& program) {
   for (const auto& entry : std::filesystem::directory_iterator("/proc")) {
     const std::string name = entry.path().filename().string();
@@ -295,7 +297,7 @@ pid_t ChildNamed(pid_t parent, const std::string& program) {
     std::istringstream fields(line.substr(line.rfind(')') + 2));
     char state = 0;
     pid_t ppid = 0;
-    if (fields >> state >> ppid && ppid == parent && state != 'Z' && program.rfind(comm, 0) == 0) {
+    if (fields >> state >> ppid && ppid == parent && state != 'Z' && comm == program.substr(0, 15)) {
       return std::stoi(name);
     }
   }

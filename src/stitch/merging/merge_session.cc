@@ -500,11 +500,26 @@ void MergeSession::UpdateMosaic() {
   TakePendingPoses();
   const double started = ThreadCpuMs();
   const LiveMosaic::Change change = live_mosaic_->Update(LargestMapForMosaic(pictured_));
+  // Said once per kind of wait (the text to its colon), not once per update.
+  if (const std::string& waits = live_mosaic_->waiting_for();
+      waits.substr(0, waits.find(':')) != mosaic_waits_for_.substr(0, mosaic_waits_for_.find(':'))) {
+    if (!waits.empty()) STITCH_LOG(INFO) << "the live mosaic waits for " << waits;
+    mosaic_waits_for_ = waits;
+  }
   ++mosaic_cost_.updates;
   mosaic_cost_.update_ms += ThreadCpuMs() - started;
   mosaic_cost_.laid += change.laid;
   mosaic_cost_.moved += change.moved;
   mosaic_cost_.redrawn += change.redrawn;
+  if (const double limit = options.live_max_cpu_ms_per_picture;
+      limit > 0 && mosaic_cost_.laid >= 8 && mosaic_cost_.update_ms > limit * mosaic_cost_.laid) {
+    mosaic_failed_ = true;
+    STITCH_LOG(WARNING)
+        << "the live mosaic stopped: " << mosaic_cost_.update_ms / mosaic_cost_.laid
+        << " ms CPU per picture laid, over mosaic.live_max_cpu_ms_per_picture (" << limit
+        << "): a map that is not a survey of the ground? (stitch mosaic RUN makes one from the records)";
+    return;
+  }
   // How long a picture took to its tile: the newest one taken since pictures were last laid.
   const int64_t laid_picture_utime = change.laid > 0 ? std::exchange(newest_picture_utime_, 0) : 0;
   // Every tile drawn anew goes to the viewer: those of pictures laid or moved, and those a picture

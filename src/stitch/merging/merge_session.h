@@ -190,6 +190,7 @@ class MergeSession {
   MosaicTiles mosaic_tiles_;          // made, not taken yet
   int64_t newest_picture_utime_ = 0;  // of the pictures taken since pictures were last laid
   bool mosaic_failed_ = false;        // said once; the flight goes on without it
+  std::string mosaic_waits_for_;      // what the live mosaic waited for when last said
   struct MosaicCost {
     int updates = 0, laid = 0, moved = 0, redrawn = 0, writes = 0;
     double update_ms = 0, write_ms = 0;

@@ -20,20 +20,42 @@ GroundSurface GroundSurface::FromPoints(const std::vector<Eigen::Vector3d>& poin
   if (static_cast<int>(finite.size()) < std::max(1, min_points)) {
     throw Error("the map has " + std::to_string(finite.size()) + " points, too few to shape the ground");
   }
+  // The grid spans the points; a stray point far away must not cost gigabytes: past kMaxCells the
+  // grid spans the points between the 1st and 99th percentiles of each axis (those beyond shape
+  // no cell), and where that is still too many cells, the cell grows.
+  const double kMaxCells = 4e6;
+  const auto cells_over = [](const Eigen::Vector2d& lo, const Eigen::Vector2d& hi, double side) {
+    return (std::floor((hi.x() - lo.x()) / side) + 1) * (std::floor((hi.y() - lo.y()) / side) + 1);
+  };
   Eigen::Vector2d lo = finite.front().head<2>(), hi = lo;
   for (const Eigen::Vector3d& p : finite) {
     lo = lo.cwiseMin(p.head<2>());
     hi = hi.cwiseMax(p.head<2>());
   }
+  if (cells_over(lo, hi, cell) > kMaxCells) {
+    for (int axis = 0; axis < 2; ++axis) {
+      std::vector<double> v;
+      v.reserve(finite.size());
+      for (const Eigen::Vector3d& p : finite) v.push_back(p[axis]);
+      const size_t low = v.size() / 100, high = v.size() - 1 - v.size() / 100;
+      std::nth_element(v.begin(), v.begin() + low, v.end());
+      lo[axis] = v[low];
+      std::nth_element(v.begin(), v.begin() + high, v.end());
+      hi[axis] = v[high];
+    }
+    finite.erase(std::remove_if(finite.begin(), finite.end(),
+                                [&](const Eigen::Vector3d& p) {
+                                  return (p.head<2>().array() < lo.array()).any() ||
+                                         (p.head<2>().array() > hi.array()).any();
+                                }),
+                 finite.end());
+    const double spread = std::max(hi.x() - lo.x(), hi.y() - lo.y());
+    while (cells_over(lo, hi, cell) > kMaxCells) cell = std::max(2 * cell, spread / std::sqrt(kMaxCells));
+  }
   GroundSurface surface;
   surface.cell_ = cell;
   surface.origin_ = lo + Eigen::Vector2d::Constant(0.5 * cell);
-  const double max_cells = 4e6;  // a stray point far away must not cost gigabytes
   const double cols = std::floor((hi.x() - lo.x()) / cell) + 1, rows = std::floor((hi.y() - lo.y()) / cell) + 1;
-  if (cols * rows > max_cells) {
-    throw Error("the map's points spread over " + std::to_string(static_cast<long long>(cols)) + " x " +
-                std::to_string(static_cast<long long>(rows)) + " surface cells; give a larger cell");
-  }
   surface.cols_ = static_cast<int>(cols);
   surface.rows_ = static_cast<int>(rows);
   std::vector<std::vector<double>> in_cell(static_cast<size_t>(surface.cols_) * surface.rows_);

@@ -13,8 +13,11 @@ class GroundSurface {
  public:
   // A flat ground at `height` (a map without points to shape it).
   explicit GroundSurface(double height = 0.0);
-  // From `points` (in the mosaic's frame), cells `cell` a side over the points' extent. Throws
-  // stitch::Error when fewer than `min_points` points are given or `cell` is not positive.
+  // From `points` (in the mosaic's frame), cells `cell` a side over the points' extent. Past 4
+  // million cells (points strewn far along a room's walls, a few at a great distance) the grid
+  // spans the 1st-99th percentiles of the points on each axis, and its cell grows if that is still
+  // too many. Throws stitch::Error when fewer than `min_points` points are given or `cell` is not
+  // positive.
   static GroundSurface FromPoints(const std::vector<Eigen::Vector3d>& points, double cell, int min_points);
 
   // The ground's height at (x, y): bilinear between the cells' centres, the nearest edge's
@@ -24,6 +27,7 @@ class GroundSurface {
   double max_height() const { return max_height_; }
   int cells_measured() const { return cells_measured_; }  // cells with a height of their own
   int cells() const { return cols_ * rows_; }
+  double cell() const { return cell_; }
 
  private:
   Eigen::Vector2d origin_ = Eigen::Vector2d::Zero();  // the first cell's centre

@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <limits>
 
 #include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
@@ -57,10 +59,32 @@ bool LiveMosaic::Restart(const MapState& state) {
   for (const auto& [key, pose] : state.world_from_cam) {
     if (pictures_.count(key)) centres.push_back(pose.translation);
   }
-  if (state.points.size() < kMinPoints || centres.empty()) return false;
+  if (state.points.size() < kMinPoints || centres.empty()) {
+    waiting_for_ = "a map of " + std::to_string(kMinPoints) + " points placing a picture";
+    return false;
+  }
   const Sim3d ground_from_map = GroundFromMapByPlane(state.points, centres);
   std::vector<Eigen::Vector3d> ground_points;
-  for (const Eigen::Vector3d& p : state.points) ground_points.push_back(ground_from_map * p);
+  double squared_relief = 0;
+  for (const Eigen::Vector3d& p : state.points) {
+    ground_points.push_back(ground_from_map * p);
+    squared_relief += ground_points.back().z() * ground_points.back().z();
+  }
+  // A ground seen from above: the points lie near their plane against the cameras' height.
+  std::vector<double> heights;
+  for (const Eigen::Vector3d& c : centres) heights.push_back((ground_from_map * c).z());
+  std::nth_element(heights.begin(), heights.begin() + heights.size() / 2, heights.end());
+  const double height = heights[heights.size() / 2];
+  const double relief = std::sqrt(squared_relief / ground_points.size());
+  if (options_.live_max_relief > 0 && !(relief <= options_.live_max_relief * height)) {
+    char text[200];
+    std::snprintf(text, sizeof(text),
+                  "a ground seen from above: the map's points lie %.2f of the cameras' height from their plane "
+                  "(mosaic.live_max_relief %.2f)",
+                  height > 0 ? relief / height : std::numeric_limits<double>::infinity(), options_.live_max_relief);
+    waiting_for_ = text;
+    return false;
+  }
   MosaicGrid grid;
   grid.gsd = options_.gsd_m;
   if (grid.gsd == 0) {
@@ -73,7 +97,10 @@ bool LiveMosaic::Restart(const MapState& state) {
                        Sim3d(1.0, cam_from_world.rotation, cam_from_world.translation) * ground_from_map.Inverse()});
     }
     const std::optional<double> gsd = MedianNadirGsd(views, ground_points);
-    if (!gsd) return false;  // no camera above the ground (yet)
+    if (!gsd) {
+      waiting_for_ = "a camera above the ground";
+      return false;
+    }
     grid.gsd = *gsd;
   }
   mosaic_.emplace(options_, grid,
@@ -83,6 +110,7 @@ bool LiveMosaic::Restart(const MapState& state) {
   frame_ = state.frame;
   ++revision_;
   shaped_by_points_ = state.points.size();
+  waiting_for_.clear();
   laid_.clear();
   return true;
 }

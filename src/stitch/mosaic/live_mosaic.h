@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <map>
 #include <optional>
+#include <string>
 #include <vector>
 
 #include <Eigen/Core>
@@ -65,6 +66,9 @@ class LiveMosaic {
   int64_t revision() const { return revision_; }
   // The map frame's identity the mosaic lies on (MapState::frame at its start).
   int64_t frame() const { return frame_; }
+  // What the last (re)start of the mosaic waited for (a map of enough points, a camera above the
+  // ground, a ground seen from above); empty after a start.
+  const std::string& waiting_for() const { return waiting_for_; }
   // The tiles drawn anew since the last call, of revision(), as PNG; empty before the mosaic starts.
   std::vector<LiveMosaicTile> TakeChangedTiles();
 
@@ -85,6 +89,7 @@ class LiveMosaic {
   int64_t tile_version_ = 0;
   size_t shaped_by_points_ = 0;
   Sim3d ground_from_map_;
+  std::string waiting_for_;
   std::map<int, Rigid3d> laid_;  // where each picture was laid, world_from_cam
 };
 

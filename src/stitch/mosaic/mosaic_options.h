@@ -28,6 +28,15 @@ struct MosaicOptions {
   // With `live`: the tiles drawn anew go to the viewer (PNG, on the ground's MOSAIC_TILE), which
   // shows the mosaic on its page.
   bool publish_tiles = true;
+  // With `live`: a map whose points' RMS distance from their plane exceeds this fraction of the
+  // cameras' median height above it is not a ground seen from above (a room, a street's facades)
+  // and gets no live mosaic (a survey: about 0.07; a handheld camera indoors: 0.36-0.64).
+  double live_max_relief = 0.25;
+  // With `live`: the live mosaic stops (once, with a warning; the run's end still makes
+  // `stitch mosaic`'s) when its CPU per picture laid exceeds this, over at least 8 pictures: the
+  // flight comes first, and a map that is not a survey of the ground (a handheld camera indoors:
+  // oblique views of a room) costs many times a survey's picture (about 20 ms). 0: no limit.
+  double live_max_cpu_ms_per_picture = 100.0;
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
@@ -52,6 +61,12 @@ struct MosaicOptions {
       "reach the viewer)");
     v("publish_tiles", publish_tiles,
       "with live: the tiles drawn anew go to the viewer's page (PNG, on the ground's MOSAIC_TILE)");
+    v("live_max_relief", live_max_relief,
+      "with live: a map whose points' RMS distance from their plane exceeds this fraction of the cameras' median "
+      "height above it is not a ground seen from above (a room, a street) and gets no live mosaic; 0: no limit");
+    v("live_max_cpu_ms_per_picture", live_max_cpu_ms_per_picture,
+      "with live: the live mosaic stops (with a warning) once its CPU per picture laid exceeds this, over at least 8 "
+      "pictures (a map that is not a survey of the ground, e.g. a handheld camera indoors); 0: no limit");
   }
   bool Check(std::string* why) const;
 };
