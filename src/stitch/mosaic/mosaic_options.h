@@ -30,12 +30,12 @@ struct MosaicOptions {
   bool publish_tiles = true;
   // With `live`: a map whose points' RMS distance from their plane exceeds this fraction of the
   // cameras' median height above it is not a ground seen from above (a room, a street's facades)
-  // and gets no live mosaic (a survey: about 0.07; a handheld camera indoors: 0.36-0.64).
+  // and gets no live mosaic (a handheld camera indoors, TUM fr1/rpy: 0.34-8.5).
   double live_max_relief = 0.25;
-  // With `live`: the live mosaic stops (once, with a warning; the run's end still makes
-  // `stitch mosaic`'s) when its CPU per picture laid exceeds this, over at least 8 pictures: the
-  // flight comes first, and a map that is not a survey of the ground (a handheld camera indoors:
-  // oblique views of a room) costs many times a survey's picture (about 20 ms). 0: no limit.
+  // With `live`: the live mosaic stops (once, with a warning; `stitch mosaic RUN` still makes one
+  // from the records) when its CPU per picture laid exceeds this, over at least 8 pictures: the
+  // flight comes first, and a map that is not a survey of the ground (oblique views of a room)
+  // costs several times a survey's picture (docs/mosaic.md). 0: no limit.
   double live_max_cpu_ms_per_picture = 100.0;
 
   template <class Visitor>

@@ -371,8 +371,8 @@ TEST(GeoTiff, WritesWhatItReadsBackWithItsCrsAndOverviews) {
 }
 
 // A map whose points stand far off their plane against the cameras' height (a room seen by a
-// handheld camera, TUM fr1/rpy: 0.36-0.64 of the height; a survey 0.07) is not a ground seen from
-// above: no live mosaic, and the reason said. Without the limit the same map is drawn.
+// handheld camera, TUM fr1/rpy: 0.34-8.5 of the height in the merger's log) is not a ground seen
+// from above: no live mosaic, and the reason said. With a looser limit the same map is drawn.
 TEST(LiveMosaic, AMapThatIsNotAGroundSeenFromAboveGetsNoMosaicAndSaysWhy) {
   const TexturedGround& ground = Ground();
   LiveMosaic::MapState state;
