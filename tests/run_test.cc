@@ -10,6 +10,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <set>
 #include <sstream>
 #include <thread>
@@ -101,8 +102,10 @@ std::vector<fs::path> RenderedImagesInTimeOrder(const std::string& folder) {
 TEST(StitchRun, TracksAShortFlightWithTheServicesAsProcesses) {
   testing::TempDir dir;
   const std::string out = dir / "run";
-  const auto result =
-      RunProgram({Bin("stitch"), "run", "--config", kShortFlight, "--out", out, "--failures", "none"}, 180);
+  // Its 60 frames make fewer keyframes than the live mosaic waits for by default (10 pictures).
+  const auto result = RunProgram({Bin("stitch"), "run", "--config", kShortFlight, "--out", out, "--failures", "none",
+                                  "--set", "merger.mosaic.live_min_pictures=3"},
+                                 180);
   ASSERT_EQ(result.exit_code, 0) << result.output;
   for (const char* file :
        {"trajectory.tum",   "map.ply",         "report.json",     "trajectory.png",  "frames.tsv",
@@ -623,6 +626,21 @@ TEST(StitchRun, AStraightFlightOverNewGroundEndsInOneMapJoinedByGnss) {
   EXPECT_EQ(geo["maps"][0]["submaps"], "0:1,0:2,0:3");
   EXPECT_LT(geo["maps"][0]["absolute"]["keyframe_horizontal_rms_m"].get<double>(), 2.0) << geo.dump();
   EXPECT_LT(std::abs(geo["maps"][0]["absolute"]["scale_error"].get<double>()), 0.01) << geo.dump();
+  // The map's COLMAP model in the same ENU metres: each camera near the truth's path, not in the
+  // map's units, and every feature still where its camera sees its point.
+  const ColmapModel enu_model = ReadColmapModel(out + "/geo/colmap_enu");
+  EXPECT_EQ(enu_model.images.size(), ReadColmapModel(out + "/colmap").images.size());
+  const Trajectory truth = Trajectory::ReadTum(out + "/groundtruth.tum");
+  double squared = 0;
+  for (const ColmapImage& image : enu_model.images) {
+    double nearest = std::numeric_limits<double>::infinity();
+    for (const StampedPose& p : truth.poses()) {
+      nearest = std::min(nearest, (p.world_from_cam.translation - image.cam_from_world.CentreInWorld()).squaredNorm());
+    }
+    squared += nearest;
+  }
+  EXPECT_LT(std::sqrt(squared / enu_model.images.size()), 3.0);
+  EXPECT_LT(ReprojectionRms(enu_model), 2.0);
   // The same figures from the files a surveyor gets, with no alignment: the WGS 84 trajectory
   // against the truth in the ENU frame at the origin the run states.
   const auto& origin = geo["origin"];

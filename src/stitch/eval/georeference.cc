@@ -229,6 +229,16 @@ const MapGeoReference* PlacedMap(const RunGeoReference& geo, int component) {
   return placed == geo.maps.end() ? nullptr : &*placed;
 }
 
+// The ENU frame's words for a file's header: its axes, its origin, the map placed in it.
+std::string EnuFrameText(const RunGeoReference& geo, const MapGeoReference& placed) {
+  char frame[400];
+  std::snprintf(frame, sizeof(frame),
+                "east-north-up, metres (x east, y north, z up), origin at latitude %.9f, longitude %.9f (WGS84), "
+                "height %.3f m as the GNSS fixes state it; %s placed by GNSS (georeference.json)",
+                geo.origin.latitude_deg, geo.origin.longitude_deg, geo.origin.height_m, placed.map.name.c_str());
+  return frame;
+}
+
 }  // namespace
 
 bool WriteMapInEnu(const std::string& path, const RunGeoReference& geo, int component,
@@ -239,12 +249,22 @@ bool WriteMapInEnu(const std::string& path, const RunGeoReference& geo, int comp
   for (ColouredPoint& point : points) {
     point.position = (enu_from_map * point.position.cast<double>()).cast<float>();
   }
-  char frame[400];
-  std::snprintf(frame, sizeof(frame),
-                "east-north-up, metres (x east, y north, z up), origin at latitude %.9f, longitude %.9f (WGS84), "
-                "height %.3f m as the GNSS fixes state it; %s placed by GNSS (georeference.json)",
-                geo.origin.latitude_deg, geo.origin.longitude_deg, geo.origin.height_m, placed->map.name.c_str());
-  WritePly(path, points, frame);
+  WritePly(path, points, EnuFrameText(geo, *placed));
+  return true;
+}
+
+bool WriteColmapModelInEnu(const std::string& dir, const RunGeoReference& geo, int component, ColmapModel model) {
+  const MapGeoReference* placed = PlacedMap(geo, component);
+  if (!placed) return false;
+  const Sim3d& enu_from_map = placed->placement.enu_from_map;
+  for (ColmapImage& image : model.images) {
+    image.cam_from_world = TransformPose(enu_from_map, image.cam_from_world.Inverse()).Inverse();
+  }
+  for (ColmapPoint& point : model.points) point.position = enu_from_map * point.position;
+  WriteColmapModel(model, dir);
+  WriteFileAtomically(
+      (fs::path(dir) / "georeference.txt").string(),
+      "# The frame of this COLMAP model (cameras.txt, images.txt, points3D.txt)\n" + EnuFrameText(geo, *placed) + "\n");
   return true;
 }
 

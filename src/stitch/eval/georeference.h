@@ -13,6 +13,7 @@
 
 #include "stitch/geo/geo_registration.h"
 #include "stitch/geo/gnss_fix.h"
+#include "stitch/io/colmap_model.h"
 #include "stitch/io/ply.h"
 #include "stitch/io/trajectory.h"
 #include "stitch/records/pose_record.h"
@@ -73,5 +74,12 @@ bool WriteMapInEnu(const std::string& path, const RunGeoReference& geo, int comp
 // stitch::Error naming the file when it cannot be written, or for an origin UTM does not cover.
 bool WriteMapLas(const std::string& path, const RunGeoReference& geo, int component,
                  const std::vector<ColouredPoint>& points);
+// The COLMAP model `model` (in the frame of the map `component`) moved into the run's ENU frame
+// in metres: every camera centre and point by the map's placement, every image's pose turned with
+// it, the cameras and tracks as they were (a similarity moves no projection). Written to `dir`
+// (cameras.txt, images.txt, points3D.txt and georeference.txt, which names the frame and its
+// origin, as COLMAP's own files cannot); false (nothing written) when that map was not placed on
+// Earth. Throws stitch::Error naming the file when it cannot be written.
+bool WriteColmapModelInEnu(const std::string& dir, const RunGeoReference& geo, int component, ColmapModel model);
 
 }  // namespace stitch

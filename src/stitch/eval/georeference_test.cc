@@ -193,6 +193,64 @@ TEST(GeoReferenceRun, WritesAPlacedMapsPointsAsLasInUtm) {
   EXPECT_FALSE(WriteMapLas((dir.path() / "none.las").string(), unplaced, 0, points));
 }
 
+// The largest map's COLMAP model in ENU metres: its cameras where the placement puts them (and
+// the truth has them, within a fix's noise), its point with them, and every feature where the
+// moved camera sees the moved point, as before (a similarity changes no projection).
+TEST(GeoReferenceRun, WritesAPlacedMapsColmapModelInEnuMetres) {
+  const FlownRun run = MakeRun();
+  const RunGeoReference geo = GeoReferenceRun(run.poses, 0, run.gnss, run.truth, GeoReferenceOptions());
+  ASSERT_TRUE(geo.maps[0].placement.placed);
+  const Sim3d& enu_from_map = geo.maps[0].placement.enu_from_map;
+  ColmapModel model;
+  model.cameras[1] = Camera::Pinhole(640, 480, 500, 500, 320, 240);
+  const Rigid3d& first = run.poses[0].world_from_cam;
+  // A point 30 units ahead of the first camera (a nadir camera 70 m up at 0.05 units a metre:
+  // 3.5 units), and the second camera a unit beside it, turned a little.
+  const Eigen::Vector3d point = first * Eigen::Vector3d(0.2, -0.1, 3.5);
+  const Rigid3d second =
+      first * Rigid3d(Eigen::Quaterniond(Eigen::AngleAxisd(0.05, Eigen::Vector3d::UnitX())), {1.0, 0, 0});
+  int id = 0;
+  for (const Rigid3d& world_from_cam : {first, second}) {
+    ColmapImage image;
+    image.id = ++id;
+    image.cam_from_world = world_from_cam.Inverse();
+    image.name = "frame" + std::to_string(id) + ".jpg";
+    image.features = {*model.cameras[1].Project(image.cam_from_world * point)};
+    image.point_ids = {1};
+    model.images.push_back(image);
+  }
+  ColmapPoint colmap_point;
+  colmap_point.id = 1;
+  colmap_point.position = point;
+  colmap_point.track = {{1, 0}, {2, 0}};
+  model.points.push_back(colmap_point);
+  ASSERT_LT(ReprojectionRms(model), 1e-6);
+
+  testing::TempDir dir;
+  const std::string out = (dir.path() / "colmap_enu").string();
+  ASSERT_TRUE(WriteColmapModelInEnu(out, geo, 0, model));
+  const ColmapModel written = ReadColmapModel(out);
+  ASSERT_EQ(written.images.size(), 2u);
+  ASSERT_EQ(written.points.size(), 1u);
+  EXPECT_LT((written.points[0].position - enu_from_map * point).norm(), 1e-3);
+  for (size_t i = 0; i < 2; ++i) {
+    const Eigen::Vector3d centre = enu_from_map * model.images[i].cam_from_world.CentreInWorld();
+    EXPECT_LT((written.images[i].cam_from_world.CentreInWorld() - centre).norm(), 1e-3) << i;
+  }
+  // In metres where the truth has the first camera, not in the map's units.
+  EXPECT_LT((written.images[0].cam_from_world.CentreInWorld() - TrueCamera(0).translation).norm(), 3.0);
+  EXPECT_LT(ReprojectionRms(written), 1e-3);
+  std::ifstream in(std::filesystem::path(out) / "georeference.txt");
+  const std::string frame((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  EXPECT_NE(frame.find("east-north-up, metres"), std::string::npos) << frame;
+  EXPECT_NE(frame.find("latitude 48.0"), std::string::npos) << frame;
+  // No map placed: nothing written.
+  RunGeoReference unplaced = geo;
+  for (MapGeoReference& m : unplaced.maps) m.placement.placed = false;
+  EXPECT_FALSE(WriteColmapModelInEnu((dir.path() / "none").string(), unplaced, 0, model));
+  EXPECT_FALSE(std::filesystem::exists(dir.path() / "none"));
+}
+
 TEST(GeoReferenceRun, SaysWhyAMapWasNotPlaced) {
   FlownRun run = MakeRun();
   GeoReferenceOptions options;

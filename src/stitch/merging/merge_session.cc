@@ -506,6 +506,14 @@ void MergeSession::UpdateMosaic() {
     if (!waits.empty()) STITCH_LOG(INFO) << "the live mosaic waits for " << waits;
     mosaic_waits_for_ = waits;
   }
+  if (change.withdrawn) {
+    STITCH_LOG(INFO) << "the live mosaic drawn so far is withdrawn: it waits for " << live_mosaic_->waiting_for();
+    mosaic_unwritten_ = false;
+    if (!record_dir_.empty()) {
+      std::error_code ignored;  // none written yet
+      std::filesystem::remove(std::filesystem::path(record_dir_) / "mosaic_live.tif", ignored);
+    }
+  }
   ++mosaic_cost_.updates;
   mosaic_cost_.update_ms += ThreadCpuMs() - started;
   mosaic_cost_.laid += change.laid;

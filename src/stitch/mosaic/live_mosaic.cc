@@ -59,8 +59,9 @@ bool LiveMosaic::Restart(const MapState& state) {
   for (const auto& [key, pose] : state.world_from_cam) {
     if (pictures_.count(key)) centres.push_back(pose.translation);
   }
-  if (state.points.size() < kMinPoints || centres.empty()) {
-    waiting_for_ = "a map of " + std::to_string(kMinPoints) + " points placing a picture";
+  if (state.points.size() < kMinPoints || centres.size() < static_cast<size_t>(options_.live_min_pictures)) {
+    waiting_for_ = "a map of " + std::to_string(kMinPoints) + " points placing " +
+                   std::to_string(options_.live_min_pictures) + " pictures";
     return false;
   }
   const Sim3d ground_from_map = GroundFromMapByPlane(state.points, centres);
@@ -120,9 +121,17 @@ LiveMosaic::Change LiveMosaic::Update(const MapState& state) {
   Change change;
   if (!mosaic_ || state.frame != frame_ || state.points.size() >= 2 * shaped_by_points_) {
     if (!Restart(state)) {
+      if (mosaic_) {  // what was drawn lies on a map that is not (or no longer) a ground to draw
+        withdrawn_grid_ = mosaic_->grid();
+        mosaic_.reset();
+        laid_.clear();
+        ++revision_;
+        change.withdrawn = true;
+      }
       change.cpu_ms = ThreadCpuMs() - started;
       return change;
     }
+    withdrawn_grid_.reset();
     change.redrawn = true;
   }
   const double gsd = mosaic_->grid().gsd;
@@ -168,6 +177,17 @@ LiveMosaic::Change LiveMosaic::Update(const MapState& state) {
 
 std::vector<LiveMosaicTile> LiveMosaic::TakeChangedTiles() {
   std::vector<LiveMosaicTile> tiles;
+  if (withdrawn_grid_) {
+    LiveMosaicTile cleared;
+    cleared.revision = revision_;
+    cleared.frame = frame_;
+    cleared.ground_from_map = ground_from_map_;
+    cleared.grid = *withdrawn_grid_;
+    cleared.tile_px = options_.tile_px;
+    cleared.version = ++tile_version_;
+    tiles.push_back(std::move(cleared));
+    withdrawn_grid_.reset();
+  }
   if (!mosaic_) return tiles;
   for (const auto& [col, row] : mosaic_->TakeChangedTiles()) {
     LiveMosaicTile tile;

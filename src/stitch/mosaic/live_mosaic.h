@@ -3,7 +3,8 @@
 // each laid where the merged map places its frame now. A picture is laid once; one the map moved
 // (an adjustment, a merge) is moved, which redraws only its tiles; a map whose frame changed (its
 // root submap: a merge into a larger map) or whose points doubled since the ground was shaped is
-// drawn again whole. The mosaic's frame is the map's, levelled on its points' best plane, in its
+// drawn again whole; one whose ground no longer looks like a ground seen from above is withdrawn
+// (its tiles cleared). The mosaic's frame is the map's, levelled on its points' best plane, in its
 // units (the run's end places it on Earth: `stitch mosaic`). One owner thread; not thread-safe.
 
 #include <cstdint>
@@ -50,12 +51,14 @@ class LiveMosaic {
   };
   struct Change {
     int laid = 0, moved = 0, tiles = 0;
-    bool redrawn = false;  // the whole mosaic drawn again
-    double cpu_ms = 0.0;   // this update's, the thread's CPU time
+    bool redrawn = false;    // the whole mosaic drawn again
+    bool withdrawn = false;  // the mosaic drawn so far taken back (its map is not what it looked like)
+    double cpu_ms = 0.0;     // this update's, the thread's CPU time
   };
   Change Update(const MapState& state);
 
-  // Empty until the map placed two pictures on a ground of enough points.
+  // Empty until the map placed enough pictures on a ground of enough points, and after it was
+  // withdrawn until it starts again.
   const Orthomosaic* mosaic() const { return mosaic_ ? &*mosaic_ : nullptr; }
   // The mosaic's frame (its ground's) from the map's, as the last start made it.
   const Sim3d& ground_from_map() const { return ground_from_map_; }
@@ -70,6 +73,7 @@ class LiveMosaic {
   // ground, a ground seen from above); empty after a start.
   const std::string& waiting_for() const { return waiting_for_; }
   // The tiles drawn anew since the last call, of revision(), as PNG; empty before the mosaic starts.
+  // After a withdrawal, one empty tile of the new revision (a viewer clears the older one's).
   std::vector<LiveMosaicTile> TakeChangedTiles();
 
  private:
@@ -84,6 +88,7 @@ class LiveMosaic {
   MosaicOptions options_;
   std::map<int, Picture> pictures_;
   std::optional<Orthomosaic> mosaic_;
+  std::optional<MosaicGrid> withdrawn_grid_;  // the withdrawn mosaic's, until its clearing tile is taken
   int64_t frame_ = 0;
   int64_t revision_ = 0;
   int64_t tile_version_ = 0;

@@ -15,6 +15,7 @@ bool MosaicOptions::Check(std::string* why) const {
   if (max_pixels < 1) return fail("max_pixels must be positive");
   if (!(interval_s >= 0.05 && interval_s <= 3600)) return fail("interval_s must be in [0.05, 3600]");
   if (!(live_max_relief >= 0) || !std::isfinite(live_max_relief)) return fail("live_max_relief must be 0 or positive");
+  if (live_min_pictures < 1) return fail("live_min_pictures must be at least 1");
   if (!(live_max_cpu_ms_per_picture >= 0) || !std::isfinite(live_max_cpu_ms_per_picture)) {
     return fail("live_max_cpu_ms_per_picture must be 0 (no limit) or positive");
   }

@@ -32,6 +32,11 @@ struct MosaicOptions {
   // cameras' median height above it is not a ground seen from above (a room, a street's facades)
   // and gets no live mosaic (a handheld camera indoors, TUM fr1/rpy: 0.34-8.5).
   double live_max_relief = 0.25;
+  // With `live`: the pictures a map places before its relief is judged and its mosaic starts. The
+  // first few cameras, close together, see a young room's desk as flat as a field (TUM fr1/rpy at
+  // twice its rate: 0.15-0.16 of the cameras' height with 3-8 pictures, at least 0.30 with 10 or
+  // more over 18 runs' restarts).
+  int live_min_pictures = 10;
   // With `live`: the live mosaic stops (once, with a warning; `stitch mosaic RUN` still makes one
   // from the records) when its CPU per picture laid exceeds this, over at least 8 pictures: the
   // flight comes first, and a map that is not a survey of the ground (oblique views of a room)
@@ -64,6 +69,8 @@ struct MosaicOptions {
     v("live_max_relief", live_max_relief,
       "with live: a map whose points' RMS distance from their plane exceeds this fraction of the cameras' median "
       "height above it is not a ground seen from above (a room, a street) and gets no live mosaic; 0: no limit");
+    v("live_min_pictures", live_min_pictures,
+      "with live: pictures the map must place before its relief is judged and its mosaic starts");
     v("live_max_cpu_ms_per_picture", live_max_cpu_ms_per_picture,
       "with live: the live mosaic stops (with a warning) once its CPU per picture laid exceeds this, over at least 8 "
       "pictures (a map that is not a survey of the ground, e.g. a handheld camera indoors); 0: no limit");

@@ -387,6 +387,7 @@ TEST(LiveMosaic, AMapThatIsNotAGroundSeenFromAboveGetsNoMosaicAndSaysWhy) {
   std::vector<uint8_t> jpeg;
   cv::imencode(".jpg", ground.Photograph(kCamera, pose), jpeg);
   MosaicOptions options;
+  options.live_min_pictures = 1;
   LiveMosaic refused(options);
   refused.AddPicture(0, kCamera, jpeg);
   EXPECT_EQ(refused.Update(state).laid, 0);  // relief 9.8 against a height of 30: 0.33
@@ -398,6 +399,57 @@ TEST(LiveMosaic, AMapThatIsNotAGroundSeenFromAboveGetsNoMosaicAndSaysWhy) {
   EXPECT_EQ(drawn.Update(state).laid, 1);
   EXPECT_NE(drawn.mosaic(), nullptr);
   EXPECT_EQ(drawn.waiting_for(), "");
+}
+
+// A map's relief is judged once it places live_min_pictures pictures (a few cameras close
+// together see a young room as flat), and a mosaic drawn on a map that later turns out not to be
+// a ground seen from above is withdrawn: its tiles cleared for a viewer, nothing left to write.
+TEST(LiveMosaic, WaitsForEnoughPicturesAndWithdrawsAMosaicWhoseGroundTurnsOutNotToBeOne) {
+  const TexturedGround& ground = Ground();
+  LiveMosaic::MapState state;
+  state.frame = 1;
+  for (double x = -30; x <= 30; x += 1.5) {
+    for (double y = -25; y <= 25; y += 1.5) state.points.emplace_back(x, y, 0.0);
+  }
+  MosaicOptions options;
+  options.tile_px = 64;
+  options.live_min_pictures = 3;
+  LiveMosaic live(options);
+  const std::vector<Sim3d> poses = {NadirCamera(-8, -4, 30), NadirCamera(8, -4, 30), NadirCamera(0, 8, 30)};
+  for (int k = 0; k < 3; ++k) {
+    std::vector<uint8_t> jpeg;
+    cv::imencode(".jpg", ground.Photograph(kCamera, poses[k]), jpeg);
+    live.AddPicture(k, kCamera, std::move(jpeg));
+    const Sim3d world_from_cam = poses[k].Inverse();
+    if (k < 2) state.world_from_cam[k] = Rigid3d(world_from_cam.rotation, world_from_cam.translation);
+  }
+  EXPECT_EQ(live.Update(state).laid, 0);  // two of three pictures placed
+  EXPECT_EQ(live.mosaic(), nullptr);
+  EXPECT_NE(live.waiting_for().find("placing 3 pictures"), std::string::npos) << live.waiting_for();
+  const Sim3d third = poses[2].Inverse();
+  state.world_from_cam[2] = Rigid3d(third.rotation, third.translation);
+  EXPECT_EQ(live.Update(state).laid, 3);
+  ASSERT_NE(live.mosaic(), nullptr);
+  EXPECT_FALSE(live.TakeChangedTiles().empty());
+  const int64_t drawn_revision = live.revision();
+  // The map grows into a room: its points double, now 12 units above and below the plane.
+  const size_t flat = state.points.size();
+  for (size_t i = 0; i < flat; ++i) {
+    state.points.push_back(state.points[i] + Eigen::Vector3d(0.5, 0.5, i % 2 ? 12.0 : -12.0));
+  }
+  const LiveMosaic::Change change = live.Update(state);
+  EXPECT_TRUE(change.withdrawn);
+  EXPECT_EQ(change.laid, 0);
+  EXPECT_EQ(live.mosaic(), nullptr);
+  EXPECT_NE(live.waiting_for().find("a ground seen from above"), std::string::npos) << live.waiting_for();
+  EXPECT_GT(live.revision(), drawn_revision);
+  const std::vector<LiveMosaicTile> cleared = live.TakeChangedTiles();
+  ASSERT_EQ(cleared.size(), 1u);  // one empty tile of the new revision: a viewer drops the old ones
+  EXPECT_EQ(cleared[0].revision, live.revision());
+  EXPECT_TRUE(cleared[0].png.empty());
+  EXPECT_GT(cleared[0].grid.gsd, 0);
+  EXPECT_TRUE(live.TakeChangedTiles().empty());
+  EXPECT_FALSE(live.Update(state).withdrawn);  // said once
 }
 
 // The live mosaic on a map that is not metric and not level (a SLAM map's frame): pictures laid
@@ -420,6 +472,7 @@ TEST(LiveMosaic, LaysPicturesWhereTheMapPlacesThemAndFollowsTheMap) {
   };
   MosaicOptions options;
   options.tile_px = 64;
+  options.live_min_pictures = 1;
   LiveMosaic live(options);
   const std::vector<Sim3d> poses = {NadirCamera(-8, -4, 30), NadirCamera(8, -4, 30, 2), NadirCamera(0, 8, 30)};
   for (int k = 0; k < 3; ++k) {

@@ -265,6 +265,7 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
   std::error_code ignored;
   // An earlier evaluation's: this one may not place the map.
   for (const char* placed_map : {"map_enu.ply", "map_utm.las"}) fs::remove(dir / "geo" / placed_map, ignored);
+  fs::remove_all(dir / "geo" / "colmap_enu", ignored);
   const bool received = fs::exists(dir / "gnss_received.csv");
   if (received || fs::exists(dir / "gnss.csv")) {
     try {
@@ -294,6 +295,14 @@ Evaluation FinishRunOutputs(const std::string& run_dir, RunInfo* info) {
             WriteMapLas((dir / "geo" / "map_utm.las").string(), geo, 0, map);
           } catch (const std::exception& e) {  // the trajectory on Earth stands without it
             info->notes.push_back(std::string("geo/map_enu.ply, map_utm.las not written: ") + e.what());
+          }
+        }
+        if (fs::exists(dir / "colmap" / "images.txt")) {
+          try {  // the merger's model of its largest map, as map.ply
+            WriteColmapModelInEnu((dir / "geo" / "colmap_enu").string(), geo, 0,
+                                  ReadColmapModel((dir / "colmap").string()));
+          } catch (const std::exception& e) {
+            info->notes.push_back(std::string("geo/colmap_enu not written: ") + e.what());
           }
         }
         georeference = geo.ToJson();

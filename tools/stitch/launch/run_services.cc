@@ -174,9 +174,10 @@ void PrintRunSummary(const RunInfo& info, const std::string& evaluation_summary,
   for (const auto& figures : info.link_figures) std::printf("%s\n", figures.c_str());
   for (const auto& figures : info.geo_figures) std::printf("%s\n", figures.c_str());
   for (const auto& note : info.notes) std::printf("note: %s\n", note.c_str());
-  std::printf(
-      "outputs: %s/{trajectory.tum, map.ply, report.json, trajectory.png, logs/%s}\n", out.c_str(),
-      info.geo_figures.empty() ? "" : ", geo/ (WGS84: CSV, GeoJSON, KML; map_enu.ply in metres, map_utm.las in UTM)");
+  std::printf("outputs: %s/{trajectory.tum, map.ply, report.json, trajectory.png, logs/%s}\n", out.c_str(),
+              info.geo_figures.empty()
+                  ? ""
+                  : ", geo/ (WGS84: CSV, GeoJSON, KML; map_enu.ply and colmap_enu/ in metres, map_utm.las in UTM)");
   std::printf(
       "  trajectory.tum and map.ply are in the largest map's frame: its largest submap's first camera (z along the "
       "optical axis), in units of that camera's median scene depth (not metres; ATE is in the ground truth's metres, "
