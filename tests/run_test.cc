@@ -23,6 +23,7 @@
 
 #include "services/common/bus.h"
 #include "stitch/geo/exiv2.h"
+#include "stitch/geo/geoid.h"
 #include "stitch/geo/gnss_fix.h"
 #include "stitch/geo/mavlink_gnss.h"
 #include "stitch/gnss_fix_t.hpp"
@@ -812,6 +813,9 @@ TEST(StitchRun, PlacesAFolderOfPhotosOnEarthByTheirExifGpsTags) {
   for (const char* file : {"camera.yaml", "groundtruth.txt"}) {
     std::filesystem::copy_file(std::filesystem::path(rendered) / file, std::filesystem::path(photos) / file);
   }
+  // A camera's EXIF altitude is above mean sea level: the synthetic fixes' ellipsoidal heights
+  // less the geoid's (about 46 m here), which the run adds back.
+  const Geoid geoid = Geoid::Egm96();
   int written = 0;
   for (const auto& [t_ns, png] : FolderImageTimes(rendered)) {
     // The fix nearest the photo's time, as a camera triggered by the autopilot tags it.
@@ -821,7 +825,9 @@ TEST(StitchRun, PlacesAFolderOfPhotosOnEarthByTheirExifGpsTags) {
     }
     const std::string jpeg = photos + "/" + std::filesystem::path(png).stem().string() + ".jpg";
     ASSERT_TRUE(cv::imwrite(jpeg, cv::imread(png, cv::IMREAD_UNCHANGED), {cv::IMWRITE_JPEG_QUALITY, 95}));
-    WriteExifGps(jpeg, nearest->position);
+    GeodeticPoint above_sea_level = nearest->position;
+    above_sea_level.height_m -= geoid.HeightAboveEllipsoid(above_sea_level.latitude_deg, above_sea_level.longitude_deg);
+    WriteExifGps(jpeg, above_sea_level);
     ++written;
   }
   ASSERT_GE(written, 50);
@@ -835,6 +841,26 @@ TEST(StitchRun, PlacesAFolderOfPhotosOnEarthByTheirExifGpsTags) {
   EXPECT_GE(geo["maps"][0]["inliers"].get<int>(), 10) << geo.dump();
   // The synthetic receiver's fixes have 2 m of noise; the photos' tags carry them to the metre.
   EXPECT_LT(geo["maps"][0]["horizontal_rms_m"].get<double>(), 5.0) << geo.dump();
+  // On the ellipsoid, as the fixes were flown: each placed camera's height within a few metres of
+  // the fix nearest its time (read as mean sea level, they would sit 46 m lower).
+  std::ifstream wgs84(out + "/geo/trajectory_wgs84.csv");
+  std::vector<double> height_errors;
+  for (std::string line; std::getline(wgs84, line);) {
+    if (line.empty() || line[0] == '#' || line.rfind("map,", 0) == 0) continue;
+    std::vector<std::string> field;
+    std::stringstream row(line);
+    for (std::string f; std::getline(row, f, ',');) field.push_back(f);
+    ASSERT_EQ(field.size(), 6u) << line;
+    const int64_t t_ns = std::stoll(field[2]);
+    const GnssFix* nearest = &truth_fixes.fixes.front();
+    for (const GnssFix& fix : truth_fixes.fixes) {
+      if (std::llabs(fix.t_ns - t_ns) < std::llabs(nearest->t_ns - t_ns)) nearest = &fix;
+    }
+    height_errors.push_back(std::abs(std::stod(field[5]) - nearest->position.height_m));
+  }
+  ASSERT_GT(height_errors.size(), 10u);
+  std::nth_element(height_errors.begin(), height_errors.begin() + height_errors.size() / 2, height_errors.end());
+  EXPECT_LT(height_errors[height_errors.size() / 2], 8.0);
   // The photos' orthomosaic, from the JPEG files, in UTM.
   const auto mosaic = RunProgram({Bin("stitch"), "mosaic", out}, 120);
   ASSERT_EQ(mosaic.exit_code, 0) << mosaic.output;

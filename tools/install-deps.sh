@@ -14,5 +14,5 @@ $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recomme
   default-jdk-headless liblcm-java libjchart2d-java lua5.2 liblcm-lua colmap \
   libboost-dev libjs-three \
   libgps-dev gpsd gpsd-clients python3-gps libexiv2-dev \
-  gdal-bin libgdal-dev \
+  gdal-bin libgdal-dev libproj-dev proj-data \
   iproute2 procps

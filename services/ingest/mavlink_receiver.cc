@@ -205,6 +205,11 @@ void MavlinkReceiver::Receive() {
                      : decoder_.FeedDatagram(buffer, static_cast<size_t>(size), WallClockNs());
       KeepNewestSigned(/*force=*/false);
     }
+    if (const std::string why = heights_.Raise(&fixes); !why.empty()) {
+      STITCH_LOG(WARNING) << "the flight controller's altitudes above mean sea level are sent as they are (the map "
+                             "will sit the geoid's height off vertically): "
+                          << why;
+    }
     for (const GnssFix& fix : fixes) on_fix_(fix);
   }
 }

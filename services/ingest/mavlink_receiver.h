@@ -18,6 +18,7 @@
 #include <thread>
 
 #include "services/ingest/live_gnss.h"
+#include "stitch/geo/geoid.h"
 #include "stitch/geo/mavlink_gnss.h"
 
 namespace stitch {
@@ -64,7 +65,8 @@ class MavlinkReceiver : public LiveGnssReceiver {
   uint64_t kept_signed_ = 0;    // the timestamp the state file holds
   double kept_at_s_ = 0;        // MonotonicSeconds() of its last write
   bool state_file_failed_ = false;
-  int64_t reads_ = 0;  // datagrams, or reads of the serial port
+  int64_t reads_ = 0;       // datagrams, or reads of the serial port
+  MslToEllipsoid heights_;  // the thread's: altitudes above mean sea level raised to the ellipsoid
   std::atomic<bool> running_{true};
   std::thread thread_;
 };

@@ -70,6 +70,9 @@ TEST(MavlinkReceiver, PublishesTheFixesOfTheDatagramsItGetsStampedWithTheWallClo
   const int64_t after = WallClockNs();
   EXPECT_EQ(fixes.size(), 1u) << "the damaged frame gives none";
   EXPECT_NEAR(fixes[0].position.latitude_deg, 47.368423, 1e-9);
+  // Its altitude above mean sea level (no alt_ellipsoid) raised to the ellipsoid by the geoid.
+  EXPECT_NEAR(fixes[0].position.height_m, 460.0 + 47.25, 0.2);
+  EXPECT_FALSE(fixes[0].height_above_msl);
   EXPECT_GE(fixes[0].t_ns, before - 200'000'000);
   EXPECT_LE(fixes[0].t_ns, after - 200'000'000) << "its arrival on the wall clock, less the latency";
   lock.unlock();

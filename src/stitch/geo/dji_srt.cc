@@ -108,7 +108,8 @@ GnssTrack ReadDjiSrt(const std::string& path) {
     std::optional<double> longitude = number_of(field(kLongitude), "the longitude");
     std::optional<double> height = number_of(field(kAbsoluteAltitude), "abs_alt");
     if (!height) height = number_of(field(kAltitude), "the altitude");
-    if (!latitude && !longitude) {  // the older layout: GPS(longitude,latitude,height)
+    const bool above_sea_level = height.has_value();  // the older layout's heights are the barometer's
+    if (!latitude && !longitude) {                    // the older layout: GPS(longitude,latitude,height)
       longitude = number_of(field(kOldGps, 1), "GPS()'s longitude");
       latitude = number_of(field(kOldGps, 2), "GPS()'s latitude");
       if (!height) height = number_of(field(kBarometer), "BAROMETER");
@@ -125,6 +126,7 @@ GnssTrack ReadDjiSrt(const std::string& path) {
     fix.position = {*latitude, *longitude, height.value_or(0.0)};
     fix.horizontal_accuracy_m = kDjiSrtHorizontalAccuracyM;
     fix.vertical_accuracy_m = height ? kDjiSrtVerticalAccuracyM : 1000.0;  // no height: a free one
+    fix.height_above_msl = above_sea_level;
     fix.type = GnssFixType::k3d;
     if (const std::string why = WhyNotAFix(fix); !why.empty()) fail(s.line, why);
     track.fixes.push_back(fix);

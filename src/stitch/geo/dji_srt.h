@@ -15,9 +15,10 @@
 // with no position (0, 0: no satellite lock) are left out, and the track is thinned to one fix
 // per kDjiSrtMinIntervalNs (DJI writes its 5-10 Hz receiver's position at the frame rate).
 // DJI states no accuracy: each fix gets kDjiSrtHorizontalAccuracyM / kDjiSrtVerticalAccuracyM.
-// The heights are DJI's (abs_alt: above mean sea level, from the barometer and GNSS), not above
-// the ellipsoid: a map placed by them sits the geoid's height (tens of metres) off vertically;
-// its horizontal place and its scale are not affected.
+// The heights are DJI's (abs_alt, altitude: above mean sea level, from the barometer and GNSS),
+// marked so (GnssFix::height_above_msl): a dataset's track is raised to the ellipsoid by the
+// geoid (geoid.h). The older layout's BAROMETER is the height above the take-off point, not
+// marked: a map placed by it sits off vertically; its horizontal place and scale are not affected.
 
 #include <cstdint>
 #include <string>

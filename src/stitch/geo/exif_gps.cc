@@ -63,6 +63,7 @@ std::optional<GnssFix> ReadTags(const std::string& path, std::string* why) {
     fix.position.height_m = r.second != 0 ? static_cast<double>(r.first) / r.second : 0.0;
     const Exiv2::Exifdatum* below = Find(exif, "Exif.GPSInfo.GPSAltitudeRef");
     if (below && below->count() == 1 && below->toLong(0) == 1) fix.position.height_m = -fix.position.height_m;
+    fix.height_above_msl = true;  // EXIF: "the altitude based on the reference" of sea level
   }
   fix.horizontal_accuracy_m = kExifHorizontalAccuracyM;
   fix.vertical_accuracy_m = kExifVerticalAccuracyM;

@@ -2,7 +2,7 @@
 // GNSS fixes from the photos of an image folder: the EXIF GPS tags a survey camera or a drone
 // writes into each photo (GPSLatitude/Ref, GPSLongitude/Ref, GPSAltitude/Ref), read with exiv2.
 // Each photo's fix is at that photo's frame time, so no clock needs aligning. EXIF's altitude is
-// above mean sea level (as DJI's): a map placed by it sits the geoid's height off vertically. The
+// above mean sea level (as DJI's), marked so: the track is raised to the ellipsoid (geoid.h). The
 // accuracy: GPSHPositioningError where the camera writes it (EXIF 2.31), DJI's RTK standard
 // deviations (Xmp.drone-dji.RtkStdLat/Lon/Hgt, with an RTK fix type) where it writes them, else
 // kExifHorizontalAccuracyM / kExifVerticalAccuracyM. Photos without GPS tags give no fix.

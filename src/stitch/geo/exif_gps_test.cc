@@ -47,6 +47,7 @@ TEST(ExifGps, ReadsAPhotosPositionFromItsTags) {
   EXPECT_NEAR(fix->position.latitude_deg, 47 + 22 / 60.0 + 6.32 / 3600, 1e-9);
   EXPECT_NEAR(fix->position.longitude_deg, 8 + 32 / 60.0 + 20.59 / 3600, 1e-9);
   EXPECT_NEAR(fix->position.height_m, 459.87, 1e-9);
+  EXPECT_TRUE(fix->height_above_msl);
   EXPECT_EQ(fix->horizontal_accuracy_m, kExifHorizontalAccuracyM);
   EXPECT_EQ(fix->type, GnssFixType::k3d);
 

@@ -15,6 +15,7 @@
 #include "stitch/geo/geo_outputs.h"
 #include "stitch/geo/geo_registration.h"
 #include "stitch/geo/geodetic.h"
+#include "stitch/geo/geoid.h"
 #include "stitch/geo/gnss_fix.h"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/util/error.h"
@@ -110,6 +111,7 @@ TEST(DjiSrt, ReadsTheAircraftsPositionPerSubtitleOnTheVideosClock) {
   EXPECT_DOUBLE_EQ(track.fixes[0].position.latitude_deg, 47.368423);
   EXPECT_DOUBLE_EQ(track.fixes[0].position.longitude_deg, 8.539054);
   EXPECT_DOUBLE_EQ(track.fixes[0].position.height_m, 459.873);
+  EXPECT_TRUE(track.fixes[0].height_above_msl);  // abs_alt
   EXPECT_DOUBLE_EQ(track.fixes[0].horizontal_accuracy_m, kDjiSrtHorizontalAccuracyM);
   EXPECT_EQ(track.fixes[1].t_ns, 1'134'000'000);
   EXPECT_DOUBLE_EQ(track.fixes[1].position.height_m, 461.5);
@@ -129,6 +131,7 @@ TEST(DjiSrt, ReadsTheOlderGpsLayout) {
   EXPECT_DOUBLE_EQ(track.fixes[0].position.longitude_deg, 8.5391);
   EXPECT_DOUBLE_EQ(track.fixes[0].position.latitude_deg, 47.3685);
   EXPECT_DOUBLE_EQ(track.fixes[0].position.height_m, 61.5);
+  EXPECT_FALSE(track.fixes[0].height_above_msl);  // the barometer's, above the take-off point
   EXPECT_DOUBLE_EQ(track.fixes[1].position.height_m, 19.0);
   EXPECT_EQ(track.fixes[1].t_ns, 1'000'000'000);
 }
@@ -590,6 +593,36 @@ TEST(GeoOutputs, GdalReadsTheGeoJsonAndKmlAsLinesInWgs84) {
   const std::string kml = OgrInfo(dir / "t.kml");
   EXPECT_NE(kml.find("Feature Count: 2"), std::string::npos) << kml;
   EXPECT_NE(kml.find("Extent: (10.998000, 47.998000) - (11.002000, 48.001000)"), std::string::npos) << kml;
+}
+
+// EGM96's geoid heights, through PROJ's grid (Debian's proj-data): where they are published
+// (17.16 m at 0 N 0 E; about -29 m at Everest) and where gpsd's own model puts Zurich's (its
+// altHAE less altMSL: 47.25 m), to a decimetre or two (the 15' grid is interpolated).
+TEST(Geoid, Egm96GivesTheGeoidsHeightWhereItIsKnown) {
+  const Geoid geoid = Geoid::Egm96();
+  EXPECT_NEAR(geoid.HeightAboveEllipsoid(0.0, 0.0), 17.16, 0.05);
+  EXPECT_NEAR(geoid.HeightAboveEllipsoid(27.988, 86.925), -29.0, 0.5);
+  EXPECT_NEAR(geoid.HeightAboveEllipsoid(47.368423, 8.539054), 47.25, 0.2);
+  EXPECT_THROW(geoid.HeightAboveEllipsoid(91.0, 0.0), Error);
+  EXPECT_THROW(geoid.HeightAboveEllipsoid(0.0, std::nan("")), Error);
+}
+
+// A track's heights above mean sea level raised to the ellipsoid, once; those above the
+// ellipsoid and fixes without a position left as they are.
+TEST(Geoid, RaisesHeightsAboveMeanSeaLevelToTheEllipsoid) {
+  std::vector<GnssFix> fixes(3);
+  for (GnssFix& fix : fixes) fix.position = {47.368423, 8.539054, 459.87};
+  fixes[0].height_above_msl = true;
+  fixes[2].height_above_msl = true;
+  fixes[2].type = GnssFixType::kNone;
+  EXPECT_EQ(HeightsAboveEllipsoid(&fixes), "");
+  EXPECT_NEAR(fixes[0].position.height_m, 459.87 + 47.25, 0.2);
+  EXPECT_FALSE(fixes[0].height_above_msl);
+  EXPECT_DOUBLE_EQ(fixes[1].position.height_m, 459.87);
+  EXPECT_DOUBLE_EQ(fixes[2].position.height_m, 459.87);
+  const double raised = fixes[0].position.height_m;
+  EXPECT_EQ(HeightsAboveEllipsoid(&fixes), "");
+  EXPECT_DOUBLE_EQ(fixes[0].position.height_m, raised);  // not twice
 }
 
 }  // namespace

@@ -28,6 +28,9 @@ struct GnssFix {
   double horizontal_accuracy_m = 0.0;  // 1 sigma, per horizontal axis
   double vertical_accuracy_m = 0.0;    // 1 sigma
   GnssFixType type = GnssFixType::k3d;
+  // The source states the height above mean sea level (DJI, EXIF, MAVLink's altitudes), not the
+  // ellipsoid: HeightsAboveEllipsoid (geoid.h) raises it by the geoid's height.
+  bool height_above_msl = false;
 
   bool usable() const { return type != GnssFixType::kNone; }
 };

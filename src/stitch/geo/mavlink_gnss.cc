@@ -237,6 +237,7 @@ void MavlinkGnssDecoder::Decode(uint32_t id, int system, const uint8_t* payload,
     fix.position.longitude_deg = Read<int32_t>(payload, 12) * 1e-7;
     const int32_t ellipsoid_mm = Read<int32_t>(payload, 30);
     fix.position.height_m = (ellipsoid_mm != 0 ? ellipsoid_mm : Read<int32_t>(payload, 16)) * 1e-3;
+    fix.height_above_msl = ellipsoid_mm == 0;
     const uint16_t hdop = Read<uint16_t>(payload, 20), vdop = Read<uint16_t>(payload, 22);
     const uint32_t h_acc = Read<uint32_t>(payload, 34), v_acc = Read<uint32_t>(payload, 38);
     if (h_acc > 0) {
@@ -254,6 +255,7 @@ void MavlinkGnssDecoder::Decode(uint32_t id, int system, const uint8_t* payload,
     fix.position.latitude_deg = Read<int32_t>(payload, 4) * 1e-7;
     fix.position.longitude_deg = Read<int32_t>(payload, 8) * 1e-7;
     fix.position.height_m = Read<int32_t>(payload, 12) * 1e-3;
+    fix.height_above_msl = true;
     fix.type = GnssFixType::k3d;
   }
   // 0, 0 is what a controller sends before its receiver has a position.

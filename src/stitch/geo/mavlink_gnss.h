@@ -7,8 +7,8 @@
 // CRC_EXTRA as MAVLink defines it, before any field is read. Read:
 //
 // - GPS_RAW_INT (24): the receiver's own fix. Height above the ellipsoid from alt_ellipsoid
-//   where the sender fills it (MAVLink 2 extension), else its altitude above mean sea level
-//   (the map then sits the geoid's height off vertically, as with a DJI track). Accuracy from
+//   where the sender fills it (MAVLink 2 extension), else its altitude above mean sea level,
+//   marked so (the ingest raises it to the ellipsoid by the geoid: geoid.h). Accuracy from
 //   h_acc / v_acc where given, else HDOP / VDOP times kMavlinkUserRangeErrorM. The fix type as
 //   the receiver states it (no fix: not used).
 // - GLOBAL_POSITION_INT (33): the controller's fused estimate, used only from a system that sends

@@ -64,10 +64,12 @@ TEST(MavlinkGnss, ReadsTheReceiversFixFromMavlink1And2) {
     EXPECT_EQ(fix.type, GnssFixType::k3d);
     if (version == 2) {
       EXPECT_NEAR(fix.position.height_m, 507.120, 1e-9) << "above the ellipsoid where the sender says";
+      EXPECT_FALSE(fix.height_above_msl);
       EXPECT_NEAR(fix.horizontal_accuracy_m, 1.2, 1e-9);
       EXPECT_NEAR(fix.vertical_accuracy_m, 2.5, 1e-9);
     } else {
       EXPECT_NEAR(fix.position.height_m, 459.873, 1e-9) << "above mean sea level: all MAVLink 1 has";
+      EXPECT_TRUE(fix.height_above_msl);
       EXPECT_NEAR(fix.horizontal_accuracy_m, 0.8 * kMavlinkUserRangeErrorM, 1e-9) << "from the HDOP";
       EXPECT_NEAR(fix.vertical_accuracy_m, 1.2 * kMavlinkUserRangeErrorM, 1e-9);
     }

@@ -9,6 +9,7 @@
 
 #include "stitch/geo/dji_srt.h"
 #include "stitch/geo/exif_gps.h"
+#include "stitch/geo/geoid.h"
 #include "stitch/io/calibration.h"
 #include "stitch/io/live_capture.h"
 
@@ -223,6 +224,19 @@ GnssTrack SourceGnss(const SourceSpec& spec) {
   return DatasetGnss(spec.dataset_path);
 }
 
+namespace {
+
+// A track whose heights its source states above mean sea level (DJI's SRT, EXIF), raised to the
+// ellipsoid; its source says where they could not be.
+GnssTrack AboveTheEllipsoid(GnssTrack track) {
+  if (const std::string why = HeightsAboveEllipsoid(&track.fixes); !why.empty()) {
+    track.source += "; heights above mean sea level as stated, not the ellipsoid (" + why + ")";
+  }
+  return track;
+}
+
+}  // namespace
+
 GnssTrack DatasetGnss(const std::string& dataset_path) {
   namespace fs = std::filesystem;
   if (dataset_path.empty()) return {};
@@ -235,11 +249,11 @@ GnssTrack DatasetGnss(const std::string& dataset_path) {
     } catch (const Error&) {
       return {};
     }
-    return kind == "folder" ? ExifGnssTrack(FolderImageTimes(dataset_path)) : GnssTrack();
+    return kind == "folder" ? AboveTheEllipsoid(ExifGnssTrack(FolderImageTimes(dataset_path))) : GnssTrack();
   }
   for (const char* extension : {".SRT", ".srt"}) {
     const fs::path srt = fs::path(dataset_path).replace_extension(extension);
-    if (fs::is_regular_file(srt)) return ReadDjiSrt(srt.string());
+    if (fs::is_regular_file(srt)) return AboveTheEllipsoid(ReadDjiSrt(srt.string()));
   }
   return {};
 }
