@@ -164,6 +164,17 @@ TEST(StitchRun, TracksAShortFlightWithTheServicesAsProcesses) {
   // The strip's orthomosaic: placed on Earth by the synthetic receiver's fixes, north up in UTM
   // zone 32 (the world is at 48 N, 11 E), the flight's keyframes rendered again and laid on it.
   const std::string ortho = dir / "ortho.tif";
+  // A map whose relief is above merger.mosaic.live_max_relief (here set below the strip's own) is no
+  // ground seen from above: refused, saying so, unless --force.
+  const std::vector<std::string> strict = {"--set", "merger.mosaic.live_max_relief=0.001"};
+  const auto refused =
+      RunProgram({Bin("stitch"), "mosaic", out, "--out", dir / "refused.tif", strict[0], strict[1]}, 120);
+  EXPECT_EQ(refused.exit_code, 1) << refused.output;
+  EXPECT_NE(refused.output.find("is not a ground seen from above"), std::string::npos) << refused.output;
+  EXPECT_FALSE(fs::exists(dir / "refused.tif"));
+  const auto forced =
+      RunProgram({Bin("stitch"), "mosaic", out, "--out", dir / "forced.tif", strict[0], strict[1], "--force"}, 120);
+  EXPECT_EQ(forced.exit_code, 0) << forced.output;
   const auto mosaic = RunProgram({Bin("stitch"), "mosaic", out, "--out", ortho}, 120);
   ASSERT_EQ(mosaic.exit_code, 0) << mosaic.output;
   const GeoTiffInfo tiff = ReadGeoTiffInfo(ortho);

@@ -17,6 +17,7 @@ namespace stitch {
 int MosaicCommand(int argc, char** argv) {
   std::vector<std::string> positional, settings;
   std::string out, images, pictures = "auto";
+  bool force = false;
   double gsd = -1;
   ArgParser args(
       "stitch mosaic",
@@ -40,12 +41,17 @@ int MosaicCommand(int argc, char** argv) {
                  "(the flight's where they are at hand; default)");
   args.AddOption("--set", &settings, "KEY=VALUE",
                  "a setting over the run's config.yaml, e.g. merger.mosaic.tile_px=512");
+  args.AddFlag(
+      "--force", &force,
+      "make a mosaic of a map that is not a ground seen from above too (a room, a street: its points lie "
+      "further from their plane than merger.mosaic.live_max_relief of the cameras' height; refused otherwise)");
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {
     if (positional.size() != 1) throw Error("give the run folder: stitch mosaic RUN_DIR");
     const std::string run_dir = positional[0];
     if (!fs::is_directory(run_dir)) throw Error(run_dir + " is not a run folder");
     if (gsd >= 0) settings.push_back("merger.mosaic.gsd_m=" + std::to_string(gsd));
+    if (force) settings.push_back("merger.mosaic.live_max_relief=0");
     const fs::path config_path = fs::path(run_dir) / "config.yaml";
     const StitchConfig config =
         LoadStitchConfig(fs::exists(config_path) ? config_path.string() : std::string(), settings);

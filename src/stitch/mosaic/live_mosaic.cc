@@ -43,6 +43,22 @@ Sim3d GroundFromMapByPlane(const std::vector<Eigen::Vector3d>& points, const std
   return Sim3d(1.0, q, -(q * mean));
 }
 
+double ReliefOverHeight(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& centres) {
+  if (centres.empty()) throw Error("a map's relief needs a camera");
+  const Sim3d ground_from_map = GroundFromMapByPlane(points, centres);
+  double squared_relief = 0;
+  for (const Eigen::Vector3d& p : points) {
+    const double z = (ground_from_map * p).z();
+    squared_relief += z * z;
+  }
+  std::vector<double> heights;
+  for (const Eigen::Vector3d& c : centres) heights.push_back((ground_from_map * c).z());
+  std::nth_element(heights.begin(), heights.begin() + heights.size() / 2, heights.end());
+  const double height = heights[heights.size() / 2];
+  const double relief = std::sqrt(squared_relief / points.size());
+  return height > 0 ? relief / height : std::numeric_limits<double>::infinity();
+}
+
 LiveMosaic::LiveMosaic(const MosaicOptions& options) : options_(options) {}
 
 void LiveMosaic::AddPicture(int key, const Camera& camera, std::vector<uint8_t> jpeg) {
@@ -64,28 +80,20 @@ bool LiveMosaic::Restart(const MapState& state) {
                    std::to_string(options_.live_min_pictures) + " pictures";
     return false;
   }
-  const Sim3d ground_from_map = GroundFromMapByPlane(state.points, centres);
-  std::vector<Eigen::Vector3d> ground_points;
-  double squared_relief = 0;
-  for (const Eigen::Vector3d& p : state.points) {
-    ground_points.push_back(ground_from_map * p);
-    squared_relief += ground_points.back().z() * ground_points.back().z();
-  }
   // A ground seen from above: the points lie near their plane against the cameras' height.
-  std::vector<double> heights;
-  for (const Eigen::Vector3d& c : centres) heights.push_back((ground_from_map * c).z());
-  std::nth_element(heights.begin(), heights.begin() + heights.size() / 2, heights.end());
-  const double height = heights[heights.size() / 2];
-  const double relief = std::sqrt(squared_relief / ground_points.size());
-  if (options_.live_max_relief > 0 && !(relief <= options_.live_max_relief * height)) {
+  if (const double relief = ReliefOverHeight(state.points, centres);
+      options_.live_max_relief > 0 && !(relief <= options_.live_max_relief)) {
     char text[200];
     std::snprintf(text, sizeof(text),
                   "a ground seen from above: the map's points lie %.2f of the cameras' height from their plane "
                   "(mosaic.live_max_relief %.2f)",
-                  height > 0 ? relief / height : std::numeric_limits<double>::infinity(), options_.live_max_relief);
+                  relief, options_.live_max_relief);
     waiting_for_ = text;
     return false;
   }
+  const Sim3d ground_from_map = GroundFromMapByPlane(state.points, centres);
+  std::vector<Eigen::Vector3d> ground_points;
+  for (const Eigen::Vector3d& p : state.points) ground_points.push_back(ground_from_map * p);
   MosaicGrid grid;
   grid.gsd = options_.gsd_m;
   if (grid.gsd == 0) {

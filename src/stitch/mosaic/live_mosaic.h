@@ -103,4 +103,11 @@ class LiveMosaic {
 // fewer than 3 points.
 Sim3d GroundFromMapByPlane(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& centres);
 
+// A map's relief against its cameras' height: its points' RMS distance from their best plane
+// (GroundFromMapByPlane) over the cameras' median height above it; infinity where they are not
+// above it. Small for a ground seen from above (the default flight 0.07), large for a room or a
+// street (TUM fr1/rpy 0.34-8.5): MosaicOptions::live_max_relief. Throws stitch::Error for fewer than 3
+// points or no camera.
+double ReliefOverHeight(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& centres);
+
 }  // namespace stitch

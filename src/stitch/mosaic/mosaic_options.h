@@ -28,9 +28,11 @@ struct MosaicOptions {
   // With `live`: the tiles drawn anew go to the viewer (PNG, on the ground's MOSAIC_TILE), which
   // shows the mosaic on its page.
   bool publish_tiles = true;
-  // With `live`: a map whose points' RMS distance from their plane exceeds this fraction of the
-  // cameras' median height above it is not a ground seen from above (a room, a street's facades)
-  // and gets no live mosaic (a handheld camera indoors, TUM fr1/rpy: 0.34-8.5).
+  // A map whose points' RMS distance from their plane exceeds this fraction of the cameras' median
+  // height above it is not a ground seen from above (a room, a street's facades): it gets no live
+  // mosaic, and `stitch mosaic` refuses it unless told --force (a handheld camera indoors, TUM
+  // fr1/rpy: 0.34-8.5; the default flight 0.07). 0: no limit. (Named for the live mosaic, where
+  // it came first; run folders keep the name in their config.yaml.)
   double live_max_relief = 0.25;
   // With `live`: the pictures a map places before its relief is judged and its mosaic starts. The
   // first few cameras, close together, see a young room's desk as flat as a field (TUM fr1/rpy at
@@ -67,8 +69,9 @@ struct MosaicOptions {
     v("publish_tiles", publish_tiles,
       "with live: the tiles drawn anew go to the viewer's page (PNG, on the ground's MOSAIC_TILE)");
     v("live_max_relief", live_max_relief,
-      "with live: a map whose points' RMS distance from their plane exceeds this fraction of the cameras' median "
-      "height above it is not a ground seen from above (a room, a street) and gets no live mosaic; 0: no limit");
+      "a map whose points' RMS distance from their plane exceeds this fraction of the cameras' median height above it "
+      "is not a ground seen from above (a room, a street): no live mosaic, and stitch mosaic refuses it unless "
+      "--force; 0: no limit");
     v("live_min_pictures", live_min_pictures,
       "with live: pictures the map must place before its relief is judged and its mosaic starts");
     v("live_max_cpu_ms_per_picture", live_max_cpu_ms_per_picture,

@@ -401,6 +401,25 @@ TEST(LiveMosaic, AMapThatIsNotAGroundSeenFromAboveGetsNoMosaicAndSaysWhy) {
   EXPECT_EQ(drawn.waiting_for(), "");
 }
 
+// A map's relief against its cameras' height: a field seen from 30 m, 0; the same points 12 m
+// above and below it, about a third, from either side of it.
+TEST(ReliefOverHeight, TellsAGroundSeenFromAboveFromARoom) {
+  std::vector<Eigen::Vector3d> field, room;
+  int i = 0;
+  for (double x = -30; x <= 30; x += 1.5) {
+    for (double y = -25; y <= 25; y += 1.5) {
+      field.emplace_back(x, y, 0.0);
+      room.emplace_back(x, y, 12.0 * (i++ % 3 - 1));
+    }
+  }
+  const std::vector<Eigen::Vector3d> cameras = {{-8, -4, 30}, {8, -4, 30}, {0, 8, 30}};
+  EXPECT_NEAR(ReliefOverHeight(field, cameras), 0.0, 1e-9);
+  EXPECT_NEAR(ReliefOverHeight(room, cameras), std::sqrt(2.0 / 3.0) * 12.0 / 30.0, 0.02);
+  // The plane's side is the cameras': a height of 30 whichever way the map's z points.
+  EXPECT_NEAR(ReliefOverHeight(room, {{0, 0, -30}}), std::sqrt(2.0 / 3.0) * 12.0 / 30.0, 0.02);
+  EXPECT_THROW(ReliefOverHeight(field, {}), Error);
+}
+
 // A map's relief is judged once it places live_min_pictures pictures (a few cameras close
 // together see a young room as flat), and a mosaic drawn on a map that later turns out not to be
 // a ground seen from above is withdrawn: its tiles cleared for a viewer, nothing left to write.
