@@ -311,7 +311,10 @@ void Map::UpdateConnections(KeyframeId id) {
   keyframe->covisibility = counts;
   for (const auto& [other, weight] : counts) {
     if (Keyframe* o = FindKeyframe(other)) {
-      o->covisibility[id] = weight;
+      // Its order is sorted again only where the link changed (most stay as they were).
+      const auto [link, added] = o->covisibility.try_emplace(id, weight);
+      if (!added && link->second == weight) continue;
+      link->second = weight;
       SetOrderedCovisibility(o);
     }
   }
