@@ -59,6 +59,18 @@ double ReliefOverHeight(const std::vector<Eigen::Vector3d>& points, const std::v
   return height > 0 ? relief / height : std::numeric_limits<double>::infinity();
 }
 
+std::string WhyNotAGroundSeenFromAbove(const std::vector<Eigen::Vector3d>& points,
+                                       const std::vector<Eigen::Vector3d>& centres, const MosaicOptions& options) {
+  if (options.live_max_relief <= 0) return "";
+  const double relief = ReliefOverHeight(points, centres);
+  if (relief <= options.live_max_relief) return "";
+  char text[200];
+  std::snprintf(text, sizeof(text),
+                "its points lie %.2f of its cameras' height from their plane (merger.mosaic.live_max_relief %.2f)",
+                relief, options.live_max_relief);
+  return text;
+}
+
 LiveMosaic::LiveMosaic(const MosaicOptions& options) : options_(options) {}
 
 void LiveMosaic::AddPicture(int key, const Camera& camera, std::vector<uint8_t> jpeg) {
@@ -81,14 +93,8 @@ bool LiveMosaic::Restart(const MapState& state) {
     return false;
   }
   // A ground seen from above: the points lie near their plane against the cameras' height.
-  if (const double relief = ReliefOverHeight(state.points, centres);
-      options_.live_max_relief > 0 && !(relief <= options_.live_max_relief)) {
-    char text[200];
-    std::snprintf(text, sizeof(text),
-                  "a ground seen from above: the map's points lie %.2f of the cameras' height from their plane "
-                  "(mosaic.live_max_relief %.2f)",
-                  relief, options_.live_max_relief);
-    waiting_for_ = text;
+  if (const std::string why = WhyNotAGroundSeenFromAbove(state.points, centres, options_); !why.empty()) {
+    waiting_for_ = "a ground seen from above: " + why;
     return false;
   }
   const Sim3d ground_from_map = GroundFromMapByPlane(state.points, centres);

@@ -109,5 +109,10 @@ Sim3d GroundFromMapByPlane(const std::vector<Eigen::Vector3d>& points, const std
 // street (TUM fr1/rpy 0.34-8.5): MosaicOptions::live_max_relief. Throws stitch::Error for fewer than 3
 // points or no camera.
 double ReliefOverHeight(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& centres);
+// Why such a map is not a ground seen from above under `options` (its relief over
+// live_max_relief), in words: "its points lie 0.84 of its cameras' height from their plane
+// (merger.mosaic.live_max_relief 0.25)"; empty where it is one, or without a limit.
+std::string WhyNotAGroundSeenFromAbove(const std::vector<Eigen::Vector3d>& points,
+                                       const std::vector<Eigen::Vector3d>& centres, const MosaicOptions& options);
 
 }  // namespace stitch

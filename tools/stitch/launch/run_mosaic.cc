@@ -198,14 +198,9 @@ RunMosaic MakeRunMosaic(const std::string& run_dir, const SourceSpec& source, co
   for (const ColmapPoint& point : model.points) points.push_back(point.position);
   for (const ColmapImage& image : model.images) centres.push_back(image.cam_from_world.Inverse().translation);
   if (points.size() < 3) throw Error(run_dir + "'s largest map has too few points to shape the ground");
-  if (const double relief = ReliefOverHeight(points, centres);
-      options.live_max_relief > 0 && !(relief <= options.live_max_relief)) {
-    char why[300];
-    std::snprintf(why, sizeof(why),
-                  "'s largest map is not a ground seen from above: its points lie %.2f of its cameras' height from "
-                  "their plane (merger.mosaic.live_max_relief %.2f); --force makes a mosaic of it anyway",
-                  relief, options.live_max_relief);
-    throw Error(run_dir + why);
+  if (const std::string why = WhyNotAGroundSeenFromAbove(points, centres, options); !why.empty()) {
+    throw Error(run_dir + "'s largest map is not a ground seen from above: " + why +
+                "; --force makes a mosaic of it anyway");
   }
 
   RunMosaic mosaic;
