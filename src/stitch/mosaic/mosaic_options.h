@@ -35,9 +35,8 @@ struct MosaicOptions {
   // it came first; run folders keep the name in their config.yaml.)
   double live_max_relief = 0.25;
   // With `live`: the pictures a map places before its relief is judged and its mosaic starts. The
-  // first few cameras, close together, see a young room's desk as flat as a field (TUM fr1/rpy at
-  // twice its rate: 0.15-0.16 of the cameras' height with 3-8 pictures, at least 0.30 with 10 or
-  // more over 18 runs' restarts).
+  // first few cameras, close together, can see a young room's desk as flat as a field (TUM
+  // fr1/rpy at twice its rate; docs/mosaic.md).
   int live_min_pictures = 10;
   // With `live`: the live mosaic stops (once, with a warning; `stitch mosaic RUN` still makes one
   // from the records) when its CPU per picture laid exceeds this, over at least 8 pictures: the
