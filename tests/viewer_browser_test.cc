@@ -98,7 +98,9 @@ TEST(ViewerInBrowser, ThePageShowsTheFlightsSubmapsKeyframesPointsAndTrackingSta
   ChildProcess run("run", Bin("stitch"),
                    {"run", "--viewer", "--viewer-port", std::to_string(port), "--out", dir / "run", "--quiet", "--set",
                     "synthetic.flight.num_frames=200", "--set", "synthetic.flight.num_strips=1", "--set",
-                    "synthetic.flight.strip_length_m=230", "--failures", "90:10"},
+                    "synthetic.flight.strip_length_m=230", "--failures", "90:10", "--set",
+                    // its live mosaic from the first pictures, as it is sampled during the flight
+                    "merger.mosaic.live_min_pictures=3"},
                    log);
   const auto said = [&](const std::string& text) {
     std::ifstream in(log);
@@ -251,7 +253,9 @@ TEST(ViewerOnAReplay, ARecordedFlightPlayedBackShowsAsItWasFlown) {
     const testing::CommandResult flight =
         testing::RunProgram({Bin("stitch"), "run", "--lcm-url", url, "--out", dir / "run", "--quiet", "--set",
                              "synthetic.flight.num_frames=200", "--set", "synthetic.flight.num_strips=1", "--set",
-                             "synthetic.flight.strip_length_m=230", "--failures", "90:10"},
+                             "synthetic.flight.strip_length_m=230", "--failures", "90:10", "--set",
+                             // its live mosaic from the first pictures, as it is sampled during the flight
+                             "merger.mosaic.live_min_pictures=3"},
                             240);
     ASSERT_EQ(flight.exit_code, 0) << flight.output;
     std::this_thread::sleep_for(500ms);
