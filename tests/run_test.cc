@@ -827,13 +827,17 @@ TEST(StitchRun, PlacesAFolderOfPhotosOnEarthByTheirExifGpsTags) {
   // A camera's EXIF altitude is above mean sea level: the synthetic fixes' ellipsoidal heights
   // less the geoid's (about 46 m here), which the run adds back.
   const Geoid geoid = Geoid::Egm96();
-  int written = 0;
-  for (const auto& [t_ns, png] : FolderImageTimes(rendered)) {
-    // The fix nearest the photo's time, as a camera triggered by the autopilot tags it.
+  const auto fix_nearest = [&truth_fixes](int64_t t_ns) {
     const GnssFix* nearest = &truth_fixes.fixes.front();
     for (const GnssFix& fix : truth_fixes.fixes) {
       if (std::llabs(fix.t_ns - t_ns) < std::llabs(nearest->t_ns - t_ns)) nearest = &fix;
     }
+    return nearest;
+  };
+  int written = 0;
+  for (const auto& [t_ns, png] : FolderImageTimes(rendered)) {
+    // The fix nearest the photo's time, as a camera triggered by the autopilot tags it.
+    const GnssFix* nearest = fix_nearest(t_ns);
     const std::string jpeg = photos + "/" + std::filesystem::path(png).stem().string() + ".jpg";
     ASSERT_TRUE(cv::imwrite(jpeg, cv::imread(png, cv::IMREAD_UNCHANGED), {cv::IMWRITE_JPEG_QUALITY, 95}));
     GeodeticPoint above_sea_level = nearest->position;
@@ -862,12 +866,7 @@ TEST(StitchRun, PlacesAFolderOfPhotosOnEarthByTheirExifGpsTags) {
     std::stringstream row(line);
     for (std::string f; std::getline(row, f, ',');) field.push_back(f);
     ASSERT_EQ(field.size(), 6u) << line;
-    const int64_t t_ns = std::stoll(field[2]);
-    const GnssFix* nearest = &truth_fixes.fixes.front();
-    for (const GnssFix& fix : truth_fixes.fixes) {
-      if (std::llabs(fix.t_ns - t_ns) < std::llabs(nearest->t_ns - t_ns)) nearest = &fix;
-    }
-    height_errors.push_back(std::abs(std::stod(field[5]) - nearest->position.height_m));
+    height_errors.push_back(std::abs(std::stod(field[5]) - fix_nearest(std::stoll(field[2]))->position.height_m));
   }
   ASSERT_GT(height_errors.size(), 10u);
   std::nth_element(height_errors.begin(), height_errors.begin() + height_errors.size() / 2, height_errors.end());

@@ -45,7 +45,7 @@ double Geoid::HeightAboveEllipsoid(double latitude_deg, double longitude_deg) co
     throw Error("the geoid's height asked for no place on Earth");
   }
   const PJ_COORD at = proj_trans(proj_->transformation, PJ_FWD, proj_coord(longitude_deg, latitude_deg, 0, 0));
-  if (!std::isfinite(at.xyz.z) || at.xyz.z == HUGE_VAL) {
+  if (!std::isfinite(at.xyz.z)) {  // PROJ's HUGE_VAL where it has no grid
     const int error = proj_errno(proj_->transformation);
     proj_errno_reset(proj_->transformation);
     throw Error(std::string("the geoid's height at that place: ") + proj_context_errno_string(proj_->context, error));
