@@ -231,6 +231,38 @@ TEST(TrackingLoss, BackWhereItWasLostTheCameraGoesOnInItsSubmapAtOnce) {
   EXPECT_GE(later->frame_index, 83 + 20) << "lost at frame 82; relocalize_closed_after_frames (20) later";
 }
 
+TEST(TrackingLoss, AFrameTheMotionModelCannotPlaceIsRelocalizedInItsSubmapBeforeItCountsAsUntracked) {
+  // The camera jumps back 95 frames (109 m, beyond the view of the last frame and its reference
+  // keyframe) to ground its submap mapped. The first frame there is untracked (the motion model's
+  // chance matches diverge); the next, with too few matches, is relocalized in the whole submap
+  // (relocalize_untracked): no loss, no new submap.
+  std::vector<int> script;
+  Play(&script, 0, 100);
+  Play(&script, 5, 25);
+  TrackingOptions relocalizing;
+  relocalizing.relocalize_untracked = true;
+  const InlineRun run = RunScript(script, relocalizing);
+  const SubmapId first = run.frames[10].result.submap;
+  EXPECT_EQ(run.frames[101].result.state, TrackingState::kSkipped) << run.frames[101].result.detail;
+  ASSERT_EQ(run.frames[102].result.state, TrackingState::kOk) << run.frames[102].result.detail;
+  EXPECT_TRUE(run.frames[102].result.relocalized);
+  EXPECT_EQ(run.frames[102].result.submap, first);
+  for (size_t i = 102; i < script.size(); ++i) {
+    EXPECT_EQ(run.frames[i].result.state, TrackingState::kOk) << i;
+    EXPECT_EQ(run.frames[i].result.submap, first) << i;
+  }
+  EXPECT_EQ(run.submaps, 1);
+  const Evaluation evaluation = EvaluateScript(script, run.poses);
+  ASSERT_TRUE(evaluation.errors);
+  EXPECT_LT(evaluation.errors->ate_max_m, 0.8) << "the relocalized frames are where the camera was";
+  // Without it the jump loses the camera, and the submap is closed for a new one.
+  TrackingOptions not_relocalizing;
+  not_relocalizing.relocalize_untracked = false;
+  const InlineRun lost = RunScript(script, not_relocalizing);
+  EXPECT_EQ(lost.frames[103].result.state, TrackingState::kLost) << lost.frames[103].result.detail;
+  EXPECT_EQ(lost.submaps, 2);
+}
+
 TEST(TrackingLoss, ACameraThatMovedOnSinceItWasLostStartsANewSubmap) {
   // The blackout lasts while the aircraft flies on about 12 m (10 frames) at some 70 m: the
   // first frame after it still relocalizes in the local map it was lost from, but sees those

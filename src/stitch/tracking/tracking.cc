@@ -376,6 +376,16 @@ void Tracking::TrackInSubmap(Frame frame, Output* output) {
     }
   }
   const double before_keyframe = clock.ElapsedMs();
+  if (!ok && options_.relocalize_untracked && !blurred && frame.size() >= 20 &&
+      result.reason == TrackingReason::kTooFewMatches) {
+    // Not placed from the last frame or the reference keyframe: the whole submap is searched.
+    const TrackingReason reason = result.reason;
+    if (TryRelocalize(&frame, output)) {
+      output->result.timings.keyframe = clock.ElapsedMs() - before_keyframe;
+      return;
+    }
+    result.reason = reason;
+  }
   if (ok) {
     // A frame right after untracked ones does not become a keyframe: its pose is the least sure.
     OnTracked(&frame, output, /*may_make_keyframe=*/consecutive_failures_ == 0);

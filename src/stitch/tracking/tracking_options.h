@@ -60,7 +60,11 @@ struct TrackingOptions {
   int min_inliers = 30;                // tracked points for a frame to count as tracked
   int min_inliers_after_failure = 30;  // ...right after an untracked frame (as ORB-SLAM after relocalization)
   int lost_after_frames = 3;           // consecutive untracked frames that make tracking lost
-  double keyframe_ratio = 0.9;         // new keyframe when the frame tracks fewer than this x reference's points
+  // A frame that neither the motion model nor the reference keyframe places is relocalized in
+  // the whole current submap (bag of words, then PnP) before it counts as untracked: a fast turn
+  // of a handheld camera, not a loss (ORB-SLAM3's "recently lost" state).
+  bool relocalize_untracked = true;
+  double keyframe_ratio = 0.9;  // new keyframe when the frame tracks fewer than this x reference's points
   // ...or this x while the camera moves along its viewing direction (its displacement since the
   // reference keyframe within keyframe_along_axis_max_angle_deg of its optical axis): a forward
   // camera, whose points leave the view at every edge and grow as it nears them, holds a thin
@@ -176,6 +180,9 @@ struct TrackingOptions {
     v("min_inliers_after_failure", min_inliers_after_failure, "tracked points needed right after an untracked frame");
     v("lost_after_frames", lost_after_frames,
       "consecutive untracked frames that make tracking lost (one bad frame is skipped)");
+    v("relocalize_untracked", relocalize_untracked,
+      "a frame the motion model and the reference keyframe cannot place is relocalized in the whole current submap "
+      "before it counts as untracked");
     v("keyframe_ratio", keyframe_ratio,
       "new keyframe when tracking fewer than this fraction of the reference keyframe's points");
     v("keyframe_ratio_along_axis", keyframe_ratio_along_axis,
