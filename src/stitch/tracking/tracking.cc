@@ -376,15 +376,12 @@ void Tracking::TrackInSubmap(Frame frame, Output* output) {
     }
   }
   const double before_keyframe = clock.ElapsedMs();
-  if (!ok && options_.relocalize_untracked && !blurred && frame.size() >= 20 &&
-      result.reason == TrackingReason::kTooFewMatches) {
-    // Not placed from the last frame or the reference keyframe: the whole submap is searched.
-    const TrackingReason reason = result.reason;
-    if (TryRelocalize(&frame, output)) {
-      output->result.timings.keyframe = clock.ElapsedMs() - before_keyframe;
-      return;
-    }
-    result.reason = reason;
+  // Too few matches (a frame with features, not blurred) with the last frame and the reference
+  // keyframe: the whole submap is searched before the frame counts as untracked.
+  if (!ok && options_.relocalize_untracked && result.reason == TrackingReason::kTooFewMatches &&
+      TryRelocalize(&frame, output)) {
+    result.timings.keyframe = clock.ElapsedMs() - before_keyframe;
+    return;
   }
   if (ok) {
     // A frame right after untracked ones does not become a keyframe: its pose is the least sure.
