@@ -376,10 +376,12 @@ void Tracking::TrackInSubmap(Frame frame, Output* output) {
     }
   }
   const double before_keyframe = clock.ElapsedMs();
-  // Too few matches (a frame with features, not blurred) with the last frame and the reference
-  // keyframe: the whole submap is searched before the frame counts as untracked.
-  if (!ok && options_.relocalize_untracked && result.reason == TrackingReason::kTooFewMatches &&
-      TryRelocalize(&frame, output)) {
+  // Too few matches with the last frame and the reference keyframe, or a pose they diverged on
+  // (a frame with features, not blurred): the whole submap is searched before the frame counts
+  // as untracked.
+  const bool placeable =
+      result.reason == TrackingReason::kTooFewMatches || result.reason == TrackingReason::kPoseDiverged;
+  if (!ok && options_.relocalize_untracked && placeable && TryRelocalize(&frame, output)) {
     result.timings.keyframe = clock.ElapsedMs() - before_keyframe;
     return;
   }
