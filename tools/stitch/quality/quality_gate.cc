@@ -188,8 +188,9 @@ QualityMatrix LoadQualityMatrix(const std::string& path) {
           c.repeats = item.second.as<int>();
         } else if (key == "start_frames") {
           c.start_frames = item.second.as<std::vector<int>>();
-        } else if (key == "expect") {
-          for (const auto& e : item.second) c.expect[e.first.as<std::string>()] = e.second.as<double>();
+        } else if (key == "expect" || key == "expect_worst") {
+          std::map<std::string, double>& expect = key == "expect" ? c.expect : c.expect_worst;
+          for (const auto& e : item.second) expect[e.first.as<std::string>()] = e.second.as<double>();
         } else if (key == "tolerance") {
           continue;  // read below, over the defaults
         } else {
@@ -214,9 +215,14 @@ QualityMatrix LoadQualityMatrix(const std::string& path) {
         throw Error("case '" + c.name +
                     "': `render` makes the clip that `run` plays as ${rendered}; give both or neither");
       }
-      for (const auto& [figure, value] : c.expect) {
-        if (!KnownFigure(figure)) throw Error("case '" + c.name + "': unknown figure '" + figure + "'");
-        if (!matrix.tolerance.count(figure)) throw Error("case '" + c.name + "': no tolerance for '" + figure + "'");
+      if (!c.expect_worst.empty() && c.start_frames.empty()) {
+        throw Error("case '" + c.name + "': expect_worst is the worst start's: it needs start_frames");
+      }
+      for (const auto* expect : {&c.expect, &c.expect_worst}) {
+        for (const auto& [figure, value] : *expect) {
+          if (!KnownFigure(figure)) throw Error("case '" + c.name + "': unknown figure '" + figure + "'");
+          if (!matrix.tolerance.count(figure)) throw Error("case '" + c.name + "': no tolerance for '" + figure + "'");
+        }
       }
       // A case's own tolerances start from the defaults.
       for (const auto& item : node["tolerance"]) {
@@ -257,7 +263,8 @@ void SaveQualityMatrix(const QualityMatrix& matrix, const std::string& path) {
          "# case plays as ${rendered} (rendered first); `alone`: nothing runs beside it (CPU, real\n"
          "# time, link timing); `ci`: in the subset ctest runs; `repeats`: runs of a case that varies\n"
          "# run to run (real time), checked on their median and on their worst; `start_frames`: one\n"
-         "# run from each of these frames (--start-frame), checked the same way.\n";
+         "# run from each of these frames (--start-frame), the median held to `expect` and the worst\n"
+         "# start to `expect_worst`.\n";
   out << "tolerance:\n";
   for (const auto& [figure, t] : matrix.tolerance) out << "  " << figure << ": " << tolerance_text(t) << "\n";
   out << "cases:\n";
@@ -285,17 +292,20 @@ void SaveQualityMatrix(const QualityMatrix& matrix, const std::string& path) {
       out << "    tolerance:\n";
       for (const auto& [figure, t] : c.tolerance) out << "      " << figure << ": " << tolerance_text(t) << "\n";
     }
-    if (!c.expect.empty()) {
-      out << "    expect: {";
+    const auto write_expect = [&](const char* key, const std::map<std::string, double>& expect) {
+      if (expect.empty()) return;
+      out << "    " << key << ": {";
       bool first = true;
       for (const Figure& f : kFigures) {
-        const auto it = c.expect.find(f.key);
-        if (it == c.expect.end()) continue;
+        const auto it = expect.find(f.key);
+        if (it == expect.end()) continue;
         out << (first ? "" : ", ") << f.key << ": " << FormatFigure(f.key, it->second);
         first = false;
       }
       out << "}\n";
-    }
+    };
+    write_expect("expect", c.expect);
+    write_expect("expect_worst", c.expect_worst);
   }
   WriteFileAtomically(path, out.str());
 }
@@ -404,20 +414,22 @@ const Tolerance* FindTolerance(const QualityMatrix& matrix, const QualityCase& c
 }  // namespace
 
 std::vector<Regression> CheckCase(const QualityMatrix& matrix, const QualityCase& c,
-                                  const std::map<std::string, double>& measured, const std::set<std::string>& only) {
+                                  const std::map<std::string, double>& measured, const std::set<std::string>& only,
+                                  bool worst_run) {
   std::vector<Regression> regressions;
-  for (const auto& [figure, expected] : c.expect) {
+  const std::map<std::string, double>& expect = worst_run && !c.expect_worst.empty() ? c.expect_worst : c.expect;
+  for (const auto& [figure, expected] : expect) {
     if (!only.empty() && !only.count(figure)) continue;
     const Tolerance& t = *FindTolerance(matrix, c, figure);  // LoadQualityMatrix holds every expectation to one
     const double slack = t.relative * std::abs(expected) + t.absolute;
     const double limit = t.higher_is_better ? expected - slack : expected + slack;
     const auto it = measured.find(figure);
     if (it == measured.end()) {
-      regressions.push_back({figure, NAN, expected, limit});
+      regressions.push_back({figure, NAN, expected, limit, worst_run});
       continue;
     }
     const bool worse = t.higher_is_better ? it->second < limit : it->second > limit;
-    if (worse) regressions.push_back({figure, it->second, expected, limit});
+    if (worse) regressions.push_back({figure, it->second, expected, limit, worst_run});
   }
   return regressions;
 }
@@ -562,10 +574,7 @@ void PrintTable(const std::vector<Result>& results, bool markdown, std::FILE* ou
 std::vector<Regression> CheckResult(const QualityMatrix& matrix, const Result& r, const std::set<std::string>& only) {
   std::vector<Regression> regressions = CheckCase(matrix, *r.c, r.figures, only);
   if (r.worst.empty()) return regressions;
-  for (Regression g : CheckCase(matrix, *r.c, r.worst, only)) {
-    g.worst_run = true;
-    regressions.push_back(g);
-  }
+  for (const Regression& g : CheckCase(matrix, *r.c, r.worst, only, /*worst_run=*/true)) regressions.push_back(g);
   return regressions;
 }
 
@@ -839,11 +848,15 @@ int QualityCommand(int argc, char** argv) {
         if (r.skipped || r.failed) continue;
         for (QualityCase& c : matrix.cases) {
           if (c.name != r.c->name) continue;
-          for (const auto& [figure, value] : r.figures) {
-            if (matrix.tolerance.count(figure) && (figures.empty() || figures.count(figure))) {
-              c.expect[figure] = value;
+          const auto record = [&](const std::map<std::string, double>& measured,
+                                  std::map<std::string, double>* expect) {
+            for (const auto& [figure, value] : measured) {
+              if (matrix.tolerance.count(figure) && (figures.empty() || figures.count(figure)))
+                (*expect)[figure] = value;
             }
-          }
+          };
+          record(r.figures, &c.expect);
+          if (!c.start_frames.empty()) record(r.worst, &c.expect_worst);  // the worst start: a figure of its own
         }
       }
       SaveQualityMatrix(matrix, expected_path);

@@ -38,7 +38,10 @@ struct QualityCase {
   // Each run from one of these frames (`--start-frame`; repeats is their number): how much where
   // the map starts decides, checked on the median and the worst start.
   std::vector<int> start_frames;
-  std::map<std::string, double> expect;        // figure -> expected value
+  std::map<std::string, double> expect;  // figure -> expected value
+  // With start_frames: the worst start's expected figures (a start is not a run that varies: the
+  // worst is its own figure); without, a repeated case's worst run is held to `expect`.
+  std::map<std::string, double> expect_worst;
   std::map<std::string, Tolerance> tolerance;  // this case's own slack (over the defaults)
 };
 
@@ -69,9 +72,11 @@ struct Regression {
 };
 // Every expected figure of `c` outside its tolerance (missing figures count: a case that used to
 // have an ATE and now has none has regressed); only the figures in `only` when it is not empty.
+// `worst_run`: `measured` is a repeated case's worst run, held to `expect_worst` where the case
+// has one.
 std::vector<Regression> CheckCase(const QualityMatrix& matrix, const QualityCase& c,
-                                  const std::map<std::string, double>& measured,
-                                  const std::set<std::string>& only = {});
+                                  const std::map<std::string, double>& measured, const std::set<std::string>& only = {},
+                                  bool worst_run = false);
 
 // A case run several times: per figure, the median over the runs that have it (absent when most
 // lack it) and the worst run's value, the worse way of its tolerance (absent when any run lacks it;

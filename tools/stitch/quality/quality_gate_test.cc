@@ -106,7 +106,8 @@ TEST(QualityGate, ACaseThatRendersItsClipPlaysItAndSaysHowToMakeIt) {
 }
 
 // A case run from several start frames (where a rotating camera's map starts decides much):
-// one run from each, `--start-frame` added, checked on the median and the worst like repeats.
+// one run from each, `--start-frame` added, checked on the median and on the worst start, each
+// against its own expectation.
 TEST(QualityGate, ACaseFromSeveralStartFramesRunsOnceFromEach) {
   testing::TempDir dir;
   const QualityMatrix matrix =
@@ -121,6 +122,31 @@ TEST(QualityGate, ACaseFromSeveralStartFramesRunsOnceFromEach) {
             "build/bin/stitch run --failures none --start-frame 0  # and with --start-frame 8, 16");
   SaveQualityMatrix(matrix, dir / "again.yaml");
   EXPECT_EQ(LoadQualityMatrix(dir / "again.yaml").cases[0].start_frames, starts.start_frames);
+  // The worst start is a figure of its own (no run-to-run noise): held to expect_worst.
+  const QualityMatrix expected =
+      WriteAndLoad(dir,
+                   "tolerance:\n  frames_in_largest_map: {relative: 0.02, absolute: 2, better: higher}\ncases:\n"
+                   "  - name: starts\n    start_frames: [0, 8, 16]\n    expect: {frames_in_largest_map: 679}\n"
+                   "    expect_worst: {frames_in_largest_map: 633}\n");
+  const QualityCase& held = expected.cases[0];
+  const std::map<std::string, double> worst_start = {{"frames_in_largest_map", 633}};
+  EXPECT_TRUE(CheckCase(expected, held, worst_start, {}, /*worst_run=*/true).empty());
+  EXPECT_EQ(CheckCase(expected, held, worst_start).size(), 1u) << "the median's expectation would fail it";
+  const auto fell = CheckCase(expected, held, {{"frames_in_largest_map", 600}}, {}, /*worst_run=*/true);
+  ASSERT_EQ(fell.size(), 1u);
+  EXPECT_TRUE(fell[0].worst_run);
+  EXPECT_NE(fell[0].Describe().find("worst run: frames_in_largest_map 600, expected 633"), std::string::npos)
+      << fell[0].Describe();
+  SaveQualityMatrix(expected, dir / "again.yaml");
+  EXPECT_EQ(LoadQualityMatrix(dir / "again.yaml").cases[0].expect_worst, held.expect_worst);
+  try {
+    WriteAndLoad(dir,
+                 "tolerance:\n  ate_m: {relative: 0, absolute: 0, better: lower}\ncases:\n  - name: a\n"
+                 "    expect_worst: {ate_m: 1}\n");
+    ADD_FAILURE() << "expect_worst without start_frames accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("needs start_frames"), std::string::npos) << e.what();
+  }
   try {
     WriteAndLoad(dir, "tolerance: {}\ncases:\n  - name: a\n    start_frames: [0, 8]\n    repeats: 3\n");
     ADD_FAILURE() << "repeats beside start_frames accepted";
