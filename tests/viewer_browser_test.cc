@@ -149,11 +149,25 @@ TEST(ViewerInBrowser, ThePageShowsTheFlightsSubmapsKeyframesPointsAndTrackingSta
   EXPECT_GE(Number(data, "drawn-pixels"), 2000) << "the canvas drew nothing";
   EXPECT_NE(dom.output.find("<td id=\"merged-count\">1</td>"), std::string::npos) << "the two submaps merged";
   EXPECT_EQ(ConsoleLines(dom.output), "");
+  // #42: the flight's GNSS fixes place its map on Earth: the view shows north and a scale in
+  // metres (a 230 m strip framed whole in 800 pixels: a bar of some metres to some tens of them).
+  std::smatch scale;
+  ASSERT_TRUE(std::regex_search(dom.output, scale, std::regex("id=\"scale-label\">([0-9.]+) (m|km|cm)<")))
+      << "no scale on the page";
+  EXPECT_EQ(dom.output.find("<div id=\"earth\" hidden"), std::string::npos) << "north and the scale are hidden";
+  const double scale_metres = std::atof(data.count("scale-metres") ? data.at("scale-metres").c_str() : "-1");
+  EXPECT_EQ(scale[2], "m");
+  EXPECT_DOUBLE_EQ(std::atof(scale[1].str().c_str()), scale_metres);
+  EXPECT_GE(scale_metres, 5.0);
+  EXPECT_LE(scale_metres, 200.0);
+  EXPECT_EQ(data.count("north-deg"), 1u) << "no north arrow";
 
   // The mosaic view: tiles during the flight, more once it ended, drawn, without a console line.
   const testing::CommandResult mosaic = testing::RunProgram(Chromium(url + "#mosaic", {"--dump-dom"}), 90);
   const auto mosaic_after = BodyData(mosaic.output);
   EXPECT_EQ(mosaic_after.count("view") ? mosaic_after.at("view") : "", "mosaic");
+  EXPECT_GT(std::atof(mosaic_after.count("scale-metres") ? mosaic_after.at("scale-metres").c_str() : "-1"), 0.0)
+      << "no scale over the mosaic";
   EXPECT_GE(Number(mosaic_during, "mosaic-tiles"), 1) << "no tile on the page during the flight";
   EXPECT_GT(Number(mosaic_after, "mosaic-tiles"), Number(mosaic_during, "mosaic-tiles"))
       << "the mosaic did not grow as the flight went on";

@@ -228,9 +228,20 @@ TEST(LcmTypes, MapMessagesRoundTrip) {
   pose.world_from_cam = Sim(1.0);
   global.trajectory = {pose, pose};
   global.num_poses = 2;
+  stitch::map_on_earth_t on_earth{};
+  on_earth.component = 0;
+  on_earth.enu_from_world = Sim(3.5);
+  on_earth.origin_latitude_deg = 47.4;
+  on_earth.inlier_fixes = 120;
+  global.on_earth = {on_earth};
+  global.num_on_earth = 1;
   const auto g = RoundTrip(global);
   EXPECT_DOUBLE_EQ(g.edges[0].strength, 12.5);
   EXPECT_DOUBLE_EQ(g.submaps[0].world_from_submap.scale, 2.0);
+  ASSERT_EQ(g.num_on_earth, 1);
+  EXPECT_DOUBLE_EQ(g.on_earth[0].enu_from_world.scale, 3.5);
+  EXPECT_DOUBLE_EQ(g.on_earth[0].origin_latitude_deg, 47.4);
+  EXPECT_EQ(g.on_earth[0].inlier_fixes, 120);
 }
 
 TEST(LcmTypes, KeyframeOfAThousandFeaturesIsAbout42kB) {

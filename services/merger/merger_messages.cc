@@ -9,7 +9,7 @@ namespace stitch {
 stitch::global_map_t ToGlobalMapMessage(const Merger::Graph& graph, const std::map<SubmapId, SubmapReplica>& submaps,
                                         const std::map<SubmapId, std::string>& agent_of,
                                         const std::string& default_agent, const std::vector<MergeLogRecord>& log,
-                                        size_t log_lines) {
+                                        size_t log_lines, const std::optional<GeodeticPoint>& enu_origin) {
   stitch::global_map_t m{};
   for (const auto& [id, placement] : graph.placement) {
     const SubmapReplica& replica = submaps.at(id);
@@ -60,6 +60,20 @@ stitch::global_map_t ToGlobalMapMessage(const Merger::Graph& graph, const std::m
     m.merge_log.push_back(r.event + "\t" + r.current_map + "\t" + r.unconnected + "\t" + r.merged_maps);
   }
   m.num_log_lines = static_cast<int32_t>(m.merge_log.size());
+  if (enu_origin) {
+    for (const auto& [component, on_earth] : graph.on_earth) {
+      stitch::map_on_earth_t placed{};
+      placed.component = component;
+      placed.enu_from_world = ToMessage(on_earth.enu_from_world);
+      placed.origin_latitude_deg = enu_origin->latitude_deg;
+      placed.origin_longitude_deg = enu_origin->longitude_deg;
+      placed.origin_height_m = enu_origin->height_m;
+      placed.inlier_fixes = on_earth.inlier_fixes;
+      placed.horizontal_rms_m = on_earth.horizontal_rms_m;
+      m.on_earth.push_back(placed);
+    }
+  }
+  m.num_on_earth = static_cast<int32_t>(m.on_earth.size());
   return m;
 }
 

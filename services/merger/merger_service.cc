@@ -230,8 +230,9 @@ void MergerService::Refine(const std::string& why) {
 }
 
 void MergerService::PublishGlobalMap(const Merger::Graph& graph) {
-  stitch::global_map_t m = ToGlobalMapMessage(graph, session_.merger().submaps(), session_.agent_of(),
-                                              publisher_->agent(), session_.merge_log(), kGlobalMapLogLines);
+  stitch::global_map_t m =
+      ToGlobalMapMessage(graph, session_.merger().submaps(), session_.agent_of(), publisher_->agent(),
+                         session_.merge_log(), kGlobalMapLogLines, session_.gnss_origin());
   m.revision = ++revision_;
   publisher_->Publish(bus::Channel(publisher_->agent(), bus::kGlobalMap), &m);
 }

@@ -8,6 +8,7 @@
 #include <nlohmann/json.hpp>
 
 #include "services/common/convert.h"
+#include "stitch/geo/geodetic.h"
 #include "stitch/util/error.h"
 #include "stitch/util/ids.h"
 #include "stitch/util/statistics.h"
@@ -57,6 +58,14 @@ bool ViewerState::OnGlobalMap(const stitch::global_map_t& message, std::string* 
       placement[p.submap_id] = {p.component, FromMessage(p.world_from_submap)};
     }
     for (const stitch::trajectory_pose_t& p : message.trajectory) FromMessage(p.world_from_cam);
+    for (const stitch::map_on_earth_t& e : message.on_earth) {
+      FromMessage(e.enu_from_world);
+      if (e.component < 0) return Refuse(why, "a place on Earth for no merged map");
+      if (!WhyNotOnEarth({e.origin_latitude_deg, e.origin_longitude_deg, e.origin_height_m}).empty() ||
+          !(e.horizontal_rms_m >= 0 && e.horizontal_rms_m < 1e6)) {
+        return Refuse(why, "a merged map's place on Earth has no origin on Earth or no accuracy");
+      }
+    }
   } catch (const Error& e) {
     return Refuse(why, e.what());
   }
@@ -369,6 +378,24 @@ std::string ViewerState::MapJson() const {
     }
     for (const std::string& line : global_map_->merge_log) log.push_back(line);
   }
+  // Where the fixes place each merged map: metres per unit of its frame, and east, north and up
+  // in its frame (the page's scale bar and north arrow).
+  nlohmann::json on_earth = nlohmann::json::array();
+  if (global_map_) {
+    for (const stitch::map_on_earth_t& e : global_map_->on_earth) {
+      const Sim3d enu_from_world = FromMessage(e.enu_from_world);  // checked on arrival
+      const Eigen::Matrix3d world_from_enu = enu_from_world.rotation.conjugate().toRotationMatrix();
+      on_earth.push_back({{"component", e.component},
+                          {"metres_per_unit", enu_from_world.scale},
+                          {"east", Vector(world_from_enu.col(0))},
+                          {"north", Vector(world_from_enu.col(1))},
+                          {"up", Vector(world_from_enu.col(2))},
+                          {"origin", {e.origin_latitude_deg, e.origin_longitude_deg, e.origin_height_m}},
+                          {"fixes", e.inlier_fixes},
+                          {"horizontal_rms_m", e.horizontal_rms_m}});
+    }
+  }
+  map["on_earth"] = on_earth;
   map["submaps"] = submaps;
   map["edges"] = edges;
   map["merge_log"] = log;

@@ -12,6 +12,7 @@
 #include <cmath>
 #include <cstring>
 #include <filesystem>
+#include <functional>
 #include <limits>
 #include <string>
 #include <thread>
@@ -184,6 +185,60 @@ TEST(ViewerState, AGnssJunctionIsShownAsOne) {
   EXPECT_TRUE(shown["edges"][1]["tree"]);
   EXPECT_DOUBLE_EQ(shown["edges"][1]["gnss_sigma_m"].get<double>(), 0.72);
   EXPECT_DOUBLE_EQ(shown["edges"][0]["gnss_sigma_m"].get<double>(), 0.0);
+}
+
+// #42: where the fixes place a merged map, as the page's scale bar and north arrow need it.
+stitch::map_on_earth_t OnEarth(const Sim3d& enu_from_world) {
+  stitch::map_on_earth_t e{};
+  e.component = 0;
+  e.enu_from_world = ToMessage(enu_from_world);
+  e.origin_latitude_deg = 47.39;
+  e.origin_longitude_deg = 8.51;
+  e.origin_height_m = 450;
+  e.inlier_fixes = 240;
+  e.horizontal_rms_m = 1.9;
+  return e;
+}
+
+TEST(ViewerState, AMapOnEarthGivesItsMetresAndItsNorth) {
+  ViewerState state(1000);
+  std::string why;
+  stitch::global_map_t map = GlobalMap();
+  ASSERT_TRUE(state.OnGlobalMap(map, &why)) << why;
+  EXPECT_TRUE(nlohmann::json::parse(state.MapJson())["on_earth"].empty()) << "no fixes, nothing on Earth";
+  // A camera frame (x east, y south, z down) 25 m per map unit: the map's -y is north, -z up.
+  map.revision = 2;
+  map.on_earth = {OnEarth(Sim3d(25.0, Eigen::Quaterniond(Eigen::Vector3d(1, -1, -1).asDiagonal().toDenseMatrix()),
+                                Eigen::Vector3d(3, 4, 5)))};
+  map.num_on_earth = 1;
+  ASSERT_TRUE(state.OnGlobalMap(map, &why)) << why;
+  const nlohmann::json shown = nlohmann::json::parse(state.MapJson());
+  ASSERT_EQ(shown["on_earth"].size(), 1u);
+  const nlohmann::json& earth = shown["on_earth"][0];
+  EXPECT_EQ(earth["component"], 0);
+  EXPECT_DOUBLE_EQ(earth["metres_per_unit"].get<double>(), 25.0);
+  const auto near = [](const nlohmann::json& v, const Eigen::Vector3d& expected) {
+    return (Eigen::Vector3d(v[0].get<double>(), v[1].get<double>(), v[2].get<double>()) - expected).norm() < 1e-9;
+  };
+  EXPECT_TRUE(near(earth["east"], {1, 0, 0})) << earth.dump();
+  EXPECT_TRUE(near(earth["north"], {0, -1, 0})) << earth.dump();
+  EXPECT_TRUE(near(earth["up"], {0, 0, -1})) << earth.dump();
+  EXPECT_DOUBLE_EQ(earth["origin"][0].get<double>(), 47.39);
+  EXPECT_EQ(earth["fixes"], 240);
+
+  // A place on Earth that is none is refused, the map shown before kept.
+  for (const auto& spoil : std::vector<std::function<void(stitch::map_on_earth_t*)>>{
+           [](stitch::map_on_earth_t* e) { e->enu_from_world.scale = 0; },
+           [](stitch::map_on_earth_t* e) { e->origin_latitude_deg = 91; },
+           [](stitch::map_on_earth_t* e) { e->horizontal_rms_m = std::numeric_limits<double>::quiet_NaN(); },
+           [](stitch::map_on_earth_t* e) { e->component = -1; }}) {
+    stitch::global_map_t bad = map;
+    bad.revision = 3;
+    spoil(&bad.on_earth[0]);
+    EXPECT_FALSE(state.OnGlobalMap(bad, &why));
+  }
+  EXPECT_EQ(state.refused(), 4);
+  EXPECT_EQ(nlohmann::json::parse(state.MapJson())["on_earth"].size(), 1u);
 }
 
 // A PNG tile_px a side, as the merger sends a mosaic tile.

@@ -44,6 +44,7 @@
   scene.add(frustum);
 
   let map = null;           // the last map update
+  let earth = null;         // where the fixes place the largest merged map (map.on_earth), or null
   let live = null;          // the last live update
   let offsets = {};         // merged map (component) -> THREE.Vector3 that sets it apart
   let up = new THREE.Vector3(0, -1, 0);  // the map's up (the normal of the plane of motion)
@@ -77,6 +78,11 @@
   // The plane of the motion: the smallest principal axis of the keyframe positions is up
   // (a survey flies over a plane; a handheld camera walks on one).
   function estimateUp() {
+    if (earth) {  // placed on Earth: up is up
+      up = new THREE.Vector3(earth.up[0], earth.up[1], earth.up[2]).normalize();
+      camera.up.copy(up);
+      return;
+    }
     const samples = [];
     if (map) for (const s of map.submaps) if (s.component === 0) for (const q of s.trajectory) samples.push(q);
     if (samples.length < 3) return;
@@ -487,6 +493,7 @@
       if (aircraft) extend(aircraft[0], aircraft[1]);
       if (x1 > x0 && y1 > y0) {
         const scale = 0.94 * Math.min(width / (x1 - x0), height / (y1 - y0));
+        mosaicFrame = { ground_from_map: g, gsd: m.gsd, scale: scale };
         const ox = 0.5 * (width - scale * (x1 - x0)) - scale * x0, oy = 0.5 * (height - scale * (y1 - y0)) - scale * y0;
         c.imageSmoothingEnabled = true;
         for (const t of tiles.values()) {
@@ -518,6 +525,7 @@
         }
       }
     }
+    updateEarth();
     body.dataset.mosaicTiles = String(shown);
     // From a picture's sending on the aircraft to its tile at the viewer: the median so far.
     body.dataset.mosaicLatency = m && m.latency_median_s >= 0 ? m.latency_median_s.toFixed(2) : '';
@@ -555,6 +563,61 @@
     if (on) requestMosaicDraw();
   }
 
+  // --- North and the scale in metres, where the fixes place the largest merged map -------------
+  let mosaicFrame = null;  // the mosaic view as drawn last: its ground_from_map and canvas pixels per mosaic pixel
+
+  // The longest round length (1, 2 or 5 times a power of ten) of at most `metres`.
+  function roundLength(metres) {
+    const power = Math.pow(10, Math.floor(Math.log10(metres)));
+    for (const f of [5, 2, 1]) if (f * power <= metres) return f * power;
+    return power;
+  }
+
+  function lengthText(metres) {
+    if (metres >= 1000) return String(metres / 1000) + ' km';
+    if (metres >= 1) return String(metres) + ' m';
+    return String(Math.round(metres * 100)) + ' cm';
+  }
+
+  // Map units per CSS pixel at the view's centre, and north's direction on the screen (degrees
+  // clockwise from up), in the view shown.
+  function viewScale(north) {
+    if (showMosaic) {
+      if (!mosaicFrame) return null;
+      const g = mosaicFrame.ground_from_map, ratio = window.devicePixelRatio || 1;
+      const n = rotate(g.rotation_wxyz, north);
+      return { unitsPerPixel: ratio * mosaicFrame.gsd / (g.scale * mosaicFrame.scale),
+               northDeg: Math.atan2(n[0], n[1]) * 180 / Math.PI };
+    }
+    const height = Math.max(1, canvas.clientHeight), width = Math.max(1, canvas.clientWidth);
+    const distance = camera.position.distanceTo(controls.target);
+    const unitsPerPixel = 2 * distance * Math.tan(camera.fov * Math.PI / 360) / height;
+    const a = controls.target.clone().project(camera);
+    const b = controls.target.clone().add(new THREE.Vector3(north[0], north[1], north[2]).multiplyScalar(0.05 * distance)).project(camera);
+    const dx = (b.x - a.x) * width / 2, dy = -(b.y - a.y) * height / 2;  // screen pixels, y down
+    return { unitsPerPixel: unitsPerPixel, northDeg: Math.atan2(dx, -dy) * 180 / Math.PI };
+  }
+
+  function updateEarth() {
+    const box = document.getElementById('earth');
+    const shown = earth && viewScale(earth.north);
+    if (!shown || !(shown.unitsPerPixel > 0) || !isFinite(shown.unitsPerPixel)) {
+      box.hidden = true;
+      delete body.dataset.scaleMetres;
+      return;
+    }
+    const metresPerPixel = shown.unitsPerPixel * earth.metres_per_unit;
+    const metres = roundLength(120 * metresPerPixel);
+    const text = lengthText(metres);
+    box.hidden = false;
+    document.getElementById('scale-line').style.width = (metres / metresPerPixel).toFixed(1) + 'px';
+    const label = document.getElementById('scale-label');
+    if (label.textContent !== text) label.textContent = text;
+    document.getElementById('north-arrow').setAttribute('transform', 'rotate(' + shown.northDeg.toFixed(1) + ')');
+    body.dataset.scaleMetres = String(metres);  // for tests
+    body.dataset.northDeg = shown.northDeg.toFixed(0);
+  }
+
   // --- Updates -------------------------------------------------------------------------------
   function applyLive(update) {
     live = update;
@@ -565,6 +628,7 @@
 
   function applyMap(update) {
     map = update;
+    earth = (map.on_earth || []).find((e) => e.component === 0) || null;
     estimateUp();
     layoutComponents();
     rebuildTrajectories();
@@ -686,6 +750,7 @@
       resize();
       controls.update();
       renderer.render(scene, camera);
+      updateEarth();
     }
     noteFrame(time);
     window.requestAnimationFrame(frame);
@@ -696,6 +761,7 @@
     if (showMosaic) return;
     resize();
     renderer.render(scene, camera);
+    updateEarth();
     countDrawnPixels();
   }
   window.requestAnimationFrame(frame);

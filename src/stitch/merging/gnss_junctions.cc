@@ -143,4 +143,19 @@ GnssJoining JoinByGnss(const std::map<SubmapId, SubmapReplica>& submaps,
   return joining;
 }
 
+std::map<int, MergedMapOnEarth> MapsOnEarth(const std::map<SubmapId, GeoPlacement>& placements,
+                                            const std::map<SubmapId, SubmapPlacement>& placement) {
+  std::map<int, MergedMapOnEarth> on_earth;
+  for (const auto& [root, geo] : placements) {
+    const auto place = placement.find(root);
+    if (!geo.placed || place == placement.end()) continue;
+    const auto known = on_earth.find(place->second.component);
+    if (known != on_earth.end() && known->second.inlier_fixes >= geo.inliers) continue;
+    // The part's frame is its root's; the merged map places that submap at world_from_submap.
+    on_earth[place->second.component] = {geo.enu_from_map * place->second.world_from_submap.Inverse(), geo.inliers,
+                                         geo.horizontal_rms_m};
+  }
+  return on_earth;
+}
+
 }  // namespace stitch

@@ -40,4 +40,17 @@ GnssJoining JoinByGnss(const std::map<SubmapId, SubmapReplica>& submaps,
                        const std::map<SubmapId, SubmapPlacement>& placement, const SubmapFixes& fixes,
                        const GeoReferenceOptions& options);
 
+// Where a merged map lies in the ENU frame of the fixes.
+struct MergedMapOnEarth {
+  Sim3d enu_from_world;  // the merged map's frame into ENU: its scale is metres per map unit
+  int inlier_fixes = 0;
+  double horizontal_rms_m = 0.0;
+};
+// Each merged map (by component, as `placement` joins the submaps now, GNSS junctions included)
+// that a placement by the fixes (GnssJoining::placements, by the root of the map views joined)
+// puts on Earth: the placement of the part with the most inlier fixes, carried into the merged
+// map's frame.
+std::map<int, MergedMapOnEarth> MapsOnEarth(const std::map<SubmapId, GeoPlacement>& placements,
+                                            const std::map<SubmapId, SubmapPlacement>& placement);
+
 }  // namespace stitch

@@ -133,6 +133,45 @@ TEST(JoinByGnss, AViewJoinedMapIsPlacedAsOneAndJoinedOnce) {
   EXPECT_LT(HorizontalRmsM(flight, PlaceSubmaps(Sizes(flight), tree), joining), 0.6);
 }
 
+TEST(JoinByGnss, AMergedMapLiesOnEarthWhereThePlacementOfAnyOfItsPartsPutsIt) {
+  const Flight flight = MakeFlight();
+  SubmapEdge seen;  // A and B share views; C is joined by GNSS
+  seen.a = kA;
+  seen.b = kB;
+  seen.b_from_a = flight.submap_from_enu.at(kB) * flight.submap_from_enu.at(kA).Inverse();
+  const std::map<SubmapId, SubmapPlacement> by_views = PlaceSubmaps(Sizes(flight), {seen});
+  GnssJoining joining = JoinByGnss(flight.submaps, by_views, flight.fixes, GeoReferenceOptions());
+  ASSERT_EQ(joining.junctions.size(), 1u);
+  const std::map<SubmapId, SubmapPlacement> joined = PlaceSubmaps(Sizes(flight), {seen, joining.junctions[0]});
+  const SubmapId root = joined.at(kC).root;
+  ASSERT_NE(root, kC);
+  // A's and B's map has twice C's fixes: it places the whole; without it, C's own placement does,
+  // carried through C's place in the merged map.
+  for (const bool with_the_larger_part : {true, false}) {
+    std::map<SubmapId, GeoPlacement> placements = joining.placements;
+    if (!with_the_larger_part) placements.erase(by_views.at(kA).root);
+    const std::map<int, MergedMapOnEarth> on_earth = MapsOnEarth(placements, joined);
+    ASSERT_EQ(on_earth.size(), 1u);
+    const MergedMapOnEarth& map = on_earth.at(0);
+    EXPECT_EQ(map.inlier_fixes, placements.begin()->second.inliers);
+    // Metres per unit of the merged map's frame: its root's scale against the truth's.
+    EXPECT_NEAR(map.enu_from_world.scale * flight.submap_from_enu.at(root).scale, 1.0, 0.01);
+    double sum = 0;
+    int n = 0;
+    for (const auto& [id, replica] : flight.submaps) {
+      for (const auto& [keyframe_id, keyframe] : replica.map.keyframes()) {
+        const Eigen::Vector3d enu = map.enu_from_world * (joined.at(id).world_from_submap * keyframe.Centre());
+        sum += (enu - TruePosition(static_cast<double>(keyframe.t_ns) * 1e-9)).head<2>().squaredNorm();
+        ++n;
+      }
+    }
+    EXPECT_LT(std::sqrt(sum / n), 0.8) << (with_the_larger_part ? "A and B's placement" : "C's placement");
+  }
+  // A part whose fixes placed nothing puts nothing on Earth.
+  for (auto& [id, geo] : joining.placements) geo.placed = false;
+  EXPECT_TRUE(MapsOnEarth(joining.placements, joined).empty());
+}
+
 TEST(JoinByGnss, AMapWithTooFewFixesStaysApartAndSaysWhy) {
   const Flight flight = MakeFlight(/*c_fixes_s=*/1.0);  // 5 fixes over C
   const std::map<SubmapId, SubmapPlacement> apart = PlaceSubmaps(Sizes(flight), {});

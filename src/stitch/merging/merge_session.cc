@@ -314,6 +314,12 @@ bool MergeSession::AddFramePose(const std::string& agent, const TrackedFramePose
   return true;
 }
 
+std::optional<GeodeticPoint> MergeSession::gnss_origin() const {
+  std::lock_guard<std::mutex> lock(gnss_mutex_);
+  if (!gnss_plane_) return std::nullopt;
+  return gnss_plane_->origin();
+}
+
 bool MergeSession::AddGnssFix(const std::string& agent, const GnssFix& fix, std::string* why) {
   if (const std::string wrong = WhyNotAFix(fix); !wrong.empty()) {
     *why = wrong;

@@ -82,6 +82,9 @@ class MergeSession {
   // several aircraft) with the records. Refuses (false, with why) a fix that is no place on Earth
   // or states no accuracy, and fixes beyond 10 hours at 10 Hz; thread-safe.
   bool AddGnssFix(const std::string& agent, const GnssFix& fix, std::string* why);
+  // The origin of the ENU frame the fixes join and place the maps in (Merger::Graph::on_earth):
+  // the first usable fix received; nullopt before it. Thread-safe.
+  std::optional<GeodeticPoint> gnss_origin() const;
   // A keyframe's picture the aircraft sent (merger.mosaic.live): laid on the live mosaic at its
   // next update. Refuses (false, with why) pictures beyond 10,000 waiting; thread-safe.
   bool AddKeyframePicture(const KeyframePicture& picture, std::string* why);

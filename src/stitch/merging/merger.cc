@@ -545,6 +545,7 @@ Merger::Graph Merger::Solve(bool refine, const SubmapFixes& gnss) const {
       graph.placement = PlaceSubmaps(keyframes, graph.tree);
       for (auto& [id, place] : graph.placement) place.anchor = by_views.at(id).root;
     }
+    graph.on_earth = MapsOnEarth(joining.placements, graph.placement);
   }
   if (refine) graph.keyframe_poses = RefineKeyframePoses(graph.placement, &graph);
   return graph;

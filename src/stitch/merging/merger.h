@@ -55,6 +55,8 @@ class Merger {
     int loops_used = 0;  // of those, loops (both ends in one submap)
     // Maps the fixes place but GNSS does not join, by root, and why (GnssJoining::not_joined).
     std::map<SubmapId, std::string> not_joined_by_gnss;
+    // Each merged map the fixes place on Earth, by component (MapsOnEarth).
+    std::map<int, MergedMapOnEarth> on_earth;
   };
   // `gnss`: each submap's fixes, in one ENU frame, to join the merged maps that views leave apart
   // (JoinByGnss); its junctions are then in `edges` and `tree` (EdgeKind::kGnss).
