@@ -97,8 +97,8 @@ void GpsdReceiver::Receive() {
     }
     // Only a TPV report (time, position, velocity) carries a fix; SKY, VERSION, DEVICES do not.
     if (!(data.set & MODE_SET) || std::string(message).find("\"class\":\"TPV\"") == std::string::npos) continue;
+    const int64_t arrived_t_ns = WallClockNs();
     GnssFix fix;
-    fix.t_ns = WallClockNs() - static_cast<int64_t>(latency_s_ * 1e9);
     fix.type = FixTypeOf(data.fix);
     fix.position.latitude_deg = data.fix.latitude;
     fix.position.longitude_deg = data.fix.longitude;
@@ -115,6 +115,14 @@ void GpsdReceiver::Receive() {
       ++without_fix_;
       continue;
     }
+    // The receiver's time of the fix (UTC), carried onto the wall clock by the quickest arrival
+    // (ReceiverClock); a report without one: its arrival.
+    const bool timed = (data.set & TIME_SET) && data.fix.time.tv_sec > 0;
+    const int64_t receiver_t_ns =
+        timed ? static_cast<int64_t>(data.fix.time.tv_sec) * 1'000'000'000 + static_cast<int64_t>(data.fix.time.tv_nsec)
+              : 0;
+    fix.t_ns =
+        (timed ? clock_.Stamp(receiver_t_ns, arrived_t_ns) : arrived_t_ns) - static_cast<int64_t>(latency_s_ * 1e9);
     fix.t_ns = std::max(fix.t_ns, last_t_ns + 1);
     last_t_ns = fix.t_ns;
     ++fixes_;

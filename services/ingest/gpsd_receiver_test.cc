@@ -47,10 +47,12 @@ struct Received {
 };
 
 // gpsd as its clients see it: JSON reports on TCP, one a line. Serves `lines` to each client that
-// connects (after its ?WATCH), then closes the connection.
+// connects (after its ?WATCH), each `pauses_ms` after the one before (20 ms where not given), then
+// closes the connection.
 class FakeGpsd {
  public:
-  explicit FakeGpsd(std::vector<std::string> lines) : lines_(std::move(lines)) {
+  explicit FakeGpsd(std::vector<std::string> lines, std::vector<int> pauses_ms = {})
+      : lines_(std::move(lines)), pauses_ms_(std::move(pauses_ms)) {
     listener_ = socket(AF_INET, SOCK_STREAM, 0);
     const int yes = 1;
     setsockopt(listener_, SOL_SOCKET, SO_REUSEADDR, &yes, sizeof(yes));
@@ -91,9 +93,10 @@ class FakeGpsd {
       if (poll(&asked, 1, 2000) == 1) (void)recv(client, request, sizeof(request), 0);
       say(R"({"class":"DEVICES","devices":[{"class":"DEVICE","path":"/dev/ttyACM0","driver":"u-blox"}]})");
       say(R"({"class":"WATCH","enable":true,"json":true})");
-      for (const std::string& line : lines_) {
-        say(line);
-        std::this_thread::sleep_for(std::chrono::milliseconds(20));
+      for (size_t i = 0; i < lines_.size(); ++i) {
+        if (i < pauses_ms_.size()) std::this_thread::sleep_for(std::chrono::milliseconds(pauses_ms_[i]));
+        say(lines_[i]);
+        if (i >= pauses_ms_.size()) std::this_thread::sleep_for(std::chrono::milliseconds(20));
       }
       std::this_thread::sleep_for(std::chrono::milliseconds(200));
       close(client);
@@ -101,6 +104,7 @@ class FakeGpsd {
   }
 
   std::vector<std::string> lines_;
+  std::vector<int> pauses_ms_;
   int listener_ = -1, port_ = 0;
   std::atomic<int> clients_{0};
   std::atomic<bool> running_{true};
@@ -140,6 +144,43 @@ TEST(GpsdReceiver, TakesEachTpvWithAFixAndConnectsAgainWhenGpsdGoes) {
   ASSERT_TRUE(received.WaitFor(4, 10)) << receiver.Describe();
   EXPECT_GE(gpsd.clients(), 2);
   EXPECT_NE(receiver.Describe().find("reports without a usable fix"), std::string::npos);
+}
+
+// #42: a fix keeps the receiver's time. Reports 100 ms apart by the receiver's clock arrive 20
+// and 180 ms apart (every other one held up 80 ms, as a busy gpsd or serial line may): stamped on
+// arrival they would jitter by 80 ms; by the receiver's time they are 100 ms apart.
+TEST(GpsdReceiver, AFixKeepsTheReceiversTimeWhateverItsArrivalJitters) {
+  std::vector<std::string> lines;
+  std::vector<int> pauses_ms;
+  for (int i = 0; i < 10; ++i) {
+    char line[256];
+    std::snprintf(line, sizeof(line),
+                  R"({"class":"TPV","device":"/dev/ttyACM0","mode":3,"time":"2026-11-30T06:30:0%d.%d00Z",)"
+                  R"("lat":47.36842%02d,"lon":8.5390540,"altHAE":507.1})",
+                  i / 10, i % 10, i);
+    lines.push_back(line);
+    pauses_ms.push_back(i == 0 ? 0 : i % 2 == 1 ? 180 : 20);
+  }
+  FakeGpsd gpsd(lines, pauses_ms);
+  Received received;
+  std::vector<int64_t> arrivals;
+  GpsdReceiver receiver("127.0.0.1", std::to_string(gpsd.port()), 0.0, [&](const GnssFix& fix) {
+    std::lock_guard<std::mutex> lock(received.mutex);
+    arrivals.push_back(WallClockNs());
+    received.fixes.push_back(fix);
+    received.changed.notify_all();
+  });
+  ASSERT_TRUE(received.WaitFor(10, 10)) << receiver.Describe();
+  std::lock_guard<std::mutex> lock(received.mutex);
+  double arrival_jitter_ms = 0;
+  for (size_t i = 1; i < 10; ++i) {
+    const double stamped_ms = (received.fixes[i].t_ns - received.fixes[i - 1].t_ns) * 1e-6;
+    EXPECT_NEAR(stamped_ms, 100.0, 30.0) << "fix " << i;
+    arrival_jitter_ms = std::max(arrival_jitter_ms, std::abs((arrivals[i] - arrivals[i - 1]) * 1e-6 - 100.0));
+  }
+  EXPECT_GT(arrival_jitter_ms, 50.0) << "the reports did not arrive with the jitter the test means";
+  // On the wall clock: never later than its arrival.
+  for (size_t i = 0; i < 10; ++i) EXPECT_LE(received.fixes[i].t_ns, arrivals[i]);
 }
 
 TEST(GpsdReceiver, WaitsForAGpsdThatIsNotThereYet) {

@@ -1,8 +1,9 @@
 #pragma once
 // A live camera's GNSS receiver (ingest.gnss_receiver): a thread of its own that hands each fix,
-// stamped with the wall clock at its arrival (the clock live frames carry) less a latency, to a
-// callback. Two kinds: a receiver gpsd serves (gpsd_receiver.h), and a flight controller's MAVLink
-// telemetry on UDP (mavlink_receiver.h).
+// on the wall clock (the clock live frames carry) less a latency, to a callback: the receiver's
+// own time of the fix carried onto the wall clock by its quickest arrival (ReceiverClock), or,
+// where the receiver gives none, the fix's arrival. Two kinds: a receiver gpsd serves (gpsd_receiver.h), and a flight
+// controller's MAVLink telemetry on UDP (mavlink_receiver.h).
 
 #include <functional>
 #include <memory>

@@ -40,7 +40,9 @@ struct IngestOptions {
   // A live camera's GNSS receiver (services/ingest/live_gnss.h): "gpsd" or "gpsd:HOST:PORT" (a
   // receiver gpsd serves), "mavlink:ADDRESS:PORT" (a flight controller's MAVLink telemetry on
   // UDP, e.g. "mavlink::14550") or "mavlink-serial:DEVICE[:BAUD]" (from its serial port). Its fixes go on <agent>/GNSS
-  // stamped with the frames' wall clock at their arrival, less gnss_latency_s. Empty: none.
+  // on the frames' wall clock: the receiver's own time of each fix carried onto it by the
+  // quickest arrival (ReceiverClock; a fix without a time: its arrival), less gnss_latency_s.
+  // Empty: none.
   std::string gnss_receiver;
   double gnss_latency_s = 0.0;
   // MAVLink receivers: the flight controller's MAVLink 2 signing key, as 64 hex digits in a file
@@ -76,7 +78,8 @@ struct IngestOptions {
       "live cameras: the GNSS receiver whose fixes go on <agent>/GNSS, on the frames' clock: gpsd[:HOST:PORT] "
       "(localhost:2947), mavlink:ADDRESS:PORT (a flight controller's telemetry on UDP, e.g. mavlink::14550) or "
       "mavlink-serial:DEVICE[:BAUD] (from its serial port, e.g. mavlink-serial:/dev/ttyACM0:57600) (empty: none)");
-    v("gnss_latency_s", gnss_latency_s, "how much older a live receiver's fix is than its arrival, seconds");
+    v("gnss_latency_s", gnss_latency_s,
+      "how much older a live receiver's fix is than its quickest arrival (its arrival where it states no time), seconds");
     v("gnss_signing_key_file", gnss_signing_key_file,
       "mavlink receivers: a file (mode 0600) holding the flight controller's MAVLink 2 signing key as 64 hex digits "
       "(MAVProxy's `signing setup PASSPHRASE` key: `printf %s PASSPHRASE | sha256sum`); only fixes signed with it "

@@ -229,7 +229,6 @@ void MavlinkGnssDecoder::Decode(uint32_t id, int system, const uint8_t* payload,
   if (raw && !has_raw()) systems_with_raw_fixes_.push_back(system);
   if (!raw && has_raw()) return;  // the receiver's own fixes come from this system: the estimate is not used
   GnssFix fix;
-  fix.t_ns = arrived_t_ns - static_cast<int64_t>(options_.latency_s * 1e9);
   fix.horizontal_accuracy_m = options_.stated_horizontal_accuracy_m;
   fix.vertical_accuracy_m = options_.stated_vertical_accuracy_m;
   if (raw) {
@@ -264,6 +263,13 @@ void MavlinkGnssDecoder::Decode(uint32_t id, int system, const uint8_t* payload,
     ++counts_.refused;
     return;
   }
+  // The sender's time of the fix (since the UNIX epoch or its boot; 0: none given), on the
+  // caller's clock.
+  const int64_t sent_t_ns =
+      raw ? static_cast<int64_t>(std::min<uint64_t>(Read<uint64_t>(payload, 0), INT64_MAX / 1000)) * 1000
+          : static_cast<int64_t>(Read<uint32_t>(payload, 0)) * 1'000'000;
+  fix.t_ns = (sent_t_ns > 0 ? clocks_[system].Stamp(sent_t_ns, arrived_t_ns) : arrived_t_ns) -
+             static_cast<int64_t>(options_.latency_s * 1e9);
   fix.t_ns = std::max(fix.t_ns, last_t_ns_ + 1);  // fixes in time order, as every track is
   last_t_ns_ = fix.t_ns;
   ++counts_.fixes;

@@ -28,8 +28,11 @@
 // timestamp an earlier one accepted where it is given it (MavlinkGnssOptions::newest_signed_before,
 // which the ingest keeps in a file), so a frame recorded more than a minute before is refused
 // after a restart too.
-// Each refusal is counted. A fix's time is when its frame arrived (the caller's clock: the live
-// camera's, so fixes and frames share it), less MavlinkGnssOptions::latency_s.
+// Each refusal is counted. A fix's time is on the caller's clock (the live camera's, so fixes and
+// frames share it): the message's own time (GPS_RAW_INT's time_usec, GLOBAL_POSITION_INT's
+// time_boot_ms) carried onto it by the quickest arrival of the sender's fixes (ReceiverClock:
+// the telemetry's jitter does not move a fix), less MavlinkGnssOptions::latency_s; where the
+// message gives no time, its arrival less the latency.
 
 #include <array>
 #include <cstddef>
@@ -41,6 +44,7 @@
 #include <vector>
 
 #include "stitch/geo/gnss_fix.h"
+#include "stitch/geo/receiver_clock.h"
 
 namespace stitch {
 
@@ -105,6 +109,7 @@ class MavlinkGnssDecoder {
   bool SignatureAccepted(const uint8_t* frame, size_t frame_size);
 
   std::vector<int> systems_with_raw_fixes_;
+  std::map<int, ReceiverClock> clocks_;  // per system
   // The newest signature timestamp accepted per (system, component, link).
   std::map<std::tuple<int, int, int>, uint64_t> last_signed_;
   uint64_t newest_signed_ = 0;

@@ -78,6 +78,37 @@ TEST(MavlinkGnss, ReadsTheReceiversFixFromMavlink1And2) {
   }
 }
 
+// #42: a fix is timed by its message's own time, carried onto the caller's clock by the quickest
+// arrival, not by when the telemetry brought it (here up to 250 ms late).
+TEST(MavlinkGnss, AFixKeepsItsMessagesTimeWhateverItsArrivalJitters) {
+  MavlinkGnssDecoder decoder(WithLatency(0.05));
+  MavlinkGpsRawInt m = ZurichFix();
+  std::mt19937 random(5);
+  const int64_t local_minus_sent = 3'000'000'000'000;  // the two clocks' offset
+  for (int i = 0; i < 50; ++i) {
+    m.time_usec += 200'000;
+    m.lat_e7 += 10;
+    const int64_t sent_ns = static_cast<int64_t>(m.time_usec) * 1000;
+    const int64_t jitter_ns = static_cast<int64_t>(random() % 250'000'000);
+    const int64_t arrived = sent_ns + local_minus_sent + 40'000'000 + (i == 0 ? 0 : jitter_ns);
+    const std::vector<GnssFix> fixes =
+        FeedAll(&decoder, EncodeMavlinkFrame(kMavlinkGpsRawInt, MavlinkPayload(m)), arrived);
+    ASSERT_EQ(fixes.size(), 1u);
+    // The first arrived quickest: every fix is its time on the local clock plus the quickest
+    // delay (40 ms), less the stated latency (50 ms).
+    EXPECT_EQ(fixes[0].t_ns, sent_ns + local_minus_sent + 40'000'000 - 50'000'000) << i;
+  }
+  // Without a time in the message: its arrival, less the latency.
+  MavlinkGlobalPositionInt estimate;
+  estimate.lat_e7 = 473684230;
+  estimate.lon_e7 = 85390540;
+  MavlinkGnssDecoder untimed(WithLatency(0.05));
+  const std::vector<GnssFix> fused =
+      FeedAll(&untimed, EncodeMavlinkFrame(kMavlinkGlobalPositionInt, MavlinkPayload(estimate)), 7'000'000'000);
+  ASSERT_EQ(fused.size(), 1u);
+  EXPECT_EQ(fused[0].t_ns, 6'950'000'000);
+}
+
 TEST(MavlinkGnss, FindsFramesAmongOtherMessagesAndGarbageFedInAnyPieces) {
   std::vector<uint8_t> stream = {0x00, 0xFD, 0x13, 0xFE};  // garbage, two false markers among it
   std::vector<uint8_t> heartbeat = EncodeMavlinkFrame(0, {6, 0, 0, 0, 8, 0, 0, 4, 3});
