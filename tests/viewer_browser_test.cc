@@ -95,6 +95,9 @@ TEST(ViewerInBrowser, ThePageShowsTheFlightsSubmapsKeyframesPointsAndTrackingSta
   const int port = bus::UnusedTcpPort();
   const std::string url = "http://127.0.0.1:" + std::to_string(port) + "/";
   const std::string log = dir / "run.log";
+  // Chromium's first start reads its whole installation from disk: once before the flight, so the
+  // page sampled during it loads while it goes on.
+  testing::RunProgram(Chromium("about:blank", {"--dump-dom"}), 90);
   ChildProcess run("run", Bin("stitch"),
                    {"run", "--viewer", "--viewer-port", std::to_string(port), "--out", dir / "run", "--quiet", "--set",
                     "synthetic.flight.num_frames=200", "--set", "synthetic.flight.num_strips=1", "--set",
@@ -128,6 +131,9 @@ TEST(ViewerInBrowser, ThePageShowsTheFlightsSubmapsKeyframesPointsAndTrackingSta
         const testing::CommandResult dom = testing::RunProgram(Chromium(url + "#mosaic", {"--dump-dom"}), 90);
         mosaic_during = BodyData(dom.output);
         mosaic_during["console"] = ConsoleLines(dom.output);
+        // Chromium may take seconds to start: a page it loaded after the flight ended shows the
+        // whole mosaic, not the flight's part of it.
+        if (said("outputs:")) mosaic_during["after the flight"] = "yes";
       }
     }
     std::this_thread::sleep_for(100ms);
@@ -169,8 +175,12 @@ TEST(ViewerInBrowser, ThePageShowsTheFlightsSubmapsKeyframesPointsAndTrackingSta
   EXPECT_GT(std::atof(mosaic_after.count("scale-metres") ? mosaic_after.at("scale-metres").c_str() : "-1"), 0.0)
       << "no scale over the mosaic";
   EXPECT_GE(Number(mosaic_during, "mosaic-tiles"), 1) << "no tile on the page during the flight";
-  EXPECT_GT(Number(mosaic_after, "mosaic-tiles"), Number(mosaic_during, "mosaic-tiles"))
-      << "the mosaic did not grow as the flight went on";
+  if (!mosaic_during.count("after the flight")) {
+    EXPECT_GT(Number(mosaic_after, "mosaic-tiles"), Number(mosaic_during, "mosaic-tiles"))
+        << "the mosaic did not grow as the flight went on";
+  } else {
+    std::printf("the page sampled during the flight loaded after it ended: its growth is not measured\n");
+  }
   EXPECT_GE(Number(mosaic_during, "mosaic-drawn-pixels"), 2000) << "the mosaic view drew nothing";
   // The view frames the whole mosaic, so a larger one may cover fewer of the canvas's pixels: the
   // growth is in the tiles' count above, the drawing only has to be there.
