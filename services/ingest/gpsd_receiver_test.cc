@@ -148,7 +148,7 @@ TEST(GpsdReceiver, TakesEachTpvWithAFixAndConnectsAgainWhenGpsdGoes) {
 
 // #42: a fix keeps the receiver's time. Reports 100 ms apart by the receiver's clock arrive 20
 // and 180 ms apart (every other one held up 80 ms, as a busy gpsd or serial line may): stamped on
-// arrival they would jitter by 80 ms; by the receiver's time they are 100 ms apart.
+// arrival they would be 80 ms off; by the receiver's time they are 100 ms apart.
 TEST(GpsdReceiver, AFixKeepsTheReceiversTimeWhateverItsArrivalJitters) {
   std::vector<std::string> lines;
   std::vector<int> pauses_ms;
@@ -172,13 +172,15 @@ TEST(GpsdReceiver, AFixKeepsTheReceiversTimeWhateverItsArrivalJitters) {
   });
   ASSERT_TRUE(received.WaitFor(10, 10)) << receiver.Describe();
   std::lock_guard<std::mutex> lock(received.mutex);
-  double arrival_jitter_ms = 0;
+  // The mean distance of the spacings from 100 ms: a machine's own delay (a sanitizer, a busy CI)
+  // moves a spacing or two, not the mean.
+  double stamped_off_ms = 0, arrival_off_ms = 0;
   for (size_t i = 1; i < 10; ++i) {
-    const double stamped_ms = (received.fixes[i].t_ns - received.fixes[i - 1].t_ns) * 1e-6;
-    EXPECT_NEAR(stamped_ms, 100.0, 30.0) << "fix " << i;
-    arrival_jitter_ms = std::max(arrival_jitter_ms, std::abs((arrivals[i] - arrivals[i - 1]) * 1e-6 - 100.0));
+    stamped_off_ms += std::abs((received.fixes[i].t_ns - received.fixes[i - 1].t_ns) * 1e-6 - 100.0) / 9;
+    arrival_off_ms += std::abs((arrivals[i] - arrivals[i - 1]) * 1e-6 - 100.0) / 9;
   }
-  EXPECT_GT(arrival_jitter_ms, 50.0) << "the reports did not arrive with the jitter the test means";
+  EXPECT_LT(stamped_off_ms, 25.0) << "stamped on arrival, the spacings would be 80 ms off";
+  EXPECT_GT(arrival_off_ms, 50.0) << "the reports did not arrive with the jitter the test means";
   // On the wall clock: never later than its arrival.
   for (size_t i = 0; i < 10; ++i) EXPECT_LE(received.fixes[i].t_ns, arrivals[i]);
 }
