@@ -598,22 +598,29 @@
     return { unitsPerPixel: unitsPerPixel, northDeg: Math.atan2(dx, -dy) * 180 / Math.PI };
   }
 
+  // Called every frame the 3D view draws: the page is written only where what it shows changed.
+  let earthShown = '';  // the bar's width, its length and north's angle as last written ('': hidden)
   function updateEarth() {
     const box = document.getElementById('earth');
     const shown = earth && viewScale(earth.north);
     if (!shown || !(shown.unitsPerPixel > 0) || !isFinite(shown.unitsPerPixel)) {
-      box.hidden = true;
-      delete body.dataset.scaleMetres;
+      if (earthShown !== '') {
+        box.hidden = true;
+        delete body.dataset.scaleMetres;
+        earthShown = '';
+      }
       return;
     }
     const metresPerPixel = shown.unitsPerPixel * earth.metres_per_unit;
     const metres = roundLength(120 * metresPerPixel);
-    const text = lengthText(metres);
+    const width = (metres / metresPerPixel).toFixed(1), angle = shown.northDeg.toFixed(1);
+    const state = width + ' ' + metres + ' ' + angle;
+    if (state === earthShown) return;
+    earthShown = state;
     box.hidden = false;
-    document.getElementById('scale-line').style.width = (metres / metresPerPixel).toFixed(1) + 'px';
-    const label = document.getElementById('scale-label');
-    if (label.textContent !== text) label.textContent = text;
-    document.getElementById('north-arrow').setAttribute('transform', 'rotate(' + shown.northDeg.toFixed(1) + ')');
+    document.getElementById('scale-line').style.width = width + 'px';
+    document.getElementById('scale-label').textContent = lengthText(metres);
+    document.getElementById('north-arrow').setAttribute('transform', 'rotate(' + angle + ')');
     body.dataset.scaleMetres = String(metres);  // for tests
     body.dataset.northDeg = shown.northDeg.toFixed(0);
   }
