@@ -40,9 +40,20 @@ class InterruptionCallback : public ceres::IterationCallback {
 // 460-keyframe map: most of the merger's CPU).
 constexpr int kSparseFromKeyframes = 64;
 
+// `eliminated`: the blocks the Schur complement eliminates (the points); empty: Ceres chooses.
 ceres::Solver::Summary Solve(ceres::Problem* problem, int iterations, int free_keyframes,
-                             InterruptionCallback* callback) {
+                             InterruptionCallback* callback, const std::vector<double*>& eliminated) {
   ceres::Solver::Options options;
+  if (!eliminated.empty()) {
+    auto ordering = std::make_shared<ceres::ParameterBlockOrdering>();
+    for (double* block : eliminated) ordering->AddElementToGroup(block, 0);
+    std::vector<double*> others;
+    problem->GetParameterBlocks(&others);
+    for (double* block : others) {
+      if (!ordering->IsMember(block)) ordering->AddElementToGroup(block, 1);
+    }
+    options.linear_solver_ordering = ordering;
+  }
   options.callbacks.push_back(callback);
   options.linear_solver_type = free_keyframes >= kSparseFromKeyframes ? ceres::SPARSE_SCHUR : ceres::DENSE_SCHUR;
   options.max_num_iterations = iterations;
@@ -52,6 +63,58 @@ ceres::Solver::Summary Solve(ceres::Problem* problem, int iterations, int free_k
   ceres::Solver::Summary summary;
   ceres::Solve(options, problem, &summary);
   return summary;
+}
+
+// The residual of a position prior at one keyframe (one keyframe for both) or interpolated
+// between two: sqrt_information * (frame * antenna - position). `frame` (the priors' frame against
+// the map's, a similarity estimated with the map: a PoseParameters block and the logarithm of its
+// scale) takes the antenna into the frame of the priors' positions; a pose (cam_from_world) puts
+// the antenna in the world at q^-1 (a - t).
+template <typename T>
+Eigen::Matrix<T, 3, 1> AntennaInWorld(const T* pose, const Eigen::Vector3d& antenna_in_camera) {
+  const Eigen::Quaternion<T> q(pose[3], pose[0], pose[1], pose[2]);
+  const Eigen::Matrix<T, 3, 1> t(pose[4], pose[5], pose[6]);
+  return q.conjugate() * (antenna_in_camera.cast<T>() - t);
+}
+
+template <typename T>
+void PriorResidual(const PositionPrior& prior, const T* frame, const T* log_scale,
+                   const Eigen::Matrix<T, 3, 1>& antenna, T* residual) {
+  const Eigen::Quaternion<T> q(frame[3], frame[0], frame[1], frame[2]);
+  const Eigen::Matrix<T, 3, 1> t(frame[4], frame[5], frame[6]);
+  Eigen::Map<Eigen::Matrix<T, 3, 1>> r(residual);
+  r = prior.sqrt_information.cast<T>() * (exp(log_scale[0]) * (q * antenna) + t - prior.position.cast<T>());
+}
+
+struct PriorAtOneKeyframe {
+  const PositionPrior& prior;
+  template <typename T>
+  bool operator()(const T* frame, const T* log_scale, const T* pose, T* residual) const {
+    PriorResidual<T>(prior, frame, log_scale, AntennaInWorld(pose, prior.antenna_in_camera), residual);
+    return true;
+  }
+};
+
+struct PriorBetweenKeyframes {
+  const PositionPrior& prior;
+  template <typename T>
+  bool operator()(const T* frame, const T* log_scale, const T* before, const T* after, T* residual) const {
+    const T w(prior.weight_after);
+    PriorResidual<T>(prior, frame, log_scale,
+                     (T(1.0) - w) * AntennaInWorld(before, prior.antenna_in_camera) +
+                         w * AntennaInWorld(after, prior.antenna_in_camera),
+                     residual);
+    return true;
+  }
+};
+
+// The prior's squared residual at the poses and frame given.
+double PriorChi2(const PositionPrior& prior, const Sim3d& frame, const Rigid3d& before, const Rigid3d& after) {
+  const auto antenna = [&](const Rigid3d& cam_from_world) {
+    return cam_from_world.Inverse() * prior.antenna_in_camera;
+  };
+  const Eigen::Vector3d at = (1.0 - prior.weight_after) * antenna(before) + prior.weight_after * antenna(after);
+  return (prior.sqrt_information * (frame * at - prior.position)).squaredNorm();
 }
 
 }  // namespace
@@ -75,7 +138,8 @@ bool BundleAdjustmentOptions::Check(std::string* why) const {
 
 BundleAdjustmentReport BundleAdjust(Map* map, const std::vector<KeyframeId>& free_keyframes,
                                     const std::vector<KeyframeId>& fixed_keyframes, const PinholeIntrinsics& k,
-                                    const BundleAdjustmentOptions& options, const Interruption& interrupted) {
+                                    const BundleAdjustmentOptions& options, const Interruption& interrupted,
+                                    const PositionPriors* priors) {
   BundleAdjustmentReport report;
   const ScalePyramid& pyramid = map->pyramid();
   std::set<KeyframeId> free, fixed;
@@ -143,9 +207,74 @@ BundleAdjustmentReport BundleAdjust(Map* map, const std::vector<KeyframeId>& fre
     problem.SetManifold(block.data(), pose_manifold);
     if (fixed.count(id)) problem.SetParameterBlockConstant(block.data());
   }
+  // Position priors on the keyframes in the problem, at least one of them free.
+  struct PriorRecord {
+    const PositionPrior* prior;
+    ceres::ResidualBlockId residual;
+  };
+  std::vector<PriorRecord> prior_records;
+  const auto in_problem = [&](KeyframeId id) {
+    const auto pose = poses.find(id);
+    return pose != poses.end() && problem.HasParameterBlock(pose->second.data());
+  };
+  // The priors' frame against the map's, a similarity estimated with it: where they place the map
+  // (and its scale) comes from their own fit, as the map's error at its held keyframes is not to
+  // bend it; what they tell the map is its shape (a long flight's drift).
+  PoseParameters priors_frame{Rigid3d()};
+  double priors_log_scale = 0.0;
+  const auto frame_now = [&] {
+    const Rigid3d rigid = priors_frame.ToRigid();
+    return Sim3d(std::exp(priors_log_scale), rigid.rotation, rigid.translation);
+  };
+  const auto prior_chi2 = [&](const PositionPrior& prior) {
+    return PriorChi2(prior, frame_now(), poses.at(prior.before).ToRigid(), poses.at(prior.after).ToRigid());
+  };
+  double prior_initial_sq = 0;
+  if (priors) {
+    ceres::LossFunction* prior_huber = new ceres::HuberLoss(std::sqrt(priors->outlier_chi2));
+    bool loss_owned = false;
+    for (const PositionPrior& prior : priors->priors) {
+      if (!in_problem(prior.before) || !in_problem(prior.after) ||
+          (fixed.count(prior.before) && fixed.count(prior.after)) || !(prior.weight_after >= 0.0) ||
+          !(prior.weight_after <= 1.0)) {
+        continue;
+      }
+      const double chi2 = prior_chi2(prior);
+      if (!(chi2 <= priors->outlier_chi2)) {
+        ++report.priors.set_aside;
+        continue;
+      }
+      prior_initial_sq += chi2;
+      const bool one = prior.before == prior.after;
+      ceres::CostFunction* cost =
+          one ? static_cast<ceres::CostFunction*>(
+                    new ceres::AutoDiffCostFunction<PriorAtOneKeyframe, 3, 7, 1, 7>(new PriorAtOneKeyframe{prior}))
+              : new ceres::AutoDiffCostFunction<PriorBetweenKeyframes, 3, 7, 1, 7, 7>(new PriorBetweenKeyframes{prior});
+      const ceres::ResidualBlockId residual =
+          one ? problem.AddResidualBlock(cost, prior_huber, priors_frame.data(), &priors_log_scale,
+                                         poses.at(prior.before).data())
+              : problem.AddResidualBlock(cost, prior_huber, priors_frame.data(), &priors_log_scale,
+                                         poses.at(prior.before).data(), poses.at(prior.after).data());
+      loss_owned = true;
+      prior_records.push_back({&prior, residual});
+    }
+    if (loss_owned) {
+      problem.SetManifold(priors_frame.data(), pose_manifold);
+    } else {
+      delete prior_huber;
+    }
+  }
+  report.priors.used = static_cast<int>(prior_records.size());
+  report.priors.initial_rms = std::sqrt(prior_initial_sq / (3.0 * std::max<size_t>(1, prior_records.size())));
 
+  // With priors, the points are eliminated and every pose and the priors' frame kept (Ceres's own
+  // choice would eliminate the frame too, whose rotation about a line of fixes is free).
+  std::vector<double*> eliminated;
+  if (!prior_records.empty()) {
+    for (auto& [id, position] : positions) eliminated.push_back(position.data());
+  }
   InterruptionCallback callback(interrupted);
-  ceres::Solver::Summary summary = Solve(&problem, options.iterations, report.keyframes_free, &callback);
+  ceres::Solver::Summary summary = Solve(&problem, options.iterations, report.keyframes_free, &callback, eliminated);
   // Second pass without the observations that are outliers at the first pass's solution.
   const auto pose_of = [&](KeyframeId id) { return poses.at(id).ToRigid(); };
   const auto chi2_now = [&](const ObservationRecord& r) {
@@ -159,7 +288,17 @@ BundleAdjustmentReport BundleAdjust(Map* map, const std::vector<KeyframeId>& fre
     for (const auto& r : records) {
       if (chi2_now(r) > options.chi2_threshold) problem.RemoveResidualBlock(r.residual);
     }
-    summary = Solve(&problem, options.refine_iterations, report.keyframes_free, &callback);
+    for (auto r = prior_records.begin(); r != prior_records.end();) {
+      if (prior_chi2(*r->prior) <= priors->outlier_chi2) {
+        ++r;
+        continue;
+      }
+      problem.RemoveResidualBlock(r->residual);
+      ++report.priors.set_aside;
+      r = prior_records.erase(r);
+    }
+    report.priors.used = static_cast<int>(prior_records.size());
+    summary = Solve(&problem, options.refine_iterations, report.keyframes_free, &callback, eliminated);
   }
   report.interrupted = callback.stopped();
   report.converged = summary.IsSolutionUsable();
@@ -186,6 +325,9 @@ BundleAdjustmentReport BundleAdjust(Map* map, const std::vector<KeyframeId>& fre
     ++counted;
   }
   report.final_rms_px = std::sqrt(final_sq / std::max(1, counted));
+  double prior_final_sq = 0;
+  for (const PriorRecord& r : prior_records) prior_final_sq += prior_chi2(*r.prior);
+  report.priors.final_rms = std::sqrt(prior_final_sq / (3.0 * std::max<size_t>(1, prior_records.size())));
   for (MapPointId p : point_ids) map->UpdatePointGeometry(p);
   return report;
 }

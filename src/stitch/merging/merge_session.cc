@@ -92,7 +92,7 @@ MergeSession::Applied MergeSession::Apply(const SubmapUpdate& update, const std:
   return applied;
 }
 
-std::optional<MergedMap> MergeSession::MergeLargestMap(Merger::Graph* graph) const {
+std::optional<MergedMap> MergeSession::MergeLargestMap(Merger::Graph* graph, const SubmapFixes& fixes) const {
   SubmapId root;
   int members = 0;
   for (const auto& [id, placement] : graph->placement) {
@@ -111,8 +111,12 @@ std::optional<MergedMap> MergeSession::MergeLargestMap(Merger::Graph* graph) con
   const SubmapReplica& replica = merger_.submaps().at(root);
   if (!replica.camera) return std::nullopt;
   const Stopwatch clock;
+  const auto placed = graph->on_earth.find(0);
+  const FixesOnEarth on_earth{placed != graph->on_earth.end() ? placed->second.enu_from_world : Sim3d(), &fixes,
+                              &merger_.options().georeference};
   MergedMap merged = AssembleMergedMap(merger_.submaps(), graph->placement, graph->keyframe_poses, graph->agreeing, 0,
-                                       pyramid_, replica.camera->Intrinsics(), merger_.options().merged_map);
+                                       pyramid_, replica.camera->Intrinsics(), merger_.options().merged_map,
+                                       placed != graph->on_earth.end() ? &on_earth : nullptr);
   for (const auto& [id, pose] : merged.keyframe_poses) graph->keyframe_poses[id] = pose;
   const BundleAdjustmentReport& ba = merged.bundle_adjustment;
   STITCH_LOG(INFO) << "merged map of " << members << " submaps with " << loops
@@ -121,6 +125,13 @@ std::optional<MergedMap> MergeSession::MergeLargestMap(Merger::Graph* graph) con
                    << merged.points_fused_by_projection << " by projection; bundle adjustment " << ba.initial_rms_px
                    << " -> " << ba.final_rms_px << " px rms (" << ba.observations << " observations, "
                    << ba.outliers_removed << " outliers removed) in " << clock.ElapsedMs() << " ms";
+  if (ba.priors.used + ba.priors.set_aside > 0) {
+    char rms[80];
+    std::snprintf(rms, sizeof(rms), "%.2f -> %.2f", ba.priors.initial_rms, ba.priors.final_rms);
+    STITCH_LOG(INFO) << "GNSS in the bundle adjustment: " << ba.priors.used << " fixes hold the keyframes, "
+                     << ba.priors.set_aside << " set aside as outliers; their residuals " << rms
+                     << " of their stated sigmas (rms)";
+  }
   for (const auto& [pair, junction] : merged.junctions) {
     STITCH_LOG(INFO) << "junction " << SubmapName(pair.first) << "-" << SubmapName(pair.second) << ": " << junction.kept
                      << " of " << junction.joined << " joining observations kept";
@@ -137,8 +148,9 @@ void MergeSession::Refine(const std::string& why) {
                      << again.stale << " could not be (kept as stale: they count where the fresh ones agree)";
     OnGraphChange("connected frames verified again (" + why + ")");
   }
-  Refined refined{merger_.Solve(/*refine=*/true, FixesOfSubmaps()), std::nullopt};
-  refined.merged = MergeLargestMap(&refined.graph);
+  const SubmapFixes fixes = FixesOfSubmaps();
+  Refined refined{merger_.Solve(/*refine=*/true, fixes), std::nullopt};
+  refined.merged = MergeLargestMap(&refined.graph, fixes);
   // Checked after placement: a merge whose junction the adjustment could not hold is rolled back
   // (its edge refused until more connected frames arrive) and the maps are solved again.
   const bool check = merger_.options().merged_map.fuse_points;  // junctions are made by fusing
@@ -152,8 +164,8 @@ void MergeSession::Refine(const std::string& why) {
       merger_.RefuseAfterPlacement(d.edge, d.reason);
     }
     OnGraphChange("merge rolled back after placement (" + why + ")");
-    refined = Refined{merger_.Solve(/*refine=*/true, FixesOfSubmaps()), std::nullopt};
-    refined.merged = MergeLargestMap(&refined.graph);
+    refined = Refined{merger_.Solve(/*refine=*/true, fixes), std::nullopt};
+    refined.merged = MergeLargestMap(&refined.graph, fixes);
   }
   Show(refined.graph);
   refined_ = std::move(refined);

@@ -141,8 +141,9 @@ class MergeSession {
   void OnGraphChange(const std::string& event);
   void Show(const Merger::Graph& graph);
   // The largest merged map with its points fused and bundle adjusted; its keyframe poses replace
-  // the pose graph's in `graph`. nullopt when it holds no submap with a camera.
-  std::optional<MergedMap> MergeLargestMap(Merger::Graph* graph) const;
+  // the pose graph's in `graph`. nullopt when it holds no submap with a camera. `fixes` (the
+  // submaps' fixes the graph was solved with) hold it in the adjustment where it is on Earth.
+  std::optional<MergedMap> MergeLargestMap(Merger::Graph* graph, const SubmapFixes& fixes) const;
   // Each submap's usable fixes over its keyframes' times (and the interpolation gap on each
   // side), in the plane of the first fix; none where merger.join_by_gnss is off.
   SubmapFixes FixesOfSubmaps() const;

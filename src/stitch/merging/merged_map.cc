@@ -1,7 +1,12 @@
 #include "stitch/merging/merged_map.h"
 
 #include <algorithm>
+#include <cmath>
+#include <cstdint>
 #include <cstdio>
+#include <iterator>
+#include <limits>
+#include <optional>
 #include <set>
 
 #include "stitch/map/matcher.h"
@@ -92,11 +97,58 @@ std::map<std::pair<SubmapId, SubmapId>, JoiningCount> CountJoiningObservations(c
 
 }  // namespace
 
+PositionPriors PriorsFromFixes(const Map& map, const FixesOnEarth& on_earth) {
+  PositionPriors priors;
+  if (!on_earth.fixes || !on_earth.georeference) return priors;
+  const GeoReferenceOptions& geo = *on_earth.georeference;
+  priors.outlier_chi2 = geo.outlier_chi2;
+  const Sim3d& enu_from_world = on_earth.enu_from_world;
+  const Sim3d world_from_enu = enu_from_world.Inverse();
+  const Eigen::Vector3d antenna_in_camera =
+      Eigen::Vector3d(geo.antenna_x_m, geo.antenna_y_m, geo.antenna_z_m) / enu_from_world.scale;
+  const Eigen::Matrix3d to_enu = enu_from_world.scale * enu_from_world.rotation.toRotationMatrix();
+  const auto max_gap_ns = static_cast<int64_t>(geo.max_interpolation_gap_s * 1e9);
+  const auto offset_ns = static_cast<int64_t>(std::llround(geo.time_offset_s * 1e9));
+  std::map<SubmapId, std::map<int64_t, KeyframeId>> keyframes_by_time;  // of each submap
+  for (const auto& [id, keyframe] : map.keyframes()) keyframes_by_time[SubmapOf(id)].emplace(keyframe.t_ns, id);
+  for (const auto& [submap, timeline] : keyframes_by_time) {
+    const auto fixes = on_earth.fixes->find(submap);
+    if (fixes == on_earth.fixes->end()) continue;
+    for (const EnuFix& fix : fixes->second) {
+      if (!(fix.horizontal_sigma_m > 0) || !(fix.vertical_sigma_m > 0)) continue;
+      constexpr int64_t kMax = std::numeric_limits<int64_t>::max(), kMin = std::numeric_limits<int64_t>::min();
+      if (offset_ns > 0 ? fix.t_ns > kMax - offset_ns : fix.t_ns < kMin - offset_ns) continue;
+      const int64_t t = fix.t_ns + offset_ns;
+      auto after = timeline.lower_bound(t);
+      if (after == timeline.end()) continue;
+      PositionPrior prior;
+      if (after->first == t) {
+        prior.before = prior.after = after->second;
+      } else {
+        if (after == timeline.begin() || after->first - std::prev(after)->first > max_gap_ns) continue;
+        const auto before = std::prev(after);
+        prior.before = before->second;
+        prior.after = after->second;
+        prior.weight_after = static_cast<double>(t - before->first) / static_cast<double>(after->first - before->first);
+      }
+      prior.antenna_in_camera = antenna_in_camera;
+      prior.position = world_from_enu * fix.enu;
+      prior.sqrt_information =
+          Eigen::Vector3d(1.0 / fix.horizontal_sigma_m, 1.0 / fix.horizontal_sigma_m, 1.0 / fix.vertical_sigma_m)
+              .asDiagonal() *
+          to_enu;
+      priors.priors.push_back(prior);
+    }
+  }
+  return priors;
+}
+
 MergedMap AssembleMergedMap(const std::map<SubmapId, SubmapReplica>& submaps,
                             const std::map<SubmapId, SubmapPlacement>& placement,
                             const std::map<KeyframeId, Sim3d>& keyframe_poses,
                             const std::vector<ConnectedFrame>& connections, int component, const ScalePyramid& pyramid,
-                            const PinholeIntrinsics& intrinsics, const MergedMapOptions& options) {
+                            const PinholeIntrinsics& intrinsics, const MergedMapOptions& options,
+                            const FixesOnEarth* on_earth) {
   CheckOptions(options, "merged_map");
   MergedMap merged(pyramid);
   merged.component = component;
@@ -172,7 +224,10 @@ MergedMap AssembleMergedMap(const std::map<SubmapId, SubmapReplica>& submaps,
     BundleAdjustmentOptions ba;
     ba.iterations = options.bundle_adjustment_iterations;
     ba.refine_iterations = options.bundle_adjustment_iterations;
-    const BundleAdjustmentReport report = BundleAdjust(&merged.map, free, fixed, intrinsics, ba);
+    const std::optional<PositionPriors> priors =
+        on_earth && options.gnss_in_adjustment ? std::optional(PriorsFromFixes(merged.map, *on_earth)) : std::nullopt;
+    const BundleAdjustmentReport report =
+        BundleAdjust(&merged.map, free, fixed, intrinsics, ba, {}, priors ? &*priors : nullptr);
     if (merged.bundle_adjustment.keyframes_free == 0) {
       merged.bundle_adjustment = report;
     } else {  // the second pass: keep the first pass's initial error for the report

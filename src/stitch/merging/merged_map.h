@@ -15,6 +15,7 @@
 #include "stitch/estimators/bundle_adjustment.h"
 #include "stitch/map/map.h"
 #include "stitch/map/submap_update.h"
+#include "stitch/merging/gnss_junctions.h"
 #include "stitch/merging/merger_options.h"
 #include "stitch/merging/submap_graph.h"
 
@@ -42,14 +43,28 @@ struct MergedMap {
   explicit MergedMap(const ScalePyramid& pyramid) : map(SubmapId(), pyramid) {}
 };
 
+// The aircraft's fixes where they put a merged map on Earth (Merger::Graph::on_earth): in its
+// bundle adjustment each fix holds the antenna where it says, at the fix's time between two of its
+// submap's keyframes (georeference: the antenna's offset, the time offset, the largest gap between
+// the keyframes, the outlier bound).
+struct FixesOnEarth {
+  Sim3d enu_from_world;                // the merged map's frame into the fixes' ENU frame
+  const SubmapFixes* fixes = nullptr;  // each submap's, in that frame
+  const GeoReferenceOptions* georeference = nullptr;
+};
+// The priors `on_earth` makes on `map`'s keyframes (their submap's fixes, by their ids).
+PositionPriors PriorsFromFixes(const Map& map, const FixesOnEarth& on_earth);
+
 // Builds merged map `component`: `placement` and `keyframe_poses` as Merger::Solve gives them
 // (keyframe_poses may be empty: then the tree's placement); `connections` the verified connected
-// frames that agree with that placement.
+// frames that agree with that placement; `on_earth` (may be null) its fixes, as priors in the
+// adjustment where options.gnss_in_adjustment.
 MergedMap AssembleMergedMap(const std::map<SubmapId, SubmapReplica>& submaps,
                             const std::map<SubmapId, SubmapPlacement>& placement,
                             const std::map<KeyframeId, Sim3d>& keyframe_poses,
                             const std::vector<ConnectedFrame>& connections, int component, const ScalePyramid& pyramid,
-                            const PinholeIntrinsics& intrinsics, const MergedMapOptions& options);
+                            const PinholeIntrinsics& intrinsics, const MergedMapOptions& options,
+                            const FixesOnEarth* on_earth = nullptr);
 
 // The check after placement: the edges of `tree` inside `merged` (assembled with fused points)
 // whose junction does not confirm them: fewer than `min_junction_observations` joining

@@ -262,5 +262,76 @@ TEST(MergedMap, OnlyTheChosenMergedMapIsAssembled) {
   for (const auto& [id, pose] : merged.keyframe_poses) EXPECT_EQ(SubmapOf(id), kA);
 }
 
+// Each fix of a submap becomes a prior between the two of its keyframes around its time (on the
+// camera's clock), in the merged map's frame and units, whitened by its stated sigmas in ENU; a
+// fix outside the keyframes' times, or across a gap wider than the interpolation allows, none.
+TEST(MergedMap, FixesBecomePriorsOnTheKeyframesAroundThem) {
+  Map map(SubmapId(), ScalePyramid::From(OrbOptions()));
+  const Eigen::Quaterniond turn(Eigen::AngleAxisd(0.4, Eigen::Vector3d(0.3, -1, 0.2).normalized()));
+  for (int k = 0; k < 4; ++k) {
+    Keyframe keyframe;
+    keyframe.id = MakeKeyframeId(kA, k);
+    keyframe.t_ns = (k < 3 ? k : 5) * 1'000'000'000LL;  // 0, 1, 2 and 5 s
+    keyframe.cam_from_world = Rigid3d(turn * Eigen::Quaterniond(Eigen::AngleAxisd(0.1 * k, Eigen::Vector3d::UnitZ())),
+                                      Eigen::Vector3d(k, 0.5 * k, 3));
+    map.AddKeyframe(keyframe);
+  }
+  GeoReferenceOptions geo;
+  geo.antenna_x_m = 0.1;
+  geo.antenna_y_m = -0.2;
+  geo.antenna_z_m = 0.3;
+  geo.time_offset_s = 0.1;
+  geo.max_interpolation_gap_s = 1.5;
+  const Sim3d enu_from_world(2.0, Eigen::Quaterniond(Eigen::AngleAxisd(0.7, Eigen::Vector3d::UnitZ())),
+                             Eigen::Vector3d(10, -20, 5));
+  const Eigen::Vector3d antenna_m(0.1, -0.2, 0.3);
+  // The antenna in ENU where keyframe k puts it.
+  const auto antenna_enu = [&](int k) {
+    const Rigid3d world_from_cam = map.FindKeyframe(MakeKeyframeId(kA, k))->cam_from_world.Inverse();
+    return enu_from_world * (world_from_cam * (antenna_m / 2.0));
+  };
+  SubmapFixes fixes;
+  const auto fix = [](double t_s, const Eigen::Vector3d& enu) {
+    EnuFix f;
+    f.t_ns = static_cast<int64_t>(t_s * 1e9);
+    f.enu = enu;
+    f.horizontal_sigma_m = 2.0;
+    f.vertical_sigma_m = 4.0;
+    return f;
+  };
+  fixes[kA] = {fix(0.4, 0.5 * (antenna_enu(0) + antenna_enu(1))),  // 0.5 s on the camera's clock
+               fix(0.9, antenna_enu(1)),                           // at keyframe 1
+               fix(-0.5, antenna_enu(0)),                          // before the first keyframe
+               fix(3.0, antenna_enu(2)),                           // between 2 and 5 s: a gap of 3 s
+               fix(5.5, antenna_enu(3))};                          // after the last
+  fixes[kB] = {fix(1.0, antenna_enu(1))};                          // no keyframe of B in the map
+  const PositionPriors priors = PriorsFromFixes(map, {enu_from_world, &fixes, &geo});
+  ASSERT_EQ(priors.priors.size(), 2u);
+  EXPECT_EQ(priors.outlier_chi2, geo.outlier_chi2);
+  const PositionPrior& between = priors.priors[0];
+  EXPECT_EQ(between.before, MakeKeyframeId(kA, 0));
+  EXPECT_EQ(between.after, MakeKeyframeId(kA, 1));
+  EXPECT_NEAR(between.weight_after, 0.5, 1e-9);
+  EXPECT_EQ(priors.priors[1].before, MakeKeyframeId(kA, 1));
+  EXPECT_EQ(priors.priors[1].after, MakeKeyframeId(kA, 1));
+  for (const PositionPrior& prior : priors.priors) {
+    EXPECT_LT((prior.antenna_in_camera - antenna_m / 2.0).norm(), 1e-12);  // in map units
+    const auto antenna = [&](KeyframeId id) {
+      return map.FindKeyframe(id)->cam_from_world.Inverse() * prior.antenna_in_camera;
+    };
+    const Eigen::Vector3d at =
+        (1 - prior.weight_after) * antenna(prior.before) + prior.weight_after * antenna(prior.after);
+    EXPECT_LT((prior.sqrt_information * (at - prior.position)).norm(), 1e-9);
+    // A metre east, north and up of the fix: half a sigma, half a sigma and a quarter.
+    const Sim3d world_from_enu = enu_from_world.Inverse();
+    for (int axis = 0; axis < 3; ++axis) {
+      const Eigen::Vector3d off = world_from_enu * (enu_from_world * prior.position + Eigen::Vector3d::Unit(axis));
+      const Eigen::Vector3d whitened = prior.sqrt_information * (off - prior.position);
+      EXPECT_NEAR(whitened.norm(), axis < 2 ? 0.5 : 0.25, 1e-9);
+      EXPECT_NEAR(std::abs(whitened[axis]), whitened.norm(), 1e-9);
+    }
+  }
+}
+
 }  // namespace
 }  // namespace stitch

@@ -37,6 +37,9 @@ struct MergedMapOptions {
   // pose graph has placed all; older keyframes that see their points hold them); 0: all. Without
   // it the adjustment of a 20,000-frame survey's map grows to minutes per submap.
   int bundle_adjustment_max_free_keyframes = 400;
+  // Where the aircraft's fixes put the map on Earth, they hold its keyframes' antennas in the
+  // adjustment, each weighted by its stated accuracy (docs/geo.md).
+  bool gnss_in_adjustment = true;
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
@@ -49,6 +52,10 @@ struct MergedMapOptions {
     v("bundle_adjustment_iterations", bundle_adjustment_iterations, "iterations of each global bundle adjustment pass");
     v("bundle_adjustment_max_free_keyframes", bundle_adjustment_max_free_keyframes,
       "keyframes the adjustment moves at most, the newest (older ones that see their points hold them; 0: all)");
+    v("gnss_in_adjustment", gnss_in_adjustment,
+      "where the aircraft's GNSS fixes place the merged map, each fix holds the antenna where it says in the global "
+      "bundle adjustment, weighted by its stated accuracy, outliers set aside: the fixes bend a long map's scale "
+      "drift out (needs merger.georeference.enabled and merger.join_by_gnss)");
   }
   bool Check(std::string* why) const;
 };

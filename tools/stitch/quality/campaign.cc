@@ -152,6 +152,13 @@ void PrintCampaign(std::FILE* out, const CampaignOptions& options, const std::ve
   }
 }
 
+// " --set K=V" for each setting, as the command line takes them.
+std::string SettingsText(const std::vector<std::string>& settings) {
+  std::string text;
+  for (const std::string& setting : settings) text += " --set " + setting;
+  return text;
+}
+
 }  // namespace
 
 int CampaignCommand(int argc, char** argv) {
@@ -160,6 +167,7 @@ int CampaignCommand(int argc, char** argv) {
   int jobs = 1;
   std::string frames = "200:1500";
   bool list = false;
+  std::vector<std::string> settings;
   ArgParser args("stitch campaign",
                  "The merge campaign: N randomized synthetic flights (world, length, gusts: how many, where, how "
                  "long; on some, the radio link with loss, delay, jitter that reorders, and a bandwidth budget), "
@@ -174,6 +182,9 @@ int CampaignCommand(int argc, char** argv) {
   args.AddOption("--jobs", &jobs, "N", "flights side by side (those behind the link run alone)");
   args.AddOption("--out", &out_dir, "DIR",
                  "the flights' run folders and campaign.json (default: runs/campaign-<time>)");
+  args.AddOption("--set", &settings, "KEY=VALUE",
+                 "a setting for every flight, after the flight's own (repeat for several), e.g. "
+                 "merger.merged_map.gnss_in_adjustment=false");
   args.AddFlag("--list", &list, "print each flight's `stitch run` command and run nothing");
   args.AddOption("--markdown", &markdown_path, "FILE", MarkdownOptionHelp(kCampaignBegin, kCampaignEnd));
   args.AddOption("--from", &from_path, "FILE",
@@ -220,6 +231,7 @@ int CampaignCommand(int argc, char** argv) {
       std::snprintf(name, sizeof(name), "flight-%03d", i);
       c.name = name;
       c.run = CampaignRunArguments(flights.back());
+      for (const std::string& setting : settings) c.run.insert(c.run.end(), {"--set", setting});
       c.alone = flights.back().link;
       c.expect["wrong_merges"] = 0;
       matrix.cases.push_back(c);
@@ -273,7 +285,7 @@ int CampaignCommand(int argc, char** argv) {
       WriteMarkdownTable(
           markdown_path,
           "build/bin/stitch campaign --runs " + std::to_string(options.runs) + " --seed " +
-              std::to_string(options.seed),
+              std::to_string(options.seed) + SettingsText(settings),
           [&](std::FILE* md) { PrintCampaign(md, options, flights, outcomes, /*markdown=*/true); }, kCampaignBegin,
           kCampaignEnd);
     }
