@@ -41,9 +41,11 @@ std::pair<double, double> ObservationErrors(const Keyframe& keyframe, int featur
 // the camera (its antenna) at a moment between two keyframes: a prior on their poses. The
 // antenna's place is interpolated linearly between where the two keyframes put it (at
 // `antenna_in_camera` in each one's frame), `weight_after` of the way to `after`. Its residual is
-// sqrt_information * (antenna - position): squared, chi-square with 3 degrees of freedom for a
-// right measurement. It fixes what reprojections cannot: a monocular map's scale, and its slow
-// drift over a long flight.
+// sqrt_information * (frame * antenna - position), `frame` a similarity between the map's frame
+// and the priors' that the adjustment estimates with the map: squared, chi-square with 3 degrees
+// of freedom for a right measurement. The priors tell the map its shape, what reprojections
+// barely do: the slow drift of a monocular map's scale over a long flight (where the map lies,
+// and its scale as a whole, stay the frame's).
 struct PositionPrior {
   KeyframeId before, after;  // the same keyframe for a moment at one
   double weight_after = 0.0;

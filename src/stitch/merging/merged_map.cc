@@ -202,6 +202,9 @@ MergedMap AssembleMergedMap(const std::map<SubmapId, SubmapReplica>& submaps,
   if (merged.map.num_keyframes() == 0) return merged;
   RefreshGeometry(&merged.map);
 
+  // The fixes' priors hang on keyframes and times, which fusing does not change: made once.
+  const std::optional<PositionPriors> priors =
+      on_earth && options.gnss_in_adjustment ? std::optional(PriorsFromFixes(merged.map, *on_earth)) : std::nullopt;
   const auto adjust = [&] {
     std::vector<KeyframeId> fixed;
     for (const auto& [submap, first] : anchors) {
@@ -224,8 +227,6 @@ MergedMap AssembleMergedMap(const std::map<SubmapId, SubmapReplica>& submaps,
     BundleAdjustmentOptions ba;
     ba.iterations = options.bundle_adjustment_iterations;
     ba.refine_iterations = options.bundle_adjustment_iterations;
-    const std::optional<PositionPriors> priors =
-        on_earth && options.gnss_in_adjustment ? std::optional(PriorsFromFixes(merged.map, *on_earth)) : std::nullopt;
     const BundleAdjustmentReport report =
         BundleAdjust(&merged.map, free, fixed, intrinsics, ba, {}, priors ? &*priors : nullptr);
     if (merged.bundle_adjustment.keyframes_free == 0) {
