@@ -7,7 +7,7 @@ $SUDO apt-get update
 $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends \
   build-essential cmake pkg-config \
   liblcm-dev liblcm-bin libglib2.0-dev \
-  libopencv-dev libeigen3-dev libceres-dev \
+  libopencv-dev libavformat-dev libavcodec-dev libavutil-dev libswscale-dev libeigen3-dev libceres-dev \
   libyaml-cpp-dev nlohmann-json3-dev libsodium-dev libsqlite3-dev libgeographiclib-dev \
   libgtest-dev libgmock-dev libbenchmark-dev \
   gstreamer1.0-plugins-base gstreamer1.0-plugins-good gstreamer1.0-plugins-ugly gstreamer1.0-libav \

@@ -28,8 +28,10 @@ struct IngestOptions {
   double speed = 1.0;               // realtime: playback speed factor (2 = twice as fast)
   // Frames of more pixels than this are reduced (area averaging, the aspect kept) before they are
   // sent, with their camera: the tracker, the mapper and the merger work at that size, and a 1080p
-  // or 4K camera costs about what a 0.5 MP one does (docs/speed.md). 0: frames as they come.
-  int max_working_pixels = 500000;
+  // or 4K camera costs about what a 0.5 MP one does (docs/speed.md). 518,400 is 960x540, which
+  // 1080p and 4K reach by exact halvings alone (a fractional step costs 5-20 times more). 0:
+  // frames as they come.
+  int max_working_pixels = 518400;
   std::string encoding = "auto";  // gray8 (raw), jpeg, or auto (see ChooseFrameEncoding)
   int jpeg_quality = 92;
   double ack_timeout_s = 0.25;         // lockstep: re-send a frame not acknowledged within this
@@ -79,7 +81,8 @@ struct IngestOptions {
       "(localhost:2947), mavlink:ADDRESS:PORT (a flight controller's telemetry on UDP, e.g. mavlink::14550) or "
       "mavlink-serial:DEVICE[:BAUD] (from its serial port, e.g. mavlink-serial:/dev/ttyACM0:57600) (empty: none)");
     v("gnss_latency_s", gnss_latency_s,
-      "how much older a live receiver's fix is than its quickest arrival (its arrival where it states no time), seconds");
+      "how much older a live receiver's fix is than its quickest arrival (its arrival where it states no time), "
+      "seconds");
     v("gnss_signing_key_file", gnss_signing_key_file,
       "mavlink receivers: a file (mode 0600) holding the flight controller's MAVLink 2 signing key as 64 hex digits "
       "(MAVProxy's `signing setup PASSPHRASE` key: `printf %s PASSPHRASE | sha256sum`); only fixes signed with it "

@@ -1,17 +1,21 @@
-// Speed of feature extraction, of the reduction of a large camera's frames before it, and of
-// bag-of-words operations (one core).
+// Speed of feature extraction, of the decoding and reduction of a large camera's frames before
+// it, and of bag-of-words operations (one core; decoding: the decoder's threads counted too).
 //   build/bin/features_benchmark [--benchmark_filter=...]
 // Vocabulary benchmarks use vocabulary/default.stitchvoc when it exists.
 
 #include <filesystem>
+#include <map>
 
 #include <benchmark/benchmark.h>
 #include <opencv2/features2d.hpp>
 #include <opencv2/imgproc.hpp>
+#include <opencv2/videoio.hpp>
 
 #include "stitch/features/keyframe_database.h"
 #include "stitch/features/orb_extractor.h"
 #include "stitch/features/vocabulary.h"
+#include "stitch/io/video_decoder.h"
+#include "stitch/io/video_file_writer.h"
 #include "stitch/source/source.h"
 #include "stitch/util/rng.h"
 
@@ -57,8 +61,8 @@ void BM_OpenCvOrb(benchmark::State& state) {
 BENCHMARK(BM_OpenCvOrb)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
 
 // A 1080p (range 0: 1080) or 4K (2160) frame reduced to its working size within range 1 pixels
-// (ingest.max_working_pixels): 500,000 (the default) gives 942x530, halvings then a fractional
-// step; 518,400 gives 960x540, halvings alone. BM_ReduceInOneStep: one fractional area
+// (ingest.max_working_pixels): 500,000 gives 942x530, halvings then a fractional step; 518,400
+// (the default) gives 960x540, halvings alone. BM_ReduceInOneStep: one fractional area
 // reduction from the full frame, for comparison.
 template <bool kInOneStep>
 void Reduce(benchmark::State& state) {
@@ -95,6 +99,64 @@ BENCHMARK(BM_ReduceToWorkingSize)
     ->Args({2160, 518400})
     ->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ReduceInOneStep)->Args({1080, 500000})->Args({2160, 500000})->Unit(benchmark::kMillisecond);
+
+// An H.264 clip of 60 frames of 1080p (range 0: 1080) or 4K (2160), the synthetic frame moving
+// across it, decoded to grey: range 1 = 0 through OpenCV's reader (BGR, then grey), 1 through
+// VideoDecoder (the luma plane). Per frame, the CPU of every thread of the process.
+const std::string& H264Clip(int height) {
+  static const std::filesystem::path folder = [] {
+    const std::filesystem::path dir = std::filesystem::temp_directory_path() / "stitch-features-benchmark";
+    std::filesystem::create_directories(dir);
+    return dir;
+  }();
+  static std::map<int, std::string> clips;
+  std::string& clip = clips[height];
+  if (!clip.empty()) return clip;
+  const int width = height * 16 / 9;
+  cv::Mat image;
+  cv::resize(Frame(false), image, cv::Size(width + 120, height), 0, 0, cv::INTER_LINEAR);
+  clip = (folder / ("clip-" + std::to_string(height) + ".mp4")).string();
+  H264FileWriter writer(clip, width, height);
+  for (int i = 0; i < 60; ++i) writer.Write(image(cv::Rect(2 * i, 0, width, height)).clone());
+  writer.Finish();
+  return clip;
+}
+
+void BM_DecodeH264ToGray(benchmark::State& state) {
+  std::string clip;
+  try {
+    clip = H264Clip(static_cast<int>(state.range(0)));
+  } catch (const std::exception& e) {
+    return state.SkipWithError(e.what());  // no x264 encoder (gstreamer1.0-plugins-ugly)
+  }
+  const bool decoder = state.range(1) == 1;
+  int64_t frames = 0;
+  for (auto _ : state) {
+    cv::Mat gray, bgr;
+    int64_t t_ns = 0;
+    if (decoder) {
+      VideoDecoder video(clip);
+      while (video.Read(&gray, &t_ns)) ++frames;
+    } else {
+      cv::VideoCapture video(clip, cv::CAP_FFMPEG);
+      while (video.read(bgr)) {
+        cv::cvtColor(bgr, gray, cv::COLOR_BGR2GRAY);
+        ++frames;
+      }
+    }
+    benchmark::DoNotOptimize(gray.data);
+  }
+  state.counters["frames"] = static_cast<double>(frames);
+  state.counters["s_per_frame"] =
+      benchmark::Counter(static_cast<double>(frames), benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
+}
+BENCHMARK(BM_DecodeH264ToGray)
+    ->Args({1080, 0})
+    ->Args({1080, 1})
+    ->Args({2160, 0})
+    ->Args({2160, 1})
+    ->MeasureProcessCPUTime()
+    ->Unit(benchmark::kMillisecond);
 
 const Vocabulary* DefaultVocabulary() {
   static const Vocabulary* vocabulary = [] {

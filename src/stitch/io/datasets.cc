@@ -5,14 +5,15 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <sstream>
 
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
-#include <opencv2/videoio.hpp>
 
 #include "stitch/io/calibration.h"
 #include "stitch/io/image_sequence.h"
+#include "stitch/io/video_decoder.h"
 #include "stitch/util/error.h"
 #include "stitch/util/log.h"
 #include "stitch/util/options.h"
@@ -438,14 +439,13 @@ std::unique_ptr<ImageSequence> OpenImageFolder(const fs::path& root, const Seque
 
 class VideoSequence : public ImageSequence {
  public:
-  VideoSequence(const fs::path& path, const SequenceOptions& options) : path_(path.string()) {
-    if (!capture_.open(path_)) throw Error(path_ + ": cannot open video (unsupported codec or not a video)");
-    fps_ = options.fps > 0 ? options.fps : capture_.get(cv::CAP_PROP_FPS);
+  VideoSequence(const fs::path& path, const SequenceOptions& options) : path_(path.string()), decoder_(path_) {
+    fps_ = options.fps > 0 ? options.fps : decoder_.fps();
     if (!(fps_ > 0 && fps_ < 1000)) fps_ = 30.0;
-    const double count = capture_.get(cv::CAP_PROP_FRAME_COUNT);
-    total_ = count > 0 ? static_cast<int>(count) : -1;
+    const int64_t count = decoder_.frame_count();
+    total_ = count > 0 && count < std::numeric_limits<int>::max() ? static_cast<int>(count) : -1;
     for (int i = 0; i < options.start_frame; ++i) {
-      if (!capture_.grab()) break;
+      if (!decoder_.Skip()) break;
       ++source_index_;
     }
     if (total_ >= 0) total_ = std::max(0, total_ - options.start_frame);
@@ -492,41 +492,28 @@ class VideoSequence : public ImageSequence {
 
  private:
   bool ReadFrame(SequenceFrame* frame) {
-    cv::Mat bgr;
-    if (!capture_.read(bgr) || bgr.empty()) return false;
+    int64_t clip_ns = -1;
+    if (!decoder_.Read(&frame->image, &clip_ns)) return false;
     frame->error.clear();
-    // A buffer of its own: a frame handed out before may still be held (and cvtColor would write
-    // into it).
-    frame->image = cv::Mat();
-    if (bgr.channels() == 3) {
-      cv::cvtColor(bgr, frame->image, cv::COLOR_BGR2GRAY);
-    } else if (bgr.channels() == 4) {
-      cv::cvtColor(bgr, frame->image, cv::COLOR_BGRA2GRAY);
-    } else {
-      frame->image = bgr.clone();
-    }
-    frame->t_ns = ClipTimeNs();
+    frame->t_ns = ClipTimeNs(clip_ns);
     last_t_ns_ = frame->t_ns;
     ++source_index_;
     return true;
   }
 
-  // The frame's presentation time in the clip (a variable frame rate kept). The decoder does not
-  // give one for every frame (the last frames of a clip with B-frames read as 0) nor does every
-  // container hold them: where it goes back or stands still, the previous frame's time plus one
-  // frame at the nominal rate.
-  int64_t ClipTimeNs() {
+  // The frame's presentation time in the clip (a variable frame rate kept). Where the stream
+  // gives none, or one that goes back or stands still, the previous frame's time plus one frame
+  // at the nominal rate.
+  int64_t ClipTimeNs(int64_t clip_ns) const {
     const int64_t by_rate = last_t_ns_ < 0 ? static_cast<int64_t>(std::llround(source_index_ * 1e9 / fps_))
                                            : last_t_ns_ + static_cast<int64_t>(std::llround(1e9 / fps_));
-    const double position_ms = capture_.get(cv::CAP_PROP_POS_MSEC);
-    if (!std::isfinite(position_ms) || position_ms < 0) return by_rate;
-    const int64_t position_ns = static_cast<int64_t>(std::llround(position_ms * 1e6));
-    const bool plausible = last_t_ns_ >= 0 ? position_ns > last_t_ns_ : (position_ns > 0 || source_index_ == 0);
-    return plausible ? position_ns : by_rate;
+    if (clip_ns < 0) return by_rate;
+    const bool plausible = last_t_ns_ >= 0 ? clip_ns > last_t_ns_ : (clip_ns > 0 || source_index_ == 0);
+    return plausible ? clip_ns : by_rate;
   }
 
   std::string path_;
-  cv::VideoCapture capture_;
+  VideoDecoder decoder_;
   Camera camera_;
   Trajectory ground_truth_;
   double fps_ = 30.0;

@@ -56,8 +56,8 @@ std::pair<int, int> WorkingSize(int width, int height, int max_pixels);
 Camera WorkingCamera(const Camera& camera, int max_pixels);
 // `image` reduced to `size` by area averaging, as a source with a working size sends it: halved
 // exactly (2x2 block averages) while it stays at least `size`, then averaged to `size` (1080p and
-// 4K: halved to 960x540, then to 942x530): a fraction of the cost of one fractional reduction
-// from the full frame (features_benchmark's BM_ReduceToWorkingSize).
+// 4K within 500,000 pixels: halved to 960x540, then to 942x530): a fraction of the cost of one
+// fractional reduction from the full frame (features_benchmark's BM_ReduceToWorkingSize).
 cv::Mat ReduceToWorkingSize(const cv::Mat& image, const cv::Size& size);
 
 // The failure schedule the spec means for a sequence of `num_frames` frames.

@@ -9,6 +9,7 @@
 #include <gtest/gtest.h>
 #include <opencv2/imgproc.hpp>
 
+#include "stitch/config/ingest_options.h"
 #include "stitch/io/calibration.h"
 #include "stitch/testing/temp_dir.h"
 
@@ -31,6 +32,17 @@ TEST(WorkingSize, LargeFramesAreReducedWithinTheBudgetAndKeepTheirAspect) {
     EXPECT_NEAR(static_cast<double>(h) / w, static_cast<double>(height) / width, 1.0 / w) << width << "x" << height;
   }
   EXPECT_EQ(WorkingSize(1920, 1080, 500000), std::make_pair(942, 530));
+}
+
+// The default budget is 960x540: an aircraft's 1080p and 4K frames reach it by exact halvings,
+// the cheap step (a fractional one costs most of a reduction: features_benchmark's
+// BM_ReduceToWorkingSize).
+TEST(WorkingSize, TheDefaultBudgetHalves1080pAnd4KExactly) {
+  const int budget = IngestOptions{}.max_working_pixels;
+  EXPECT_EQ(WorkingSize(1920, 1080, budget), std::make_pair(960, 540));
+  EXPECT_EQ(WorkingSize(3840, 2160, budget), std::make_pair(960, 540));
+  EXPECT_EQ(WorkingSize(752, 480, budget), std::make_pair(752, 480));  // 0.5 MP cameras as they come
+  EXPECT_EQ(WorkingSize(1241, 376, budget), std::make_pair(1241, 376));
 }
 
 // A 1080p synthetic flight played at its working size: frames and camera agree, the ground truth
