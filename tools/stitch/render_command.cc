@@ -39,6 +39,8 @@ int RenderCommand(int argc, char** argv) {
   args.AddOption("--config", &config_path, "FILE", "YAML settings; its synthetic: section shapes the flight");
   args.AddOption("--set", &settings, "KEY=VALUE", "a setting over the file, e.g. synthetic.flight.altitude_m=40");
   args.AddOption("--quantizer", &video.quantizer, "Q", "a video's H.264 constant quality, 0 (lossless) .. 50");
+  args.AddOption("--max-bitrate", &video.max_bitrate_kbps, "KBPS",
+                 "a video's most bits per second, kbit/s (default: 100000, an aircraft camera's 4K recording rate)");
   AddSourceOptions(&args, &spec, kFailuresFlag | kMaxFramesFlag);
   if (!args.Parse(argc, argv)) return args.exit_code();
   try {

@@ -344,6 +344,35 @@ TEST(Datasets, H264VideoIsReadWithItsOwnTimesAndTheGroundTruthBesideIt) {
             1u);
 }
 
+// The writer's bit rate is the one asked (x264enc's own default capped every clip at 2 Mbit/s
+// whatever its quantizer): noise, which no quantizer compresses, at 200 kbit/s and at the default.
+TEST(Datasets, H264WriterKeepsToItsMostBitsPerSecond) {
+  testing::TempDir dir;
+  const auto write = [&](const std::string& name, int max_bitrate_kbps) {
+    H264FileOptions options{25.0};
+    options.max_bitrate_kbps = max_bitrate_kbps;
+    H264FileWriter writer(dir / name, kWidth, kHeight, options);
+    cv::Mat noise(kHeight, kWidth, CV_8UC1);
+    cv::RNG rng(3);
+    for (int i = 0; i < 25; ++i) {
+      rng.fill(noise, cv::RNG::UNIFORM, 0, 256);
+      writer.Write(noise);
+    }
+    writer.Finish();
+    return static_cast<double>(fs::file_size(dir / name));
+  };
+  double capped = 0, realistic = 0;
+  try {
+    capped = write("capped.mp4", 200);
+  } catch (const Error& e) {
+    GTEST_SKIP() << e.what();
+  }
+  realistic = write("realistic.mp4", H264FileOptions{}.max_bitrate_kbps);
+  EXPECT_LT(capped * 8 / 1000, 200 * 1.5) << "kbit in the second of frames";  // within the VBV's slack
+  EXPECT_GT(realistic * 8 / 1000, 2048 * 2) << "above x264enc's own default cap";
+  EXPECT_THROW(write("none.mp4", 10), Error);
+}
+
 TEST(Datasets, MissingOrUnknownPathsAreClearErrors) {
   testing::TempDir dir;
   EXPECT_THROW(DetectDatasetKind(dir / "nope"), Error);

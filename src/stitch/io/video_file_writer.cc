@@ -32,13 +32,17 @@ H264FileWriter::H264FileWriter(const std::string& path, int width, int height, c
   }
   if (!(options.fps > 0 && options.fps <= 1000)) throw Error(Str() << path << ": a frame rate of " << options.fps);
   if (!(options.quantizer >= 0 && options.quantizer <= 50)) throw Error(path + ": the quantizer is 0..50");
+  if (!(options.max_bitrate_kbps >= 100 && options.max_bitrate_kbps <= 2'000'000)) {
+    throw Error(path + ": the most bits per second is 100..2000000 kbit/s");
+  }
   // The path goes into a pipeline description, quoted: a quote or backslash in it cannot.
   if (part_.find_first_of("\"\\") != std::string::npos) {
     throw Error(path + ": a video path with a quote or backslash in it cannot be handed to GStreamer");
   }
   const std::string pipeline =
       Str() << "appsrc ! videoconvert ! video/x-raw,format=I420 ! x264enc pass=qual quantizer=" << options.quantizer
-            << " speed-preset=" << options.speed_preset << " ! " << muxer << " ! filesink location=\"" << part_ << "\"";
+            << " bitrate=" << options.max_bitrate_kbps << " speed-preset=" << options.speed_preset << " ! " << muxer
+            << " ! filesink location=\"" << part_ << "\"";
   // Frames go in as BGR: videoconvert then maps them to H.264's video range and tags the stream so,
   // which every decoder reads back (gray handed over as it is would be tagged video range without
   // being mapped to it, and come back darker or brighter).

@@ -15,6 +15,10 @@ namespace stitch {
 struct H264FileOptions {
   double fps = 30.0;
   int quantizer = 18;  // x264's constant quality (0 lossless .. 50); 18 keeps the corners a tracker needs
+  // The stream's most bits per second, kbit/s: an aircraft camera's recording rate (a DJI Phantom 4
+  // records 4K at 100 Mbit/s, 1080p at 60). x264enc's own default (2048) capped every clip at
+  // 2 Mbit/s whatever the quantizer, a 4K frame at 8 kB: blocks where the ground's texture was.
+  int max_bitrate_kbps = 100000;
   std::string speed_preset = "faster";  // x264's speed preset
 };
 
