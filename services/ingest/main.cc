@@ -36,6 +36,7 @@ int main(int argc, char** argv) {
         CheckSourceSpec(source);
         source.synthetic = process.config.synthetic;
         source.max_working_pixels = process.config.ingest.max_working_pixels;
+        source.video_deblocking = process.config.ingest.video_deblocking;
         if (source.live_uri.empty() && source.dataset_path.empty()) source.live_uri = process.config.ingest.live;
         IngestService ingest(process.lcm, process.frame_url(), process.publisher, process.config.ingest,
                              process.frame_publisher);

@@ -70,6 +70,7 @@ nlohmann::json BenchOnce(const BenchArgs& a) {
   SourceSpec spec = a.source;
   spec.synthetic = config.synthetic;
   spec.max_working_pixels = config.ingest.max_working_pixels;  // as the run's ingest sends them
+  spec.video_deblocking = config.ingest.video_deblocking;
   FailureSchedule spoil;
   auto sequence = OpenSource(spec, &spoil);
   if (!spoil.empty()) throw Error("stitch bench applies failure schedules to the synthetic flight only");

@@ -439,7 +439,8 @@ std::unique_ptr<ImageSequence> OpenImageFolder(const fs::path& root, const Seque
 
 class VideoSequence : public ImageSequence {
  public:
-  VideoSequence(const fs::path& path, const SequenceOptions& options) : path_(path.string()), decoder_(path_) {
+  VideoSequence(const fs::path& path, const SequenceOptions& options)
+      : path_(path.string()), decoder_(path_, options.video_skip_deblocking_from_pixels) {
     fps_ = options.fps > 0 ? options.fps : decoder_.fps();
     if (!(fps_ > 0 && fps_ < 1000)) fps_ = 30.0;
     const int64_t count = decoder_.frame_count();

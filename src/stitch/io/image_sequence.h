@@ -3,6 +3,7 @@
 // order through Next(); readers are single-threaded objects owned by whoever plays them.
 
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <string>
 #include <vector>
@@ -50,6 +51,9 @@ struct SequenceOptions {
   double fps = 0.0;              // frame rate where the data has no timestamps (0: 30 Hz)
   int start_frame = 0;           // skip this many frames at the start
   int max_frames = -1;           // stop after this many frames (-1: all)
+  // A video file's frames of at least this many pixels are decoded without the deblocking filter
+  // (VideoDecoder; default: never).
+  int64_t video_skip_deblocking_from_pixels = std::numeric_limits<int64_t>::max();
 };
 
 // What kind of data is at `path`: "tum", "euroc", "kitti", "folder" or "video".

@@ -72,7 +72,8 @@ struct VideoDecoder::Libav {
   }
 };
 
-VideoDecoder::VideoDecoder(const std::string& path) : av_(std::make_unique<Libav>()), path_(path) {
+VideoDecoder::VideoDecoder(const std::string& path, int64_t skip_deblocking_from_pixels)
+    : av_(std::make_unique<Libav>()), path_(path) {
   av_log_set_level(AV_LOG_ERROR);
   int code = avformat_open_input(&av_->format, path.c_str(), nullptr, nullptr);
   if (code < 0) throw Error(path + ": cannot open video: " + AvError(code));
@@ -97,6 +98,8 @@ VideoDecoder::VideoDecoder(const std::string& path) : av_(std::make_unique<Libav
   }
   av_->codec->thread_count = 0;  // as many as the machine has: frames are decoded ahead
   av_->codec->thread_type = FF_THREAD_FRAME | FF_THREAD_SLICE;
+  deblocking_ = static_cast<int64_t>(width_) * height_ < skip_deblocking_from_pixels;
+  if (!deblocking_) av_->codec->skip_loop_filter = AVDISCARD_ALL;
   code = avcodec_open2(av_->codec, decoder, nullptr);
   if (code < 0) throw Error(path + ": cannot open its " + decoder->name + " decoder: " + AvError(code));
   av_->packet = av_packet_alloc();

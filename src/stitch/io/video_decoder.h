@@ -8,6 +8,7 @@
 // clip is in video range: 16-235 becomes 0-255, the grey that BGR's conversion gave).
 
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <string>
 
@@ -17,9 +18,12 @@ namespace stitch {
 
 class VideoDecoder {
  public:
-  // Opens `path` and its best video stream. Throws stitch::Error for a file that is not a video
-  // FFmpeg can read, a codec it lacks, or frames of an implausible size.
-  explicit VideoDecoder(const std::string& path);
+  // Opens `path` and its best video stream. Frames of at least `skip_deblocking_from_pixels`
+  // pixels are decoded without the codec's deblocking (loop) filter, about a fifth of an H.264
+  // frame's decoding (default: never). Throws stitch::Error for a file that is not a video FFmpeg
+  // can read, a codec it lacks, or frames of an implausible size.
+  explicit VideoDecoder(const std::string& path, int64_t skip_deblocking_from_pixels = kNever);
+  static constexpr int64_t kNever = std::numeric_limits<int64_t>::max();
   ~VideoDecoder();
   VideoDecoder(const VideoDecoder&) = delete;
   VideoDecoder& operator=(const VideoDecoder&) = delete;
@@ -38,6 +42,7 @@ class VideoDecoder {
   int64_t frame_count() const { return count_; }  // frames the container lists (-1 where it does not)
   int skipped_packets() const { return skipped_packets_; }
   int skipped_frames() const { return skipped_frames_; }
+  bool deblocking() const { return deblocking_; }
 
  private:
   struct Libav;  // FFmpeg's contexts (kept out of this header)
@@ -50,6 +55,7 @@ class VideoDecoder {
   double fps_ = 0;
   int64_t count_ = -1;
   int skipped_packets_ = 0, skipped_frames_ = 0;
+  bool deblocking_ = true;
   bool flushing_ = false, ended_ = false;
 };
 

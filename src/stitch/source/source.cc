@@ -12,6 +12,7 @@
 #include "stitch/geo/geoid.h"
 #include "stitch/io/calibration.h"
 #include "stitch/io/live_capture.h"
+#include "stitch/io/video_decoder.h"
 
 #include "stitch/util/error.h"
 #include "stitch/util/options.h"
@@ -81,6 +82,15 @@ class ReducedSequence : public ImageSequence {
 };
 
 }  // namespace
+
+int64_t SkipDeblockingFromPixels(const SourceSpec& spec) {
+  if (spec.video_deblocking != "auto" && spec.video_deblocking != "on" && spec.video_deblocking != "off") {
+    throw Error("video deblocking is auto, on or off, not " + spec.video_deblocking);
+  }
+  if (spec.video_deblocking == "off") return 0;
+  if (spec.video_deblocking == "on" || spec.max_working_pixels <= 0) return VideoDecoder::kNever;
+  return 4 * static_cast<int64_t>(spec.max_working_pixels);  // halved at least once for the working size
+}
 
 std::pair<int, int> WorkingSize(int width, int height, int max_pixels) {
   if (max_pixels <= 0 || static_cast<int64_t>(width) * height <= max_pixels) return {width, height};
@@ -157,6 +167,7 @@ std::unique_ptr<ImageSequence> OpenAtFullSize(const SourceSpec& spec, FailureSch
   options.calibration_path = spec.calibration_path;
   options.start_frame = spec.start_frame;
   options.max_frames = spec.max_frames;
+  options.video_skip_deblocking_from_pixels = SkipDeblockingFromPixels(spec);
   auto sequence = OpenDataset(spec.dataset_path, options);
   *spoil = ResolveFailures(spec, sequence->size());
   return sequence;

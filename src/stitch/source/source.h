@@ -25,7 +25,8 @@ struct SourceSpec {
   // Frames of more pixels than this are reduced to the working size (WorkingSize), with their
   // camera; 0: frames as they come (ingest.max_working_pixels sets it for a run).
   int max_working_pixels = 0;
-  SyntheticOptions synthetic;  // used when dataset_path is empty
+  std::string video_deblocking = "auto";  // a video file's deblocking filter: auto, on, off (ingest.video_deblocking)
+  SyntheticOptions synthetic;             // used when dataset_path is empty
 
   bool synthetic_source() const { return dataset_path.empty() && live_uri.empty(); }
 };
@@ -52,6 +53,10 @@ std::vector<std::string> SourceArguments(const SourceSpec& spec, unsigned which 
 // `max_pixels` pixels (or `max_pixels` is 0), else the largest size within it whose aspect is the
 // frame's to the pixel.
 std::pair<int, int> WorkingSize(int width, int height, int max_pixels);
+// The frames of a video of at least this many pixels are decoded without the deblocking filter, by
+// spec.video_deblocking: auto: those halved at least once for their working size (4 x
+// max_working_pixels: 1080p and 4K by default); on: none; off: all.
+int64_t SkipDeblockingFromPixels(const SourceSpec& spec);
 // `camera` for frames at their working size.
 Camera WorkingCamera(const Camera& camera, int max_pixels);
 // `image` reduced to `size` by area averaging, as a source with a working size sends it: halved

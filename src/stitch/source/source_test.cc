@@ -12,6 +12,7 @@
 #include "stitch/config/ingest_options.h"
 #include "stitch/io/calibration.h"
 #include "stitch/testing/temp_dir.h"
+#include "stitch/util/error.h"
 
 namespace stitch {
 namespace {
@@ -37,6 +38,25 @@ TEST(WorkingSize, LargeFramesAreReducedWithinTheBudgetAndKeepTheirAspect) {
 // The default budget is 960x540: an aircraft's 1080p and 4K frames reach it by exact halvings,
 // the cheap step (a fractional one costs most of a reduction: features_benchmark's
 // BM_ReduceToWorkingSize).
+// Deblocking is skipped (auto) for the frames a halving reduces: 1080p and 4K by default, not
+// 720p nor frames used as they come.
+TEST(WorkingSize, DeblockingIsSkippedWhereAHalvingFollows) {
+  SourceSpec spec;
+  spec.max_working_pixels = IngestOptions{}.max_working_pixels;
+  const int64_t from = SkipDeblockingFromPixels(spec);
+  EXPECT_LE(from, 1920 * 1080);
+  EXPECT_GT(from, 1280 * 720);
+  spec.video_deblocking = "on";
+  EXPECT_GT(SkipDeblockingFromPixels(spec), int64_t{3840} * 2160);
+  spec.video_deblocking = "off";
+  EXPECT_EQ(SkipDeblockingFromPixels(spec), 0);
+  spec.video_deblocking = "auto";
+  spec.max_working_pixels = 0;
+  EXPECT_GT(SkipDeblockingFromPixels(spec), int64_t{3840} * 2160) << "frames as they come keep it";
+  spec.video_deblocking = "sometimes";
+  EXPECT_THROW(SkipDeblockingFromPixels(spec), Error);
+}
+
 TEST(WorkingSize, TheDefaultBudgetHalves1080pAnd4KExactly) {
   const int budget = IngestOptions{}.max_working_pixels;
   EXPECT_EQ(WorkingSize(1920, 1080, budget), std::make_pair(960, 540));

@@ -81,6 +81,7 @@ LaunchPlan PlanRun(const RunArgs& a, const std::string& out) {
   if (plan.spec.live_uri.empty() && plan.spec.dataset_path.empty()) plan.spec.live_uri = config.ingest.live;
   plan.spec.synthetic = config.synthetic;
   plan.spec.max_working_pixels = config.ingest.max_working_pixels;
+  plan.spec.video_deblocking = config.ingest.video_deblocking;
   plan.source = SummarizeSource(plan.spec);
   if (plan.source.num_frames == 0) throw Error("the sequence has no frames");
   if (plan.config.tracker.tracking.rolling_shutter_line_us < 0) {
