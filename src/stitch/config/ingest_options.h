@@ -19,6 +19,11 @@ inline std::string WhyNotAGnssReceiver(const std::string& receiver) {
          receiver + "'";
 }
 
+// The modes of a video file's deblocking filter (IngestOptions::video_deblocking, SourceSpec's).
+inline bool IsVideoDeblockingMode(const std::string& mode) {
+  return mode == "auto" || mode == "on" || mode == "off";
+}
+
 struct IngestOptions {
   // A live camera (stitch-ingest --live takes precedence): a V4L2 device, a GStreamer pipeline or
   // a stream URL. Here rather than on the command line where a pipeline's spaces would not survive
@@ -108,9 +113,7 @@ struct IngestOptions {
     if (pacing != "lockstep" && pacing != "realtime") return fail("ingest.pacing must be lockstep or realtime");
     if (!(speed > 0 && speed <= 100)) return fail("ingest.speed must be in (0, 100]");
     if (max_working_pixels < 0) return fail("ingest.max_working_pixels must be >= 0 (0: frames as they come)");
-    if (video_deblocking != "auto" && video_deblocking != "on" && video_deblocking != "off") {
-      return fail("ingest.video_deblocking must be auto, on or off");
-    }
+    if (!IsVideoDeblockingMode(video_deblocking)) return fail("ingest.video_deblocking must be auto, on or off");
     if (max_working_pixels > 0 && max_working_pixels < 10000) {
       return fail("ingest.max_working_pixels must be 0 or at least 10000 (100x100)");
     }

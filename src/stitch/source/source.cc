@@ -7,6 +7,7 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include "stitch/config/ingest_options.h"
 #include "stitch/geo/dji_srt.h"
 #include "stitch/geo/exif_gps.h"
 #include "stitch/geo/geoid.h"
@@ -84,7 +85,7 @@ class ReducedSequence : public ImageSequence {
 }  // namespace
 
 int64_t SkipDeblockingFromPixels(const SourceSpec& spec) {
-  if (spec.video_deblocking != "auto" && spec.video_deblocking != "on" && spec.video_deblocking != "off") {
+  if (!IsVideoDeblockingMode(spec.video_deblocking)) {
     throw Error("video deblocking is auto, on or off, not " + spec.video_deblocking);
   }
   if (spec.video_deblocking == "off") return 0;
