@@ -221,7 +221,9 @@ TEST(StitchRun, CtrlCStopsEverythingAndStillWritesTheOutputs) {
   const std::string out = dir / "run";
   std::ofstream(dir / "long.yaml") << "synthetic:\n  flight:\n    num_frames: 100000\n    num_strips: 1\n"
                                       "    strip_length_m: 60\n  world:\n    num_buildings: 4\n";
-  const auto result = RunProgram({Bin("stitch"), "run", "--config", dir / "long.yaml", "--out", out}, 60, 4, SIGINT);
+  // Ctrl-C 4 s into the flight: after the run has said where its outputs go, its set-up done.
+  const auto result =
+      RunProgram({Bin("stitch"), "run", "--config", dir / "long.yaml", "--out", out}, 90, 4, SIGINT, "  output ");
   EXPECT_EQ(result.exit_code, 130) << result.output;
   EXPECT_TRUE(fs::exists(out + "/report.json")) << result.output;
   EXPECT_EQ(ReadJson(out + "/run.json")["interrupted"], true);

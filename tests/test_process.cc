@@ -12,11 +12,13 @@
 #include <cstdint>
 #include <cstdlib>
 #include <fstream>
+#include <optional>
 #include <thread>
 
 namespace stitch::testing {
 
-CommandResult RunProgram(const std::vector<std::string>& args, double timeout_s, int signal_after_s, int signal) {
+CommandResult RunProgram(const std::vector<std::string>& args, double timeout_s, int signal_after_s, int signal,
+                         const std::string& signal_after_output) {
   int pipe_fds[2];
   if (pipe(pipe_fds) != 0) return {};
   std::vector<std::string> storage = args;
@@ -37,6 +39,8 @@ CommandResult RunProgram(const std::vector<std::string>& args, double timeout_s,
   CommandResult result;
   const auto start = std::chrono::steady_clock::now();
   bool signalled = false;
+  std::optional<double> signal_clock_from;  // when the output first held signal_after_output
+  if (signal_after_output.empty()) signal_clock_from = 0;
   int status = 0;
   while (true) {
     char buffer[4096];
@@ -45,7 +49,10 @@ CommandResult RunProgram(const std::vector<std::string>& args, double timeout_s,
     ssize_t n;
     while ((n = read(pipe_fds[0], buffer, sizeof(buffer))) > 0) result.output.append(buffer, n);
     const double elapsed = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-    if (signal_after_s >= 0 && !signalled && elapsed >= signal_after_s) {
+    if (!signal_clock_from && result.output.find(signal_after_output) != std::string::npos) {
+      signal_clock_from = elapsed;
+    }
+    if (signal_after_s >= 0 && !signalled && signal_clock_from && elapsed - *signal_clock_from >= signal_after_s) {
       kill(pid, signal);
       signalled = true;
     }

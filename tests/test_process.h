@@ -17,9 +17,12 @@ struct CommandResult {
   std::string output;  // stdout and stderr
 };
 
-// Runs `args[0]` with the rest as arguments, waits at most `timeout_s`, then kills it.
+// Runs `args[0]` with the rest as arguments, waits at most `timeout_s`, then kills it. With
+// `signal_after_s` >= 0 it sends `signal` that many seconds after the start, or after the output
+// first holds `signal_after_output` where that is given (a program's set-up takes its own time,
+// several seconds under a sanitizer on a slow machine).
 CommandResult RunProgram(const std::vector<std::string>& args, double timeout_s = 120, int signal_after_s = -1,
-                         int signal = SIGINT);
+                         int signal = SIGINT, const std::string& signal_after_output = "");
 
 // Path of a built program: STITCH_BIN_DIR/name.
 std::string Bin(const std::string& name);

@@ -47,6 +47,9 @@ std::string NewRunFolder() {
 RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
   RunOutcome outcome;
   outcome.out = out;
+  // Ctrl-C is caught from the start: during the set-up (a long synthetic flight takes seconds to
+  // plan) it ends the run before the services start, with its outputs as after any interruption.
+  const auto& stop = InstallStopSignals();
   LaunchPlan plan;
   std::unique_ptr<SplitNetwork> network;
   std::unique_ptr<lcm::LCM> lcm;
@@ -74,7 +77,6 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
   if (!viewer_address.empty()) std::printf("  viewer %s\n", viewer_address.c_str());
   std::fflush(stdout);
 
-  const auto& stop = InstallStopSignals();
   RunMonitor monitor(lcm.get(), a.agent, authenticator);
   bus::Dispatcher dispatcher(lcm.get());
   dispatcher.Start();
@@ -82,7 +84,7 @@ RunOutcome RunOnce(const RunArgs& a, const std::string& out) {
   RunServices services(plan, network.get());
   std::string failure;
   try {
-    services.StartAll();
+    if (!stop.load()) services.StartAll();
     failure = WatchFlight(plan, monitor, services, stop, a.quiet, &info);
   } catch (const std::exception& e) {
     failure = e.what();
