@@ -8,6 +8,7 @@ FeatureFlow::FeatureFlow(const FeatureFlowOptions& options) : options_(options) 
 
 void FeatureFlow::Clear() {
   source_frame_index_ = -1;
+  source_cam_from_world_.reset();
   pyramid_.clear();
   positions_.clear();
   points_.clear();
@@ -25,6 +26,7 @@ void FeatureFlow::KeepSource(const cv::Mat& image, const Frame& frame) {
   const cv::Size window(options_.window_px, options_.window_px);
   cv::buildOpticalFlowPyramid(image, pyramid_, window, options_.levels, /*withDerivatives=*/true);
   source_frame_index_ = frame.frame_index;
+  source_cam_from_world_ = frame.cam_from_world;
 }
 
 Frame FeatureFlow::Follow(const cv::Mat& image, int frame_index, int64_t t_ns, const Map& map, const Rigid3d& predicted,
@@ -40,7 +42,16 @@ Frame FeatureFlow::Follow(const cv::Mat& image, int frame_index, int64_t t_ns, c
   for (size_t i = 0; i < points_.size(); ++i) {
     const MapPoint* point = found[i] = map.FindPoint(points_[i]);
     if (!point) continue;
-    const std::optional<Eigen::Vector2d> pixel = camera.Project(predicted * point->position);
+    const Eigen::Vector3d in_camera = predicted * point->position;
+    if (source_cam_from_world_ && options_.max_scale_change > 0) {
+      // Lucas-Kanade shifts its window; a patch that grows or shrinks is not followed.
+      const double source_depth = (*source_cam_from_world_ * point->position).z();
+      if (!(in_camera.z() > 0) || !(std::abs(source_depth / in_camera.z() - 1.0) <= options_.max_scale_change)) {
+        found[i] = nullptr;
+        continue;
+      }
+    }
+    const std::optional<Eigen::Vector2d> pixel = camera.Project(in_camera);
     if (pixel && camera.InImage(*pixel)) guesses[i] = cv::Point2f(pixel->x(), pixel->y());
   }
   std::vector<uchar> status;

@@ -7,6 +7,7 @@
 // points but no descriptors: it is placed by pose optimization and never becomes a keyframe; the
 // tracker extracts a frame again wherever one might become a keyframe (docs/speed.md).
 
+#include <optional>
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -33,13 +34,16 @@ class FeatureFlow {
 
   // The source's points followed into `image`: a frame with their positions (keypoints at the
   // source feature's level, undistorted by `undistorter`), its map points, no descriptors, and
-  // the pose `predicted`; the points whose flow failed or projects outside are left out.
+  // the pose `predicted`; the points whose flow failed or projects outside are left out, and
+  // those whose depth the predicted pose changes by more than `max_scale_change` of the source's
+  // (their patch grew or shrank by that much, which a shifted window does not follow).
   Frame Follow(const cv::Mat& image, int frame_index, int64_t t_ns, const Map& map, const Rigid3d& predicted,
                const Camera& camera, const Undistorter& undistorter) const;
 
  private:
   FeatureFlowOptions options_;
   int source_frame_index_ = -1;
+  std::optional<Rigid3d> source_cam_from_world_;
   std::vector<cv::Mat> pyramid_;  // the source image's, with derivatives
   std::vector<cv::Point2f> positions_;
   std::vector<MapPointId> points_;

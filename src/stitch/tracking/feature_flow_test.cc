@@ -123,6 +123,29 @@ TEST(FeatureFlow, NothingIsFollowedIntoAnImageThatDoesNotShowIt) {
   EXPECT_EQ(source.Follow(strip.sequence().RenderFrame(2), 2, truth).size(), 0u);
 }
 
+TEST(FeatureFlow, APointWhoseDepthChangesMuchIsNotFollowed) {
+  RenderedViews& strip = testing::SharedStrip();
+  Source source = MakeSource(0);
+  const Rigid3d truth = strip.WorldFromCam(2).Inverse();
+  const cv::Mat image = strip.sequence().RenderFrame(2);
+  // The prediction moved along the optical axis towards the ground (70 m below): its points'
+  // depths change by that share, and their patches by its inverse.
+  const auto towards_ground = [&](double metres) {
+    Rigid3d world_from_cam = truth.Inverse();
+    world_from_cam.translation += world_from_cam.rotation * Eigen::Vector3d(0, 0, metres);
+    return world_from_cam.Inverse();
+  };
+  EXPECT_GT(source.Follow(image, 2, towards_ground(1.4)).size(), 0.9 * source.flow.source_points())
+      << "2%: within max_scale_change (5%)";
+  EXPECT_EQ(source.Follow(image, 2, towards_ground(7.0)).size(), 0u) << "10%: beyond it";
+  FeatureFlowOptions no_limit;
+  no_limit.max_scale_change = 0;
+  Source unlimited = MakeSource(0);
+  unlimited.flow = FeatureFlow(no_limit);
+  unlimited.flow.KeepSource(unlimited.image, unlimited.frame);
+  EXPECT_GT(unlimited.Follow(image, 2, towards_ground(7.0)).size(), 0u) << "0: no limit";
+}
+
 // The tracker on the strip's first 15 frames (without a mapper's points it loses the strip
 // after): which frames flow placed, and which were keyframes.
 struct StripRun {

@@ -15,6 +15,9 @@ bool FeatureFlowOptions::Check(std::string* why) const {
   if (levels < 0 || levels > 6) return fail("tracker.tracking.flow.levels must be in [0, 6]");
   if (!(max_error > 0 && max_error <= 255)) return fail("tracker.tracking.flow.max_error must be in (0, 255]");
   if (!(max_turn_deg >= 0 && max_turn_deg <= 45)) return fail("tracker.tracking.flow.max_turn_deg must be in [0, 45]");
+  if (!(max_scale_change >= 0 && max_scale_change < 1)) {
+    return fail("tracker.tracking.flow.max_scale_change must be in [0, 1)");
+  }
   if (!(keyframe_margin >= 0 && keyframe_margin <= 1))
     return fail("tracker.tracking.flow.keyframe_margin must be in [0, 1]");
   return true;

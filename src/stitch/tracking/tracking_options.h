@@ -28,6 +28,10 @@ struct FeatureFlowOptions {
   // a frame: Lucas-Kanade shifts its window but does not turn or warp it (a conservative limit,
   // not shown to help on TUM fr1/rpy: docs/speed.md).
   double max_turn_deg = 1.0;
+  // A point is followed only while the predicted pose changes its depth by at most this share of
+  // its depth in the source frame (its patch's scale; 0: no limit): a camera moving towards the
+  // ground it sees (forward, oblique) enlarges its near patches.
+  double max_scale_change = 0.05;
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
@@ -38,6 +42,8 @@ struct FeatureFlowOptions {
     v("max_error", max_error, "largest flow error kept (mean absolute grey-level difference over the window)");
     v("max_turn_deg", max_turn_deg,
       "frames are followed only while the camera turns at most this many degrees a frame");
+    v("max_scale_change", max_scale_change,
+      "a point is followed only while its depth changes by at most this share of the source frame's (0: no limit)");
     v("keyframe_margin", keyframe_margin,
       "a followed frame is kept only with this share of the reference keyframe's points above the keyframe ratio");
   }
