@@ -145,6 +145,9 @@ bool GeoReferenceOptions::Check(std::string* why) const {
   if (camera_up_axis != "auto" && camera_up_axis != "-z" && camera_up_axis != "-y" && camera_up_axis != "none") {
     return *why = "camera_up_axis must be auto, -z, -y or none", false;
   }
+  if (level_by_camera != "auto" && level_by_camera != "true" && level_by_camera != "false") {
+    return *why = "level_by_camera must be auto, true or false", false;
+  }
   if (!(max_interpolation_gap_s > 0)) return *why = "max_interpolation_gap_s must be positive", false;
   if (!(outlier_chi2 > 0)) return *why = "outlier_chi2 must be positive", false;
   if (!(min_inlier_fraction > 0 && min_inlier_fraction <= 1)) {
@@ -324,7 +327,7 @@ GeoPlacement PlaceByGnss(const Trajectory& map_poses, const std::vector<EnuFix>&
   }
   // A stated mount levels the map: turned about its inliers' centre (which stays where the fixes
   // put it) so that the cameras' mean up axis points up.
-  if (!along_line && options.level_by_camera && (options.camera_up_axis == "-z" || options.camera_up_axis == "-y")) {
+  if (!along_line && options.LevelsByCamera() && (options.camera_up_axis == "-z" || options.camera_up_axis == "-y")) {
     const Eigen::Vector3d up_in_cam = options.camera_up_axis == "-y" ? Eigen::Vector3d(-Eigen::Vector3d::UnitY())
                                                                      : Eigen::Vector3d(-Eigen::Vector3d::UnitZ());
     Eigen::Vector3d up = Eigen::Vector3d::Zero(), centre = Eigen::Vector3d::Zero();

@@ -30,7 +30,9 @@ struct GeoReferenceOptions {
   double time_offset_s = 0.0;  // added to a fix's time to put it on the camera's clock
   // A map placed by its fixes is turned so that camera_up_axis (-z or -y, as set), averaged over
   // its cameras, points up: for a gimballed camera, whose tilt the fixes' heights barely say.
-  bool level_by_camera = false;
+  // "true", "false", or "auto": true where the source states a gimbal's mount (stitch run
+  // resolves it: SourceCameraUpAxis), false where nothing does (a service started alone).
+  std::string level_by_camera = "auto";
 
   template <class Visitor>
   void VisitFields(Visitor& v) {
@@ -54,11 +56,15 @@ struct GeoReferenceOptions {
     v("antenna_z_m", antenna_z_m, "the antenna's position in the camera's frame: z (along the optical axis), metres");
     v("time_offset_s", time_offset_s, "seconds added to a fix's time to put it on the camera's clock");
     v("level_by_camera", level_by_camera,
-      "turn each map its fixes place (not along a line) so that camera_up_axis, set to -z (a gimballed nadir camera) "
-      "or -y, averaged over its cameras, points up: the fixes' heights (metres of noise) barely say a survey's tilt "
-      "across its strips, a gimbal holds it to a fraction of a degree");
+      "true: turn each map its fixes place (not along a line) so that camera_up_axis, set to -z (a gimballed nadir "
+      "camera) or -y, averaged over its cameras, points up: the fixes' heights (metres of noise) barely say a "
+      "survey's tilt across its strips, a gimbal holds it to a fraction of a degree; false; auto: true, with "
+      "camera_up_axis from the source, where the source states its camera's mount (the synthetic flight's nadir "
+      "camera), else false");
   }
   bool Check(std::string* why) const;
+  // level_by_camera resolved: "true" (auto counts as false: nothing stated the mount).
+  bool LevelsByCamera() const { return level_by_camera == "true"; }
 };
 
 struct GeoPlacement {

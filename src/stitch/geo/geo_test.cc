@@ -316,9 +316,12 @@ TEST(PlaceByGnss, LevelsAMapByItsCamerasWhereTheirMountIsStated) {
   const GeoPlacement tilted = PlaceByGnss(map, fixes, options);
   ASSERT_TRUE(tilted.placed) << tilted.why_not;
   EXPECT_NEAR(tilt_deg(tilted), 1.0, 0.15);
-  options.level_by_camera = true;
+  options.level_by_camera = "true";
   EXPECT_NEAR(tilt_deg(PlaceByGnss(map, fixes, options)), 1.0, 0.15);  // auto: no mount stated
   options.camera_up_axis = "-z";
+  options.level_by_camera = "auto";  // stitch run resolves it from the source; alone, nothing stated it
+  EXPECT_NEAR(tilt_deg(PlaceByGnss(map, fixes, options)), 1.0, 0.15);
+  options.level_by_camera = "true";
   const GeoPlacement level = PlaceByGnss(map, fixes, options);
   ASSERT_TRUE(level.placed) << level.why_not;
   EXPECT_EQ(level.method, "gnss+level");

@@ -332,6 +332,11 @@ std::vector<std::string> SourceArguments(const SourceSpec& spec, unsigned which)
   return args;
 }
 
+std::string SourceCameraUpAxis(const SourceSpec& spec) {
+  const bool synthetic = spec.dataset_path.empty() && spec.live_uri.empty();
+  return synthetic && spec.synthetic.flight.camera_pitch_deg == 0.0 ? "-z" : "";
+}
+
 double SourceLineDelayUs(const SourceSpec& spec, const Camera& working) {
   if (spec.dataset_path.empty() && spec.live_uri.empty()) {
     return spec.synthetic.camera.rolling_shutter_line_us * spec.synthetic.height / working.height();

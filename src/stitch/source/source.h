@@ -112,4 +112,10 @@ GnssTrack DatasetGnss(const std::string& dataset_path);
 // tracker.tracking.rolling_shutter_line_us -1 resolves to.
 double SourceLineDelayUs(const SourceSpec& spec, const Camera& working);
 
+// The camera's axis that points up, where the source states how its camera is mounted: "-z" for
+// the synthetic flight's gimballed camera looking straight down (synthetic.flight.camera_pitch_deg
+// 0), as an aircraft's own metadata says it; "" where the source says nothing (datasets, live
+// cameras, a tilted camera). What merger.georeference.level_by_camera auto resolves by.
+std::string SourceCameraUpAxis(const SourceSpec& spec);
+
 }  // namespace stitch

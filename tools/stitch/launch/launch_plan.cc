@@ -87,6 +87,13 @@ LaunchPlan PlanRun(const RunArgs& a, const std::string& out) {
   if (plan.config.tracker.tracking.rolling_shutter_line_us < 0) {
     plan.config.tracker.tracking.rolling_shutter_line_us = SourceLineDelayUs(plan.spec, plan.source.camera);
   }
+  // A camera mount the source states levels the maps its GNSS fixes place.
+  GeoReferenceOptions& georeference = plan.config.merger.georeference;
+  if (georeference.level_by_camera == "auto") {
+    const std::string up_axis = SourceCameraUpAxis(plan.spec);
+    georeference.level_by_camera = up_axis.empty() ? "false" : "true";
+    if (!up_axis.empty() && georeference.camera_up_axis == "auto") georeference.camera_up_axis = up_axis;
+  }
   if (!calibration.empty()) {
     if (const std::string doubt = CalibrationDoubts(plan.source.camera); !doubt.empty()) info.notes.push_back(doubt);
   }

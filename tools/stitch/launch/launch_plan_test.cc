@@ -137,6 +137,26 @@ TEST(LaunchPlan, TheTrackerTakesTheSourcesRollingShutterUnlessSetByHand) {
   EXPECT_EQ(PlanRun(args, "/tmp/planned").config.tracker.tracking.rolling_shutter_line_us, 0);
 }
 
+// The synthetic flight's camera looks straight down from a gimbal, and says so: its maps placed by
+// GNSS are levelled by their cameras (merger.georeference.level_by_camera auto); a tilted camera,
+// a dataset, or a value set by hand is left as it is.
+TEST(LaunchPlan, AMountTheSourceStatesLevelsTheMapsItsFixesPlace) {
+  RunArgs args = ShortFlight();
+  const GeoReferenceOptions nadir = PlanRun(args, "/tmp/planned").config.merger.georeference;
+  EXPECT_EQ(nadir.level_by_camera, "true");
+  EXPECT_EQ(nadir.camera_up_axis, "-z");
+  args.settings = {"synthetic.flight.camera_pitch_deg=45"};
+  const GeoReferenceOptions oblique = PlanRun(args, "/tmp/planned").config.merger.georeference;
+  EXPECT_EQ(oblique.level_by_camera, "false");
+  EXPECT_EQ(oblique.camera_up_axis, "auto");
+  args.settings = {"merger.georeference.level_by_camera=false"};
+  EXPECT_EQ(PlanRun(args, "/tmp/planned").config.merger.georeference.level_by_camera, "false");
+  args.settings = {"merger.georeference.camera_up_axis=-y"};
+  EXPECT_EQ(PlanRun(args, "/tmp/planned").config.merger.georeference.camera_up_axis, "-y") << "stated by hand";
+  args.settings = {"merger.georeference.level_by_camera=maybe"};
+  EXPECT_THROW(PlanRun(args, "/tmp/planned"), Error);
+}
+
 // A viewer off this machine's loopback gets an access token made for the run, beside its outputs;
 // the config the services read names it, and the address printed carries it.
 TEST(LaunchPlan, AViewerOffLoopbackGetsAnAccessTokenOfTheRuns) {
