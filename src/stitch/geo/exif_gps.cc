@@ -111,6 +111,31 @@ std::optional<GnssFix> ReadExifGps(const std::string& image_path, std::string* w
   }
 }
 
+std::optional<double> ReadGimbalPitchDeg(const std::string& image_path) {
+  try {
+    STITCH_EXIV2_BEGIN
+    Exiv2::Image::AutoPtr image = Exiv2::ImageFactory::open(image_path);
+    STITCH_EXIV2_END
+    image->readMetadata();
+    const double pitch = XmpNumber(image->xmpData(), "Xmp.drone-dji.GimbalPitchDegree");
+    if (!std::isfinite(pitch) || pitch < -180 || pitch > 180) return std::nullopt;
+    return pitch;
+  } catch (const std::exception&) {  // Exiv2::AnyError, and what a damaged file makes it throw
+    return std::nullopt;
+  }
+}
+
+bool PhotosStateANadirGimbal(const std::vector<ImageEntry>& images, int photos, double tolerance_deg) {
+  int stated = 0;
+  for (size_t i = 0; i < images.size() && i < static_cast<size_t>(photos); ++i) {
+    const std::optional<double> pitch = ReadGimbalPitchDeg(images[i].path);
+    if (!pitch) continue;
+    if (std::abs(*pitch + 90.0) > tolerance_deg) return false;
+    ++stated;
+  }
+  return stated > 0;
+}
+
 GnssTrack ExifGnssTrack(const std::vector<ImageEntry>& images) {
   GnssTrack track;
   int without = 0;

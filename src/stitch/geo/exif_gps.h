@@ -24,6 +24,17 @@ inline constexpr double kExifVerticalAccuracyM = 10.0;
 // place on Earth, a file exiv2 cannot read). Never throws.
 std::optional<GnssFix> ReadExifGps(const std::string& image_path, std::string* why);
 
+// The gimbal's pitch a drone wrote into the photo's XMP (DJI: Xmp.drone-dji.GimbalPitchDegree,
+// degrees, -90 straight down, 0 at the horizon); none where the photo has none or cannot be read.
+// Never throws.
+std::optional<double> ReadGimbalPitchDeg(const std::string& image_path);
+
+// Whether the photos state a camera looking straight down: of the first `photos` of `images`,
+// each that states a gimbal pitch states one within `tolerance_deg` of -90, and at least one
+// does (a survey mission's nadir gimbal); what a folder's source states as its camera's up axis
+// (-z).
+bool PhotosStateANadirGimbal(const std::vector<ImageEntry>& images, int photos = 5, double tolerance_deg = 1.0);
+
 // The fixes of `images` (FolderImageTimes), each at its image's time; its `source`
 // says how many photos gave none, and why for the first. No photo with a fix: an empty track.
 GnssTrack ExifGnssTrack(const std::vector<ImageEntry>& images);

@@ -76,6 +76,37 @@ TEST(ExifGps, ReadsAPhotosPositionFromItsTags) {
   EXPECT_NEAR(rtk->vertical_accuracy_m, 0.031, 1e-12);
 }
 
+// A DJI writes its gimbal's pitch into each photo's XMP: -90 is straight down, what a survey
+// mission flies and what levels the map its fixes place (SourceCameraUpAxis).
+TEST(ExifGps, ReadsTheGimbalsPitchAndWhetherThePhotosLookStraightDown) {
+  testing::TempDir dir;
+  const auto photo = [&](const std::string& name, const std::string& pitch) {
+    return Photo(dir / name, ZurichTags(),
+                 pitch.empty()
+                     ? std::vector<std::pair<std::string, std::string>>{{"Xmp.drone-dji.RtkStdLat", "0.01"}}
+                     : std::vector<std::pair<std::string, std::string>>{{"Xmp.drone-dji.GimbalPitchDegree", pitch}});
+  };
+  EXPECT_NEAR(ReadGimbalPitchDeg(photo("a.jpg", "-90.0")).value_or(0), -90.0, 1e-12);
+  EXPECT_NEAR(ReadGimbalPitchDeg(photo("b.jpg", "-89.6")).value_or(0), -89.6, 1e-12);
+  EXPECT_FALSE(ReadGimbalPitchDeg(photo("none.jpg", "")));
+  EXPECT_FALSE(ReadGimbalPitchDeg(photo("text.jpg", "level"))) << "not a number";
+  EXPECT_FALSE(ReadGimbalPitchDeg(photo("far.jpg", "-400"))) << "not an angle";
+  { std::ofstream(dir / "broken.jpg") << "not a JPEG"; }
+  EXPECT_FALSE(ReadGimbalPitchDeg(dir / "broken.jpg"));
+  EXPECT_FALSE(ReadGimbalPitchDeg(dir / "missing.jpg"));
+
+  const auto photos = [&](const std::vector<std::string>& names) {
+    std::vector<ImageEntry> images;
+    for (const std::string& name : names) images.push_back({static_cast<int64_t>(images.size()), dir / name});
+    return images;
+  };
+  EXPECT_TRUE(PhotosStateANadirGimbal(photos({"a.jpg", "b.jpg", "none.jpg"})));
+  photo("oblique.jpg", "-60.0");
+  EXPECT_FALSE(PhotosStateANadirGimbal(photos({"a.jpg", "oblique.jpg"}))) << "one tilted photo among the first";
+  EXPECT_FALSE(PhotosStateANadirGimbal(photos({"none.jpg", "broken.jpg"}))) << "none states a pitch";
+  EXPECT_FALSE(PhotosStateANadirGimbal({}));
+}
+
 TEST(ExifGps, APhotoWithoutAUsablePositionGivesNoneAndSaysWhy) {
   testing::TempDir dir;
   std::string why;

@@ -60,7 +60,7 @@ struct GeoReferenceOptions {
       "camera) or -y, averaged over its cameras, points up: the fixes' heights (metres of noise) barely say a "
       "survey's tilt across its strips, a gimbal holds it to a fraction of a degree; false; auto: true, with "
       "camera_up_axis from the source, where the source states its camera's mount (the synthetic flight's nadir "
-      "camera), else false");
+      "camera, a drone's photos whose XMP gives its gimbal straight down), else false");
   }
   bool Check(std::string* why) const;
   // level_by_camera resolved: "true" (auto counts as false: nothing stated the mount).

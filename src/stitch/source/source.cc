@@ -333,8 +333,16 @@ std::vector<std::string> SourceArguments(const SourceSpec& spec, unsigned which)
 }
 
 std::string SourceCameraUpAxis(const SourceSpec& spec) {
-  const bool synthetic = spec.dataset_path.empty() && spec.live_uri.empty();
-  return synthetic && spec.synthetic.flight.camera_pitch_deg == 0.0 ? "-z" : "";
+  if (!spec.live_uri.empty()) return "";
+  if (spec.dataset_path.empty()) return spec.synthetic.flight.camera_pitch_deg == 0.0 ? "-z" : "";
+  // A drone's photos: the gimbal's pitch in their XMP.
+  if (!std::filesystem::is_directory(spec.dataset_path)) return "";
+  try {
+    if (DetectDatasetKind(spec.dataset_path) != "folder") return "";
+    return PhotosStateANadirGimbal(FolderImageTimes(spec.dataset_path)) ? "-z" : "";
+  } catch (const Error&) {
+    return "";
+  }
 }
 
 double SourceLineDelayUs(const SourceSpec& spec, const Camera& working) {

@@ -114,7 +114,8 @@ double SourceLineDelayUs(const SourceSpec& spec, const Camera& working);
 
 // The camera's axis that points up, where the source states how its camera is mounted: "-z" for
 // the synthetic flight's gimballed camera looking straight down (synthetic.flight.camera_pitch_deg
-// 0), as an aircraft's own metadata says it; "" where the source says nothing (datasets, live
+// 0), and for a folder of a drone's photos whose XMP says its gimbal looked straight down
+// (PhotosStateANadirGimbal); "" where the source says nothing (videos, other datasets, live
 // cameras, a tilted camera). What merger.georeference.level_by_camera auto resolves by.
 std::string SourceCameraUpAxis(const SourceSpec& spec);
 

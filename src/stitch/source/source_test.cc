@@ -7,9 +7,11 @@
 #include <fstream>
 
 #include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "stitch/config/ingest_options.h"
+#include "stitch/geo/exiv2.h"
 #include "stitch/io/calibration.h"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/util/error.h"
@@ -174,6 +176,43 @@ TEST(SourceLineDelay, IsTheSyntheticCamerasOrTheCalibrationBesideTheData) {
 
 namespace stitch {
 namespace {
+
+STITCH_EXIV2_BEGIN
+// Writes a DJI's gimbal pitch into a photo's XMP.
+void SetGimbalPitch(const std::string& path, const std::string& pitch_deg) {
+  Exiv2::Image::AutoPtr image = Exiv2::ImageFactory::open(path);
+  image->readMetadata();
+  Exiv2::XmpProperties::registerNs("http://www.dji.com/drone-dji/1.0/", "drone-dji");
+  image->xmpData()["Xmp.drone-dji.GimbalPitchDegree"] = pitch_deg;
+  image->writeMetadata();
+}
+STITCH_EXIV2_END
+
+// Where the source states its camera's mount: the synthetic flight's nadir camera; a folder of
+// photos whose XMP says the gimbal looked straight down (ExifGps.*); nothing else.
+TEST(SourceCameraUpAxis, IsTheSyntheticNadirCameraOrThePhotosGimbal) {
+  SourceSpec spec;
+  EXPECT_EQ(SourceCameraUpAxis(spec), "-z");
+  spec.synthetic.flight.camera_pitch_deg = 45;
+  EXPECT_EQ(SourceCameraUpAxis(spec), "");
+  testing::TempDir dir;
+  spec.dataset_path = dir / "photos";
+  std::filesystem::create_directories(spec.dataset_path);
+  EXPECT_EQ(SourceCameraUpAxis(spec), "") << "a folder without photos";
+  for (int i = 0; i < 3; ++i) {
+    cv::imwrite(spec.dataset_path + "/" + std::to_string(i) + ".jpg", cv::Mat(48, 64, CV_8UC1, cv::Scalar(100 + i)));
+  }
+  EXPECT_EQ(SourceCameraUpAxis(spec), "") << "photos that state no gimbal";
+  for (int i = 0; i < 3; ++i) SetGimbalPitch(spec.dataset_path + "/" + std::to_string(i) + ".jpg", "-90.0");
+  EXPECT_EQ(SourceCameraUpAxis(spec), "-z") << "a drone's photos, its gimbal straight down";
+  SetGimbalPitch(spec.dataset_path + "/1.jpg", "-45.0");
+  EXPECT_EQ(SourceCameraUpAxis(spec), "") << "one of them tilted";
+  spec.dataset_path = dir / "video.mp4";
+  EXPECT_EQ(SourceCameraUpAxis(spec), "");
+  spec.dataset_path.clear();
+  spec.live_uri = "/dev/video0";
+  EXPECT_EQ(SourceCameraUpAxis(spec), "");
+}
 
 // A dataset's fixes: its gnss.csv, else a DJI track beside a video (FILE.SRT), else none.
 TEST(DatasetGnss, IsTheGnssCsvElseTheDjiTrackBesideTheVideo) {
