@@ -247,6 +247,19 @@ GnssTrack AboveTheEllipsoid(GnssTrack track) {
   return track;
 }
 
+// A folder of photos (DetectDatasetKind's "folder"): its images as played; empty for anything
+// else. Throws what FolderImageTimes throws.
+std::vector<ImageEntry> PhotoFolderImages(const std::string& path) {
+  if (!std::filesystem::is_directory(path)) return {};
+  std::string kind;
+  try {
+    kind = DetectDatasetKind(path);
+  } catch (const Error&) {
+    return {};
+  }
+  return kind == "folder" ? FolderImageTimes(path) : std::vector<ImageEntry>();
+}
+
 }  // namespace
 
 GnssTrack DatasetGnss(const std::string& dataset_path) {
@@ -255,13 +268,8 @@ GnssTrack DatasetGnss(const std::string& dataset_path) {
   if (const std::string gnss = GnssFileBeside(dataset_path); fs::is_regular_file(gnss)) return ReadGnssCsv(gnss);
   if (fs::is_directory(dataset_path)) {
     // A folder of photos: the EXIF GPS tags a survey camera wrote into each.
-    std::string kind;
-    try {
-      kind = DetectDatasetKind(dataset_path);
-    } catch (const Error&) {
-      return {};
-    }
-    return kind == "folder" ? AboveTheEllipsoid(ExifGnssTrack(FolderImageTimes(dataset_path))) : GnssTrack();
+    const std::vector<ImageEntry> photos = PhotoFolderImages(dataset_path);
+    return photos.empty() ? GnssTrack() : AboveTheEllipsoid(ExifGnssTrack(photos));
   }
   for (const char* extension : {".SRT", ".srt"}) {
     const fs::path srt = fs::path(dataset_path).replace_extension(extension);
@@ -333,20 +341,18 @@ std::vector<std::string> SourceArguments(const SourceSpec& spec, unsigned which)
 }
 
 std::string SourceCameraUpAxis(const SourceSpec& spec) {
+  if (spec.synthetic_source()) return spec.synthetic.flight.camera_pitch_deg == 0.0 ? "-z" : "";
   if (!spec.live_uri.empty()) return "";
-  if (spec.dataset_path.empty()) return spec.synthetic.flight.camera_pitch_deg == 0.0 ? "-z" : "";
   // A drone's photos: the gimbal's pitch in their XMP.
-  if (!std::filesystem::is_directory(spec.dataset_path)) return "";
   try {
-    if (DetectDatasetKind(spec.dataset_path) != "folder") return "";
-    return PhotosStateANadirGimbal(FolderImageTimes(spec.dataset_path)) ? "-z" : "";
+    return PhotosStateANadirGimbal(PhotoFolderImages(spec.dataset_path)) ? "-z" : "";
   } catch (const Error&) {
     return "";
   }
 }
 
 double SourceLineDelayUs(const SourceSpec& spec, const Camera& working) {
-  if (spec.dataset_path.empty() && spec.live_uri.empty()) {
+  if (spec.synthetic_source()) {
     return spec.synthetic.camera.rolling_shutter_line_us * spec.synthetic.height / working.height();
   }
   const std::filesystem::path data(spec.dataset_path);
