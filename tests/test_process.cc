@@ -25,7 +25,7 @@ CommandResult RunProgram(const std::vector<std::string>& args, double timeout_s,
   std::vector<char*> argv;
   for (auto& a : storage) argv.push_back(a.data());
   argv.push_back(nullptr);
-  const pid_t pid = fork();
+  const pid_t pid = _Fork();  // no fork handlers in the child, as stitch::ChildProcess
   if (pid == 0) {
     dup2(pipe_fds[1], STDOUT_FILENO);
     dup2(pipe_fds[1], STDERR_FILENO);

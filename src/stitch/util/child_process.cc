@@ -29,8 +29,13 @@ ChildProcess::ChildProcess(std::string name, const std::string& program, const s
   std::vector<char*> argv;
   for (auto& a : argv_storage) argv.push_back(a.data());
   argv.push_back(nullptr);
+  // The child runs only async-signal-safe calls until exec, and it is started by _Fork, which runs
+  // no fork handlers: a library's handler (PROJ closes its database in the child) allocates, and
+  // where another of the launcher's threads held the allocator's lock at the fork (AddressSanitizer's
+  // allocator is not reset in the child) the child waited for it forever, never a service.
+  const std::string exec_failed = "exec " + program + " failed\n";
   const pid_t launcher = getpid();
-  pid_ = fork();
+  pid_ = _Fork();
   if (pid_ < 0) {
     close(log_fd);
     throw Error("cannot start " + program + ": " + std::strerror(errno));
@@ -46,8 +51,7 @@ ChildProcess::ChildProcess(std::string name, const std::string& program, const s
     signal(SIGTERM, SIG_DFL);
     if (niceness > 0) (void)setpriority(PRIO_PROCESS, 0, niceness);  // best effort: it runs either way
     execv(program.c_str(), argv.data());
-    const std::string message = "exec " + program + " failed: " + std::strerror(errno) + "\n";
-    (void)!write(STDERR_FILENO, message.data(), message.size());
+    (void)!write(STDERR_FILENO, exec_failed.data(), exec_failed.size());
     _exit(127);
   }
   close(log_fd);
