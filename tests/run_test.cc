@@ -23,6 +23,7 @@
 
 #include "services/common/bus.h"
 #include "stitch/geo/exiv2.h"
+#include "stitch/geo/geodetic.h"
 #include "stitch/geo/geoid.h"
 #include "stitch/geo/gnss_fix.h"
 #include "stitch/geo/mavlink_gnss.h"
@@ -197,11 +198,25 @@ TEST(StitchRun, TracksAShortFlightWithTheServicesAsProcesses) {
     EXPECT_NE(info.output.find("Band 4 Block=256x256 Type=Byte, ColorInterp=Alpha"), std::string::npos) << info.output;
     EXPECT_NE(info.output.find("Overviews"), std::string::npos) << info.output;
   }
-  // The merger kept its own during the flight from the pictures it received, in the map's frame.
+  // The merger kept its own during the flight from the pictures it received, on Earth where the
+  // fixes placed the map during the flight: east and north of the first fix (an orthographic
+  // projection there), where the final one lies and as large, in metres.
   const GeoTiffInfo live = ReadGeoTiffInfo(out + "/mosaic_live.tif");
   EXPECT_EQ(live.bands, 4);
-  EXPECT_EQ(live.epsg, 0);
   EXPECT_GT(live.width, 100);
+  ASSERT_NE(live.crs.find("+proj=ortho"), std::string::npos) << live.crs;
+  const auto parameter = [&live](const std::string& name) {
+    return std::stod(live.crs.substr(live.crs.find("+" + name + "=") + name.size() + 2));
+  };
+  const LocalTangentPlane first_fix({parameter("lat_0"), parameter("lon_0"), 0.0});
+  const auto centre = [](const GeoTiffInfo& info) {
+    const double* t = info.geo_transform;
+    return Eigen::Vector3d(t[0] + 0.5 * info.width * t[1], t[3] + 0.5 * info.height * t[5], 0.0);
+  };
+  const Eigen::Vector2d live_centre = ToUtm(first_fix.ToGeodetic(centre(live)), UtmZone{32, true});
+  EXPECT_LT((live_centre - centre(tiff).head<2>()).norm(), 8.0) << "the 69 m strip's mosaics lie apart";
+  EXPECT_NEAR(live.width * live.geo_transform[1] / (tiff.width * tiff.geo_transform[1]), 1.0, 0.3);
+  EXPECT_EQ(live.metadata.at("STITCH_FRAME"), "the maps the GNSS fixes place, east and north of the first fix, metres");
   // The same from the reduced pictures the aircraft sent down (what the ground has of a live camera).
   const size_t pictures = ReadKeyframePictureIndex(out).size();
   EXPECT_GE(pictures, 3u);

@@ -9,6 +9,7 @@
 
 #include "services/common/convert.h"
 #include "stitch/geo/geodetic.h"
+#include "stitch/mosaic/live_mosaic.h"
 #include "stitch/util/error.h"
 #include "stitch/util/ids.h"
 #include "stitch/util/statistics.h"
@@ -31,6 +32,12 @@ bool Finite(double value) {
 
 nlohmann::json Vector(const Eigen::Vector3d& v) {
   return nlohmann::json::array({v.x(), v.y(), v.z()});
+}
+
+nlohmann::json Similarity(const Sim3d& s) {
+  return {{"scale", s.scale},
+          {"rotation_wxyz", {s.rotation.w(), s.rotation.x(), s.rotation.y(), s.rotation.z()}},
+          {"translation", Vector(s.translation)}};
 }
 
 }  // namespace
@@ -306,11 +313,10 @@ std::string ViewerState::LiveJson(double now_s) const {
     nlohmann::json tiles = nlohmann::json::array();
     for (const auto& [key, tile] : mosaic_tiles_) tiles.push_back({key.first, key.second, tile.version});
     live["mosaic"] = {{"revision", m.revision},
-                      {"frame", SubmapName(SubmapId(m.frame_submap))},
-                      {"ground_from_map",
-                       {{"scale", g.scale},
-                        {"rotation_wxyz", {g.rotation.w(), g.rotation.x(), g.rotation.y(), g.rotation.z()}},
-                        {"translation", Vector(g.translation)}}},
+                      // "earth": the maps the fixes place, in their ENU frame (map.on_earth)
+                      {"frame", m.frame_submap == LiveMosaic::kFrameOnEarth ? std::string("earth")
+                                                                            : SubmapName(SubmapId(m.frame_submap))},
+                      {"ground_from_map", Similarity(g)},
                       {"origin", {m.origin_x, m.origin_y}},
                       {"gsd", m.gsd},
                       {"tile_px", m.tile_px},
@@ -386,6 +392,7 @@ std::string ViewerState::MapJson() const {
       const Sim3d enu_from_world = FromMessage(e.enu_from_world);  // checked on arrival
       const Eigen::Matrix3d world_from_enu = enu_from_world.rotation.conjugate().toRotationMatrix();
       on_earth.push_back({{"component", e.component},
+                          {"enu_from_world", Similarity(enu_from_world)},
                           {"metres_per_unit", enu_from_world.scale},
                           {"east", Vector(world_from_enu.col(0))},
                           {"north", Vector(world_from_enu.col(1))},

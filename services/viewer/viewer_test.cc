@@ -27,6 +27,7 @@
 #include "services/common/secret_file.h"
 #include "services/viewer/viewer_server.h"
 #include "services/viewer/viewer_state.h"
+#include "stitch/mosaic/live_mosaic.h"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/util/error.h"
 #include "stitch/util/ids.h"
@@ -225,6 +226,10 @@ TEST(ViewerState, AMapOnEarthGivesItsMetresAndItsNorth) {
   EXPECT_TRUE(near(earth["up"], {0, 0, -1})) << earth.dump();
   EXPECT_DOUBLE_EQ(earth["origin"][0].get<double>(), 47.39);
   EXPECT_EQ(earth["fixes"], 240);
+  // The whole placement, for the mosaic view of the maps on Earth to draw each map's paths.
+  EXPECT_DOUBLE_EQ(earth["enu_from_world"]["scale"].get<double>(), 25.0);
+  EXPECT_TRUE(near(earth["enu_from_world"]["translation"], {3, 4, 5})) << earth.dump();
+  EXPECT_DOUBLE_EQ(earth["enu_from_world"]["rotation_wxyz"][1].get<double>(), 1.0) << earth.dump();
 
   // A place on Earth that is none is refused, the map shown before kept.
   for (const auto& spoil : std::vector<std::function<void(stitch::map_on_earth_t*)>>{
@@ -307,6 +312,11 @@ TEST(ViewerState, TheMosaicHoldsTheNewestTilesAndRefusesWhatIsNoTile) {
   }
   EXPECT_EQ(state.refused(), refused_before + 7);
   EXPECT_EQ(state.MosaicTilePng(1, 1), nullptr);
+  // A mosaic of the maps the fixes place, in their frame: its frame is the Earth's.
+  stitch::mosaic_tile_t on_earth = MosaicTile(3, 0, 0, 11);
+  on_earth.frame_submap = LiveMosaic::kFrameOnEarth;
+  ASSERT_TRUE(state.OnMosaicTile(on_earth, 2'000'000, &why)) << why;
+  EXPECT_EQ(nlohmann::json::parse(state.LiveJson(0))["mosaic"]["frame"], "earth");
 }
 
 TEST(ViewerState, ContentThatCannotBeDrawnIsRefusedAndCounted) {

@@ -388,9 +388,10 @@
   }
 
   // --- The 2D mosaic view --------------------------------------------------------------------
-  // The merger's live orthomosaic of the largest merged map, north (its frame's +y) up: its tiles
-  // as the live update lists them (each fetched once per version), each submap of that map's
-  // outline and trajectory, and the aircraft. #mosaic in the address opens it.
+  // The merger's live orthomosaic of the largest merged map, or on Earth of every map the fixes
+  // place, north (its frame's +y) up: its tiles as the live update lists them (each fetched once
+  // per version), each submap's outline and trajectory, and the aircraft. #mosaic in the address
+  // opens it.
   const mosaicCanvas = document.getElementById('mosaic');
   const mosaicContext = mosaicCanvas.getContext('2d', { willReadFrequently: true });
   const tiles = new Map();  // "col_row" -> { col, row, version, image, loading }
@@ -402,6 +403,17 @@
     const [w, x, y, z] = q;
     const tx = 2 * (y * v[2] - z * v[1]), ty = 2 * (z * v[0] - x * v[2]), tz = 2 * (x * v[1] - y * v[0]);
     return [v[0] + w * tx + (y * tz - z * ty), v[1] + w * ty + (z * tx - x * tz), v[2] + w * tz + (x * ty - y * tx)];
+  }
+
+  function compose(a, b) {  // similarities: a after b
+    const [w1, x1, y1, z1] = a.rotation_wxyz, [w2, x2, y2, z2] = b.rotation_wxyz;
+    const r = rotate(a.rotation_wxyz, b.translation);
+    return {
+      scale: a.scale * b.scale,
+      rotation_wxyz: [w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                      w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2],
+      translation: [0, 1, 2].map((i) => a.scale * r[i] + a.translation[i]),
+    };
   }
 
   function updateMosaicTiles() {
@@ -456,29 +468,37 @@
     const m = live && live.mosaic;
     let shown = 0;
     if (m) {
-      // Mosaic pixels of a map position: the mosaic's frame, then its grid.
+      // Mosaic pixels of a position in a merged map's frame: into the mosaic's frame (on Earth,
+      // through the map's place there), then its grid. The maps drawn: the mosaic's own, or on
+      // Earth every map the fixes place.
       const g = m.ground_from_map;
-      const toPixel = (p) => {
-        const r = rotate(g.rotation_wxyz, p);
-        const x = g.scale * r[0] + g.translation[0], y = g.scale * r[1] + g.translation[1];
-        return [(x - m.origin[0]) / m.gsd, (m.origin[1] - y) / m.gsd];
+      const transform = (s, p) => {
+        const r = rotate(s.rotation_wxyz, p);
+        return [0, 1, 2].map((i) => s.scale * r[i] + s.translation[i]);
       };
-      const frame = map && map.submaps.find((s) => s.id === m.frame);
-      const component = frame ? frame.component : 0;
+      const toPixelOf = new Map();  // component -> function
+      if (m.frame === 'earth') {
+        for (const e of (map && map.on_earth) || []) {
+          if (e.enu_from_world) toPixelOf.set(e.component, (p) => transform(g, transform(e.enu_from_world, p)));
+        }
+      } else {
+        const frame = map && map.submaps.find((s) => s.id === m.frame);
+        toPixelOf.set(frame ? frame.component : 0, (p) => transform(g, p));
+      }
+      const gridOf = (q) => [(q[0] - m.origin[0]) / m.gsd, (m.origin[1] - q[1]) / m.gsd];
       const paths = [];
       if (map) {
         for (const s of map.submaps) {
-          if (s.component === component && s.trajectory.length) paths.push({ colour: s.colour, points: s.trajectory.map(toPixel) });
+          const to = toPixelOf.get(s.component);
+          if (to && s.trajectory.length) paths.push({ colour: s.colour, points: s.trajectory.map((p) => gridOf(to(p))) });
         }
       }
-      let aircraft = null;
+      const aircraft = [];
       if (live) {
         for (const agent of Object.keys(live.aircraft)) {
           const cam = live.aircraft[agent].camera;
-          if (cam && cam.component === component && cam.position) {
-            aircraft = toPixel(cam.position);
-            break;
-          }
+          const to = cam && cam.position && toPixelOf.get(cam.component);
+          if (to) aircraft.push(gridOf(to(cam.position)));
         }
       }
       // The view holds every tile, path and the aircraft.
@@ -490,10 +510,12 @@
         extend((t.col + 1) * m.tile_px, (t.row + 1) * m.tile_px);
       }
       for (const p of paths) for (const q of p.points) extend(q[0], q[1]);
-      if (aircraft) extend(aircraft[0], aircraft[1]);
+      for (const a of aircraft) extend(a[0], a[1]);
       if (x1 > x0 && y1 > y0) {
         const scale = 0.94 * Math.min(width / (x1 - x0), height / (y1 - y0));
-        mosaicFrame = { ground_from_map: g, gsd: m.gsd, scale: scale };
+        // The scale bar and north arrow measure the largest map's frame: on Earth, its place there.
+        const largest = m.frame === 'earth' && ((map && map.on_earth) || []).find((e) => e.component === 0);
+        mosaicFrame = { ground_from_map: largest ? compose(g, largest.enu_from_world) : g, gsd: m.gsd, scale: scale };
         const ox = 0.5 * (width - scale * (x1 - x0)) - scale * x0, oy = 0.5 * (height - scale * (y1 - y0)) - scale * y0;
         c.imageSmoothingEnabled = true;
         for (const t of tiles.values()) {
@@ -517,16 +539,17 @@
           p.points.forEach((q, i) => (i ? c.lineTo : c.moveTo).call(c, ox + scale * q[0], oy + scale * q[1]));
           c.stroke();
         }
-        if (aircraft) {
-          c.fillStyle = '#ffffff';
+        c.fillStyle = '#ffffff';
+        for (const a of aircraft) {
           c.beginPath();
-          c.arc(ox + scale * aircraft[0], oy + scale * aircraft[1], 5 * ratio, 0, 2 * Math.PI);
+          c.arc(ox + scale * a[0], oy + scale * a[1], 5 * ratio, 0, 2 * Math.PI);
           c.fill();
         }
       }
     }
     updateEarth();
     body.dataset.mosaicTiles = String(shown);
+    body.dataset.mosaicFrame = m ? m.frame : '';  // a submap's name, or "earth"
     // From a picture's sending on the aircraft to its tile at the viewer: the median so far.
     body.dataset.mosaicLatency = m && m.latency_median_s >= 0 ? m.latency_median_s.toFixed(2) : '';
     // Drawn pixels (a test's proof that the view is not blank): the background is #10141a.

@@ -296,6 +296,7 @@ void MergeSession::OnGraphChange(const std::string& event) {
 
 void MergeSession::Show(const Merger::Graph& graph) {
   latest_placement_ = graph.placement;
+  latest_on_earth_ = graph.on_earth;
   trajectory_stale_ = true;
   cloud_stale_ = true;
   if (on_graph_) on_graph_(graph);
@@ -425,20 +426,29 @@ bool MergeSession::AddKeyframePicture(const KeyframePicture& picture, std::strin
   return true;
 }
 
-LiveMosaic::MapState MergeSession::LargestMapForMosaic(
-    const std::map<int, std::pair<std::string, int>>& pictured) const {
+LiveMosaic::MapState MergeSession::MapsForMosaic(const std::map<int, std::pair<std::string, int>>& pictured) const {
   LiveMosaic::MapState state;
+  // The maps drawn, each into the mosaic's map frame: the largest alone in its own frame, or
+  // where the fixes place it, every map they place in their ENU frame.
+  std::map<int, Sim3d> drawn;
+  if (const auto largest = latest_on_earth_.find(0); largest != latest_on_earth_.end()) {
+    state.on_earth = true;
+    state.frame = LiveMosaic::kFrameOnEarth;
+    for (const auto& [component, on_earth] : latest_on_earth_) drawn[component] = on_earth.enu_from_world;
+  } else {
+    drawn[0] = Sim3d();
+  }
   std::map<int64_t, KeyframeInSubmap> keyframes;
   std::map<int64_t, SubmapInMap> placement;
   for (const auto& [id, p] : latest_placement_) {
     placement[id.value] = {p.component, p.world_from_submap};
-    if (p.component == 0) state.frame = p.root.value;
+    if (p.component == 0 && !state.on_earth) state.frame = p.root.value;
   }
-  // The map's points (at most 20,000, evenly taken) through its submaps' placements.
+  // The maps' points (at most 20,000, evenly taken) through their submaps' placements.
   size_t total = 0;
   for (const auto& [id, replica] : merger_.submaps()) {
     const auto p = latest_placement_.find(id);
-    if (p != latest_placement_.end() && p->second.component == 0) total += replica.map.points().size();
+    if (p != latest_placement_.end() && drawn.count(p->second.component)) total += replica.map.points().size();
   }
   const size_t stride = std::max<size_t>(1, total / 20000);
   size_t n = 0;
@@ -447,9 +457,12 @@ LiveMosaic::MapState MergeSession::LargestMapForMosaic(
       keyframes[keyframe_id.value] = {keyframe.cam_from_world, keyframe.frame_index};
     }
     const auto p = latest_placement_.find(id);
-    if (p == latest_placement_.end() || p->second.component != 0) continue;
+    if (p == latest_placement_.end()) continue;
+    const auto to_mosaic = drawn.find(p->second.component);
+    if (to_mosaic == drawn.end()) continue;
+    const Sim3d mosaic_from_submap = to_mosaic->second * p->second.world_from_submap;
     for (const auto& [point_id, point] : replica.map.points()) {
-      if (n++ % stride == 0) state.points.push_back(p->second.world_from_submap * point.position);
+      if (n++ % stride == 0) state.points.push_back(mosaic_from_submap * point.position);
     }
   }
   // The pictured frames the pose stream has, placed as the live trajectory places them.
@@ -465,7 +478,13 @@ LiveMosaic::MapState MergeSession::LargestMapForMosaic(
   }
   for (const auto& [agent, list] : frames) {
     for (const PoseRecord& p : PlaceTrackedFrames(list, keyframes, placement, {})) {
-      if (p.component == 0) state.world_from_cam[key_of.at({agent, p.frame_index})] = p.world_from_cam;
+      const auto to_mosaic = drawn.find(p.component);
+      if (to_mosaic == drawn.end()) continue;
+      // A camera's pose in a frame of other units: its centre carried, its axes turned (the scale
+      // changes its picture's depths, not where it looks).
+      const Sim3d& s = to_mosaic->second;
+      state.world_from_cam[key_of.at({agent, p.frame_index})] =
+          Rigid3d(s.rotation * p.world_from_cam.rotation, s * p.world_from_cam.translation);
     }
   }
   return state;
@@ -517,11 +536,13 @@ void MergeSession::UpdateMosaic() {
   if (pictured_.empty() || latest_placement_.empty()) return;
   TakePendingPoses();
   const double started = ThreadCpuMs();
-  const LiveMosaic::Change change = live_mosaic_->Update(LargestMapForMosaic(pictured_));
+  const LiveMosaic::Change change = live_mosaic_->Update(MapsForMosaic(pictured_));
   // Said once per kind of wait (the text to its colon), not once per update.
   if (const std::string& waits = live_mosaic_->waiting_for();
       waits.substr(0, waits.find(':')) != mosaic_waits_for_.substr(0, mosaic_waits_for_.find(':'))) {
-    if (!waits.empty()) STITCH_LOG(INFO) << "the live mosaic waits for " << waits;
+    if (!waits.empty()) {
+      STITCH_LOG(INFO) << "the live mosaic waits for " << waits;
+    }
     mosaic_waits_for_ = waits;
   }
   if (change.withdrawn) {
@@ -598,7 +619,18 @@ void MergeSession::WriteLiveMosaic() {
     tiff.north = grid.origin.y() - raster.row0 * grid.gsd;
     tiff.deflate_level = 1;  // written again and again during the flight
     tiff.metadata["TIFFTAG_SOFTWARE"] = "stitch";
-    tiff.metadata["STITCH_FRAME"] = "the largest merged map's frame, levelled on its points, in its units";
+    const std::optional<GeodeticPoint> origin = gnss_origin();
+    if (live_mosaic_->frame() == LiveMosaic::kFrameOnEarth && origin) {
+      // The fixes' ENU frame: east and north of its origin are the ellipsoidal orthographic
+      // projection's there (PROJ's), a CRS any GIS reads.
+      char crs[200];
+      std::snprintf(crs, sizeof(crs), "+proj=ortho +lat_0=%.9f +lon_0=%.9f +ellps=WGS84 +units=m +no_defs",
+                    origin->latitude_deg, origin->longitude_deg);
+      tiff.crs = crs;
+      tiff.metadata["STITCH_FRAME"] = "the maps the GNSS fixes place, east and north of the first fix, metres";
+    } else {
+      tiff.metadata["STITCH_FRAME"] = "the largest merged map's frame, levelled on its points, in its units";
+    }
     tiff.metadata["STITCH_PICTURES"] = std::to_string(live_mosaic_->laid());
     WriteGeoTiff((std::filesystem::path(record_dir_) / "mosaic_live.tif").string(), tiff);
   } catch (const std::exception& e) {

@@ -89,7 +89,8 @@ class MergeSession {
   // next update. Refuses (false, with why) pictures beyond 10,000 waiting; thread-safe.
   bool AddKeyframePicture(const KeyframePicture& picture, std::string* why);
   // merger.mosaic.live, every merger.live_outputs_interval_s: the pictures received laid where
-  // the largest merged map places their frames now (live_mosaic.h), written as mosaic_live.tif
+  // the largest merged map places their frames now, and where it is on Earth every map the fixes
+  // place, each where they put it (live_mosaic.h), written as mosaic_live.tif
   // with the records (at most a tenth of the merger's time).
   void UpdateMosaicIfDue();
   const LiveMosaic* live_mosaic() const { return live_mosaic_ ? &*live_mosaic_ : nullptr; }
@@ -177,6 +178,7 @@ class MergeSession {
   std::map<std::pair<SubmapId, SubmapId>, double> gnss_junctions_;      // as last logged, with their sigma
   std::map<SubmapId, std::string> not_joined_by_gnss_;                  // as last logged
   std::map<SubmapId, SubmapPlacement> latest_placement_;                // as last shown
+  std::map<int, MergedMapOnEarth> latest_on_earth_;                     // as last shown, by component
   std::optional<Refined> refined_;
   int64_t refined_at_ = -1;  // ...after this many updates applied
   // The pose stream: what the subscriber took, waiting, and the owner's copy by aircraft and frame.
@@ -185,8 +187,9 @@ class MergeSession {
   std::vector<KeyframePicture> pictures_pending_;  // under poses_mutex_
   // Moves the pose stream's pending frames into frame_poses_ (the worker's).
   void TakePendingPoses();
-  // The largest merged map as the live mosaic lays pictures on it.
-  LiveMosaic::MapState LargestMapForMosaic(const std::map<int, std::pair<std::string, int>>& pictured) const;
+  // The maps the live mosaic lays pictures on: the largest merged map; where the fixes place it on
+  // Earth, every map they place, in their ENU frame.
+  LiveMosaic::MapState MapsForMosaic(const std::map<int, std::pair<std::string, int>>& pictured) const;
   std::optional<LiveMosaic> live_mosaic_;
   std::map<int, std::pair<std::string, int>> pictured_;  // live mosaic key -> (agent, frame)
   double mosaic_updated_at_ = 0, mosaic_written_at_ = 0, mosaic_write_cost_s_ = 0;

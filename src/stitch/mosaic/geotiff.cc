@@ -72,6 +72,10 @@ void WriteGeoTiff(const std::string& path, const GeoTiffImage& image) {
         throw Error("EPSG:" + std::to_string(image.epsg) + " is not a CRS GDAL knows");
       }
       if (dataset->SetSpatialRef(&crs) != CE_None) throw Error("no CRS: " + LastGdalError());
+    } else if (!image.crs.empty()) {
+      OGRSpatialReference crs;
+      if (crs.SetFromUserInput(image.crs.c_str()) != OGRERR_NONE) throw Error(image.crs + " is not a CRS GDAL knows");
+      if (dataset->SetSpatialRef(&crs) != CE_None) throw Error("no CRS: " + LastGdalError());
     }
     for (const auto& [key, value] : image.metadata) dataset->SetMetadataItem(key.c_str(), value.c_str());
     std::vector<cv::Mat> planes;
@@ -123,6 +127,9 @@ GeoTiffInfo ReadGeoTiffInfo(const std::string& path) {
   if (const OGRSpatialReference* crs = dataset->GetSpatialRef()) {
     const char* code = crs->GetAuthorityCode(nullptr);
     if (code) info.epsg = std::atoi(code);
+    char* proj = nullptr;
+    if (crs->exportToProj4(&proj) == OGRERR_NONE && proj) info.crs = proj;
+    CPLFree(proj);
   }
   if (info.bands > 0) info.overviews = dataset->GetRasterBand(1)->GetOverviewCount();
   if (char** items = dataset->GetMetadata()) {
@@ -158,6 +165,7 @@ GeoTiffImage ReadGeoTiff(const std::string& path) {
   image.north = info.geo_transform[3];
   image.pixel_size = info.geo_transform[1];
   image.epsg = info.epsg;
+  if (image.epsg == 0) image.crs = info.crs;
   image.metadata = info.metadata;
   return image;
 }

@@ -1,7 +1,8 @@
 #pragma once
 // A mosaic as a GeoTIFF (GDAL's GTiff driver): red, green, blue and an alpha band (where the
 // mosaic is drawn), 256-pixel tiles, DEFLATE compression and overviews down to a tile, placed by
-// its corner and pixel size in a CRS named by its EPSG code, or in a local frame (no CRS).
+// its corner and pixel size in a CRS named by its EPSG code or PROJ's words, or in a local frame
+// (no CRS).
 
 #include <map>
 #include <string>
@@ -17,7 +18,8 @@ struct GeoTiffImage {
   // pixel (col, row) covers x in west + [col, col + 1] * pixel_size, y in north - [row, row + 1] *
   // pixel_size.
   double west = 0.0, north = 0.0, pixel_size = 1.0;
-  int epsg = 0;                                 // 0: a local frame, no CRS
+  int epsg = 0;                                 // 0: `crs`, or a local frame where that is empty
+  std::string crs;                              // where epsg is 0: a CRS in PROJ's words ("+proj=ortho ...")
   int deflate_level = 6;                        // 1 (fastest) to 9 (smallest): a file written again and again wants 1
   std::map<std::string, std::string> metadata;  // written as the dataset's metadata items
 };
@@ -29,7 +31,8 @@ void WriteGeoTiff(const std::string& path, const GeoTiffImage& image);
 // What a GeoTIFF says of itself (GDAL reading it back).
 struct GeoTiffInfo {
   int width = 0, height = 0, bands = 0;
-  int epsg = 0;  // its CRS's EPSG code where it has one
+  int epsg = 0;     // its CRS's EPSG code where it has one
+  std::string crs;  // its CRS in PROJ's words where it has one
   double geo_transform[6] = {0, 1, 0, 0, 0, 1};
   int overviews = 0;  // of its first band
   std::map<std::string, std::string> metadata;

@@ -97,7 +97,7 @@ bool LiveMosaic::Restart(const MapState& state) {
     waiting_for_ = "a ground seen from above: " + why;
     return false;
   }
-  const Sim3d ground_from_map = GroundFromMapByPlane(state.points, centres);
+  const Sim3d ground_from_map = state.on_earth ? Sim3d() : GroundFromMapByPlane(state.points, centres);
   std::vector<Eigen::Vector3d> ground_points;
   for (const Eigen::Vector3d& p : state.points) ground_points.push_back(ground_from_map * p);
   MosaicGrid grid;

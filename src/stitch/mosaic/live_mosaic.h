@@ -5,7 +5,8 @@
 // root submap: a merge into a larger map) or whose points doubled since the ground was shaped is
 // drawn again whole; one whose ground no longer looks like a ground seen from above is withdrawn
 // (its tiles cleared). The mosaic's frame is the map's, levelled on its points' best plane, in its
-// units (the run's end places it on Earth: `stitch mosaic`). One owner thread; not thread-safe.
+// units; or, for maps the GNSS fixes place, their ENU frame (MapState::on_earth). One owner
+// thread; not thread-safe.
 
 #include <cstdint>
 #include <map>
@@ -48,7 +49,12 @@ class LiveMosaic {
     int64_t frame = 0;                      // its frame's identity (the root submap): another one redraws all
     std::vector<Eigen::Vector3d> points;    // in its frame
     std::map<int, Rigid3d> world_from_cam;  // the pictured frames it places, by key
+    // Its frame is the ENU frame the GNSS fixes place maps in (metres: east, north, up; frame
+    // kFrameOnEarth), which is then the mosaic's: north up, each map where its fixes put it.
+    bool on_earth = false;
   };
+  // MapState::frame of maps on Earth.
+  static constexpr int64_t kFrameOnEarth = -1;
   struct Change {
     int laid = 0, moved = 0, tiles = 0;
     bool redrawn = false;    // the whole mosaic drawn again
@@ -60,7 +66,8 @@ class LiveMosaic {
   // Empty until the map placed enough pictures on a ground of enough points, and after it was
   // withdrawn until it starts again.
   const Orthomosaic* mosaic() const { return mosaic_ ? &*mosaic_ : nullptr; }
-  // The mosaic's frame (its ground's) from the map's, as the last start made it.
+  // The mosaic's frame (its ground's) from the map's, as the last start made it (the identity on
+  // Earth).
   const Sim3d& ground_from_map() const { return ground_from_map_; }
   int pictures() const { return static_cast<int>(pictures_.size()); }
   int laid() const { return static_cast<int>(laid_.size()); }

@@ -20,7 +20,8 @@ struct MosaicOptions {
   int image_border_px = 4;        // pixels along each image's edge that are not used
   int max_pixels = 400'000'000;   // a mosaic larger than this is refused (a map with a stray camera far away)
   // The merger keeps the largest map's mosaic during the flight from the pictures it receives
-  // (live_mosaic.h) and writes it as mosaic_live.tif with its records.
+  // (live_mosaic.h), on Earth where the GNSS fixes place it (every map they place), and writes it
+  // as mosaic_live.tif with its records.
   bool live = true;
   // With `live`: how often the pictures received are laid, seconds (what a picture waits, at
   // most, before its tiles go to the viewer).
@@ -61,7 +62,8 @@ struct MosaicOptions {
     v("max_pixels", max_pixels, "a mosaic of more pixels is refused (a map with a stray camera far away)");
     v("live", live,
       "the merger keeps the largest map's mosaic during the flight from the keyframe pictures it receives and writes "
-      "it as mosaic_live.tif with its records (the map's own frame and units)");
+      "it as mosaic_live.tif with its records (the map's own frame and units; where the GNSS fixes place the map, "
+      "every map they place, in metres east and north of the first fix)");
     v("interval_s", interval_s,
       "with live: the pictures received are laid this often, seconds (at most what a picture waits before its tiles "
       "reach the viewer)");

@@ -361,6 +361,17 @@ TEST(GeoTiff, WritesWhatItReadsBackWithItsCrsAndOverviews) {
   image.epsg = 0;
   WriteGeoTiff(dir / "local.tif", image);
   EXPECT_EQ(ReadGeoTiffInfo(dir / "local.tif").epsg, 0);
+  EXPECT_EQ(ReadGeoTiffInfo(dir / "local.tif").crs, "");
+  // A CRS in PROJ's words: the live mosaic's, east and north of the first fix.
+  image.crs = "+proj=ortho +lat_0=48.1 +lon_0=11.2 +ellps=WGS84 +units=m +no_defs";
+  WriteGeoTiff(dir / "ortho_projection.tif", image);
+  const std::string crs = ReadGeoTiffInfo(dir / "ortho_projection.tif").crs;
+  EXPECT_NE(crs.find("+proj=ortho"), std::string::npos) << crs;
+  EXPECT_NE(crs.find("+lat_0=48.1 "), std::string::npos) << crs;
+  EXPECT_NE(crs.find("+lon_0=11.2 "), std::string::npos) << crs;
+  image.crs = "+proj=nothing";
+  EXPECT_THROW(WriteGeoTiff(dir / "bad_crs.tif", image), Error);
+  image.crs.clear();
   // Refusals name the file and leave nothing behind.
   EXPECT_THROW(WriteGeoTiff(dir / "missing/ortho.tif", image), Error);
   image.epsg = 1;
@@ -474,6 +485,24 @@ TEST(LiveMosaic, WaitsForEnoughPicturesAndWithdrawsAMosaicWhoseGroundTurnsOutNot
 // The live mosaic on a map that is not metric and not level (a SLAM map's frame): pictures laid
 // once, moved when the map moves them, all drawn again when the map's frame changes, taken out
 // when the map no longer places them.
+// The mosaic's pixels against the textured ground's where `true_from_mosaic` puts them.
+CheckpointErrors AgainstTheTrueGround(const Orthomosaic& mosaic, const Sim3d& true_from_mosaic) {
+  const MosaicRaster raster = mosaic.Render();
+  cv::Mat map_x(raster.colour.size(), CV_32F), map_y(raster.colour.size(), CV_32F);
+  for (int r = 0; r < raster.colour.rows; ++r) {
+    for (int c = 0; c < raster.colour.cols; ++c) {
+      const Eigen::Vector2d g = mosaic.grid().Ground(raster.col0 + c, raster.row0 + r);
+      const Eigen::Vector3d p = true_from_mosaic * Eigen::Vector3d(g.x(), g.y(), mosaic.surface().Height(g.x(), g.y()));
+      const cv::Point2d t = Ground().Texel(p.x(), p.y());
+      map_x.at<float>(r, c) = static_cast<float>(t.x);
+      map_y.at<float>(r, c) = static_cast<float>(t.y);
+    }
+  }
+  cv::Mat truth;
+  cv::remap(Ground().texture(), truth, map_x, map_y, cv::INTER_LINEAR);
+  return MeasureCheckpoints(truth, raster.colour, raster.coverage);
+}
+
 TEST(LiveMosaic, LaysPicturesWhereTheMapPlacesThemAndFollowsTheMap) {
   const TexturedGround& ground = Ground();
   // map = s R ground + t: any similarity.
@@ -514,23 +543,8 @@ TEST(LiveMosaic, LaysPicturesWhereTheMapPlacesThemAndFollowsTheMap) {
   EXPECT_NEAR(live.mosaic()->grid().gsd, 0.1 * 0.05, 1e-6);
   // Against the truth: each mosaic pixel's place on the true ground, through the mosaic's frame.
   {
-    const Orthomosaic& mosaic = *live.mosaic();
-    const MosaicRaster raster = mosaic.Render();
-    const Sim3d true_from_mosaic = map_from_ground.Inverse() * live.ground_from_map().Inverse();
-    cv::Mat map_x(raster.colour.size(), CV_32F), map_y(raster.colour.size(), CV_32F);
-    for (int r = 0; r < raster.colour.rows; ++r) {
-      for (int c = 0; c < raster.colour.cols; ++c) {
-        const Eigen::Vector2d g = mosaic.grid().Ground(raster.col0 + c, raster.row0 + r);
-        const Eigen::Vector3d p =
-            true_from_mosaic * Eigen::Vector3d(g.x(), g.y(), mosaic.surface().Height(g.x(), g.y()));
-        const cv::Point2d t = ground.Texel(p.x(), p.y());
-        map_x.at<float>(r, c) = static_cast<float>(t.x);
-        map_y.at<float>(r, c) = static_cast<float>(t.y);
-      }
-    }
-    cv::Mat truth;
-    cv::remap(ground.texture(), truth, map_x, map_y, cv::INTER_LINEAR);
-    const CheckpointErrors errors = MeasureCheckpoints(truth, raster.colour, raster.coverage);
+    const CheckpointErrors errors =
+        AgainstTheTrueGround(*live.mosaic(), map_from_ground.Inverse() * live.ground_from_map().Inverse());
     EXPECT_GT(errors.checkpoints, 50);
     EXPECT_LT(errors.rms_px, 0.5);
   }
@@ -582,6 +596,43 @@ TEST(LiveMosaic, LaysPicturesWhereTheMapPlacesThemAndFollowsTheMap) {
   EXPECT_EQ(change.laid, 2);
   EXPECT_EQ(live.revision(), revision + 1);
   EXPECT_EQ(live.TakeChangedTiles().size(), live.mosaic()->TileKeys().size());
+}
+
+// Maps the GNSS fixes place come in their ENU frame (metres: east, north, up): that is the
+// mosaic's frame, north up, not one levelled on their points along their widest spread.
+TEST(LiveMosaic, MapsOnEarthAreDrawnInTheFixesFrameNorthUp) {
+  // The textured ground turned 30 degrees from north, 20 m east and 100 m up of the first fix.
+  const Sim3d enu_from_ground(1.0, Eigen::Quaterniond(Eigen::AngleAxisd(0.52, Eigen::Vector3d::UnitZ())),
+                              Eigen::Vector3d(20, 0, 100));
+  LiveMosaic::MapState state;
+  state.frame = LiveMosaic::kFrameOnEarth;
+  state.on_earth = true;
+  for (double x = -30; x <= 30; x += 1.5) {
+    for (double y = -12; y <= 12; y += 1.5) state.points.push_back(enu_from_ground * Eigen::Vector3d(x, y, 0));
+  }
+  MosaicOptions options;
+  options.tile_px = 64;
+  options.live_min_pictures = 1;
+  LiveMosaic live(options);
+  const std::vector<Sim3d> poses = {NadirCamera(-8, -2, 30), NadirCamera(8, 2, 30, 2)};
+  for (int k = 0; k < 2; ++k) {
+    std::vector<uint8_t> jpeg;
+    cv::imencode(".jpg", Ground().Photograph(kCamera, poses[k]), jpeg, {cv::IMWRITE_JPEG_QUALITY, 95});
+    live.AddPicture(k, kCamera, std::move(jpeg));
+    const Sim3d ground_from_cam = poses[k].Inverse();
+    state.world_from_cam[k] = Rigid3d((enu_from_ground.rotation * ground_from_cam.rotation).normalized(),
+                                      enu_from_ground * ground_from_cam.translation);
+  }
+  EXPECT_EQ(live.Update(state).laid, 2);
+  ASSERT_NE(live.mosaic(), nullptr);
+  EXPECT_EQ(live.frame(), LiveMosaic::kFrameOnEarth);
+  EXPECT_NEAR(live.mosaic()->grid().gsd, 0.1, 1e-6);  // metres
+  EXPECT_TRUE(live.ground_from_map().rotation.isApprox(Eigen::Quaterniond::Identity()));
+  EXPECT_EQ(live.ground_from_map().translation, Eigen::Vector3d::Zero());
+  // Each pixel where ENU puts it: against the truth through the fixes' frame alone.
+  const CheckpointErrors errors = AgainstTheTrueGround(*live.mosaic(), enu_from_ground.Inverse());
+  EXPECT_GT(errors.checkpoints, 30);
+  EXPECT_LT(errors.rms_px, 0.5);
 }
 
 TEST(KeyframeImagePicker, SendsASubmapsFirstKeyframeThenWhereTheViewMovedOn) {
