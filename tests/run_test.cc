@@ -231,6 +231,24 @@ TEST(StitchRun, TracksAShortFlightWithTheServicesAsProcesses) {
   EXPECT_NE(RunProgram({Bin("stitch"), "mosaic", dir / "nothing"}, 30).exit_code, 0);
 }
 
+// The live mosaic's cost guard stops it (here at any cost), and what it drew stays: its file,
+// written at the end of the flight, on Earth where the fixes placed the map.
+TEST(StitchRun, ALiveMosaicStoppedForItsCostKeepsWhatItDrew) {
+  testing::TempDir dir;
+  const std::string out = dir / "run";
+  const auto result = RunProgram({Bin("stitch"), "run", "--config", kShortFlight, "--out", out, "--failures", "none",
+                                  "--set", "merger.mosaic.live_min_pictures=3", "--set",
+                                  "merger.mosaic.live_max_cpu_ms_per_picture=0.001"},
+                                 180);
+  ASSERT_EQ(result.exit_code, 0) << result.output;
+  const std::string log = ReadFileBytes(out + "/logs/merger.log");
+  EXPECT_NE(log.find("the live mosaic stopped"), std::string::npos) << log;
+  ASSERT_TRUE(fs::exists(out + "/mosaic_live.tif")) << log;
+  const GeoTiffInfo live = ReadGeoTiffInfo(out + "/mosaic_live.tif");
+  EXPECT_GE(std::stoi(live.metadata.at("STITCH_PICTURES")), 3);
+  EXPECT_GT(live.width, 100);
+}
+
 TEST(StitchRun, CtrlCStopsEverythingAndStillWritesTheOutputs) {
   testing::TempDir dir;
   const std::string out = dir / "run";

@@ -27,10 +27,11 @@ int main(int argc, char** argv) {
         TrackerService tracker(process.lcm, process.publisher, process.config.tracker, &vocabulary, record_path,
                                process.frame_lcm);
         process.RunUntilStopped(tracker, ServiceProcess::StopOrder::kBusFirst);
-        if (tracker.points_waits() > 0)
+        if (tracker.points_waits() > 0) {
           STITCH_LOG(INFO) << "waited " << tracker.points_waits()
                            << " times for a keyframe's new points on a thin map ("
                            << static_cast<int>(tracker.points_wait_s() * 1000) << " ms in all)";
+        }
         STITCH_LOG(INFO) << "stopped after " << tracker.frames_tracked() << " frames";
         return 0;
       },

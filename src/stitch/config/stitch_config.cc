@@ -44,8 +44,9 @@ Vocabulary LoadVocabulary(const StitchConfig& config) {
   Vocabulary vocabulary = Vocabulary::Load(path);
   STITCH_LOG(INFO) << "vocabulary " << path << ": " << vocabulary.num_words()
                    << " words (k = " << vocabulary.branching() << ", L = " << vocabulary.depth() << ")";
-  if (const std::string doubt = VocabularyDoubts(vocabulary); !doubt.empty())
+  if (const std::string doubt = VocabularyDoubts(vocabulary); !doubt.empty()) {
     STITCH_LOG(WARNING) << path << ": " << doubt;
+  }
   return vocabulary;
 }
 

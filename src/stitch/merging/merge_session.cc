@@ -558,14 +558,11 @@ void MergeSession::UpdateMosaic() {
   mosaic_cost_.laid += change.laid;
   mosaic_cost_.moved += change.moved;
   mosaic_cost_.redrawn += change.redrawn;
-  if (const double limit = options.live_max_cpu_ms_per_picture;
-      limit > 0 && mosaic_cost_.laid >= 8 && mosaic_cost_.update_ms > limit * mosaic_cost_.laid) {
-    mosaic_failed_ = true;
-    STITCH_LOG(WARNING)
-        << "the live mosaic stopped: " << mosaic_cost_.update_ms / mosaic_cost_.laid
-        << " ms CPU per picture laid, over mosaic.live_max_cpu_ms_per_picture (" << limit
-        << "): a map that is not a survey of the ground? (stitch mosaic RUN makes one from the records)";
-    return;
+  if (change.tiles > 0 || change.redrawn) {  // laid, moved, or taken out
+    mosaic_unwritten_ = true;
+    STITCH_LOG(DEBUG) << "live mosaic: " << change.laid << " pictures laid, " << change.moved << " moved, "
+                      << change.tiles << " tiles" << (change.redrawn ? ", drawn again whole" : "") << " in "
+                      << change.cpu_ms << " ms";
   }
   // How long a picture took to its tile: the newest one taken since pictures were last laid.
   const int64_t laid_picture_utime = change.laid > 0 ? std::exchange(newest_picture_utime_, 0) : 0;
@@ -583,16 +580,21 @@ void MergeSession::UpdateMosaic() {
                                std::make_move_iterator(tiles.end()));
     mosaic_tiles_.newest_picture_utime = std::max(mosaic_tiles_.newest_picture_utime, laid_picture_utime);
   }
-  if (change.tiles > 0 || change.redrawn) {  // laid, moved, or taken out
-    mosaic_unwritten_ = true;
-    STITCH_LOG(DEBUG) << "live mosaic: " << change.laid << " pictures laid, " << change.moved << " moved, "
-                      << change.tiles << " tiles" << (change.redrawn ? ", drawn again whole" : "") << " in "
-                      << change.cpu_ms << " ms";
-  }
   // The file at most a tenth of the merger's time: a large mosaic takes a while to compress.
   const double file_interval = std::max(merger_.options().live_outputs_interval_s, 10 * mosaic_write_cost_s_);
   if (mosaic_unwritten_ && MonotonicSeconds() - mosaic_written_at_ >= file_interval) {
     WriteLiveMosaic();
+  }
+  // Each picture drawn counts: laid (again, when the whole mosaic is drawn anew) or moved.
+  const int drawn = mosaic_cost_.laid + mosaic_cost_.moved;
+  if (const double limit = options.live_max_cpu_ms_per_picture;
+      limit > 0 && drawn >= 8 && mosaic_cost_.update_ms > limit * drawn) {
+    // What it drew stays: its tiles went to the viewer, its file is written at the end.
+    mosaic_failed_ = true;
+    STITCH_LOG(WARNING)
+        << "the live mosaic stopped: " << mosaic_cost_.update_ms / drawn
+        << " ms CPU per picture drawn, over mosaic.live_max_cpu_ms_per_picture (" << limit
+        << "): a map that is not a survey of the ground? (stitch mosaic RUN makes one from the records)";
   }
 }
 
