@@ -178,7 +178,9 @@ TEST(Ingest, LockstepWithTheTrackerDeliversEveryFrameOnceInProcess) {
     EXPECT_LT(latest_frame, t_ns) << "the fix at " << t_ns << " came after a frame at " << latest_frame;
     const auto next_frame = std::find_if(recorder.order.begin() + i, recorder.order.end(),
                                          [](const auto& event) { return event.first == 'F'; });
-    if (next_frame != recorder.order.end()) EXPECT_GE(next_frame->second, t_ns);
+    if (next_frame != recorder.order.end()) {
+      EXPECT_GE(next_frame->second, t_ns);
+    }
   }
   EXPECT_EQ(fixes, 4);
 }

@@ -160,6 +160,7 @@ LiveMosaic::Change LiveMosaic::Update(const MapState& state) {
     change.tiles += removed.tiles;
     it = laid_.erase(it);
   }
+  std::vector<std::pair<int, Sim3d>> moves;
   for (const auto& [key, pose] : state.world_from_cam) {
     const auto picture = pictures_.find(key);
     if (picture == pictures_.end()) continue;
@@ -179,12 +180,13 @@ LiveMosaic::Change LiveMosaic::Update(const MapState& state) {
     const double shifted = (pose.translation - laid->second.translation).norm();
     const double turned = Eigen::AngleAxisd(laid->second.rotation.conjugate() * pose.rotation).angle() * height;
     if (std::max(shifted, turned) <= 0.5 * gsd) continue;
-    Orthomosaic::Change moved;
-    mosaic_->MoveImage(key, CamFromGround(pose), &moved);
+    moves.emplace_back(key, CamFromGround(pose));
     laid->second = pose;
-    ++change.moved;
-    change.tiles += moved.tiles;
   }
+  // A map refined moves most of its pictures: their tiles are drawn again once, not once each.
+  Orthomosaic::Change moved;
+  change.moved += mosaic_->MoveImages(moves, &moved);
+  change.tiles += moved.tiles;
   change.cpu_ms = ThreadCpuMs() - started;
   return change;
 }

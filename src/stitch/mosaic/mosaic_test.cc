@@ -253,6 +253,16 @@ TEST(Orthomosaic, AnImageMovedOrRemovedRedrawsItsTilesAsIfAddedThereOrNever) {
   EXPECT_EQ(m.row0, f.row0);
   EXPECT_EQ(cv::norm(m.colour, f.colour, cv::NORM_INF), 0);
   EXPECT_EQ(cv::norm(m.coverage, f.coverage, cv::NORM_INF), 0);
+  // Several moved at once (a map refined as a whole), their tiles drawn again once: the same.
+  Orthomosaic together(options, grid, GroundSurface(0.0));
+  together.SetImage(0, kCamera, c_wrong, ground.Photograph(kCamera, a));
+  together.SetImage(1, kCamera, b, ground.Photograph(kCamera, b));
+  together.SetImage(2, kCamera, a, ground.Photograph(kCamera, c));
+  EXPECT_EQ(together.MoveImages({{0, a}, {2, c}, {7, b}}), 2);  // 7 is not there
+  const MosaicRaster t = together.Render();
+  ASSERT_EQ(t.colour.size(), f.colour.size());
+  EXPECT_EQ(cv::norm(t.colour, f.colour, cv::NORM_INF), 0);
+  EXPECT_EQ(cv::norm(t.coverage, f.coverage, cv::NORM_INF), 0);
   // Removed: as if never added.
   ASSERT_TRUE(moved.RemoveImage(1));
   EXPECT_FALSE(moved.RemoveImage(1));

@@ -124,8 +124,8 @@ std::vector<Orthomosaic::TileKey> Orthomosaic::TilesOf(const cv::Rect& pixels) c
   return keys;
 }
 
-int64_t Orthomosaic::Draw(int id, const Image& image, const cv::Mat& pixels, const TileKey& key,
-                          TileBuffers* tile) const {
+int64_t Orthomosaic::Draw(int id, const Image& image, const cv::Mat& pixels, const TileKey& key, TileBuffers* tile,
+                          const cv::Mat& heights) const {
   const int n = options_.tile_px;
   const cv::Rect tile_rect(key.first * n, key.second * n, n, n);
   const cv::Rect area = tile_rect & *image.pixels;
@@ -145,10 +145,11 @@ int64_t Orthomosaic::Draw(int id, const Image& image, const cv::Mat& pixels, con
     float* score = tile->score.ptr<float>(r);
     int32_t* owner = tile->owner.ptr<int32_t>(r);
     cv::Vec3b* colour = tile->colour.ptr<cv::Vec3b>(r);
+    const double* height = heights.empty() ? nullptr : heights.ptr<double>(r);
     for (int col = area.x; col < area.x + area.width; ++col) {
       const int c = col - tile_rect.x;
       const Eigen::Vector2d g = grid_.Ground(col, row);
-      const Eigen::Vector3d ground(g.x(), g.y(), surface_.Height(g.x(), g.y()));
+      const Eigen::Vector3d ground(g.x(), g.y(), height ? height[c] : surface_.Height(g.x(), g.y()));
       const Eigen::Vector3d d = ground - image.centre;
       if (d.z() >= 0) continue;
       const auto s = static_cast<float>(d.head<2>().squaredNorm() / (d.z() * d.z()));
@@ -237,22 +238,30 @@ Orthomosaic::Change Orthomosaic::SetCompressedImage(int id, const Camera& camera
 }
 
 bool Orthomosaic::MoveImage(int id, const Sim3d& cam_from_ground, Change* change) {
-  const auto it = images_.find(id);
-  if (it == images_.end()) return false;
+  return MoveImages({{id, cam_from_ground}}, change) == 1;
+}
+
+int Orthomosaic::MoveImages(const std::vector<std::pair<int, Sim3d>>& moves, Change* change) {
   std::set<TileKey> keys;
-  if (it->second.pixels) {
-    for (const TileKey& key : TilesOf(*it->second.pixels)) keys.insert(key);
-  }
-  it->second.cam_from_ground = cam_from_ground;
-  it->second.centre = CentreOf(cam_from_ground);
-  it->second.pixels = it->second.centre.allFinite() ? Footprint(it->second) : std::nullopt;
-  if (it->second.pixels) {
-    for (const TileKey& key : TilesOf(*it->second.pixels)) keys.insert(key);
+  int moved = 0;
+  for (const auto& [id, cam_from_ground] : moves) {
+    const auto it = images_.find(id);
+    if (it == images_.end()) continue;
+    ++moved;
+    if (it->second.pixels) {
+      for (const TileKey& key : TilesOf(*it->second.pixels)) keys.insert(key);
+    }
+    it->second.cam_from_ground = cam_from_ground;
+    it->second.centre = CentreOf(cam_from_ground);
+    it->second.pixels = it->second.centre.allFinite() ? Footprint(it->second) : std::nullopt;
+    if (it->second.pixels) {
+      for (const TileKey& key : TilesOf(*it->second.pixels)) keys.insert(key);
+    }
   }
   Change redrawn;
-  RedrawAll({keys.begin(), keys.end()}, &redrawn);
+  if (moved > 0) RedrawAll({keys.begin(), keys.end()}, &redrawn);
   if (change) *change = redrawn;
-  return true;
+  return moved;
 }
 
 bool Orthomosaic::RemoveImage(int id, Change* change) {
@@ -274,12 +283,21 @@ void Orthomosaic::RedrawAll(const std::vector<TileKey>& keys, Change* change) {
     const cv::Rect tile_rect(key.first * n, key.second * n, n, n);
     TileBuffers tile{cv::Mat(n, n, CV_8UC3, cv::Scalar::all(0)), cv::Mat(n, n, CV_32F, kNotDrawn),
                      cv::Mat(n, n, CV_32S, cv::Scalar(-1))};
+    // The ground under the tile, looked up once for all the images drawn into it.
+    cv::Mat heights(n, n, CV_64F);
+    for (int r = 0; r < n; ++r) {
+      double* height = heights.ptr<double>(r);
+      for (int c = 0; c < n; ++c) {
+        const Eigen::Vector2d g = grid_.Ground(tile_rect.x + c, tile_rect.y + r);
+        height[c] = surface_.Height(g.x(), g.y());
+      }
+    }
     int64_t drawn = 0;
     for (const auto& [id, image] : images_) {
       if (!image.pixels || (tile_rect & *image.pixels).empty()) continue;
       auto pixels = decoded.find(id);
       if (pixels == decoded.end()) pixels = decoded.emplace(id, cv::imdecode(image.jpeg, cv::IMREAD_UNCHANGED)).first;
-      drawn += Draw(id, image, pixels->second, key, &tile);
+      drawn += Draw(id, image, pixels->second, key, &tile, heights);
     }
     ++change->tiles;
     changed_.insert(key);

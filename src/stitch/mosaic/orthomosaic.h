@@ -83,6 +83,9 @@ class Orthomosaic {
   Change SetCompressedImage(int id, const Camera& camera, const Sim3d& cam_from_ground, std::vector<uchar> jpeg);
   // Moves image `id` without new pixels; false when it is not there.
   bool MoveImage(int id, const Sim3d& cam_from_ground, Change* change = nullptr);
+  // Moves several images at once, each tile they cover (or covered) drawn again once: what a map
+  // refined as a whole needs. Returns how many of them were there (the others are ignored).
+  int MoveImages(const std::vector<std::pair<int, Sim3d>>& moves, Change* change = nullptr);
   // Takes image `id` out (its tiles redrawn from the others); false when it is not there.
   bool RemoveImage(int id, Change* change = nullptr);
 
@@ -121,7 +124,9 @@ class Orthomosaic {
   std::vector<TileKey> TilesOf(const cv::Rect& pixels) const;
   // Draws `pixels` (decoded) of image `id` into `tile` where it sees a pixel nearer its nadir than
   // the image there now; returns the pixels it took.
-  int64_t Draw(int id, const Image& image, const cv::Mat& pixels, const TileKey& key, TileBuffers* tile) const;
+  // `heights`: the ground's height at each of the tile's pixels (CV_64F), or empty to look each up.
+  int64_t Draw(int id, const Image& image, const cv::Mat& pixels, const TileKey& key, TileBuffers* tile,
+               const cv::Mat& heights = cv::Mat()) const;
   // Clears tile `key` and draws every image over it again.
   void Redraw(const TileKey& key);
   void RedrawAll(const std::vector<TileKey>& keys, Change* change);
