@@ -232,13 +232,15 @@ TEST(StitchRun, TracksAShortFlightWithTheServicesAsProcesses) {
 }
 
 // The live mosaic's cost guard stops it (here at any cost), and what it drew stays: its file,
-// written at the end of the flight, on Earth where the fixes placed the map.
+// written at the end of the flight with the pictures it laid.
 TEST(StitchRun, ALiveMosaicStoppedForItsCostKeepsWhatItDrew) {
   testing::TempDir dir;
   const std::string out = dir / "run";
-  const auto result = RunProgram({Bin("stitch"), "run", "--config", kShortFlight, "--out", out, "--failures", "none",
-                                  "--set", "merger.mosaic.live_min_pictures=3", "--set",
-                                  "merger.mosaic.live_max_cpu_ms_per_picture=0.001"},
+  // A strip of 200 frames: its mosaic lays over the 8 pictures the guard waits for.
+  const auto result = RunProgram({Bin("stitch"), "run", "--out", out, "--failures", "none", "--set",
+                                  "synthetic.flight.num_frames=200", "--set", "synthetic.flight.num_strips=1", "--set",
+                                  "synthetic.flight.strip_length_m=230", "--set", "merger.mosaic.live_min_pictures=3",
+                                  "--set", "merger.mosaic.live_max_cpu_ms_per_picture=0.001"},
                                  180);
   ASSERT_EQ(result.exit_code, 0) << result.output;
   const std::string log = ReadFileBytes(out + "/logs/merger.log");

@@ -40,10 +40,10 @@ struct MosaicOptions {
   // fr1/rpy at twice its rate; docs/mosaic.md).
   int live_min_pictures = 10;
   // With `live`: the live mosaic stops (once, with a warning; what it drew stays, and `stitch
-  // mosaic RUN` still makes one from the records) when its CPU per picture drawn (laid or moved)
-  // exceeds this, over at least 8 pictures: the flight comes first, and a map that is not a survey
-  // of the ground (oblique views of a room) costs several times a survey's picture
-  // (docs/mosaic.md). 0: no limit.
+  // mosaic RUN` still makes one from the records) when its CPU per picture laid exceeds this,
+  // over at least 8 pictures: the flight comes first, and a map that is not a survey of the
+  // ground (oblique views of a room) costs several times a survey's picture (docs/mosaic.md).
+  // 0: no limit.
   double live_max_cpu_ms_per_picture = 100.0;
 
   template <class Visitor>
@@ -77,7 +77,7 @@ struct MosaicOptions {
     v("live_min_pictures", live_min_pictures,
       "with live: pictures the map must place before its relief is judged and its mosaic starts");
     v("live_max_cpu_ms_per_picture", live_max_cpu_ms_per_picture,
-      "with live: the live mosaic stops (with a warning) once its CPU per picture drawn (laid or moved) exceeds "
+      "with live: the live mosaic stops (with a warning) once its CPU per picture laid exceeds "
       "this, over at least 8 pictures (a map that is not a survey of the ground, e.g. a handheld camera indoors); 0: no limit");
   }
   bool Check(std::string* why) const;
