@@ -11,6 +11,7 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <regex>
 #include <set>
 #include <sstream>
 #include <thread>
@@ -244,10 +245,14 @@ TEST(StitchRun, ALiveMosaicStoppedForItsCostKeepsWhatItDrew) {
                                  180);
   ASSERT_EQ(result.exit_code, 0) << result.output;
   const std::string log = ReadFileBytes(out + "/logs/merger.log");
-  EXPECT_NE(log.find("the live mosaic stopped"), std::string::npos) << log;
+  std::smatch stopped;
+  ASSERT_TRUE(std::regex_search(log, stopped, std::regex("the live mosaic stopped with ([0-9]+) pictures drawn")))
+      << log;
   ASSERT_TRUE(fs::exists(out + "/mosaic_live.tif")) << log;
   const GeoTiffInfo live = ReadGeoTiffInfo(out + "/mosaic_live.tif");
-  EXPECT_GE(std::stoi(live.metadata.at("STITCH_PICTURES")), 3);
+  // Every picture drawn when it stopped, those of the update that stopped it too.
+  EXPECT_EQ(live.metadata.at("STITCH_PICTURES"), stopped[1].str());
+  EXPECT_GE(std::stoi(stopped[1].str()), 3);
   EXPECT_GT(live.width, 100);
 }
 

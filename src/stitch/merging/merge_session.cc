@@ -593,8 +593,8 @@ void MergeSession::UpdateMosaic() {
     // What it drew stays: its tiles went to the viewer, its file is written at the end.
     mosaic_failed_ = true;
     STITCH_LOG(WARNING)
-        << "the live mosaic stopped: " << mosaic_cost_.update_ms / laid
-        << " ms CPU per picture laid, over mosaic.live_max_cpu_ms_per_picture (" << limit
+        << "the live mosaic stopped with " << live_mosaic_->laid() << " pictures drawn: "
+        << mosaic_cost_.update_ms / laid << " ms CPU per picture laid, over mosaic.live_max_cpu_ms_per_picture (" << limit
         << "): a map that is not a survey of the ground? (stitch mosaic RUN makes one from the records)";
   }
 }

@@ -77,8 +77,8 @@ struct MosaicOptions {
     v("live_min_pictures", live_min_pictures,
       "with live: pictures the map must place before its relief is judged and its mosaic starts");
     v("live_max_cpu_ms_per_picture", live_max_cpu_ms_per_picture,
-      "with live: the live mosaic stops (with a warning) once its CPU per picture laid exceeds "
-      "this, over at least 8 pictures (a map that is not a survey of the ground, e.g. a handheld camera indoors); 0: no limit");
+      "with live: the live mosaic stops (with a warning) once its CPU per picture laid exceeds this, over at least 8 "
+      "pictures (a map that is not a survey of the ground, e.g. a handheld camera indoors); 0: no limit");
   }
   bool Check(std::string* why) const;
 };
