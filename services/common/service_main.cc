@@ -17,6 +17,7 @@ int RunService(const std::string& service_name, const ServiceCommandLine& common
   try {
     common.Apply(service_name);
     const StitchConfig config = LoadStitchConfig(common.config_path, settings);
+    ApplyProcessSettings(config);
     const auto& stop = InstallStopSignals();
     auto lcm = bus::OpenLcm(common.lcm_url);
     bus::Publisher publisher(lcm.get(), common.agent, bus::BusAuthenticator::FromSetting(config.bus.key_file));

@@ -23,6 +23,7 @@
 #include "stitch/frame_ack_t.hpp"
 #include "stitch/gnss_fix_t.hpp"
 #include "stitch/records/frame_record.h"
+#include "stitch/source/read_ahead.h"
 #include "stitch/source/source.h"
 #include "stitch/testing/temp_dir.h"
 #include "stitch/tracking_status_t.hpp"
@@ -280,6 +281,51 @@ TEST(Ingest, FramesASlowSourceSendsLateAreCounted) {
   // late (the first sets the camera's start).
   EXPECT_GE(summary.frames_late, 8);
   EXPECT_GT(summary.most_late_s, 0.3);
+}
+
+// A recorded source whose reading is slow now and then, not on average: 20 small frames at 40 fps
+// (25 ms apart), every fourth taking 60 ms to read (15 ms a frame on average).
+class JitterySequence : public ImageSequence {
+ public:
+  std::string description() const override { return "jittery"; }
+  int size() const override { return 20; }
+  const Camera& camera() const override { return camera_; }
+  double nominal_fps() const override { return 40; }
+  const Trajectory& ground_truth() const override { return ground_truth_; }
+  bool Next(SequenceFrame* frame) override {
+    if (next_ == size()) return false;
+    if (next_ % 4 == 3) std::this_thread::sleep_for(60ms);
+    frame->index = next_;
+    frame->t_ns = next_ * 25'000'000LL;
+    frame->image = cv::Mat(48, 64, CV_8UC1, cv::Scalar(next_));
+    ++next_;
+    return true;
+  }
+
+ private:
+  Camera camera_ = Camera::Pinhole(64, 48, 50, 50, 32, 24);
+  Trajectory ground_truth_;
+  int next_ = 0;
+};
+
+// Played at its camera's rate, the slow frames of such a source are sent more than a frame late
+// when each is read as it is due; read ahead, none is, and the frames are the same.
+TEST(Ingest, ASourceReadAheadSendsItsSlowFramesOnTime) {
+  const std::string url = bus::UnusedLocalUdpUrl();
+  auto lcm = bus::OpenLcm(url);
+  bus::Publisher publisher(lcm.get(), "uav1");
+  IngestOptions options = RealtimeAt4x();
+  options.speed = 1.0;
+  IngestService ingest(lcm.get(), url, &publisher, options);
+  std::atomic<bool> stop{false};
+  JitterySequence as_due;
+  const IngestSummary late = ingest.Play(as_due, FailureSchedule(), stop);
+  EXPECT_EQ(late.frames_published, 20);
+  EXPECT_GE(late.frames_late, 4) << "each slow frame but the first is ready 35 ms after its time";
+  auto ahead = ReadAhead(std::make_unique<JitterySequence>(), 8);
+  const IngestSummary on_time = ingest.Play(*ahead, FailureSchedule(), stop);
+  EXPECT_EQ(on_time.frames_published, 20);
+  EXPECT_EQ(on_time.frames_late, 0);
 }
 
 TEST(Ingest, FailureScheduleSpoilsExactlyTheScheduledDatasetFrames) {

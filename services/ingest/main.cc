@@ -9,6 +9,7 @@
 #include "services/ingest/live_gnss.h"
 #include "stitch/io/live_capture.h"
 #include "stitch/records/source_record.h"
+#include "stitch/source/read_ahead.h"
 #include "stitch/source/source.h"
 #include "stitch/util/options.h"
 
@@ -71,7 +72,7 @@ int main(int argc, char** argv) {
               signing_key, o.gnss_signing_state_file);
         }
         FailureSchedule spoil;
-        auto sequence = OpenSource(source, &spoil);
+        auto sequence = ReadAhead(OpenSource(source, &spoil), process.config.ingest.read_ahead_frames);
         heartbeat.SetState(stitch::service_status_t::STATE_RUNNING, sequence->description());
         const IngestSummary summary = ingest.Play(*sequence, spoil, process.stop, SourceGnss(source).fixes);
         if (gnss) {

@@ -66,6 +66,7 @@ std::string JoinSettings(const std::vector<std::string>& settings) {
 // One run in this process: prints the figures and returns them as JSON.
 nlohmann::json BenchOnce(const BenchArgs& a) {
   StitchConfig config = ApplySettings(LoadStitchConfig(a.config_path), a.settings);
+  ApplyProcessSettings(config);
   const Vocabulary vocabulary = LoadVocabulary(config);
   SourceSpec spec = a.source;
   spec.synthetic = config.synthetic;

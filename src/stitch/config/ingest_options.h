@@ -42,6 +42,10 @@ struct IngestOptions {
   // Off saves about a fifth of a frame's decoding; the 2x2 averages of a halving smooth the block
   // edges the filter would have smoothed (docs/speed.md).
   std::string video_deblocking = "auto";
+  // A recorded source (a video, image files, the synthetic flight) is read by a thread of its own
+  // at most this many frames ahead of the frame going out (0: read as each is sent): reading a
+  // frame that meets a busy moment of the machine does not make it late (source/read_ahead.h).
+  int read_ahead_frames = 8;
   std::string encoding = "auto";  // gray8 (raw), jpeg, or auto (see ChooseFrameEncoding)
   int jpeg_quality = 92;
   double ack_timeout_s = 0.25;         // lockstep: re-send a frame not acknowledged within this
@@ -77,6 +81,9 @@ struct IngestOptions {
     v("video_deblocking", video_deblocking,
       "video files: the decoder's deblocking filter, on, off or auto (off for frames at least 4 x max_working_pixels, "
       "which are halved for their working size: about a fifth of an H.264 frame's decoding saved)");
+    v("read_ahead_frames", read_ahead_frames,
+      "recorded sources: frames read ahead of the one going out, by a thread of their own (0: each read as it is "
+      "sent)");
     v("encoding", encoding,
       "frame encoding on the bus: gray8, jpeg, or auto (gray8 unless the UDP receive buffer is too small for raw "
       "frames)");
@@ -120,6 +127,7 @@ struct IngestOptions {
     if (encoding != "gray8" && encoding != "jpeg" && encoding != "auto")
       return fail("ingest.encoding must be gray8, jpeg or auto");
     if (jpeg_quality < 1 || jpeg_quality > 100) return fail("ingest.jpeg_quality must be in [1, 100]");
+    if (read_ahead_frames < 0 || read_ahead_frames > 1000) return fail("ingest.read_ahead_frames must be in [0, 1000]");
     if (!(ack_timeout_s > 0)) return fail("ingest.ack_timeout_s must be > 0");
     if (max_resends < 0) return fail("ingest.max_resends must be >= 0");
     if (!(wait_for_tracker_s >= 0)) return fail("ingest.wait_for_tracker_s must be >= 0");

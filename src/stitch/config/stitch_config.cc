@@ -6,6 +6,8 @@
 #include <map>
 #include <sstream>
 
+#include <opencv2/core/utility.hpp>
+
 #include "stitch/io/calibration.h"
 #include "stitch/util/child_process.h"
 #include "stitch/util/log.h"
@@ -21,6 +23,11 @@ StitchConfig LoadStitchConfig(const std::string& path) {
     return defaults;
   }
   return ReadOptions<StitchConfig>(LoadYamlFile(path), path);
+}
+
+void ApplyProcessSettings(const StitchConfig& config) {
+  // OpenCV's count: 1 (or 0) runs each operation on the calling thread, a negative one its default.
+  cv::setNumThreads(config.opencv_threads == 0 ? -1 : config.opencv_threads);
 }
 
 std::string DefaultVocabularyPath() {

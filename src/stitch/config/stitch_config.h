@@ -21,6 +21,10 @@ namespace stitch {
 
 struct StitchConfig {
   std::string vocabulary;  // empty: the vocabulary shipped with stitch
+  // Threads one OpenCV image operation (resize, blur, FAST, optical flow) may use in each process
+  // (0: OpenCV's default, every core). 1: the services share a small computer's cores as
+  // processes; OpenCV's own helper threads only wait and spin for them (docs/speed.md).
+  int opencv_threads = 1;
   SyntheticOptions synthetic;
   IngestOptions ingest;
   TrackerOptions tracker;
@@ -33,6 +37,8 @@ struct StitchConfig {
   template <class Visitor>
   void VisitFields(Visitor& v) {
     v("vocabulary", vocabulary, "bag-of-words vocabulary file (empty: the one shipped with stitch)");
+    v("opencv_threads", opencv_threads,
+      "threads one OpenCV image operation may use in each process (0: OpenCV's default, every core)");
     v("synthetic", synthetic, "the embedded default flight");
     v("ingest", ingest, "frame source service");
     v("tracker", tracker, "tracking service");
@@ -43,6 +49,10 @@ struct StitchConfig {
     v("bus", bus, "this side's LCM bus, the same for each of its services");
   }
   bool Check(std::string* why) const {
+    if (opencv_threads < 0 || opencv_threads > 64) {
+      if (why) *why = "opencv_threads must be in [0, 64]";
+      return false;
+    }
     return synthetic.Check(why) && ingest.Check(why) && tracker.Check(why) && mapper.Check(why) && merger.Check(why) &&
            link.Check(why) && viewer.Check(why) && bus.Check(why);
   }
@@ -56,6 +66,10 @@ Vocabulary LoadVocabulary(const StitchConfig& config);
 // What makes a vocabulary a poor one for retrieval, as a sentence ("" when nothing): too few words.
 std::string VocabularyDoubts(const Vocabulary& vocabulary);
 std::string DefaultVocabularyPath();
+
+// What the configuration sets for the whole process it runs in: OpenCV's threads
+// (opencv_threads). Each service's and each in-process run's first step.
+void ApplyProcessSettings(const StitchConfig& config);
 
 // Defaults when `path` is empty. Throws stitch::Error naming the file and key on any problem.
 StitchConfig LoadStitchConfig(const std::string& path);

@@ -4,6 +4,7 @@
 #include <sstream>
 
 #include <gtest/gtest.h>
+#include <opencv2/core/utility.hpp>
 
 #include "stitch/testing/temp_dir.h"
 #include "stitch/util/options.h"
@@ -73,6 +74,22 @@ TEST(StitchConfig, CommittedDefaultFileMatchesTheCode) {
 }
 
 // A vocabulary of a few words is read without complaint by the services: the summary doubts it.
+// Each process runs OpenCV's image operations on their caller's thread unless told otherwise.
+TEST(StitchConfig, TheProcessSettingsSetOpenCvsThreads) {
+  const int before = cv::getNumThreads();
+  StitchConfig config;
+  ApplyProcessSettings(config);
+  EXPECT_EQ(cv::getNumThreads(), 1) << "the default: one thread";
+  config.opencv_threads = 2;
+  ApplyProcessSettings(config);
+  EXPECT_EQ(cv::getNumThreads(), 2);
+  config.opencv_threads = 0;
+  ApplyProcessSettings(config);
+  EXPECT_GE(cv::getNumThreads(), 1) << "OpenCV's default";
+  EXPECT_THROW(ApplySettings(config, std::vector<std::string>{"opencv_threads=-1"}), Error);
+  cv::setNumThreads(before);
+}
+
 TEST(StitchConfig, DoubtsAVocabularyOfFewWords) {
   Rng rng(3);
   std::vector<std::vector<Descriptor>> images(20);
