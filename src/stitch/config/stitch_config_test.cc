@@ -73,7 +73,6 @@ TEST(StitchConfig, CommittedDefaultFileMatchesTheCode) {
       << "config/default.yaml is out of date: regenerate it with build/bin/stitch config > config/default.yaml";
 }
 
-// A vocabulary of a few words is read without complaint by the services: the summary doubts it.
 // Each process runs OpenCV's image operations on their caller's thread unless told otherwise.
 TEST(StitchConfig, TheProcessSettingsSetOpenCvsThreads) {
   const int before = cv::getNumThreads();
@@ -90,6 +89,7 @@ TEST(StitchConfig, TheProcessSettingsSetOpenCvsThreads) {
   cv::setNumThreads(before);
 }
 
+// A vocabulary of a few words is read without complaint by the services: the summary doubts it.
 TEST(StitchConfig, DoubtsAVocabularyOfFewWords) {
   Rng rng(3);
   std::vector<std::vector<Descriptor>> images(20);

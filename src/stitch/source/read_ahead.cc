@@ -31,7 +31,8 @@ class ReadAheadSequence : public ImageSequence {
     reader_.join();
   }
 
-  // What the source says of itself, taken before its reader started (only the reader uses it).
+  // What the source says of itself, taken before its reader started: only the reader calls into
+  // the source after that, but for image_path (a file list fixed when the source opened).
   std::string description() const override { return description_; }
   int size() const override { return size_; }
   const Camera& camera() const override { return camera_; }
